@@ -1,0 +1,1 @@
+"""Ground-truth 6D poses for bin-picking scenes."""

@@ -1,0 +1,292 @@
+"""Reading ``dataset.yaml`` and ``objects/*/object.yaml`` (FORMAT.md), collecting problems.
+
+:func:`read_dataset` parses as much as it can and returns every problem it found, each
+naming its file; ``annotator check`` reports them all. :func:`load_dataset` is what commands
+use: it raises a one-line :class:`~annotator.errors.UserError` if anything is wrong.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from annotator.dataset.model import (
+    SYMMETRY_CLASSES,
+    Dataset,
+    DepthSpec,
+    Instance,
+    MarkerSites,
+    ObjectModel,
+    Rig,
+    Symmetry,
+)
+from annotator.errors import UserError
+from annotator.geometry.camera import Camera
+from annotator.geometry.transforms import is_rotation
+
+
+@dataclass(frozen=True)
+class Problem:
+    """One problem in a dataset: the file it is in and what is wrong."""
+
+    path: Path
+    message: str
+
+    def __str__(self) -> str:
+        return f"{self.path}: {self.message}"
+
+
+def load_dataset(root: str | Path) -> Dataset:
+    """Read a dataset; raise a one-line UserError on the first problem (see ``annotator check``)."""
+    dataset, problems = read_dataset(root)
+    if problems:
+        more = f" (and {len(problems) - 1} more problems: run `annotator check {root}`)" if len(problems) > 1 else ""
+        raise UserError(problems[0].message + more, path=problems[0].path)
+    assert dataset is not None
+    return dataset
+
+
+def read_dataset(root: str | Path) -> tuple[Dataset | None, list[Problem]]:
+    """Parse a dataset folder, returning it (None if unusable) and every problem found."""
+    root = Path(root)
+    problems: list[Problem] = []
+    yaml_path = root / "dataset.yaml"
+    if not root.is_dir():
+        return None, [Problem(root, "dataset folder does not exist")]
+    doc = _read_yaml(yaml_path, problems)
+    if doc is None:
+        return None, problems
+    p = _Parser(yaml_path, problems)
+    if doc.get("format", 1) != 1:
+        p.problem(f"unsupported format {doc.get('format')!r} (this tool reads format 1)")
+    dictionary = str(p.get(doc, "markers", dict, {}).get("dictionary", "DICT_4X4_1000"))
+    if not _known_dictionary(dictionary):
+        p.problem(f"unknown ArUco dictionary {dictionary!r}")
+    rig = _parse_rig(p, p.get(doc, "rig", dict, None))
+    objects: dict[str, ObjectModel] = {}
+    names = p.get(doc, "objects", list, [])
+    for name in names:
+        obj = _parse_object(root, str(name), problems)
+        if obj is not None:
+            objects[obj.name] = obj
+    _check_marker_ids(objects, problems)
+    if rig is None:
+        return None, problems
+    ds = Dataset(root=root, name=str(doc.get("name", root.name)), dictionary=dictionary, rig=rig, objects=objects, raw=doc)
+    return ds, problems
+
+
+class _Parser:
+    """Field access that records problems against one file instead of raising."""
+
+    def __init__(self, path: Path, problems: list[Problem]) -> None:
+        self.path = path
+        self.problems = problems
+
+    def problem(self, message: str) -> None:
+        self.problems.append(Problem(self.path, message))
+
+    def get(self, d: Any, key: str, typ: type, default: Any) -> Any:
+        if not isinstance(d, dict) or key not in d:
+            if default is None:
+                self.problem(f"missing field '{key}'")
+            return default
+        value = d[key]
+        if not isinstance(value, typ):
+            self.problem(f"field '{key}' must be a {typ.__name__}, got {type(value).__name__}")
+            return default
+        return value
+
+    def floats(self, value: Any, n: int | tuple[int, ...], what: str) -> np.ndarray | None:
+        try:
+            arr = np.asarray(value, dtype=np.float64).reshape(-1)
+        except (TypeError, ValueError):
+            self.problem(f"{what} must be a list of numbers")
+            return None
+        allowed = (n,) if isinstance(n, int) else n
+        if arr.size not in allowed or not np.all(np.isfinite(arr)):
+            want = " or ".join(str(a) for a in allowed)
+            self.problem(f"{what} must have {want} finite numbers, got {arr.size}")
+            return None
+        return arr
+
+
+def _read_yaml(path: Path, problems: list[Problem]) -> dict[str, Any] | None:
+    if not path.is_file():
+        problems.append(Problem(path, "file is missing"))
+        return None
+    try:
+        doc = yaml.safe_load(path.read_text(encoding="utf-8"))
+    except (yaml.YAMLError, UnicodeDecodeError) as exc:
+        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        problems.append(Problem(path, f"not valid YAML ({first})"))
+        return None
+    if not isinstance(doc, dict):
+        problems.append(Problem(path, "must be a YAML mapping"))
+        return None
+    return doc
+
+
+def _known_dictionary(name: str) -> bool:
+    import cv2
+
+    return name.startswith("DICT_") and isinstance(getattr(cv2.aruco, name, None), int)
+
+
+def _parse_rig(p: _Parser, rig: dict[str, Any] | None) -> Rig | None:
+    if rig is None:
+        return None
+    cams_doc = p.get(rig, "cameras", list, None)
+    if not cams_doc:
+        if cams_doc is not None:
+            p.problem("rig.cameras is empty")
+        return None
+    cameras: list[Camera] = []
+    for i, c in enumerate(cams_doc):
+        where = f"rig.cameras[{i}]"
+        if not isinstance(c, dict):
+            p.problem(f"{where} must be a mapping")
+            continue
+        name = str(c.get("name", ""))
+        if not name:
+            p.problem(f"{where}.name is missing")
+            continue
+        size = p.floats(c.get("size"), 2, f"{where}.size")
+        K = p.floats(c.get("K"), 9, f"{where}.K")
+        dist = p.floats(c.get("dist", [0, 0, 0, 0, 0]), (4, 5, 8, 12, 14), f"{where}.dist")
+        T = p.floats(c.get("rig_T_cam", np.eye(4).ravel().tolist()), 16, f"{where}.rig_T_cam")
+        if size is None or K is None or dist is None or T is None:
+            continue
+        K = K.reshape(3, 3)
+        if K[0, 0] <= 0 or K[1, 1] <= 0 or K[1, 0] != 0 or np.any(K[2] != [0, 0, 1]):
+            p.problem(f"{where}.K is not a pinhole matrix [fx 0 cx 0 fy cy 0 0 1] with fx, fy > 0")
+            continue
+        if np.any(size <= 0) or np.any(size != np.round(size)):
+            p.problem(f"{where}.size must be two positive integers")
+            continue
+        T = T.reshape(4, 4)
+        if not is_rotation(T[:3, :3], tol=1e-5) or np.any(np.abs(T[3] - [0, 0, 0, 1]) > 1e-9):
+            p.problem(f"{where}.rig_T_cam is not a rigid transform (rotation block not orthonormal or last row not 0 0 0 1)")
+            continue
+        if i == 0 and not np.allclose(T, np.eye(4), atol=1e-9):
+            p.problem(f"{where}.rig_T_cam must be the identity: the first camera is the reference frame")
+        if any(cam.name == name for cam in cameras):
+            p.problem(f"{where}: duplicate camera name {name!r}")
+            continue
+        cameras.append(Camera(name=name, width=int(size[0]), height=int(size[1]), K=K, dist=dist, rig_T_cam=T))
+    depth = None
+    if "depth" in rig and rig["depth"] is not None:
+        d = rig["depth"]
+        if not isinstance(d, dict):
+            p.problem("rig.depth must be a mapping")
+        else:
+            cam = str(d.get("camera", cameras[0].name if cameras else ""))
+            scale = d.get("scale")
+            if not isinstance(scale, (int, float)) or isinstance(scale, bool) or not scale > 0:
+                p.problem("rig.depth.scale is missing or not a positive number (mm per depth unit)")
+            elif cameras and cam not in [c.name for c in cameras]:
+                p.problem(f"rig.depth.camera {cam!r} is not a rig camera")
+            else:
+                depth = DepthSpec(camera=cam, scale=float(scale))
+    if not cameras:
+        return None
+    return Rig(cameras=tuple(cameras), depth=depth)
+
+
+def _parse_object(root: Path, name: str, problems: list[Problem]) -> ObjectModel | None:
+    folder = root / "objects" / name
+    path = folder / "object.yaml"
+    doc = _read_yaml(path, problems)
+    if doc is None:
+        return None
+    p = _Parser(path, problems)
+    mesh_name = p.get(doc, "mesh", str, None)
+    if mesh_name is None:
+        return None
+    mesh_path = folder / mesh_name
+    if not mesh_path.is_file():
+        p.problem(f"mesh file {mesh_name!r} is missing")
+    symmetry = _parse_symmetry(p, doc.get("symmetry", {"class": "none"}))
+    markers = None
+    if "markers" in doc and doc["markers"] is not None:
+        m = doc["markers"]
+        size = m.get("size") if isinstance(m, dict) else None
+        if not isinstance(size, (int, float)) or not size > 0:
+            p.problem("markers.size must be a positive number (mm)")
+        sites = m.get("sites", []) if isinstance(m, dict) else []
+        corners = p.floats(sites, len(sites) * 12 if isinstance(sites, list) and sites else 12, "markers.sites")
+        if corners is not None and isinstance(size, (int, float)) and size > 0:
+            markers = MarkerSites(size=float(size), corners=corners.reshape(-1, 4, 3))
+    instances: list[Instance] = []
+    n_sites = 0 if markers is None else markers.corners.shape[0]
+    for i, inst in enumerate(p.get(doc, "instances", list, [])):
+        if not isinstance(inst, dict) or "name" not in inst:
+            p.problem(f"instances[{i}] must have a name")
+            continue
+        ids = inst.get("marker_ids", [])
+        if not isinstance(ids, list) or not all(isinstance(x, int) and x >= 0 for x in ids):
+            p.problem(f"instances[{i}].marker_ids must be a list of non-negative integers")
+            continue
+        if len(ids) > n_sites:
+            p.problem(f"instance {inst['name']!r} has {len(ids)} marker ids for {n_sites} sites")
+        if len(set(ids)) != len(ids):
+            p.problem(f"instance {inst['name']!r} repeats a marker id")
+        instances.append(Instance(name=str(inst["name"]), marker_ids=tuple(ids)))
+    if len({i.name for i in instances}) != len(instances):
+        p.problem("duplicate instance names")
+    return ObjectModel(
+        name=name,
+        folder=folder,
+        mesh_path=mesh_path,
+        symmetry=symmetry,
+        markers=markers,
+        instances=tuple(instances),
+        raw=doc,
+    )
+
+
+def _parse_symmetry(p: _Parser, doc: Any) -> Symmetry:
+    if not isinstance(doc, dict):
+        p.problem("symmetry must be a mapping with a 'class'")
+        return Symmetry()
+    kind = doc.get("class", "none")
+    if kind not in SYMMETRY_CLASSES:
+        p.problem(f"unknown symmetry class {kind!r} (expected one of {', '.join(SYMMETRY_CLASSES)})")
+        return Symmetry()
+    if kind == "finite":
+        gens = []
+        for i, g in enumerate(doc.get("generators") or []):
+            axis = p.floats(g.get("axis") if isinstance(g, dict) else None, 3, f"symmetry.generators[{i}].axis")
+            order = g.get("order") if isinstance(g, dict) else None
+            if not isinstance(order, int) or order < 2:
+                p.problem(f"symmetry.generators[{i}].order must be an integer >= 2")
+                continue
+            if axis is None or np.linalg.norm(axis) == 0:
+                continue
+            gens.append((axis / np.linalg.norm(axis), order))
+        if not gens:
+            p.problem("finite symmetry needs at least one generator {axis, order}")
+        return Symmetry(kind=kind, generators=tuple(gens))
+    if kind in ("revolution", "revolution_flip"):
+        axis = p.floats(doc.get("axis", [0, 0, 1]), 3, "symmetry.axis")
+        if axis is None or np.linalg.norm(axis) == 0:
+            return Symmetry(kind=kind, axis=np.array([0.0, 0.0, 1.0]))
+        return Symmetry(kind=kind, axis=axis / np.linalg.norm(axis))
+    return Symmetry(kind=kind)
+
+
+def _check_marker_ids(objects: dict[str, ObjectModel], problems: list[Problem]) -> None:
+    seen: dict[int, str] = {}
+    for obj in objects.values():
+        for inst in obj.instances:
+            for mid in inst.marker_ids:
+                here = f"{obj.name}/{inst.name}"
+                if mid in seen and seen[mid] != here:
+                    problems.append(
+                        Problem(obj.folder / "object.yaml", f"marker id {mid} of {here} is also used by {seen[mid]}")
+                    )
+                seen.setdefault(mid, here)

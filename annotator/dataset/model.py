@@ -1,0 +1,204 @@
+"""Records of a dataset (FORMAT.md), as read by :mod:`annotator.dataset.load`."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from functools import cached_property
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from annotator.geometry.camera import Camera
+from annotator.geometry.mesh import Mesh, load_mesh
+
+SYMMETRY_CLASSES = ("none", "finite", "revolution", "revolution_flip", "spherical")
+
+
+@dataclass(frozen=True)
+class DepthSpec:
+    """Where depth maps live: the pixel grid/frame of ``camera``, ``scale`` mm per unit."""
+
+    camera: str
+    scale: float
+
+
+@dataclass(frozen=True)
+class Rig:
+    """The calibrated cameras; ``cameras[0]`` is the reference frame of every pose."""
+
+    cameras: tuple[Camera, ...]
+    depth: DepthSpec | None = None
+
+    def camera(self, name: str) -> Camera:
+        """The camera called ``name`` (KeyError if none)."""
+        for cam in self.cameras:
+            if cam.name == name:
+                return cam
+        raise KeyError(name)
+
+    @property
+    def depth_camera(self) -> Camera | None:
+        """The camera whose pixel grid the depth maps use, or None without depth."""
+        return None if self.depth is None else self.camera(self.depth.camera)
+
+
+@dataclass(frozen=True)
+class Symmetry:
+    """The proper symmetry group of a part.
+
+    Attributes:
+        kind: One of ``none``, ``finite``, ``revolution``, ``revolution_flip``, ``spherical``.
+        generators: For ``finite``: (axis (3,), order) pairs of rotations about axes through
+            the surface centroid.
+        axis: For revolution classes: the axis direction (through the surface centroid).
+    """
+
+    kind: str = "none"
+    generators: tuple[tuple[np.ndarray, int], ...] = ()
+    axis: np.ndarray | None = None
+
+
+@dataclass(frozen=True)
+class MarkerSites:
+    """Marker sites on a part: ``size`` mm squares, ``corners`` (S, 4, 3) in ArUco order."""
+
+    size: float
+    corners: np.ndarray
+
+
+@dataclass(frozen=True)
+class Instance:
+    """A physical copy of an object: ``marker_ids[k]`` is glued on site ``k``."""
+
+    name: str
+    marker_ids: tuple[int, ...]
+
+
+@dataclass(frozen=True)
+class MarkerRef:
+    """Where a marker id is glued: object, instance and site index."""
+
+    object: str
+    instance: str
+    site: int
+
+
+@dataclass(eq=False)
+class ObjectModel:
+    """One object (part) of the dataset, read from ``objects/<name>/object.yaml``."""
+
+    name: str
+    folder: Path
+    mesh_path: Path
+    symmetry: Symmetry
+    markers: MarkerSites | None
+    instances: tuple[Instance, ...]
+    raw: dict[str, Any] = field(default_factory=dict)
+
+    @cached_property
+    def mesh(self) -> Mesh:
+        """The part's mesh (loaded on first use; raises UserError if unreadable)."""
+        return load_mesh(self.mesh_path)
+
+    def instance(self, name: str) -> Instance:
+        """The instance called ``name`` (KeyError if none)."""
+        for inst in self.instances:
+            if inst.name == name:
+                return inst
+        raise KeyError(name)
+
+
+@dataclass(frozen=True)
+class Scene:
+    """A scene folder; the files in it are found by name (FORMAT.md layout)."""
+
+    id: str
+    path: Path
+
+    def image_path(self, camera: Camera | str) -> Path:
+        """Path of the intensity image of ``camera``."""
+        name = camera if isinstance(camera, str) else camera.name
+        return self.path / f"{name}.png"
+
+    @property
+    def depth_path(self) -> Path:
+        return self.path / "depth.png"
+
+    @property
+    def gt_path(self) -> Path:
+        return self.path / "gt.json"
+
+    @property
+    def annotation_path(self) -> Path:
+        return self.path / "annotation.json"
+
+    @property
+    def review_path(self) -> Path:
+        return self.path / "review.json"
+
+    def read_image(self, camera: Camera) -> np.ndarray:
+        """The camera's intensity image, as stored; UserError if missing, corrupt or mis-sized."""
+        from annotator.errors import UserError
+        from annotator.io.images import read_image
+
+        path = self.image_path(camera)
+        img = read_image(path)
+        if img.shape[1] != camera.width or img.shape[0] != camera.height:
+            raise UserError(
+                f"image is {img.shape[1]}x{img.shape[0]}, the rig says {camera.width}x{camera.height}",
+                path=path,
+            )
+        return img
+
+    def read_depth(self, rig: Rig) -> np.ndarray | None:
+        """The depth map in mm (NaN = no measurement), or None if the scene has none."""
+        from annotator.errors import UserError
+        from annotator.io.images import read_depth
+
+        if rig.depth is None or not self.depth_path.exists():
+            return None
+        depth = read_depth(self.depth_path, rig.depth.scale)
+        cam = rig.camera(rig.depth.camera)
+        if depth.shape != (cam.height, cam.width):
+            raise UserError(
+                f"depth map is {depth.shape[1]}x{depth.shape[0]}, the rig says {cam.width}x{cam.height}",
+                path=self.depth_path,
+            )
+        return depth
+
+
+@dataclass(eq=False)
+class Dataset:
+    """A dataset folder (FORMAT.md)."""
+
+    root: Path
+    name: str
+    dictionary: str
+    rig: Rig
+    objects: dict[str, ObjectModel]
+    raw: dict[str, Any] = field(default_factory=dict)
+
+    def scenes(self) -> list[Scene]:
+        """Every scene folder, in sorted order."""
+        folder = self.root / "scenes"
+        if not folder.is_dir():
+            return []
+        return [Scene(p.name, p) for p in sorted(folder.iterdir()) if p.is_dir() and not p.name.startswith(".")]
+
+    def scene(self, scene_id: str) -> Scene:
+        """The scene called ``scene_id`` (KeyError if absent)."""
+        path = self.root / "scenes" / scene_id
+        if not path.is_dir():
+            raise KeyError(scene_id)
+        return Scene(scene_id, path)
+
+    @cached_property
+    def marker_table(self) -> dict[int, MarkerRef]:
+        """Marker id -> (object, instance, site). Ids are unique across the dataset."""
+        table: dict[int, MarkerRef] = {}
+        for obj in self.objects.values():
+            for inst in obj.instances:
+                for site, mid in enumerate(inst.marker_ids):
+                    table.setdefault(int(mid), MarkerRef(obj.name, inst.name, site))
+        return table

@@ -1,0 +1,93 @@
+"""Pose files: ``gt.json`` and ``annotation.json`` (FORMAT.md).
+
+Both hold ``{"instances": [{"object", "instance", "cam_R_m2c", "cam_t_m2c", ...}], ...}``.
+Fields beyond the pose are kept, untouched, in :attr:`InstancePose.extra` (and top-level
+fields in the ``extra`` dict returned by :func:`read_pose_file`).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from annotator.errors import UserError
+from annotator.geometry.transforms import is_rotation, make_transform
+from annotator.io.atomic import write_json
+
+
+@dataclass
+class InstancePose:
+    """The pose of one instance in the reference camera: ``x_cam = R @ x_model + t`` (mm)."""
+
+    object: str
+    instance: str
+    R: np.ndarray
+    t: np.ndarray
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def key(self) -> str:
+        """``object/instance``, the key used in review.json."""
+        return f"{self.object}/{self.instance}"
+
+    @property
+    def T(self) -> np.ndarray:  # noqa: N802 - matrix name
+        """4x4 ``cam_T_model`` in the reference camera."""
+        return make_transform(self.R, self.t)
+
+    def to_json(self) -> dict[str, Any]:
+        out = {
+            "object": self.object,
+            "instance": self.instance,
+            "cam_R_m2c": [float(x) for x in np.asarray(self.R).reshape(9)],
+            "cam_t_m2c": [float(x) for x in np.asarray(self.t).reshape(3)],
+        }
+        out.update(self.extra)
+        return out
+
+
+def read_pose_file(path: str | Path) -> tuple[list[InstancePose], dict[str, Any]]:
+    """Read gt.json / annotation.json: the poses and the other top-level fields.
+
+    Raises:
+        UserError: naming the file, if it is not valid JSON or a pose is malformed.
+    """
+    path = Path(path)
+    try:
+        doc = json.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise UserError("file is missing", path=path) from None
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise UserError(f"not valid JSON ({exc})", path=path) from None
+    if not isinstance(doc, dict) or not isinstance(doc.get("instances"), list):
+        raise UserError("expected an object with an 'instances' list", path=path)
+    poses = []
+    for i, rec in enumerate(doc["instances"]):
+        try:
+            R = np.asarray(rec["cam_R_m2c"], dtype=np.float64).reshape(3, 3)
+            t = np.asarray(rec["cam_t_m2c"], dtype=np.float64).reshape(3)
+            obj, inst = str(rec["object"]), str(rec["instance"])
+        except (KeyError, TypeError, ValueError):
+            raise UserError(f"instances[{i}] needs object, instance, cam_R_m2c (9) and cam_t_m2c (3)", path=path) from None
+        if not is_rotation(R, tol=1e-3):
+            raise UserError(f"instances[{i}] ({obj}/{inst}): cam_R_m2c is not a rotation", path=path)
+        extra = {k: v for k, v in rec.items() if k not in ("object", "instance", "cam_R_m2c", "cam_t_m2c")}
+        poses.append(InstancePose(obj, inst, R, t, extra))
+    rest = {k: v for k, v in doc.items() if k != "instances"}
+    return poses, rest
+
+
+def read_poses(path: str | Path) -> list[InstancePose]:
+    """Read only the poses of gt.json / annotation.json."""
+    return read_pose_file(path)[0]
+
+
+def write_poses(path: str | Path, poses: list[InstancePose], **top_level: Any) -> None:
+    """Write a pose file atomically; ``top_level`` adds fields beside ``instances``."""
+    doc: dict[str, Any] = {"instances": [p.to_json() for p in poses]}
+    doc.update(top_level)
+    write_json(path, doc)

@@ -1,0 +1,85 @@
+"""Writing the YAML side of the dataset contract: ``dataset.yaml`` and ``object.yaml``.
+
+Used by ``annotator synth`` and ``annotator markers``; written atomically, readable back with
+:func:`annotator.dataset.load_dataset`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from annotator.dataset.model import Instance, MarkerSites, Rig, Symmetry
+from annotator.io.atomic import write_text
+
+
+def _floats(a: np.ndarray, ndigits: int = 9) -> list[float]:
+    return [round(float(x), ndigits) for x in np.asarray(a, dtype=float).reshape(-1)]
+
+
+def symmetry_to_yaml(sym: Symmetry) -> dict[str, Any]:
+    """The ``symmetry`` mapping of object.yaml."""
+    out: dict[str, Any] = {"class": sym.kind}
+    if sym.kind == "finite":
+        out["generators"] = [{"axis": _floats(a), "order": int(o)} for a, o in sym.generators]
+    if sym.kind in ("revolution", "revolution_flip"):
+        out["axis"] = _floats(sym.axis if sym.axis is not None else [0, 0, 1])
+    return out
+
+
+def rig_to_yaml(rig: Rig) -> dict[str, Any]:
+    """The ``rig`` mapping of dataset.yaml."""
+    cams = [
+        {
+            "name": c.name,
+            "size": [int(c.width), int(c.height)],
+            "K": _floats(c.K),
+            "dist": _floats(c.dist),
+            "rig_T_cam": _floats(c.rig_T_cam),
+        }
+        for c in rig.cameras
+    ]
+    out: dict[str, Any] = {"cameras": cams}
+    if rig.depth is not None:
+        out["depth"] = {"camera": rig.depth.camera, "scale": float(rig.depth.scale)}
+    return out
+
+
+def write_dataset_yaml(
+    root: str | Path, *, name: str, dictionary: str, rig: Rig, objects: Sequence[str], **extra: Any
+) -> None:
+    """Write ``<root>/dataset.yaml`` (format 1); ``extra`` adds free top-level fields."""
+    doc: dict[str, Any] = {
+        "format": 1,
+        "name": name,
+        "markers": {"dictionary": dictionary},
+        "rig": rig_to_yaml(rig),
+        "objects": list(objects),
+    }
+    doc.update(extra)
+    write_text(Path(root) / "dataset.yaml", yaml.safe_dump(doc, sort_keys=False, width=120))
+
+
+def write_object_yaml(
+    folder: str | Path,
+    *,
+    mesh_file: str,
+    symmetry: Symmetry,
+    markers: MarkerSites | None,
+    instances: Sequence[Instance],
+    **extra: Any,
+) -> None:
+    """Write ``<folder>/object.yaml``; the mesh file itself is written by the caller."""
+    doc: dict[str, Any] = {"mesh": mesh_file, "symmetry": symmetry_to_yaml(symmetry)}
+    if markers is not None:
+        doc["markers"] = {
+            "size": float(markers.size),
+            "sites": [[_floats(c, 6) for c in site] for site in markers.corners],
+        }
+    doc["instances"] = [{"name": i.name, "marker_ids": [int(m) for m in i.marker_ids]} for i in instances]
+    doc.update(extra)
+    write_text(Path(folder) / "object.yaml", yaml.safe_dump(doc, sort_keys=False, width=120, default_flow_style=None))

@@ -1,0 +1,19 @@
+"""User-facing errors.
+
+A :class:`UserError` is a problem with the user's input (a file, an option). The CLI prints it
+as one line, ``annotator: error: <message>``, and exits with status 2; it never shows a
+traceback for it. Library code raises it with the offending file named in the message.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+
+class UserError(Exception):
+    """A mistake in the user's input, reported as one line naming the file and the problem."""
+
+    def __init__(self, message: str, *, path: str | Path | None = None) -> None:
+        self.path = None if path is None else Path(path)
+        self.message = message
+        super().__init__(f"{path}: {message}" if path is not None else message)

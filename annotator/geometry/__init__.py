@@ -1,0 +1,14 @@
+"""Geometry shared by every stage of the pipeline.
+
+Conventions, stated once for the whole project (they follow ../shared/FORMAT.md):
+
+- Lengths are millimetres; angles radians.
+- A rigid transform ``a_T_b`` is a 4x4 homogeneous matrix mapping coordinates in frame ``b``
+  to frame ``a``: ``x_a = a_T_b @ x_b``. Rotations are 3x3 matrices, serialised row-major.
+- A pose maps model to camera, ``x_cam = R @ x_model + t`` (BOP's ``cam_R_m2c``,
+  ``cam_t_m2c``), and is expressed in the *reference* camera (the rig's first camera).
+- Cameras follow OpenCV: +z forward, +y down, pixel centres at integer coordinates, lens
+  distortion in OpenCV's order and model.
+- Marker corners follow OpenCV ArUco order: top-left, top-right, bottom-right, bottom-left
+  as seen from outside the object.
+"""

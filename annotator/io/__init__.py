@@ -1,0 +1,1 @@
+"""Input/output at the edges: atomic file writes and image files."""

@@ -1,0 +1,65 @@
+"""Reading and writing image files (PNG intensity images and uint16 depth maps).
+
+Intensity images may be 8- or 16-bit, grey or colour; they are returned as stored.
+Depth maps are uint16 PNGs; ``scale`` converts units to millimetres and 0 means
+"no measurement", returned as NaN.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from annotator.errors import UserError
+from annotator.io.atomic import write_bytes
+
+
+def read_image(path: str | Path) -> np.ndarray:
+    """Read an image file as stored (8/16-bit, grey or colour). Raises UserError if unreadable."""
+    path = Path(path)
+    if not path.is_file():
+        raise UserError("image file is missing", path=path)
+    data = np.fromfile(path, dtype=np.uint8)
+    img = cv2.imdecode(data, cv2.IMREAD_UNCHANGED) if data.size else None
+    if img is None:
+        raise UserError("unreadable or corrupt image", path=path)
+    return img
+
+
+def to_gray8(img: np.ndarray) -> np.ndarray:
+    """Convert an 8/16-bit grey or colour image to 8-bit grey (16-bit is scaled by 1/257)."""
+    if img.ndim == 3:
+        code = cv2.COLOR_BGRA2GRAY if img.shape[2] == 4 else cv2.COLOR_BGR2GRAY
+        img = cv2.cvtColor(img, code)
+    if img.dtype == np.uint16:
+        img = (img.astype(np.float32) / 257.0 + 0.5).astype(np.uint8)
+    elif img.dtype != np.uint8:
+        img = np.clip(img, 0, 255).astype(np.uint8)
+    return img
+
+
+def write_png(path: str | Path, img: np.ndarray) -> None:
+    """Encode ``img`` as PNG and write it atomically."""
+    ok, buf = cv2.imencode(".png", img)
+    if not ok:
+        raise OSError(f"{path}: PNG encoding failed")
+    write_bytes(path, buf.tobytes())
+
+
+def read_depth(path: str | Path, scale: float) -> np.ndarray:
+    """Read a uint16 depth PNG as float32 millimetres, NaN where there is no measurement."""
+    raw = read_image(path)
+    if raw.dtype != np.uint16 or raw.ndim != 2:
+        raise UserError(f"depth map must be single-channel uint16, got {raw.dtype} {raw.shape}", path=path)
+    depth = raw.astype(np.float32) * np.float32(scale)
+    depth[raw == 0] = np.nan
+    return depth
+
+
+def encode_depth(depth_mm: np.ndarray, scale: float) -> np.ndarray:
+    """Convert float millimetres (NaN/inf/<=0 = no measurement) to uint16 units of ``scale`` mm."""
+    units = np.round(np.nan_to_num(depth_mm, nan=0.0, posinf=0.0, neginf=0.0) / scale)
+    units[(units < 1) | (units > 65535)] = 0
+    return units.astype(np.uint16)

@@ -1,0 +1,1 @@
+"""The validation web viewer (viser)."""
