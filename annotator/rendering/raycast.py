@@ -54,16 +54,29 @@ class Hits:
     def model_points(self, placed: Sequence[PlacedMesh]) -> np.ndarray:
         """Model-frame coordinates of each hit (NaN on a miss), shape (..., 3)."""
         out = np.full((*self.instance.shape, 3), np.nan)
-        for k, pm in enumerate(placed):
-            sel = self.instance == k
-            if not np.any(sel):
-                continue
-            tri = pm.mesh.triangles[self.triangle[sel]]
-            uv = self.barycentric[sel].astype(np.float64)
-            out[sel] = (
-                (1.0 - uv[:, :1] - uv[:, 1:]) * tri[:, 0] + uv[:, :1] * tri[:, 1] + uv[:, 1:] * tri[:, 2]
-            )
+        hit = self.hit
+        tri = stacked_triangles(placed)[_global_triangle(placed, self.instance[hit], self.triangle[hit])]
+        uv = self.barycentric[hit].astype(np.float64)
+        out[hit] = (1.0 - uv[:, :1] - uv[:, 1:]) * tri[:, 0] + uv[:, :1] * tri[:, 1] + uv[:, 1:] * tri[:, 2]
         return out
+
+    def normals(self, placed: Sequence[PlacedMesh]) -> np.ndarray:
+        """Unit face normals of each hit in the frame the meshes are placed in (0 on a miss)."""
+        out = np.zeros((*self.instance.shape, 3), np.float32)
+        hit = self.hit
+        normals = np.concatenate([pm.mesh.face_normals @ pm.cam_T_model[:3, :3].T for pm in placed])
+        out[hit] = normals[_global_triangle(placed, self.instance[hit], self.triangle[hit])]
+        return out
+
+
+def stacked_triangles(placed: Sequence[PlacedMesh]) -> np.ndarray:
+    """(sum of M, 3, 3) model-frame triangles of all placed meshes, in order."""
+    return np.concatenate([pm.mesh.triangles for pm in placed])
+
+
+def _global_triangle(placed: Sequence[PlacedMesh], instance: np.ndarray, triangle: np.ndarray) -> np.ndarray:
+    offsets = np.cumsum([0] + [len(pm.mesh.faces) for pm in placed])
+    return offsets[instance] + triangle
 
 
 class RayScene:

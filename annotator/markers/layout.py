@@ -1,0 +1,168 @@
+"""Placing square marker sites on a part's surface.
+
+Conventions (FORMAT.md): a site is four corners ``TL, TR, BR, BL`` in the model frame, in
+ArUco order as seen from outside the part. With ``r = (TR - TL) / size`` (marker right) and
+``d = (BL - TL) / size`` (marker down), the outward normal is ``n = d x r``.
+
+Algorithm: candidate centres are sampled evenly over the surface (seeded). A candidate is kept
+if the square of side ``size`` in its tangent plane lies on the surface within
+``flatness_tol`` mm (checked at a 5x5 grid of points over the square, and the surface normal
+at those points must agree with the square's within ``max_normal_deg`` (15), so that a square never bridges
+an edge), and if its circumscribed circle does not meet an accepted one (plus ``gap``). Flat
+facets are tried first, centred, then the rest of the surface in a seeded random order.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import open3d as o3d
+
+from annotator.dataset.model import MarkerSites
+from annotator.geometry.mesh import Mesh
+
+
+@dataclass(frozen=True)
+class MarkerLayout:
+    """Marker sites on a part.
+
+    Attributes:
+        size: Side of the printed square, mm.
+        corners: (S, 4, 3) corners, model frame, ArUco order.
+        normals: (S, 3) outward unit normals.
+        min_facing: Worst case, over 500 view directions spread over the sphere, of the number
+            of markers facing the viewer (normal within 60 degrees of the direction to it).
+    """
+
+    size: float
+    corners: np.ndarray
+    normals: np.ndarray
+    min_facing: int
+
+    @property
+    def sites(self) -> MarkerSites:
+        return MarkerSites(size=self.size, corners=self.corners)
+
+
+def fibonacci_sphere(n: int) -> np.ndarray:
+    """``n`` unit vectors spread evenly over the sphere."""
+    k = np.arange(n) + 0.5
+    phi = np.arccos(1 - 2 * k / n)
+    theta = np.pi * (1 + 5**0.5) * k
+    return np.column_stack([np.cos(theta) * np.sin(phi), np.sin(theta) * np.sin(phi), np.cos(phi)])
+
+
+def facing_counts(normals: np.ndarray, directions: np.ndarray, *, max_angle_deg: float = 60.0) -> np.ndarray:
+    """For each view direction (towards the viewer), how many site normals face it."""
+    if len(normals) == 0:
+        return np.zeros(len(directions), dtype=int)
+    return (directions @ normals.T > np.cos(np.radians(max_angle_deg))).sum(axis=1)
+
+
+def square_corners(centre: np.ndarray, normal: np.ndarray, right: np.ndarray, size: float) -> np.ndarray:
+    """The (4, 3) ArUco-ordered corners of a square centred at ``centre`` with outward
+    ``normal`` and ``right`` (TL -> TR) direction (made orthogonal to the normal here)."""
+    n = normal / np.linalg.norm(normal)
+    r = right - (right @ n) * n
+    r /= np.linalg.norm(r)
+    d = np.cross(r, n)  # so that d x r = n: seen from outside, rows go down
+    h = size / 2
+    return np.array([centre - r * h - d * h, centre + r * h - d * h, centre + r * h + d * h, centre - r * h + d * h])
+
+
+def place_markers(
+    mesh: Mesh,
+    *,
+    size: float,
+    max_sites: int | None = None,
+    flatness_tol: float = 0.35,
+    gap: float | None = None,
+    max_normal_deg: float = 15.0,
+    seed: int = 0,
+) -> MarkerLayout:
+    """Place non-overlapping square sites of side ``size`` mm on flat-enough patches.
+
+    Args:
+        mesh: The part, mm.
+        size: Printed marker side, mm.
+        max_sites: Stop after this many sites (default: as many as fit).
+        flatness_tol: Largest distance, mm, between the square and the surface.
+        gap: Extra clearance between sites' circumscribed circles (default ``size / 10``).
+        max_normal_deg: Largest angle between the square and the surface normals under it.
+        seed: Seed of the candidate order.
+    """
+    gap = size / 10 if gap is None else gap
+    rng = np.random.default_rng(seed)
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(o3d.core.Tensor(mesh.vertices.astype(np.float32)), o3d.core.Tensor(mesh.faces.astype(np.uint32)))
+    centres, normals = _candidates(mesh, size, rng)
+    u = np.linspace(-0.5, 0.5, 5) * size
+    grid = np.stack(np.meshgrid(u, u), axis=-1).reshape(-1, 2)
+    radius = size / np.sqrt(2)
+    kept_c: list[np.ndarray] = []
+    kept: list[np.ndarray] = []
+    kept_n: list[np.ndarray] = []
+    cos_tol = np.cos(np.radians(max_normal_deg))
+    for c, n in zip(centres, normals):
+        if max_sites is not None and len(kept) >= max_sites:
+            break
+        if kept_c and np.min(np.linalg.norm(np.asarray(kept_c) - c, axis=1)) < 2 * radius + gap:
+            continue
+        ref = np.array([0.0, 0.0, 1.0]) if abs(n[2]) < 0.9 else np.array([1.0, 0.0, 0.0])
+        right = np.cross(ref, n)
+        corners = square_corners(c, n, right, size)
+        r = (corners[1] - corners[0]) / size
+        d = (corners[3] - corners[0]) / size
+        pts = c + grid[:, :1] * r + grid[:, 1:] * d
+        q = scene.compute_closest_points(o3d.core.Tensor(pts.astype(np.float32)))
+        closest = q["points"].numpy()
+        if np.max(np.linalg.norm(closest - pts, axis=1)) > flatness_tol:
+            continue
+        face_n = mesh.face_normals[q["primitive_ids"].numpy()]
+        if np.min(face_n @ n) < cos_tol:
+            continue
+        kept_c.append(c)
+        kept.append(corners)
+        kept_n.append(n)
+    corners = np.asarray(kept).reshape(-1, 4, 3)
+    nrm = np.asarray(kept_n).reshape(-1, 3)
+    min_facing = int(facing_counts(nrm, fibonacci_sphere(500)).min())
+    return MarkerLayout(size=size, corners=corners, normals=nrm, min_facing=min_facing)
+
+
+def _candidates(mesh: Mesh, size: float, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """Candidate centres and normals: centres of large flat facets first, then surface samples."""
+    tm = mesh.to_trimesh()
+    first_c, first_n = [], []
+    for facet, normal in zip(tm.facets, tm.facets_normal):
+        area = mesh.face_areas[facet].sum()
+        if area < size * size:
+            continue
+        tri = mesh.triangles[facet]
+        w = mesh.face_areas[facet]
+        first_c.append((tri.mean(axis=1) * w[:, None]).sum(axis=0) / w.sum())
+        first_n.append(normal)
+    n_samples = int(np.clip(mesh.moments.area / (size * size) * 8, 200, 4000))
+    pts, face_idx = _sample_surface(mesh, n_samples, rng)
+    order = rng.permutation(len(pts))
+    centres = np.concatenate([np.asarray(first_c).reshape(-1, 3), pts[order]])
+    normals = np.concatenate([np.asarray(first_n).reshape(-1, 3), mesh.face_normals[face_idx[order]]])
+    return centres, normals
+
+
+def _sample_surface(mesh: Mesh, n: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """``n`` points drawn uniformly over the surface, and their faces."""
+    p = mesh.face_areas / mesh.face_areas.sum()
+    faces = rng.choice(len(p), size=n, p=p)
+    a, b = rng.random(n), rng.random(n)
+    flip = a + b > 1
+    a[flip], b[flip] = 1 - a[flip], 1 - b[flip]
+    tri = mesh.triangles[faces]
+    pts = tri[:, 0] + a[:, None] * (tri[:, 1] - tri[:, 0]) + b[:, None] * (tri[:, 2] - tri[:, 0])
+    return pts, faces
+
+
+def assign_ids(n_sites: int, n_instances: int, *, start: int = 0) -> list[list[int]]:
+    """Disjoint consecutive marker ids for ``n_instances`` copies of a part with ``n_sites`` sites."""
+    return [list(range(start + k * n_sites, start + (k + 1) * n_sites)) for k in range(n_instances)]

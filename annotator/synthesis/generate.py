@@ -1,0 +1,195 @@
+"""Generating a synthetic dataset: parts, rig, scenes, and the FORMAT.md files.
+
+Each scene is reproducible from ``(seed, scene index)`` alone, so scenes can be made in any
+order by any number of worker processes and the dataset is the same byte for byte.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import trimesh
+
+from annotator.dataset.model import Instance, Rig
+from annotator.dataset.poses import InstancePose, write_poses
+from annotator.errors import UserError
+from annotator.dataset.write import write_dataset_yaml, write_object_yaml
+from annotator.geometry.mesh import Mesh
+from annotator.geometry.transforms import invert
+from annotator.io.images import encode_depth, write_png
+from annotator.markers.layout import MarkerLayout, assign_ids, place_markers
+from annotator.markers.texture import dictionary_size, marker_bits
+from annotator.parts import Part, build_part
+from annotator.rendering.raycast import PlacedMesh, RayScene
+from annotator.synthesis.physics import Bin, drop_parts
+from annotator.synthesis.rig import RigSetup, make_rig
+from annotator.synthesis.shading import Surface, finish_image, render_intensity
+from annotator.synthesis.stereo import dot_pattern, pattern_image, stereo_depth
+
+DICTIONARY = "DICT_4X4_1000"
+
+
+@dataclass(frozen=True)
+class SynthConfig:
+    """Everything that defines a synthetic dataset (with the seed, it fixes every byte)."""
+
+    parts: tuple[str, ...] = ("bracket", "cylinder")
+    scenes: int = 10
+    instances: tuple[int, int] = (8, 20)
+    seed: int = 0
+    size: tuple[int, int] = (1280, 1024)
+    clutter: int = 0
+    noise: float = 2.0
+    blur: float = 0.6
+    depth: bool = True
+    supersample: int = 3
+
+
+@dataclass
+class DatasetPlan:
+    """The parts with their marker layouts and instance pools, and the rig."""
+
+    config: SynthConfig
+    parts: list[Part]
+    layouts: list[MarkerLayout]
+    instances: list[list[Instance]]
+    setup: RigSetup
+    bin: Bin = field(default_factory=Bin)
+
+
+@dataclass
+class SceneTiming:
+    physics: float = 0.0
+    rendering: float = 0.0
+    depth: float = 0.0
+
+
+def plan_dataset(config: SynthConfig) -> DatasetPlan:
+    """Build the parts, their marker layouts and enough physical instances for any scene."""
+    parts = [build_part(name) for name in config.parts]
+    pool = config.instances[1]
+    # Every physical instance needs its own ids: cap the sites so that all fit the dictionary.
+    max_sites = dictionary_size(DICTIONARY) // (pool * len(parts))
+    if max_sites < 4:
+        raise UserError(
+            f"{pool} instances of {len(parts)} parts need more marker ids than {DICTIONARY} has "
+            "(at most 4 sites each would not be enough): use fewer instances per scene"
+        )
+    layouts = [place_markers(p.mesh, size=p.marker_size, max_sites=max_sites, seed=config.seed) for p in parts]
+    instances, next_id = [], 0
+    for layout in layouts:
+        ids = assign_ids(len(layout.corners), pool, start=next_id)
+        next_id += len(layout.corners) * pool
+        instances.append([Instance(f"{k + 1:02d}", tuple(i)) for k, i in enumerate(ids)])
+    setup = make_rig(*config.size, rng=np.random.default_rng(config.seed))
+    return DatasetPlan(config, parts, layouts, instances, setup)
+
+
+def write_dataset_files(plan: DatasetPlan, root: Path) -> None:
+    """dataset.yaml, objects/<part>/object.yaml and model.ply."""
+    for part, layout, insts in zip(plan.parts, plan.layouts, plan.instances):
+        folder = root / "objects" / part.name
+        folder.mkdir(parents=True, exist_ok=True)
+        trimesh.Trimesh(part.mesh.vertices, part.mesh.faces, process=False).export(folder / "model.ply")
+        write_object_yaml(folder, mesh_file="model.ply", symmetry=part.symmetry, markers=layout.sites, instances=insts)
+    write_dataset_yaml(
+        root,
+        name=f"synthetic ({', '.join(plan.config.parts)})",
+        dictionary=DICTIONARY,
+        rig=plan.setup.rig,
+        objects=[p.name for p in plan.parts],
+        synth={k: v if not isinstance(v, tuple) else list(v) for k, v in plan.config.__dict__.items()},
+    )
+
+
+def _box_mesh(size: np.ndarray) -> Mesh:
+    b = trimesh.creation.box(size)
+    return Mesh(np.asarray(b.vertices), np.asarray(b.faces, dtype=np.int32))
+
+
+def make_scene(plan: DatasetPlan, index: int, folder: Path) -> tuple[list[InstancePose], SceneTiming]:
+    """Simulate, render and write scene ``index`` into ``folder``; return its true poses."""
+    cfg = plan.config
+    rng = np.random.default_rng([cfg.seed, index])
+    timing = SceneTiming()
+    n = int(rng.integers(cfg.instances[0], cfg.instances[1] + 1))
+    # Which physical instances are in the bin: a random part per instance, distinct copies.
+    chosen: list[tuple[int, int]] = []
+    counts = [0] * len(plan.parts)
+    for p in rng.integers(0, len(plan.parts), size=n):
+        chosen.append((int(p), counts[p]))
+        counts[p] += 1
+    clutter = [int(p) for p in rng.integers(0, len(plan.parts), size=cfg.clutter)]
+    meshes = [plan.parts[p].mesh for p, _ in chosen] + [plan.parts[p].mesh for p in clutter]
+    t0 = time.perf_counter()
+    world_T = drop_parts(meshes, bin=plan.bin, rng=rng)
+    timing.physics = time.perf_counter() - t0
+
+    table = np.eye(4)
+    table[2, 3] = -plan.bin.wall - 5.0
+    surfaces: list[Surface] = [Surface(_box_mesh(np.array([2000.0, 2000.0, 10.0])), table, albedo=0.3)]
+    for centre, size in plan.bin.meshes():
+        T = np.eye(4)
+        T[:3, 3] = centre
+        surfaces.append(Surface(_box_mesh(size), T, albedo=0.45))
+    poses: list[InstancePose] = []
+    for k, (p, copy) in enumerate(chosen):
+        if world_T[k] is None:
+            continue
+        inst = plan.instances[p][copy]
+        bits = np.stack([marker_bits(DICTIONARY, m) for m in inst.marker_ids])
+        corners = plan.layouts[p].corners[: len(inst.marker_ids)]
+        surfaces.append(Surface(plan.parts[p].mesh, world_T[k], 0.8, corners, bits))
+        cam_T = plan.setup.ref_T_world @ world_T[k]
+        poses.append(InstancePose(plan.parts[p].name, inst.name, cam_T[:3, :3], cam_T[:3, 3]))
+    for k in range(len(chosen), len(meshes)):
+        if world_T[k] is not None:
+            surfaces.append(Surface(meshes[k], world_T[k], 0.7))
+
+    t0 = time.perf_counter()
+    views = []
+    for cam, world_T_cam in zip(plan.setup.rig.cameras, plan.setup.world_T_cams):
+        img, view = render_intensity(cam, invert(world_T_cam), surfaces, supersample=cfg.supersample)
+        write_png(folder / f"{cam.name}.png", finish_image(img, blur=cfg.blur, noise=cfg.noise, rng=rng))
+        views.append(view)
+    timing.rendering = time.perf_counter() - t0
+
+    if cfg.depth:
+        t0 = time.perf_counter()
+        depth = simulate_depth(plan, surfaces, views, rng)
+        write_png(folder / "depth.png", encode_depth(depth, plan.setup.rig.depth.scale))
+        timing.depth = time.perf_counter() - t0
+    write_poses(folder / "gt.json", poses, format=1)
+    return poses, timing
+
+
+def simulate_depth(plan: DatasetPlan, surfaces: list[Surface], views: list, rng: np.random.Generator) -> np.ndarray:
+    """Active-stereo depth on the reference camera's pixel grid (mm, NaN = hole)."""
+    setup = plan.setup
+    w, h = setup.projector_size
+    pattern = dot_pattern(w, h, seed=plan.config.seed + 7)
+    projector_T_world = invert(setup.world_T_projector)
+    world_scene = RayScene([PlacedMesh(s.mesh, s.world_T_model) for s in surfaces])
+    imgs = []
+    for cam, world_T_cam, view in zip(setup.rig.cameras, setup.world_T_cams, views):
+        img = pattern_image(
+            view, cam, world_T_cam, projector_T_world=projector_T_world, projector_K=setup.projector_K,
+            pattern=pattern, occluders=world_scene, world_T_projector=setup.world_T_projector,
+        )
+        imgs.append(finish_image(img, blur=0.5, noise=1.5, rng=rng))
+    ideal = views[0].hits.depth
+    finite = ideal[np.isfinite(ideal)]
+    z_range = (float(finite.min()) - 20.0, float(finite.max()) + 20.0)
+    return stereo_depth(imgs[0], imgs[1], setup.rig.cameras[0], setup.rig.cameras[1], z_range=z_range)
+
+
+def ideal_depth(rig: Rig, poses: list[InstancePose], meshes: dict[str, Mesh]) -> np.ndarray:
+    """The exact z-depth of the posed parts alone in the depth camera (inf where none)."""
+    from annotator.rendering.raycast import render
+
+    cam = rig.depth_camera or rig.cameras[0]
+    placed = [PlacedMesh(meshes[p.object], cam.cam_T_rig @ p.T) for p in poses]
+    return render(cam, placed).depth

@@ -1,0 +1,139 @@
+"""Simulated active stereo (paper section 3.2): the depth map a real sensor would measure.
+
+A pseudo-random dot pattern is projected from between the cameras; both cameras see it on the
+scene's surfaces; the image pair is rectified and matched with OpenCV's semi-global matcher;
+the disparity is turned back into z-depth on the reference camera's own (distorted) pixel
+grid. Holes (0) appear where matching fails: projector shadows, occlusions seen by one camera
+only, steep surfaces.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import lru_cache
+
+import cv2
+import numpy as np
+from scipy.ndimage import map_coordinates
+
+from annotator.geometry.camera import Camera
+from annotator.geometry.transforms import invert
+from annotator.rendering.raycast import RayScene
+from annotator.synthesis.shading import View
+
+
+def dot_pattern(width: int, height: int, *, seed: int = 7, density: float = 0.12) -> np.ndarray:
+    """A float32 pattern of random dots (about 1.5 px), 0..1, the projector's slide."""
+    rng = np.random.default_rng(seed)
+    dots = (rng.random((height, width)) < density).astype(np.float32)
+    return np.clip(cv2.GaussianBlur(dots, (0, 0), 0.7) * 2.5, 0.0, 1.0)
+
+
+def pattern_image(
+    view: View,
+    camera: Camera,
+    world_T_cam: np.ndarray,
+    *,
+    projector_T_world: np.ndarray,
+    projector_K: np.ndarray,
+    pattern: np.ndarray,
+    occluders: RayScene | None = None,
+    world_T_projector: np.ndarray | None = None,
+) -> np.ndarray:
+    """What ``camera`` sees of the projected pattern (float32, 0..1), ambient included.
+
+    With ``occluders`` (a RayScene in the world frame) and ``world_T_projector``, points the
+    projector cannot see are left in its shadow.
+    """
+    hit = view.hits.hit
+    rays = camera.pixel_rays()[hit].astype(np.float64)
+    p_cam = rays * view.hits.depth[hit][:, None]
+    p_world = p_cam @ world_T_cam[:3, :3].T + world_T_cam[:3, 3]
+    p_proj = p_world @ projector_T_world[:3, :3].T + projector_T_world[:3, 3]
+    uv = p_proj[:, :2] / p_proj[:, 2:3] @ projector_K[:2, :2].T + projector_K[:2, 2]
+    # OpenCV's remap limits maps to 32767 rows: sample with scipy instead.
+    lit = map_coordinates(pattern, [uv[:, 1], uv[:, 0]], order=1, mode="constant", cval=0.0).astype(np.float32)
+    if occluders is not None and world_T_projector is not None:
+        origin = world_T_projector[:3, 3]
+        d = p_world - origin
+        dist = np.linalg.norm(d, axis=1)
+        h = occluders.cast((d / dist[:, None]).astype(np.float32), origin=origin.astype(np.float32))
+        lit[h.depth < dist - 0.5] = 0.0
+    n_world = view.normals_cam[hit] @ world_T_cam[:3, :3].T
+    to_proj = -p_proj / np.linalg.norm(p_proj, axis=1, keepdims=True)
+    to_proj_world = to_proj @ invert(projector_T_world)[:3, :3].T
+    cos = np.clip((n_world * to_proj_world).sum(axis=1), 0.0, 1.0)
+    albedo = np.maximum(view.albedo[hit], 0.25)
+    img = np.zeros(hit.shape, np.float32)
+    img[hit] = albedo * (0.08 + 0.92 * lit * cos)
+    return img
+
+
+@dataclass(frozen=True)
+class Rectification:
+    """Rectification of a camera pair and the lookup from reference pixels to rectified ones."""
+
+    maps1: tuple[np.ndarray, np.ndarray]
+    maps2: tuple[np.ndarray, np.ndarray]
+    R1: np.ndarray
+    P1: np.ndarray
+    focal: float
+    baseline: float
+    ref_in_rect: np.ndarray  # (H, W, 2) rectified coordinates of every reference pixel centre
+
+
+def rectify(cam1: Camera, cam2: Camera) -> Rectification:
+    """Rectify the pair (cam1 is the reference); cached per camera pair."""
+    return _rectify(cam1, cam2)
+
+
+@lru_cache(maxsize=4)
+def _rectify(cam1: Camera, cam2: Camera) -> Rectification:
+    size = (cam1.width, cam1.height)
+    c2_T_c1 = invert(cam2.rig_T_cam) @ cam1.rig_T_cam
+    R1, R2, P1, P2, _, _, _ = cv2.stereoRectify(
+        cam1.K, cam1.dist, cam2.K, cam2.dist, size, c2_T_c1[:3, :3], c2_T_c1[:3, 3].reshape(3, 1),
+        flags=cv2.CALIB_ZERO_DISPARITY, alpha=0,
+    )
+    m1 = cv2.initUndistortRectifyMap(cam1.K, cam1.dist, R1, P1, size, cv2.CV_32FC1)
+    m2 = cv2.initUndistortRectifyMap(cam2.K, cam2.dist, R2, P2, size, cv2.CV_32FC1)
+    u, v = np.meshgrid(np.arange(cam1.width, dtype=np.float64), np.arange(cam1.height, dtype=np.float64))
+    xy = cam1.undistort_pixels(np.stack([u, v], axis=-1)).reshape(-1, 2)
+    ray = np.column_stack([xy, np.ones(len(xy))]) @ R1.T
+    ref_in_rect = (ray[:, :2] / ray[:, 2:3] * P1[0, 0] + P1[:2, 2]).reshape(cam1.height, cam1.width, 2)
+    return Rectification(m1, m2, R1, P1, float(P1[0, 0]), float(-P2[0, 3] / P2[0, 0]), ref_in_rect.astype(np.float32))
+
+
+def stereo_depth(
+    img1: np.ndarray, img2: np.ndarray, cam1: Camera, cam2: Camera, *, z_range: tuple[float, float]
+) -> np.ndarray:
+    """Match an 8-bit pattern image pair; z-depth (mm, float32) on cam1's pixels, NaN = hole.
+
+    ``z_range`` (near, far) in mm bounds the disparity search.
+    """
+    rect = rectify(cam1, cam2)
+    r1 = cv2.remap(img1, *rect.maps1, cv2.INTER_LINEAR)
+    r2 = cv2.remap(img2, *rect.maps2, cv2.INTER_LINEAR)
+    fb = rect.focal * rect.baseline
+    d_min = int(np.floor(fb / z_range[1])) - 2
+    n_disp = int(np.ceil((fb / z_range[0] - d_min + 2) / 16.0)) * 16
+    block = 5
+    sgbm = cv2.StereoSGBM_create(
+        minDisparity=d_min, numDisparities=n_disp, blockSize=block,
+        P1=8 * block * block, P2=32 * block * block, disp12MaxDiff=1,
+        uniquenessRatio=10, speckleWindowSize=100, speckleRange=2,
+        mode=cv2.STEREO_SGBM_MODE_SGBM_3WAY,
+    )
+    disp = sgbm.compute(r1, r2).astype(np.float32) / 16.0
+    disp[disp < d_min] = np.nan
+    # Sample the disparity at each reference pixel's rectified position (nearest: no blending
+    # of foreground and background disparities across depth edges).
+    m = rect.ref_in_rect
+    d = cv2.remap(disp, m[..., 0], m[..., 1], cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT, borderValue=np.nan)
+    z_rect = fb / d
+    xr = (m[..., 0] - rect.P1[0, 2]) / rect.focal * z_rect
+    yr = (m[..., 1] - rect.P1[1, 2]) / rect.focal * z_rect
+    # Back from the rectified frame to cam1: x_cam1 = R1^T x_rect; only z is needed.
+    z = rect.R1[0, 2] * xr + rect.R1[1, 2] * yr + rect.R1[2, 2] * z_rect
+    z[~np.isfinite(z)] = np.nan
+    return z.astype(np.float32)
