@@ -4,6 +4,9 @@ Conventions (FORMAT.md): a site is four corners ``TL, TR, BR, BL`` in the model 
 ArUco order as seen from outside the part. With ``r = (TR - TL) / size`` (marker right) and
 ``d = (BL - TL) / size`` (marker down), the outward normal is ``n = d x r``.
 
+On curved patches (cylinders, cups) the corners are then moved to the nearest surface points,
+so that they lie exactly on the part where the printed marker's corners are.
+
 Algorithm: candidate centres are sampled evenly over the surface (seeded). A candidate is kept
 if the square of side ``size`` in its tangent plane lies on the surface within
 ``flatness_tol`` mm (checked at a 5x5 grid of points over the square, and the surface normal
@@ -122,8 +125,10 @@ def place_markers(
         face_n = mesh.face_normals[q["primitive_ids"].numpy()]
         if np.min(face_n @ n) < cos_tol:
             continue
+        # On a curved patch, glue the corners to the surface (the printed square bends onto it).
+        on_surface = scene.compute_closest_points(o3d.core.Tensor(corners.astype(np.float32)))["points"].numpy()
         kept_c.append(c)
-        kept.append(corners)
+        kept.append(on_surface.astype(np.float64))
         kept_n.append(n)
     corners = np.asarray(kept).reshape(-1, 4, 3)
     nrm = np.asarray(kept_n).reshape(-1, 3)

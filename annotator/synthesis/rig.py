@@ -55,7 +55,7 @@ def make_rig(
     height: int = 1024,
     *,
     distance: float = 520.0,
-    baseline: float = 150.0,
+    baseline: float = 100.0,
     rng: np.random.Generator | None = None,
 ) -> RigSetup:
     """Build the rig; ``rng`` perturbs intrinsics and distortion slightly (per dataset)."""

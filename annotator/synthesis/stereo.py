@@ -79,6 +79,7 @@ class Rectification:
     P1: np.ndarray
     focal: float
     baseline: float
+    offset: float  # disparity of a point at infinity: cx1 - cx2 of the rectified cameras
     ref_in_rect: np.ndarray  # (H, W, 2) rectified coordinates of every reference pixel centre
 
 
@@ -93,7 +94,7 @@ def _rectify(cam1: Camera, cam2: Camera) -> Rectification:
     c2_T_c1 = invert(cam2.rig_T_cam) @ cam1.rig_T_cam
     R1, R2, P1, P2, _, _, _ = cv2.stereoRectify(
         cam1.K, cam1.dist, cam2.K, cam2.dist, size, c2_T_c1[:3, :3], c2_T_c1[:3, 3].reshape(3, 1),
-        flags=cv2.CALIB_ZERO_DISPARITY, alpha=0,
+        flags=0, alpha=0,  # not CALIB_ZERO_DISPARITY: a converging pair keeps disparities small
     )
     m1 = cv2.initUndistortRectifyMap(cam1.K, cam1.dist, R1, P1, size, cv2.CV_32FC1)
     m2 = cv2.initUndistortRectifyMap(cam2.K, cam2.dist, R2, P2, size, cv2.CV_32FC1)
@@ -101,7 +102,10 @@ def _rectify(cam1: Camera, cam2: Camera) -> Rectification:
     xy = cam1.undistort_pixels(np.stack([u, v], axis=-1)).reshape(-1, 2)
     ray = np.column_stack([xy, np.ones(len(xy))]) @ R1.T
     ref_in_rect = (ray[:, :2] / ray[:, 2:3] * P1[0, 0] + P1[:2, 2]).reshape(cam1.height, cam1.width, 2)
-    return Rectification(m1, m2, R1, P1, float(P1[0, 0]), float(-P2[0, 3] / P2[0, 0]), ref_in_rect.astype(np.float32))
+    return Rectification(
+        m1, m2, R1, P1, float(P1[0, 0]), float(-P2[0, 3] / P2[0, 0]), float(P1[0, 2] - P2[0, 2]),
+        ref_in_rect.astype(np.float32),
+    )
 
 
 def stereo_depth(
@@ -115,8 +119,8 @@ def stereo_depth(
     r1 = cv2.remap(img1, *rect.maps1, cv2.INTER_LINEAR)
     r2 = cv2.remap(img2, *rect.maps2, cv2.INTER_LINEAR)
     fb = rect.focal * rect.baseline
-    d_min = int(np.floor(fb / z_range[1])) - 2
-    n_disp = int(np.ceil((fb / z_range[0] - d_min + 2) / 16.0)) * 16
+    d_min = int(np.floor(fb / z_range[1] + rect.offset)) - 2
+    n_disp = int(np.ceil((fb / z_range[0] + rect.offset - d_min + 2) / 16.0)) * 16
     block = 5
     sgbm = cv2.StereoSGBM_create(
         minDisparity=d_min, numDisparities=n_disp, blockSize=block,
@@ -130,7 +134,7 @@ def stereo_depth(
     # of foreground and background disparities across depth edges).
     m = rect.ref_in_rect
     d = cv2.remap(disp, m[..., 0], m[..., 1], cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT, borderValue=np.nan)
-    z_rect = fb / d
+    z_rect = fb / (d - rect.offset)
     xr = (m[..., 0] - rect.P1[0, 2]) / rect.focal * z_rect
     yr = (m[..., 1] - rect.P1[1, 2]) / rect.focal * z_rect
     # Back from the rectified frame to cam1: x_cam1 = R1^T x_rect; only z is needed.

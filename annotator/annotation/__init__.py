@@ -1,0 +1,31 @@
+"""Auto-annotation of a scene: markers -> robust multi-view pose per instance -> trust.
+
+``annotation.json`` (FORMAT.md) holds, per instance, the pose fields plus:
+
+- ``uncertainty_mm``: estimated 1-sigma pose error as RMS surface displacement (mm), from the
+  joint refinement's covariance (the paper's distance, section 4.1);
+- ``reprojection_px``: ``{"rms", "max", "per_camera": {camera: rms}}`` over the markers used;
+- ``markers``: ``{camera: {"used": [ids], "rejected": [ids]}}``;
+- ``views``: number of cameras whose markers were used;
+- ``depth``: ``{"agreement", "median_abs_mm", "pixels"}`` or null: the fraction of the
+  instance's visible pixels (depth camera) where the measured depth is within
+  ``max(3 mm, 1% of z)`` of the depth rendered at the pose, and the median absolute difference;
+- ``occlusion``: ``{"rate", "per_camera": {camera: rate}}``: 1 - visible/full silhouette pixels,
+  posed instances as occluders, plus the depth test in the depth camera;
+- ``flags``: reasons a reviewer should look, from :data:`FLAGS`.
+
+Top level: ``format``, ``created_at``, ``unknown_markers`` (``{camera: [ids]}``, ids that belong
+to no instance), ``duplicates`` (``{camera: [ids]}`` seen twice in one image), ``errors`` and
+``warnings`` (strings).
+"""
+
+FLAGS: tuple[str, ...] = (
+    "ambiguous",  # a lone marker / single view whose two pose solutions fit about equally well
+    "single_view",  # only one camera's markers were usable
+    "high_residual",  # reprojection error well above the corner noise
+    "rejected_markers",  # some of the instance's markers disagreed with the others and were dropped
+    "depth_disagreement",  # the depth rendered at the pose disagrees with the measured depth
+    "high_uncertainty",  # estimated uncertainty above 1% of the part's diameter
+)
+
+__all__ = ["FLAGS"]
