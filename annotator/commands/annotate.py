@@ -1,13 +1,55 @@
-"""`annotator annotate` (not built yet)."""
+"""``annotator annotate DATASET``: a pose for every instance with visible markers, in batch."""
 
 from __future__ import annotations
 
 import argparse
+import fnmatch
+import json
+import sys
+
+from annotator.annotation.batch import AnnotateJob, is_up_to_date
+from annotator.batch import run_batch
+from annotator.dataset import load_dataset
+from annotator.errors import UserError
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("dataset")
+    parser.add_argument("dataset", help="dataset folder (FORMAT.md)")
+    parser.add_argument("--workers", type=int, default=1, help="worker processes (default 1)")
+    parser.add_argument("--scenes", default="*", metavar="PATTERN", help="only scenes whose id matches (fnmatch)")
+    parser.add_argument("--force", action="store_true", help="redo scenes whose annotation is up to date")
+    parser.add_argument("--json", action="store_true", help="print the summary as JSON on stdout")
+    parser.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
 def run(args: argparse.Namespace) -> int:
-    raise SystemExit("annotator annotate: not built yet")
+    if args.workers < 1:
+        raise UserError(f"--workers must be at least 1, got {args.workers}")
+    ds = load_dataset(args.dataset)
+    scenes = [s for s in ds.scenes() if fnmatch.fnmatch(s.id, args.scenes)]
+    if not scenes:
+        raise UserError(f"no scene matches {args.scenes!r}", path=ds.root / "scenes")
+    todo = [s.id for s in scenes if args.force or not is_up_to_date(ds, s)]
+    skipped = len(scenes) - len(todo)
+    report = run_batch(AnnotateJob(str(ds.root)), todo, workers=args.workers, desc="annotate", quiet=args.quiet)
+    posed = sum(r["instances"] for r in report.done.values())
+    flagged = sum(r["flagged"] for r in report.done.values())
+    summary = {
+        "scenes": len(scenes),
+        "done": len(report.done),
+        "skipped": skipped,
+        "failed": len(report.failed),
+        "instances_posed": posed,
+        "instances_flagged": flagged,
+        "failures": dict(sorted(report.failed.items())),
+    }
+    if args.json:
+        print(json.dumps(summary, indent=1))
+    else:
+        for sid, err in sorted(report.failed.items()):
+            print(f"failed: {sid}: {err}", file=sys.stderr)
+        print(
+            f"annotate: {len(report.done)} scenes done, {skipped} up to date (skipped), {len(report.failed)} failed; "
+            f"{posed} instances posed, {flagged} flagged"
+        )
+    return 1 if report.failed else 0

@@ -89,7 +89,8 @@ def place_markers(
     Args:
         mesh: The part, mm.
         size: Printed marker side, mm.
-        max_sites: Stop after this many sites (default: as many as fit).
+        max_sites: Keep at most this many sites (default: as many as fit), chosen to cover every
+            view direction as evenly as possible.
         flatness_tol: Largest distance, mm, between the square and the surface.
         gap: Extra clearance between sites' circumscribed circles (default ``size / 10``).
         max_normal_deg: Largest angle between the square and the surface normals under it.
@@ -108,8 +109,6 @@ def place_markers(
     kept_n: list[np.ndarray] = []
     cos_tol = np.cos(np.radians(max_normal_deg))
     for c, n in zip(centres, normals):
-        if max_sites is not None and len(kept) >= max_sites:
-            break
         if kept_c and np.min(np.linalg.norm(np.asarray(kept_c) - c, axis=1)) < 2 * radius + gap:
             continue
         ref = np.array([0.0, 0.0, 1.0]) if abs(n[2]) < 0.9 else np.array([1.0, 0.0, 0.0])
@@ -132,8 +131,31 @@ def place_markers(
         kept_n.append(n)
     corners = np.asarray(kept).reshape(-1, 4, 3)
     nrm = np.asarray(kept_n).reshape(-1, 3)
-    min_facing = int(facing_counts(nrm, fibonacci_sphere(500)).min())
+    dirs = fibonacci_sphere(500)
+    if max_sites is not None and len(corners) > max_sites:
+        keep = _spread(nrm, dirs, max_sites)
+        corners, nrm = corners[keep], nrm[keep]
+    min_facing = int(facing_counts(nrm, dirs).min())
     return MarkerLayout(size=size, corners=corners, normals=nrm, min_facing=min_facing)
+
+
+def _spread(normals: np.ndarray, dirs: np.ndarray, k: int, *, target: int = 4) -> np.ndarray:
+    """Greedy choice of ``k`` sites that best cover every view direction: each step adds the site
+    that most raises ``sum over directions of min(facing count, target)``, so the worst-covered
+    directions are served first. Returns sorted indices."""
+    faces = dirs @ normals.T > np.cos(np.radians(60.0))  # (D, S)
+    counts = np.zeros(len(dirs), int)
+    chosen: list[int] = []
+    free = np.ones(len(normals), bool)
+    for _ in range(k):
+        need = counts < target
+        gain = (faces & need[:, None]).sum(axis=0) + 1e-3 * faces.sum(axis=0)
+        gain[~free] = -1
+        j = int(np.argmax(gain))
+        chosen.append(j)
+        free[j] = False
+        counts += faces[:, j]
+    return np.array(sorted(chosen))
 
 
 def _candidates(mesh: Mesh, size: float, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:

@@ -20,6 +20,7 @@ from annotator.dataset.write import write_dataset_yaml, write_object_yaml
 from annotator.geometry.mesh import Mesh
 from annotator.geometry.transforms import invert
 from annotator.io.images import encode_depth, write_png
+from annotator.occlusion import scene_visibility
 from annotator.markers.layout import MarkerLayout, assign_ids, place_markers
 from annotator.markers.texture import dictionary_size, marker_bits
 from annotator.parts import Part, build_part
@@ -162,6 +163,14 @@ def make_scene(plan: DatasetPlan, index: int, folder: Path) -> tuple[list[Instan
         depth = simulate_depth(plan, surfaces, views, rng)
         write_png(folder / "depth.png", encode_depth(depth, plan.setup.rig.depth.scale))
         timing.depth = time.perf_counter() - t0
+    # True occlusion rates: posed instances occlude each other, and the exact depth of
+    # everything else (bin walls, clutter) hides what lies behind it.
+    vis = scene_visibility(
+        plan.setup.rig, [plan.parts[plan.config.parts.index(p.object)].mesh for p in poses], [p.T for p in poses],
+        depth=views[0].hits.depth,
+    )
+    for p, v in zip(poses, vis):
+        p.extra["occlusion"] = {"rate": round(v.occlusion, 4), "per_camera": {c.camera: round(c.occlusion, 4) for c in v.cameras}}
     write_poses(folder / "gt.json", poses, format=1)
     return poses, timing
 
@@ -193,3 +202,27 @@ def ideal_depth(rig: Rig, poses: list[InstancePose], meshes: dict[str, Mesh]) ->
     cam = rig.depth_camera or rig.cameras[0]
     placed = [PlacedMesh(meshes[p.object], cam.cam_T_rig @ p.T) for p in poses]
     return render(cam, placed).depth
+
+
+@dataclass(frozen=True)
+class SceneJob:
+    """Make one scene of a dataset being written in ``root`` (picklable for worker processes)."""
+
+    config: SynthConfig
+    root: str
+
+    def __call__(self, scene_id: str) -> dict:
+        plan = _plan(self.config)
+        folder = Path(self.root) / "scenes" / scene_id
+        folder.mkdir(parents=True, exist_ok=True)
+        poses, timing = make_scene(plan, int(scene_id), folder)
+        return {"instances": len(poses), **timing.__dict__}
+
+
+_PLANS: dict[SynthConfig, DatasetPlan] = {}
+
+
+def _plan(config: SynthConfig) -> DatasetPlan:
+    if config not in _PLANS:
+        _PLANS[config] = plan_dataset(config)
+    return _PLANS[config]
