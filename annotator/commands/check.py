@@ -1,13 +1,24 @@
-"""`annotator check` (not built yet)."""
+"""``annotator check DATASET``: list every problem of a dataset, one line each."""
 
 from __future__ import annotations
 
 import argparse
+import json
+
+from annotator.dataset.check import check_dataset
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("dataset")
+    parser.add_argument("dataset", help="dataset folder (FORMAT.md)")
+    parser.add_argument("--json", action="store_true", help="print the problems as JSON")
 
 
 def run(args: argparse.Namespace) -> int:
-    raise SystemExit("annotator check: not built yet")
+    problems, scenes = check_dataset(args.dataset)
+    if args.json:
+        print(json.dumps({"scenes": scenes, "problems": [{"path": str(p.path), "message": p.message} for p in problems]}, indent=1))
+    else:
+        for p in problems:
+            print(p)
+        print(f"check: {scenes} scenes, {len(problems)} problem{'s' if len(problems) != 1 else ''} in {args.dataset}")
+    return 1 if problems else 0

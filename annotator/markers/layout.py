@@ -126,6 +126,10 @@ def place_markers(
             continue
         # On a curved patch, glue the corners to the surface (the printed square bends onto it).
         on_surface = scene.compute_closest_points(o3d.core.Tensor(corners.astype(np.float32)))["points"].numpy()
+        moved = on_surface - corners
+        sideways = moved - np.outer(moved @ n, n)
+        if np.linalg.norm(sideways, axis=1).max() > 0.1:  # a corner slid off the patch (an edge)
+            continue
         kept_c.append(c)
         kept.append(on_surface.astype(np.float64))
         kept_n.append(n)

@@ -1,0 +1,110 @@
+"""``annotator check``: every problem of a dataset in one run, one line each naming its file.
+
+On top of what :func:`annotator.dataset.read_dataset` finds in the YAML files, it checks the
+meshes (readable), the marker sites (squares of the stated size whose corners and centre lie
+on the mesh surface within ``SITE_TOLERANCE_MM``; ids inside the dictionary) and every scene
+(an image per rig camera, readable, of the rig's size; depth maps only with a depth scale,
+uint16 of the depth camera's size; gt.json, annotation.json and review.json well-formed).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from annotator.dataset.load import Problem, read_dataset
+from annotator.dataset.model import Dataset
+from annotator.errors import UserError
+
+SITE_TOLERANCE_MM = 0.5
+SIZE_TOLERANCE = 0.02  # relative
+
+
+def check_dataset(root: str | Path) -> tuple[list[Problem], int]:
+    """All problems of the dataset at ``root`` and the number of scenes looked at."""
+    ds, problems = read_dataset(root)
+    if ds is None:
+        return problems, 0
+    problems += _check_objects(ds)
+    n = 0
+    for scene in ds.scenes():
+        n += 1
+        problems += _check_scene(ds, scene)
+    return problems, n
+
+
+def _check_objects(ds: Dataset) -> list[Problem]:
+    import open3d as o3d
+
+    from annotator.markers.texture import dictionary_size
+
+    out: list[Problem] = []
+    n_dict = dictionary_size(ds.dictionary) if ds.dictionary.startswith("DICT_") else None
+    for obj in ds.objects.values():
+        yaml_path = obj.folder / "object.yaml"
+        for inst in obj.instances:
+            bad = [i for i in inst.marker_ids if n_dict is not None and i >= n_dict]
+            if bad:
+                out.append(Problem(yaml_path, f"instance {inst.name!r}: marker ids {bad} are outside {ds.dictionary} (0..{n_dict - 1})"))
+        if not obj.mesh_path.is_file():
+            continue  # already reported by read_dataset
+        try:
+            mesh = obj.mesh
+        except UserError as exc:
+            out.append(Problem(obj.mesh_path, exc.message))
+            continue
+        if obj.markers is None:
+            continue
+        scene = o3d.t.geometry.RaycastingScene()
+        scene.add_triangles(o3d.core.Tensor(mesh.vertices.astype(np.float32)), o3d.core.Tensor(mesh.faces.astype(np.uint32)))
+        size = obj.markers.size
+        for k, c in enumerate(obj.markers.corners):
+            sides = np.linalg.norm(np.roll(c, -1, axis=0) - c, axis=1)
+            diag = np.linalg.norm(c[2] - c[0]), np.linalg.norm(c[3] - c[1])
+            if np.any(np.abs(sides - size) > SIZE_TOLERANCE * size) or abs(diag[0] - diag[1]) > SIZE_TOLERANCE * size:
+                out.append(Problem(yaml_path, f"markers.sites[{k}] is not a square of side {size:g} mm (sides {np.round(sides, 2).tolist()})"))
+                continue
+            pts = np.concatenate([c, c.mean(axis=0, keepdims=True)]).astype(np.float32)
+            dist = np.abs(scene.compute_signed_distance(o3d.core.Tensor(pts)).numpy())
+            if dist.max() > SITE_TOLERANCE_MM:
+                out.append(Problem(yaml_path, f"markers.sites[{k}] is {dist.max():.2f} mm off the mesh surface (tolerance {SITE_TOLERANCE_MM} mm)"))
+    return out
+
+
+def _check_scene(ds: Dataset, scene) -> list[Problem]:
+    from annotator.dataset.poses import read_pose_file
+    from annotator.dataset.review import read_review
+
+    out: list[Problem] = []
+    for cam in ds.rig.cameras:
+        try:
+            scene.read_image(cam)
+        except UserError as exc:
+            out.append(Problem(exc.path or scene.image_path(cam), exc.message))
+    if scene.depth_path.exists():
+        if ds.rig.depth is None:
+            out.append(Problem(scene.depth_path, "depth map present but dataset.yaml has no rig.depth (camera and scale)"))
+        else:
+            try:
+                scene.read_depth(ds.rig)
+            except UserError as exc:
+                out.append(Problem(exc.path or scene.depth_path, exc.message))
+    for path in (scene.gt_path, scene.annotation_path):
+        if path.exists():
+            try:
+                poses, _ = read_pose_file(path)
+            except UserError as exc:
+                out.append(Problem(path, exc.message))
+                continue
+            for p in poses:
+                obj = ds.objects.get(p.object)
+                if obj is None:
+                    out.append(Problem(path, f"unknown object {p.object!r}"))
+                elif p.instance not in {i.name for i in obj.instances}:
+                    out.append(Problem(path, f"unknown instance {p.key!r}"))
+    try:
+        read_review(scene.review_path)
+    except UserError as exc:
+        out.append(Problem(scene.review_path, exc.message))
+    return out
