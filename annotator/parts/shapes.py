@@ -24,13 +24,13 @@ def _to_mesh(tm: trimesh.Trimesh) -> Mesh:
 
 def bracket() -> Mesh:
     """An L-shaped bracket with an off-centre hole-like notch and a rib: no proper symmetry."""
-    base = trimesh.creation.box((90.0, 54.0, 12.0))
-    wall = trimesh.creation.box((12.0, 54.0, 50.0))
-    wall.apply_translation([39.0, 0.0, 31.0])
+    base = trimesh.creation.box((90.0, 54.0, 18.0))
+    wall = trimesh.creation.box((18.0, 54.0, 50.0))
+    wall.apply_translation([36.0, 0.0, 34.0])
     rib = trimesh.creation.box((27.0, 9.0, 21.0))
-    rib.apply_translation([19.5, -15.0, 16.5])
+    rib.apply_translation([16.5, -15.0, 19.5])
     boss = trimesh.creation.cylinder(radius=9.0, height=9.0, sections=32)
-    boss.apply_translation([-27.0, 12.0, 10.5])
+    boss.apply_translation([-27.0, 12.0, 13.5])
     return _to_mesh(_concat(base, wall, rib, boss))
 
 
