@@ -1,13 +1,104 @@
-"""`annotator markers` (not built yet)."""
+"""``annotator markers PART OUT``: place marker sites on a part; print and preview them.
+
+PART is a built-in part name or a mesh file (mm). OUT receives ``object.yaml`` (markers and
+instances with disjoint ids), the mesh, ``sheets/`` (true-scale PNG pages and a PDF) and
+``textured/`` (an OBJ per instance showing its markers).
+"""
 
 from __future__ import annotations
 
 import argparse
+import json
+import shutil
+import tempfile
+from pathlib import Path
+
+import trimesh
+
+from annotator.dataset.model import Instance, Symmetry
+from annotator.dataset.write import write_object_yaml
+from annotator.errors import UserError
+from annotator.geometry.mesh import load_mesh
+from annotator.markers.layout import assign_ids, place_markers
+from annotator.markers.sheets import SheetMarker, render_pages, write_sheets
+from annotator.markers.texture import dictionary_size
+from annotator.markers.textured import write_textured_obj
+from annotator.parts import PART_NAMES, build_part
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("dataset")
+    parser.add_argument("part", help=f"a built-in part ({', '.join(PART_NAMES)}) or a mesh file in mm")
+    parser.add_argument("out", help="output folder (an object folder of a dataset)")
+    parser.add_argument("--size", type=float, help="printed marker side in mm (default: the part's, or 10)")
+    parser.add_argument("--dictionary", default="DICT_4X4_1000", help="OpenCV ArUco dictionary (default DICT_4X4_1000)")
+    parser.add_argument("--instances", type=int, default=1, help="physical copies to make (default 1)")
+    parser.add_argument("--first-id", type=int, default=0, help="first marker id (default 0)")
+    parser.add_argument("--max-sites", type=int, help="at most this many sites per part")
+    parser.add_argument("--flatness", type=float, default=0.35, help="max gap between square and surface, mm (default 0.35)")
+    parser.add_argument("--symmetry", default=None, help="symmetry class for a mesh file (default none)")
+    parser.add_argument("--dpi", type=int, default=300, help="resolution of the PNG sheets (default 300)")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--overwrite", action="store_true", help="replace OUT if it exists")
+    parser.add_argument("--json", action="store_true", help="print the summary as JSON")
 
 
 def run(args: argparse.Namespace) -> int:
-    raise SystemExit("annotator markers: not built yet")
+    out = Path(args.out)
+    if args.size is not None and args.size <= 0:
+        raise UserError(f"--size must be positive, got {args.size}")
+    if args.instances < 1 or args.first_id < 0 or not 50 <= args.dpi <= 2400 or args.flatness <= 0:
+        raise UserError("--instances >= 1, --first-id >= 0, --dpi in 50..2400 and --flatness > 0 are required")
+    n_dict = dictionary_size(args.dictionary)
+    if out.exists() and not args.overwrite:
+        raise UserError("already exists (use --overwrite to replace it)", path=out)
+    if args.part in PART_NAMES:
+        part = build_part(args.part)
+        mesh, symmetry, name = part.mesh, part.symmetry, part.name
+        size = args.size or part.marker_size
+    else:
+        path = Path(args.part)
+        if path.suffix == "" and not path.exists():
+            build_part(args.part)  # a mistyped part name: UserError listing the known ones
+        mesh = load_mesh(path)
+        symmetry = Symmetry(args.symmetry or "none")
+        name = path.stem
+        size = args.size or 10.0
+    layout = place_markers(mesh, size=size, max_sites=args.max_sites, flatness_tol=args.flatness, seed=args.seed)
+    if len(layout.corners) == 0:
+        raise UserError(f"no flat patch of the part fits a {size:g} mm marker: try a smaller --size or a larger --flatness")
+    ids = assign_ids(len(layout.corners), args.instances, start=args.first_id)
+    if ids[-1][-1] >= n_dict:
+        raise UserError(
+            f"{args.instances} instances x {len(layout.corners)} sites need ids up to {ids[-1][-1]}, "
+            f"but {args.dictionary} has {n_dict}: use fewer instances, --max-sites or a larger dictionary"
+        )
+    instances = [Instance(f"{k + 1:02d}", tuple(i)) for k, i in enumerate(ids)]
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
+    try:
+        trimesh.Trimesh(mesh.vertices, mesh.faces, process=False).export(tmp / "model.ply")
+        write_object_yaml(tmp, mesh_file="model.ply", symmetry=symmetry, markers=layout.sites, instances=instances)
+        labels = [SheetMarker(m, f"{m} {name}/{inst.name} s{k}") for inst in instances for k, m in enumerate(inst.marker_ids)]
+        (tmp / "sheets").mkdir()
+        write_sheets(tmp / "sheets", render_pages(args.dictionary, labels, size_mm=size, dpi=args.dpi), dpi=args.dpi)
+        (tmp / "textured").mkdir()
+        for inst in instances:
+            stem = name if len(instances) == 1 or inst is instances[0] else f"{name}_{inst.name}"
+            write_textured_obj(tmp / "textured", stem, mesh, layout.corners, inst.marker_ids, args.dictionary)
+        if out.exists():
+            shutil.rmtree(out)
+        tmp.rename(out)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    summary = {"part": name, "sites": len(layout.corners), "min_facing": layout.min_facing, "size_mm": size,
+               "instances": args.instances, "ids": [ids[0][0], ids[-1][-1]], "out": str(out)}
+    if args.json:
+        print(json.dumps(summary))
+    else:
+        print(
+            f"markers: {summary['sites']} sites of {size:g} mm on {name}; from any direction at least "
+            f"{layout.min_facing} face the viewer (within 60 degrees); {args.instances} instances, ids "
+            f"{ids[0][0]}..{ids[-1][-1]}; written to {out} (object.yaml, sheets/, textured/)"
+        )
+    return 0

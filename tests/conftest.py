@@ -1,0 +1,24 @@
+"""Shared fixtures: copies of the committed sample dataset (tests never write into it)."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import pytest
+
+SAMPLE = Path(__file__).resolve().parent.parent / "sample_scenes"
+
+
+@pytest.fixture()
+def sample_copy(tmp_path: Path) -> Path:
+    """A private copy of sample_scenes/ (images, depth, gt.json, annotation.json)."""
+    dst = tmp_path / "ds"
+    shutil.copytree(SAMPLE, dst)
+    return dst
+
+
+@pytest.fixture(scope="session")
+def sample() -> Path:
+    """The committed sample dataset, read-only."""
+    return SAMPLE
