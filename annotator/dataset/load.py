@@ -159,18 +159,21 @@ def _parse_rig(p: _Parser, rig: dict[str, Any] | None) -> Rig | None:
         K = p.floats(c.get("K"), 9, f"{where}.K")
         dist = p.floats(c.get("dist", [0, 0, 0, 0, 0]), (4, 5, 8, 12, 14), f"{where}.dist")
         T = p.floats(c.get("rig_T_cam", np.eye(4).ravel().tolist()), 16, f"{where}.rig_T_cam")
-        if size is None or K is None or dist is None or T is None:
-            continue
-        K = K.reshape(3, 3)
-        if K[0, 0] <= 0 or K[1, 1] <= 0 or K[1, 0] != 0 or np.any(K[2] != [0, 0, 1]):
-            p.problem(f"{where}.K is not a pinhole matrix [fx 0 cx 0 fy cy 0 0 1] with fx, fy > 0")
-            continue
-        if np.any(size <= 0) or np.any(size != np.round(size)):
+        ok = size is not None and K is not None and dist is not None and T is not None
+        if K is not None:
+            K = K.reshape(3, 3)
+            if K[0, 0] <= 0 or K[1, 1] <= 0 or K[1, 0] != 0 or np.any(K[2] != [0, 0, 1]):
+                p.problem(f"{where}.K is not a pinhole matrix [fx 0 cx 0 fy cy 0 0 1] with fx, fy > 0")
+                ok = False
+        if size is not None and (np.any(size <= 0) or np.any(size != np.round(size))):
             p.problem(f"{where}.size must be two positive integers")
-            continue
-        T = T.reshape(4, 4)
-        if not is_rotation(T[:3, :3], tol=1e-5) or np.any(np.abs(T[3] - [0, 0, 0, 1]) > 1e-9):
-            p.problem(f"{where}.rig_T_cam is not a rigid transform (rotation block not orthonormal or last row not 0 0 0 1)")
+            ok = False
+        if T is not None:
+            T = T.reshape(4, 4)
+            if not is_rotation(T[:3, :3], tol=1e-5) or np.any(np.abs(T[3] - [0, 0, 0, 1]) > 1e-9):
+                p.problem(f"{where}.rig_T_cam is not a rigid transform (rotation block not orthonormal or last row not 0 0 0 1)")
+                ok = False
+        if not ok:
             continue
         if i == 0 and not np.allclose(T, np.eye(4), atol=1e-9):
             p.problem(f"{where}.rig_T_cam must be the identity: the first camera is the reference frame")
