@@ -26,6 +26,7 @@ FLAGS: tuple[str, ...] = (
     "rejected_markers",  # some of the instance's markers disagreed with the others and were dropped
     "depth_disagreement",  # the depth rendered at the pose disagrees with the measured depth
     "high_uncertainty",  # estimated uncertainty above 1% of the part's diameter
+    "overlap",  # another copy of the part is posed in the same place (a marker on the wrong copy)
 )
 
 __all__ = ["FLAGS"]

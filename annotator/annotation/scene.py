@@ -81,6 +81,7 @@ def annotate_scene(
         r = _pose_instance(ds, obj, inst, obs, settings)
         if r is not None:
             results.append(r)
+    _flag_overlaps(ds, results)
     depth = scene.read_depth(ds.rig)
     _add_visibility(ds, results, depth, settings)
     poses = [InstancePose(r.object, r.instance, r.T[:3, :3], r.T[:3, 3], r.extra) for r in results]
@@ -158,6 +159,26 @@ def _pose_instance(
         "flags": flags,
     }
     return InstanceResult(obj, inst, est.T, extra)
+
+
+def _flag_overlaps(ds: Dataset, results: list[InstanceResult]) -> None:
+    """Two copies of a part cannot be in the same place: when two instances' poses are within
+    10% of the diameter (the paper's match threshold), a marker was glued on or read as the
+    wrong copy. Both are flagged ``overlap``."""
+    from annotator.symmetry import PoseSpace
+
+    for obj in {r.object for r in results}:
+        mine = [r for r in results if r.object == obj]
+        if len(mine) < 2:
+            continue
+        model = ds.objects[obj]
+        space = PoseSpace.from_moments(model.mesh.moments, model.symmetry)
+        R = np.stack([r.T[:3, :3] for r in mine])
+        t = np.stack([r.T[:3, 3] for r in mine])
+        D = space.distance_matrix(R, t, R, t)
+        np.fill_diagonal(D, np.inf)
+        for k in np.flatnonzero(D.min(axis=1) < 0.1 * space.diameter):
+            mine[k].extra["flags"].append("overlap")
 
 
 def _dedupe(obs: list[Observation], err: np.ndarray, thr: float) -> list[int]:
