@@ -28,7 +28,9 @@ class BatchReport:
     failed: dict[str, str] = field(default_factory=dict)
 
 
-def _run_one(job: Callable[[str], dict[str, Any]], scene_id: str) -> tuple[str, dict[str, Any] | None, str | None]:
+def _run_one(
+    job: Callable[[str], dict[str, Any]], scene_id: str
+) -> tuple[str, dict[str, Any] | None, str | None]:
     try:
         return scene_id, job(scene_id), None
     except UserError as exc:
@@ -50,7 +52,13 @@ def run_batch(
 ) -> BatchReport:
     """Run ``job`` on every scene id, in ``workers`` processes, with a progress bar on stderr."""
     report = BatchReport()
-    bar = tqdm(total=len(scene_ids), desc=desc, unit="scene", disable=quiet or not sys.stderr.isatty(), file=sys.stderr)
+    bar = tqdm(
+        total=len(scene_ids),
+        desc=desc,
+        unit="scene",
+        disable=quiet or not sys.stderr.isatty(),
+        file=sys.stderr,
+    )
     try:
         if workers <= 1 or len(scene_ids) <= 1:
             for sid in scene_ids:
@@ -67,7 +75,9 @@ def run_batch(
     return report
 
 
-def _record(report: BatchReport, sid: str, result: dict[str, Any] | None, error: str | None) -> None:
+def _record(
+    report: BatchReport, sid: str, result: dict[str, Any] | None, error: str | None
+) -> None:
     if error is not None:
         report.failed[sid] = error
     else:

@@ -20,13 +20,29 @@ from annotator.errors import UserError
 #: (subcommand, module, one-line help), in pipeline order.
 COMMANDS: tuple[tuple[str, str, str], ...] = (
     ("check", "annotator.commands.check", "validate a dataset and list every problem"),
-    ("markers", "annotator.commands.markers", "place marker sites on a part and export printable sheets"),
-    ("synth", "annotator.commands.synth", "generate synthetic bin-picking scenes with exact ground truth"),
-    ("annotate", "annotator.commands.annotate", "propose a pose for every instance from its markers"),
+    (
+        "markers",
+        "annotator.commands.markers",
+        "place marker sites on a part and export printable sheets",
+    ),
+    (
+        "synth",
+        "annotator.commands.synth",
+        "generate synthetic bin-picking scenes with exact ground truth",
+    ),
+    (
+        "annotate",
+        "annotator.commands.annotate",
+        "propose a pose for every instance from its markers",
+    ),
     ("review", "annotator.commands.review", "accept or reject annotated scenes in the browser"),
     ("occlusion", "annotator.commands.occlusion", "compute per-instance masks and occlusion rates"),
     ("export", "annotator.commands.export", "export accepted scenes to BOP or the Sileane format"),
-    ("evaluate", "annotator.commands.evaluate", "score pose estimation results (symmetry-aware AP)"),
+    (
+        "evaluate",
+        "annotator.commands.evaluate",
+        "score pose estimation results (symmetry-aware AP)",
+    ),
 )
 
 
@@ -55,7 +71,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     # Find the subcommand first so that only its module is imported.
     chosen = next((a for a in argv if not a.startswith("-")), None)
-    for name, module, help_text in COMMANDS:
+    for name, module, _help_text in COMMANDS:
         if name == chosen:
             sub = parser._subparsers._group_actions[0].choices[name]  # type: ignore[union-attr]
             mod = importlib.import_module(module)

@@ -30,7 +30,11 @@ def _errors(root, scene_ids=None) -> list[tuple[str, float, float, list[str]]]:
             obj = ds.objects[p.object]
             space = PoseSpace.from_moments(obj.mesh.moments, obj.symmetry)
             g = gt.get(p.key)
-            err = np.inf if g is None else float(space.distance(p.R[None], p.t[None], g.R[None], g.t[None])[0])
+            err = (
+                np.inf
+                if g is None
+                else float(space.distance(p.R[None], p.t[None], g.R[None], g.t[None])[0])
+            )
             out.append((p.key, err, space.diameter, p.extra["flags"]))
     return out
 
@@ -45,7 +49,15 @@ def test_annotate_sample_is_accurate_and_honest(sample_copy, capsys) -> None:
     assert all(flags for _, e, d, flags in errs if e > 0.05 * d), "a gross error without a flag"
     poses, top = read_pose_file(sample_copy / "scenes" / "000000" / "annotation.json")
     extra = poses[0].extra
-    for key in ("uncertainty_mm", "reprojection_px", "markers", "views", "depth", "occlusion", "flags"):
+    for key in (
+        "uncertainty_mm",
+        "reprojection_px",
+        "markers",
+        "views",
+        "depth",
+        "occlusion",
+        "flags",
+    ):
         assert key in extra
     assert {"unknown_markers", "duplicates", "errors", "created_at"} <= set(top)
 
@@ -60,7 +72,12 @@ def test_resumable_skips_up_to_date_scenes(sample_copy, capsys) -> None:
     assert main(["annotate", str(sample_copy), "--scenes", "00000[01]", "--json", "--quiet"]) == 0
     s = json.loads(capsys.readouterr().out)
     assert s["done"] == 1 and s["skipped"] == 1
-    assert main(["annotate", str(sample_copy), "--scenes", "00000[01]", "--force", "--json", "--quiet"]) == 0
+    assert (
+        main(
+            ["annotate", str(sample_copy), "--scenes", "00000[01]", "--force", "--json", "--quiet"]
+        )
+        == 0
+    )
     assert json.loads(capsys.readouterr().out)["done"] == 2
 
 
@@ -98,7 +115,10 @@ def test_mislabeled_and_duplicated_markers_are_caught(sample_copy, capsys) -> No
     doc = yaml.safe_load(obj_path.read_text())
     other = next(i for i in doc["instances"] if f"{ref.object}/{i['name']}" not in gt_keys)
     mine = next(i for i in doc["instances"] if i["name"] == ref.instance)
-    mine["marker_ids"][ref.site], other["marker_ids"][ref.site] = other["marker_ids"][ref.site], mine["marker_ids"][ref.site]
+    mine["marker_ids"][ref.site], other["marker_ids"][ref.site] = (
+        other["marker_ids"][ref.site],
+        mine["marker_ids"][ref.site],
+    )
     obj_path.write_text(yaml.safe_dump(doc))
     # The same marker printed twice: paste a copy of another detected marker elsewhere.
     dup = next(d for d in dets if d.id != victim.id)
@@ -111,9 +131,9 @@ def test_mislabeled_and_duplicated_markers_are_caught(sample_copy, capsys) -> No
     poses, top = read_pose_file(scene.annotation_path)
     assert dup.id in top["duplicates"]["left"]
     by_key = {p.key: p for p in poses}
-    assert victim.id in by_key[f"{ref.object}/{ref.instance}"].extra["markers"]["left"]["rejected"] or (
-        f"{ref.object}/{other['name']}" in by_key
-    )
+    assert victim.id in by_key[f"{ref.object}/{ref.instance}"].extra["markers"]["left"][
+        "rejected"
+    ] or (f"{ref.object}/{other['name']}" in by_key)
     for key, err, diameter, flags in _errors(sample_copy, {"000000"}):
         if err > 0.05 * diameter:
             assert flags, f"{key} is {err:.1f} mm off without a flag"

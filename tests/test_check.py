@@ -28,7 +28,9 @@ def test_each_problem_is_reported(sample_copy, capsys) -> None:
     (scenes[1] / "left.png").write_bytes(b"\x89PNG\r\n\x1a\n not really")  # corrupt image
     cv2.imwrite(str(scenes[2] / "left.png"), np.zeros((100, 120), np.uint8))  # wrong size
     (scenes[3] / "review.json").write_text("{oops")  # corrupt review
-    (scenes[3] / "gt.json").write_text(json.dumps({"instances": [{"object": "bracket"}]}))  # malformed gt
+    (scenes[3] / "gt.json").write_text(
+        json.dumps({"instances": [{"object": "bracket"}]})
+    )  # malformed gt
     doc = yaml.safe_load((root / "dataset.yaml").read_text())
     doc["rig"]["cameras"][1]["K"] = [1, 0, 2, 0, 1, 2]  # malformed K
     doc["rig"]["cameras"][1]["rig_T_cam"] = [2, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1]
@@ -39,7 +41,9 @@ def test_each_problem_is_reported(sample_copy, capsys) -> None:
     obj["symmetry"] = {"class": "twisted"}
     site = np.array(obj["markers"]["sites"][0])
     normal = np.cross(site[3] - site[0], site[1] - site[0])
-    obj["markers"]["sites"][0] = (site + 3.0 * normal / np.linalg.norm(normal)).tolist()  # off the surface
+    obj["markers"]["sites"][0] = (
+        site + 3.0 * normal / np.linalg.norm(normal)
+    ).tolist()  # off the surface
     obj["instances"][1]["marker_ids"][0] = obj["instances"][0]["marker_ids"][0]  # duplicate id
     obj["instances"][2]["marker_ids"][0] = 5000  # outside the dictionary
     obj_path.write_text(yaml.safe_dump(obj))

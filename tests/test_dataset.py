@@ -79,7 +79,11 @@ def test_poses_round_trip_and_reject_bad_rotations(tmp_path) -> None:
     p = InstancePose("box", "01", np.eye(3), np.array([1.0, 2, 300]), {"flags": ["ambiguous"]})
     write_poses(tmp_path / "a.json", [p], format=1)
     (back,) = read_poses(tmp_path / "a.json")
-    assert back.key == "box/01" and np.allclose(back.t, [1, 2, 300]) and back.extra["flags"] == ["ambiguous"]
+    assert (
+        back.key == "box/01"
+        and np.allclose(back.t, [1, 2, 300])
+        and back.extra["flags"] == ["ambiguous"]
+    )
     doc = json.loads((tmp_path / "a.json").read_text())
     doc["instances"][0]["cam_R_m2c"] = [2, 0, 0, 0, 1, 0, 0, 0, 1]
     (tmp_path / "b.json").write_text(json.dumps(doc))

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 import trimesh
 
+from annotator.errors import UserError
 from annotator.geometry.camera import Camera
 from annotator.geometry.mesh import Mesh, load_mesh, surface_moments
 from annotator.geometry.transforms import (
@@ -15,7 +16,6 @@ from annotator.geometry.transforms import (
     nearest_rotation,
     random_rotations,
 )
-from annotator.errors import UserError
 
 K = np.array([[900.0, 0, 319.5], [0, 900.0, 239.5], [0, 0, 1]])
 DIST = np.array([-0.12, 0.08, 0.0008, -0.0005, -0.01])
@@ -35,7 +35,9 @@ def test_invert_and_rotation_helpers() -> None:
 def test_undistort_inverts_projection_to_1e_6_px() -> None:
     cam = Camera("c", 640, 480, K, DIST)
     rng = np.random.default_rng(1)
-    pts = np.column_stack([rng.uniform(-0.35, 0.35, 200), rng.uniform(-0.25, 0.25, 200), np.ones(200)])
+    pts = np.column_stack(
+        [rng.uniform(-0.35, 0.35, 200), rng.uniform(-0.25, 0.25, 200), np.ones(200)]
+    )
     uv = cam.project(pts * 700.0)
     xy = cam.undistort_pixels(uv)
     assert np.abs(xy - pts[:, :2]).max() < 1e-8

@@ -16,7 +16,10 @@ from annotator.symmetry import finite_group
 
 def _surface_distance(mesh, pts: np.ndarray) -> np.ndarray:
     scene = o3d.t.geometry.RaycastingScene()
-    scene.add_triangles(o3d.core.Tensor(mesh.vertices.astype(np.float32)), o3d.core.Tensor(mesh.faces.astype(np.uint32)))
+    scene.add_triangles(
+        o3d.core.Tensor(mesh.vertices.astype(np.float32)),
+        o3d.core.Tensor(mesh.faces.astype(np.uint32)),
+    )
     return np.abs(scene.compute_signed_distance(o3d.core.Tensor(pts.astype(np.float32))).numpy())
 
 
@@ -46,9 +49,14 @@ def test_part_is_closed_centred_and_has_exactly_its_symmetry(name: str) -> None:
     if part.symmetry.kind in ("none", "finite"):
         # A symmetry it does not declare: the quarter turn about z (the brick, the bracket) or
         # the flip (the gear, whose hub is on one side) moves its surface.
-        for extra in (axis_angle(np.array([0, 0, 1.0]), np.pi / 2), axis_angle(np.array([1.0, 0, 0]), np.pi)):
+        for extra in (
+            axis_angle(np.array([0, 0, 1.0]), np.pi / 2),
+            axis_angle(np.array([1.0, 0, 0]), np.pi),
+        ):
             if not any(np.abs(extra - g).max() < 1e-6 for g in _group(part)):
-                assert _surface_distance(part.mesh, samples @ extra.T).max() > 1.0, f"{name} has an undeclared symmetry"
+                assert _surface_distance(part.mesh, samples @ extra.T).max() > 1.0, (
+                    f"{name} has an undeclared symmetry"
+                )
     if part.symmetry.kind == "revolution":
         flip = axis_angle(np.array([1.0, 0, 0]), np.pi)
         assert _surface_distance(part.mesh, samples @ flip.T).max() > 1.0
@@ -68,7 +76,11 @@ def test_layout_sites_lie_on_the_surface_and_do_not_overlap(name: str) -> None:
     # Corners and interior points on the surface, within the tolerance.
     u = np.linspace(0, 1, 4)
     s, t = np.meshgrid(u, u)
-    interior = c[:, None, None, 0] + s[None, ..., None] * (c[:, 1] - c[:, 0])[:, None, None] + t[None, ..., None] * (c[:, 3] - c[:, 0])[:, None, None]
+    interior = (
+        c[:, None, None, 0]
+        + s[None, ..., None] * (c[:, 1] - c[:, 0])[:, None, None]
+        + t[None, ..., None] * (c[:, 3] - c[:, 0])[:, None, None]
+    )
     assert _surface_distance(part.mesh, c.reshape(-1, 3)).max() < 1e-3
     assert _surface_distance(part.mesh, interior.reshape(-1, 3)).max() < 0.35 + 1e-3
     # Squares of the stated size, in ArUco order with the normal pointing out of the part.
@@ -76,8 +88,13 @@ def test_layout_sites_lie_on_the_surface_and_do_not_overlap(name: str) -> None:
     assert np.abs(sides - part.marker_size).max() < 0.02 * part.marker_size
     outward = (c.mean(axis=1) + 0.5 * layout.normals).astype(np.float32)
     scene = o3d.t.geometry.RaycastingScene()
-    scene.add_triangles(o3d.core.Tensor(part.mesh.vertices.astype(np.float32)), o3d.core.Tensor(part.mesh.faces.astype(np.uint32)))
-    assert np.all(scene.compute_signed_distance(o3d.core.Tensor(outward)).numpy() > 0)  # outside the part
+    scene.add_triangles(
+        o3d.core.Tensor(part.mesh.vertices.astype(np.float32)),
+        o3d.core.Tensor(part.mesh.faces.astype(np.uint32)),
+    )
+    assert np.all(
+        scene.compute_signed_distance(o3d.core.Tensor(outward)).numpy() > 0
+    )  # outside the part
     # No overlap: circumscribed circles are disjoint.
     centres = c.mean(axis=1)
     d = np.linalg.norm(centres[:, None] - centres[None], axis=2) + np.eye(len(c)) * 1e9
@@ -102,7 +119,9 @@ def test_markers_command_writes_object_sheets_and_textured_mesh(tmp_path, capsys
     # A4 at 300 dpi, true scale.
     assert sheet.shape == (round(297 / 25.4 * 300), round(210 / 25.4 * 300))
     assert (out / "sheets" / "markers.pdf").stat().st_size > 1000
-    assert (out / "textured" / "brick.obj").exists() and (out / "textured" / "brick_texture.png").exists()
+    assert (out / "textured" / "brick.obj").exists() and (
+        out / "textured" / "brick_texture.png"
+    ).exists()
     # Refuses an existing folder, changes nothing.
     before = sorted(p.name for p in out.iterdir())
     assert main(["markers", "brick", str(out)]) == 2

@@ -9,8 +9,14 @@ from annotator.geometry.camera import Camera
 from annotator.geometry.mesh import Mesh
 from annotator.geometry.transforms import invert, make_transform, random_rotations, rotvec_to_matrix
 from annotator.markers.layout import square_corners
-from annotator.pnp import Observation, candidate_poses, refine_pose, reprojection_errors, rms_uncertainty
 from annotator.parts import build_part
+from annotator.pnp import (
+    Observation,
+    candidate_poses,
+    refine_pose,
+    reprojection_errors,
+    rms_uncertainty,
+)
 
 K = np.array([[1400.0, 0, 639.5], [0, 1400.0, 511.5], [0, 0, 1]])
 DIST = np.array([-0.08, 0.06, 0.0004, -0.0003, -0.01])
@@ -24,7 +30,7 @@ def _rig() -> list[Camera]:
 def _sites(n: int, rng) -> np.ndarray:
     """Marker sites on a 60 mm cube-ish part facing roughly -z (towards the cameras)."""
     out = []
-    for k in range(n):
+    for _k in range(n):
         normal = np.array([rng.uniform(-0.5, 0.5), rng.uniform(-0.5, 0.5), -1.0])
         centre = rng.uniform(-25, 25, 3)
         out.append(square_corners(centre, normal, np.array([1.0, 0, 0]), 10.0))
@@ -63,7 +69,7 @@ def test_joint_refinement_beats_noise_and_its_uncertainty_is_calibrated() -> Non
     cams = _rig()
     moments = build_part("brick").mesh.moments
     ratios = []
-    for trial in range(30):
+    for _trial in range(30):
         T = _true_pose(rng)
         obs = _observe(cams, _sites(4, rng), T, rng, noise=0.3)
         est = refine_pose(cams, obs, candidate_poses(cams, obs)[0])

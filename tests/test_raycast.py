@@ -39,7 +39,11 @@ def test_instances_occlude_and_regions_match_full_render() -> None:
     front = PlacedMesh(_box((20, 20, 20)), make_transform(np.eye(3), [0, 0, 300.0]))
     back = PlacedMesh(_box((100, 100, 10)), make_transform(np.eye(3), [0, 0, 500.0]))
     hits = render(cam, [back, front])
-    assert hits.instance[240, 320] == 1 and hits.instance[240, 400] == 0 and hits.instance[0, 0] == NO_HIT
+    assert (
+        hits.instance[240, 320] == 1
+        and hits.instance[240, 400] == 0
+        and hits.instance[0, 0] == NO_HIT
+    )
     region = render(cam, [back, front], region=(300, 200, 360, 260))
     assert np.array_equal(region.instance, hits.instance[200:260, 300:360])
     pts = hits.model_points([back, front])

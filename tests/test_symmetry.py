@@ -42,7 +42,9 @@ def _space_and_group(name: str, rng: np.random.Generator):
     elif sym.kind == "spherical":
         G = random_rotations(4000, np.random.default_rng(5))
     else:
-        G = np.stack([axis_angle(sym.axis, a) for a in np.linspace(0, 2 * np.pi, 720, endpoint=False)])
+        G = np.stack(
+            [axis_angle(sym.axis, a) for a in np.linspace(0, 2 * np.pi, 720, endpoint=False)]
+        )
         if sym.kind == "revolution_flip":
             perp = np.cross(sym.axis, [1.0, 0, 0])
             G = np.concatenate([G, G @ axis_angle(perp, np.pi)])
@@ -80,8 +82,12 @@ def test_distance_is_invariant_under_the_group(name: str) -> None:
     d0 = space.distance(R1[None], t1[None], R2[None], t2[None])[0]
     for g in G[:: max(1, len(G) // 12)]:
         Rg, tg = R2 @ g, t2 + R2 @ (c - g @ c)
-        assert space.distance(R1[None], t1[None], Rg[None], tg[None])[0] == pytest.approx(d0, abs=1e-6)
-        assert space.distance(Rg[None], tg[None], R2[None], t2[None])[0] == pytest.approx(0.0, abs=1e-6)
+        assert space.distance(R1[None], t1[None], Rg[None], tg[None])[0] == pytest.approx(
+            d0, abs=1e-6
+        )
+        assert space.distance(Rg[None], tg[None], R2[None], t2[None])[0] == pytest.approx(
+            0.0, abs=1e-6
+        )
 
 
 def test_nearest_duplicates_and_average() -> None:

@@ -40,12 +40,16 @@ def test_stereo_depth_agrees_with_ideal_depth(sample) -> None:
     scene = ds.scenes()[0]
     depth = scene.read_depth(ds.rig)
     poses = read_poses(scene.gt_path)
-    ideal = render(cam, [PlacedMesh(ds.objects[p.object].mesh, cam.cam_T_rig @ p.T) for p in poses]).depth
+    ideal = render(
+        cam, [PlacedMesh(ds.objects[p.object].mesh, cam.cam_T_rig @ p.T) for p in poses]
+    ).depth
     parts = np.isfinite(ideal)
     valid = np.isfinite(depth) & parts
     valid_fraction = valid.sum() / parts.sum()
     close = np.abs(depth[valid] - ideal[valid]) < 2.0
-    print(f"valid on parts: {valid_fraction:.3f}; within 2 mm of the ideal depth: {close.mean():.3f}")
+    print(
+        f"valid on parts: {valid_fraction:.3f}; within 2 mm of the ideal depth: {close.mean():.3f}"
+    )
     assert valid_fraction > 0.8
     assert close.mean() > 0.9
 
@@ -60,7 +64,18 @@ def _digest(folder) -> str:
 
 
 def test_same_seed_same_bytes_and_reported_summary(tmp_path, capsys) -> None:
-    args = ["--scenes", "2", "--instances", "3-4", "--size", "320x256", "--seed", "5", "--json", "--quiet"]
+    args = [
+        "--scenes",
+        "2",
+        "--instances",
+        "3-4",
+        "--size",
+        "320x256",
+        "--seed",
+        "5",
+        "--json",
+        "--quiet",
+    ]
     assert main(["synth", str(tmp_path / "a"), *args]) == 0
     summary = json.loads(capsys.readouterr().out)
     assert summary["scenes"] == 2 and summary["failed"] == 0

@@ -18,7 +18,13 @@ import numpy as np
 from annotator.annotation import FLAGS
 from annotator.dataset import Dataset, InstancePose, Scene
 from annotator.detection import Detection, MarkerDetector
-from annotator.pnp import Observation, candidate_poses, refine_pose, reprojection_errors, rms_uncertainty
+from annotator.pnp import (
+    Observation,
+    candidate_poses,
+    refine_pose,
+    reprojection_errors,
+    rms_uncertainty,
+)
 from annotator.pnp.multiview import lone_marker_poses
 from annotator.rendering.raycast import PlacedMesh, projected_bbox, render
 
@@ -204,11 +210,15 @@ def _ambiguous(cams, used: list[Observation], T: np.ndarray, s: Settings) -> boo
     if len(sols) < 2:
         return True
     alone = Observation(0, o.marker_id, o.model_corners, o.image_corners)
-    errs = sorted(float(reprojection_errors([cam], [alone], cam.rig_T_cam @ S)[0]) for S in sols[:2])
+    errs = sorted(
+        float(reprojection_errors([cam], [alone], cam.rig_T_cam @ S)[0]) for S in sols[:2]
+    )
     return errs[1] / max(errs[0], 0.05) < s.ambiguity_ratio
 
 
-def _add_visibility(ds: Dataset, results: list[InstanceResult], depth: np.ndarray | None, s: Settings) -> None:
+def _add_visibility(
+    ds: Dataset, results: list[InstanceResult], depth: np.ndarray | None, s: Settings
+) -> None:
     """Depth agreement and occlusion rates of the posed instances (all instances as occluders)."""
     if not results:
         return

@@ -16,8 +16,12 @@ from annotator.errors import UserError
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("dataset", help="dataset folder (FORMAT.md)")
     parser.add_argument("--workers", type=int, default=1, help="worker processes (default 1)")
-    parser.add_argument("--scenes", default="*", metavar="PATTERN", help="only scenes whose id matches (fnmatch)")
-    parser.add_argument("--force", action="store_true", help="redo scenes whose annotation is up to date")
+    parser.add_argument(
+        "--scenes", default="*", metavar="PATTERN", help="only scenes whose id matches (fnmatch)"
+    )
+    parser.add_argument(
+        "--force", action="store_true", help="redo scenes whose annotation is up to date"
+    )
     parser.add_argument("--json", action="store_true", help="print the summary as JSON on stdout")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
 
@@ -31,7 +35,9 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(f"no scene matches {args.scenes!r}", path=ds.root / "scenes")
     todo = [s.id for s in scenes if args.force or not is_up_to_date(ds, s)]
     skipped = len(scenes) - len(todo)
-    report = run_batch(AnnotateJob(str(ds.root)), todo, workers=args.workers, desc="annotate", quiet=args.quiet)
+    report = run_batch(
+        AnnotateJob(str(ds.root)), todo, workers=args.workers, desc="annotate", quiet=args.quiet
+    )
     posed = sum(r["instances"] for r in report.done.values())
     flagged = sum(r["flagged"] for r in report.done.values())
     summary = {

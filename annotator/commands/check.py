@@ -16,9 +16,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     problems, scenes = check_dataset(args.dataset)
     if args.json:
-        print(json.dumps({"scenes": scenes, "problems": [{"path": str(p.path), "message": p.message} for p in problems]}, indent=1))
+        print(
+            json.dumps(
+                {
+                    "scenes": scenes,
+                    "problems": [{"path": str(p.path), "message": p.message} for p in problems],
+                },
+                indent=1,
+            )
+        )
     else:
         for p in problems:
             print(p)
-        print(f"check: {scenes} scenes, {len(problems)} problem{'s' if len(problems) != 1 else ''} in {args.dataset}")
+        print(
+            f"check: {scenes} scenes, {len(problems)} problem{'s' if len(problems) != 1 else ''} in {args.dataset}"
+        )
     return 1 if problems else 0

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 import numpy as np
@@ -22,18 +21,42 @@ from annotator.io.atomic import write_json
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("gt", help="ground truth: one of our datasets, a BOP dataset, or a Siléane object folder")
     parser.add_argument(
-        "--results", help="BOP result CSV or folder of <scene>.json lists; omitted on our datasets: "
-        "the annotation.json poses are scored against gt.json"
+        "gt", help="ground truth: one of our datasets, a BOP dataset, or a Siléane object folder"
     )
-    parser.add_argument("--max-occlusion", type=float, default=0.5, help="instances of interest are less occluded (default 0.5)")
-    parser.add_argument("-n", "--max-results", type=int, nargs="*", default=[1, 3], help="AP_n for each n (default 1 3)")
+    parser.add_argument(
+        "--results",
+        help="BOP result CSV or folder of <scene>.json lists; omitted on our datasets: "
+        "the annotation.json poses are scored against gt.json",
+    )
+    parser.add_argument(
+        "--max-occlusion",
+        type=float,
+        default=0.5,
+        help="instances of interest are less occluded (default 0.5)",
+    )
+    parser.add_argument(
+        "-n",
+        "--max-results",
+        type=int,
+        nargs="*",
+        default=[1, 3],
+        help="AP_n for each n (default 1 3)",
+    )
     g = parser.add_mutually_exclusive_group()
     g.add_argument("--threshold", type=float, help="match threshold in mm")
-    g.add_argument("--threshold-fraction", type=float, default=0.1, help="threshold as a fraction of the diameter (default 0.1)")
-    parser.add_argument("--symmetry", help="symmetry class for a Siléane folder without symmetry.yaml")
-    parser.add_argument("--per-object", action="store_true", help="print one row per object (default: when several)")
+    g.add_argument(
+        "--threshold-fraction",
+        type=float,
+        default=0.1,
+        help="threshold as a fraction of the diameter (default 0.1)",
+    )
+    parser.add_argument(
+        "--symmetry", help="symmetry class for a Siléane folder without symmetry.yaml"
+    )
+    parser.add_argument(
+        "--per-object", action="store_true", help="print one row per object (default: when several)"
+    )
     parser.add_argument("--json", metavar="OUT", help="write the full report as JSON")
     parser.add_argument("--plot", metavar="OUT.png", help="draw the mean precision/recall curves")
 
@@ -57,14 +80,20 @@ def run(args: argparse.Namespace) -> int:
     else:
         raise UserError("--results is required for BOP and Siléane ground truth")
     opts = Options(
-        max_occlusion=args.max_occlusion, max_results=tuple(args.max_results),
-        threshold_mm=args.threshold, threshold_fraction=args.threshold_fraction,
+        max_occlusion=args.max_occlusion,
+        max_results=tuple(args.max_results),
+        threshold_mm=args.threshold,
+        threshold_fraction=args.threshold_fraction,
     )
     report = evaluate(gt, results, opts)
     thr = "threshold: " + (
-        f"{args.threshold} mm" if args.threshold else f"{args.threshold_fraction:g} x diameter of the enclosing sphere centred on the surface centroid"
+        f"{args.threshold} mm"
+        if args.threshold
+        else f"{args.threshold_fraction:g} x diameter of the enclosing sphere centred on the surface centroid"
     )
-    print(f"evaluating {source} against {args.gt} ({gt.kind}); {thr}; instances of interest: occlusion < {args.max_occlusion:g}")
+    print(
+        f"evaluating {source} against {args.gt} ({gt.kind}); {thr}; instances of interest: occlusion < {args.max_occlusion:g}"
+    )
     print(format_table(report))
     if not args.results and gt.kind == "ours":
         errs = per_instance_errors(Path(args.gt))
@@ -80,5 +109,3 @@ def run(args: argparse.Namespace) -> int:
         plot_curves(report, args.plot)
         print(f"precision/recall curves: {args.plot}")
     return 0
-
-

@@ -27,16 +27,35 @@ from annotator.parts import PART_NAMES, build_part
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("part", help=f"a built-in part ({', '.join(PART_NAMES)}) or a mesh file in mm")
+    parser.add_argument(
+        "part", help=f"a built-in part ({', '.join(PART_NAMES)}) or a mesh file in mm"
+    )
     parser.add_argument("out", help="output folder (an object folder of a dataset)")
-    parser.add_argument("--size", type=float, help="printed marker side in mm (default: the part's, or 10)")
-    parser.add_argument("--dictionary", default="DICT_4X4_1000", help="OpenCV ArUco dictionary (default DICT_4X4_1000)")
-    parser.add_argument("--instances", type=int, default=1, help="physical copies to make (default 1)")
+    parser.add_argument(
+        "--size", type=float, help="printed marker side in mm (default: the part's, or 10)"
+    )
+    parser.add_argument(
+        "--dictionary",
+        default="DICT_4X4_1000",
+        help="OpenCV ArUco dictionary (default DICT_4X4_1000)",
+    )
+    parser.add_argument(
+        "--instances", type=int, default=1, help="physical copies to make (default 1)"
+    )
     parser.add_argument("--first-id", type=int, default=0, help="first marker id (default 0)")
     parser.add_argument("--max-sites", type=int, help="at most this many sites per part")
-    parser.add_argument("--flatness", type=float, default=0.35, help="max gap between square and surface, mm (default 0.35)")
-    parser.add_argument("--symmetry", default=None, help="symmetry class for a mesh file (default none)")
-    parser.add_argument("--dpi", type=int, default=300, help="resolution of the PNG sheets (default 300)")
+    parser.add_argument(
+        "--flatness",
+        type=float,
+        default=0.35,
+        help="max gap between square and surface, mm (default 0.35)",
+    )
+    parser.add_argument(
+        "--symmetry", default=None, help="symmetry class for a mesh file (default none)"
+    )
+    parser.add_argument(
+        "--dpi", type=int, default=300, help="resolution of the PNG sheets (default 300)"
+    )
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--overwrite", action="store_true", help="replace OUT if it exists")
     parser.add_argument("--json", action="store_true", help="print the summary as JSON")
@@ -47,7 +66,9 @@ def run(args: argparse.Namespace) -> int:
     if args.size is not None and args.size <= 0:
         raise UserError(f"--size must be positive, got {args.size}")
     if args.instances < 1 or args.first_id < 0 or not 50 <= args.dpi <= 2400 or args.flatness <= 0:
-        raise UserError("--instances >= 1, --first-id >= 0, --dpi in 50..2400 and --flatness > 0 are required")
+        raise UserError(
+            "--instances >= 1, --first-id >= 0, --dpi in 50..2400 and --flatness > 0 are required"
+        )
     n_dict = dictionary_size(args.dictionary)
     if out.exists() and not args.overwrite:
         raise UserError("already exists (use --overwrite to replace it)", path=out)
@@ -63,9 +84,13 @@ def run(args: argparse.Namespace) -> int:
         symmetry = Symmetry(args.symmetry or "none")
         name = path.stem
         size = args.size or 10.0
-    layout = place_markers(mesh, size=size, max_sites=args.max_sites, flatness_tol=args.flatness, seed=args.seed)
+    layout = place_markers(
+        mesh, size=size, max_sites=args.max_sites, flatness_tol=args.flatness, seed=args.seed
+    )
     if len(layout.corners) == 0:
-        raise UserError(f"no flat patch of the part fits a {size:g} mm marker: try a smaller --size or a larger --flatness")
+        raise UserError(
+            f"no flat patch of the part fits a {size:g} mm marker: try a smaller --size or a larger --flatness"
+        )
     ids = assign_ids(len(layout.corners), args.instances, start=args.first_id)
     if ids[-1][-1] >= n_dict:
         raise UserError(
@@ -77,22 +102,41 @@ def run(args: argparse.Namespace) -> int:
     tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
     try:
         trimesh.Trimesh(mesh.vertices, mesh.faces, process=False).export(tmp / "model.ply")
-        write_object_yaml(tmp, mesh_file="model.ply", symmetry=symmetry, markers=layout.sites, instances=instances)
-        labels = [SheetMarker(m, f"{m} {name}/{inst.name} s{k}") for inst in instances for k, m in enumerate(inst.marker_ids)]
+        write_object_yaml(
+            tmp, mesh_file="model.ply", symmetry=symmetry, markers=layout.sites, instances=instances
+        )
+        labels = [
+            SheetMarker(m, f"{m} {name}/{inst.name} s{k}")
+            for inst in instances
+            for k, m in enumerate(inst.marker_ids)
+        ]
         (tmp / "sheets").mkdir()
-        write_sheets(tmp / "sheets", render_pages(args.dictionary, labels, size_mm=size, dpi=args.dpi), dpi=args.dpi)
+        write_sheets(
+            tmp / "sheets",
+            render_pages(args.dictionary, labels, size_mm=size, dpi=args.dpi),
+            dpi=args.dpi,
+        )
         (tmp / "textured").mkdir()
         for inst in instances:
             stem = name if len(instances) == 1 or inst is instances[0] else f"{name}_{inst.name}"
-            write_textured_obj(tmp / "textured", stem, mesh, layout.corners, inst.marker_ids, args.dictionary)
+            write_textured_obj(
+                tmp / "textured", stem, mesh, layout.corners, inst.marker_ids, args.dictionary
+            )
         if out.exists():
             shutil.rmtree(out)
         tmp.rename(out)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
-    summary = {"part": name, "sites": len(layout.corners), "min_facing": layout.min_facing, "size_mm": size,
-               "instances": args.instances, "ids": [ids[0][0], ids[-1][-1]], "out": str(out)}
+    summary = {
+        "part": name,
+        "sites": len(layout.corners),
+        "min_facing": layout.min_facing,
+        "size_mm": size,
+        "instances": args.instances,
+        "ids": [ids[0][0], ids[-1][-1]],
+        "out": str(out),
+    }
     if args.json:
         print(json.dumps(summary))
     else:

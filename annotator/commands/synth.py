@@ -17,15 +17,31 @@ from annotator.synthesis.generate import SceneJob, SynthConfig, _plan, write_dat
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("out", help="output dataset folder (must not exist, unless --overwrite)")
-    parser.add_argument("--parts", default="bracket,cylinder", help=f"comma-separated built-in parts ({', '.join(PART_NAMES)})")
+    parser.add_argument(
+        "--parts",
+        default="bracket,cylinder",
+        help=f"comma-separated built-in parts ({', '.join(PART_NAMES)})",
+    )
     parser.add_argument("--scenes", type=int, default=10, help="number of scenes (default 10)")
-    parser.add_argument("--instances", default="8-20", metavar="MIN-MAX", help="instances per scene (default 8-20)")
-    parser.add_argument("--seed", type=int, default=0, help="random seed: same seed, same dataset (default 0)")
+    parser.add_argument(
+        "--instances", default="8-20", metavar="MIN-MAX", help="instances per scene (default 8-20)"
+    )
+    parser.add_argument(
+        "--seed", type=int, default=0, help="random seed: same seed, same dataset (default 0)"
+    )
     parser.add_argument("--workers", type=int, default=1, help="worker processes (default 1)")
-    parser.add_argument("--size", default="1280x1024", metavar="WxH", help="image size (default 1280x1024)")
-    parser.add_argument("--clutter", type=int, default=0, help="parts without markers per scene (default 0)")
-    parser.add_argument("--noise", type=float, default=2.0, help="image noise sigma, grey levels (default 2)")
-    parser.add_argument("--blur", type=float, default=0.6, help="image blur sigma, px (default 0.6)")
+    parser.add_argument(
+        "--size", default="1280x1024", metavar="WxH", help="image size (default 1280x1024)"
+    )
+    parser.add_argument(
+        "--clutter", type=int, default=0, help="parts without markers per scene (default 0)"
+    )
+    parser.add_argument(
+        "--noise", type=float, default=2.0, help="image noise sigma, grey levels (default 2)"
+    )
+    parser.add_argument(
+        "--blur", type=float, default=0.6, help="image blur sigma, px (default 0.6)"
+    )
     parser.add_argument("--no-depth", action="store_true", help="skip the active-stereo depth maps")
     parser.add_argument("--overwrite", action="store_true", help="replace OUT if it exists")
     parser.add_argument("--json", action="store_true", help="print the summary as JSON")
@@ -56,8 +72,15 @@ def _config(args: argparse.Namespace) -> SynthConfig:
     if args.noise < 0 or args.blur < 0:
         raise UserError("--noise and --blur must not be negative")
     return SynthConfig(
-        parts=parts, scenes=args.scenes, instances=inst, seed=args.seed, size=(w, h), clutter=args.clutter,
-        noise=args.noise, blur=args.blur, depth=not args.no_depth,
+        parts=parts,
+        scenes=args.scenes,
+        instances=inst,
+        seed=args.seed,
+        size=(w, h),
+        clutter=args.clutter,
+        noise=args.noise,
+        blur=args.blur,
+        depth=not args.no_depth,
     )
 
 
@@ -74,7 +97,9 @@ def run(args: argparse.Namespace) -> int:
         plan = _plan(config)
         write_dataset_files(plan, tmp)
         ids = [f"{k:06d}" for k in range(config.scenes)]
-        report = run_batch(SceneJob(config, str(tmp)), ids, workers=args.workers, desc="synth", quiet=args.quiet)
+        report = run_batch(
+            SceneJob(config, str(tmp)), ids, workers=args.workers, desc="synth", quiet=args.quiet
+        )
         for sid in report.failed:
             shutil.rmtree(tmp / "scenes" / sid, ignore_errors=True)
         if out.exists():

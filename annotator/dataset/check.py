@@ -46,7 +46,12 @@ def _check_objects(ds: Dataset) -> list[Problem]:
         for inst in obj.instances:
             bad = [i for i in inst.marker_ids if n_dict is not None and i >= n_dict]
             if bad:
-                out.append(Problem(yaml_path, f"instance {inst.name!r}: marker ids {bad} are outside {ds.dictionary} (0..{n_dict - 1})"))
+                out.append(
+                    Problem(
+                        yaml_path,
+                        f"instance {inst.name!r}: marker ids {bad} are outside {ds.dictionary} (0..{n_dict - 1})",
+                    )
+                )
         if not obj.mesh_path.is_file():
             continue  # already reported by read_dataset
         try:
@@ -57,18 +62,34 @@ def _check_objects(ds: Dataset) -> list[Problem]:
         if obj.markers is None:
             continue
         scene = o3d.t.geometry.RaycastingScene()
-        scene.add_triangles(o3d.core.Tensor(mesh.vertices.astype(np.float32)), o3d.core.Tensor(mesh.faces.astype(np.uint32)))
+        scene.add_triangles(
+            o3d.core.Tensor(mesh.vertices.astype(np.float32)),
+            o3d.core.Tensor(mesh.faces.astype(np.uint32)),
+        )
         size = obj.markers.size
         for k, c in enumerate(obj.markers.corners):
             sides = np.linalg.norm(np.roll(c, -1, axis=0) - c, axis=1)
             diag = np.linalg.norm(c[2] - c[0]), np.linalg.norm(c[3] - c[1])
-            if np.any(np.abs(sides - size) > SIZE_TOLERANCE * size) or abs(diag[0] - diag[1]) > SIZE_TOLERANCE * size:
-                out.append(Problem(yaml_path, f"markers.sites[{k}] is not a square of side {size:g} mm (sides {np.round(sides, 2).tolist()})"))
+            if (
+                np.any(np.abs(sides - size) > SIZE_TOLERANCE * size)
+                or abs(diag[0] - diag[1]) > SIZE_TOLERANCE * size
+            ):
+                out.append(
+                    Problem(
+                        yaml_path,
+                        f"markers.sites[{k}] is not a square of side {size:g} mm (sides {np.round(sides, 2).tolist()})",
+                    )
+                )
                 continue
             pts = np.concatenate([c, c.mean(axis=0, keepdims=True)]).astype(np.float32)
             dist = np.abs(scene.compute_signed_distance(o3d.core.Tensor(pts)).numpy())
             if dist.max() > SITE_TOLERANCE_MM:
-                out.append(Problem(yaml_path, f"markers.sites[{k}] is {dist.max():.2f} mm off the mesh surface (tolerance {SITE_TOLERANCE_MM} mm)"))
+                out.append(
+                    Problem(
+                        yaml_path,
+                        f"markers.sites[{k}] is {dist.max():.2f} mm off the mesh surface (tolerance {SITE_TOLERANCE_MM} mm)",
+                    )
+                )
     return out
 
 
@@ -84,7 +105,12 @@ def _check_scene(ds: Dataset, scene) -> list[Problem]:
             out.append(Problem(exc.path or scene.image_path(cam), exc.message))
     if scene.depth_path.exists():
         if ds.rig.depth is None:
-            out.append(Problem(scene.depth_path, "depth map present but dataset.yaml has no rig.depth (camera and scale)"))
+            out.append(
+                Problem(
+                    scene.depth_path,
+                    "depth map present but dataset.yaml has no rig.depth (camera and scale)",
+                )
+            )
         else:
             try:
                 scene.read_depth(ds.rig)

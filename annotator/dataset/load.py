@@ -44,7 +44,11 @@ def load_dataset(root: str | Path) -> Dataset:
     """Read a dataset; raise a one-line UserError on the first problem (see ``annotator check``)."""
     dataset, problems = read_dataset(root)
     if problems:
-        more = f" (and {len(problems) - 1} more problems: run `annotator check {root}`)" if len(problems) > 1 else ""
+        more = (
+            f" (and {len(problems) - 1} more problems: run `annotator check {root}`)"
+            if len(problems) > 1
+            else ""
+        )
         raise UserError(problems[0].message + more, path=problems[0].path)
     assert dataset is not None
     return dataset
@@ -76,7 +80,14 @@ def read_dataset(root: str | Path) -> tuple[Dataset | None, list[Problem]]:
     _check_marker_ids(objects, problems)
     if rig is None:
         return None, problems
-    ds = Dataset(root=root, name=str(doc.get("name", root.name)), dictionary=dictionary, rig=rig, objects=objects, raw=doc)
+    ds = Dataset(
+        root=root,
+        name=str(doc.get("name", root.name)),
+        dictionary=dictionary,
+        rig=rig,
+        objects=objects,
+        raw=doc,
+    )
     return ds, problems
 
 
@@ -163,7 +174,9 @@ def _parse_rig(p: _Parser, rig: dict[str, Any] | None) -> Rig | None:
         if K is not None:
             K = K.reshape(3, 3)
             if K[0, 0] <= 0 or K[1, 1] <= 0 or K[1, 0] != 0 or np.any(K[2] != [0, 0, 1]):
-                p.problem(f"{where}.K is not a pinhole matrix [fx 0 cx 0 fy cy 0 0 1] with fx, fy > 0")
+                p.problem(
+                    f"{where}.K is not a pinhole matrix [fx 0 cx 0 fy cy 0 0 1] with fx, fy > 0"
+                )
                 ok = False
         if size is not None and (np.any(size <= 0) or np.any(size != np.round(size))):
             p.problem(f"{where}.size must be two positive integers")
@@ -171,16 +184,22 @@ def _parse_rig(p: _Parser, rig: dict[str, Any] | None) -> Rig | None:
         if T is not None:
             T = T.reshape(4, 4)
             if not is_rotation(T[:3, :3], tol=1e-5) or np.any(np.abs(T[3] - [0, 0, 0, 1]) > 1e-9):
-                p.problem(f"{where}.rig_T_cam is not a rigid transform (rotation block not orthonormal or last row not 0 0 0 1)")
+                p.problem(
+                    f"{where}.rig_T_cam is not a rigid transform (rotation block not orthonormal or last row not 0 0 0 1)"
+                )
                 ok = False
         if not ok:
             continue
         if i == 0 and not np.allclose(T, np.eye(4), atol=1e-9):
-            p.problem(f"{where}.rig_T_cam must be the identity: the first camera is the reference frame")
+            p.problem(
+                f"{where}.rig_T_cam must be the identity: the first camera is the reference frame"
+            )
         if any(cam.name == name for cam in cameras):
             p.problem(f"{where}: duplicate camera name {name!r}")
             continue
-        cameras.append(Camera(name=name, width=int(size[0]), height=int(size[1]), K=K, dist=dist, rig_T_cam=T))
+        cameras.append(
+            Camera(name=name, width=int(size[0]), height=int(size[1]), K=K, dist=dist, rig_T_cam=T)
+        )
     depth = None
     if "depth" in rig and rig["depth"] is not None:
         d = rig["depth"]
@@ -221,7 +240,9 @@ def _parse_object(root: Path, name: str, problems: list[Problem]) -> ObjectModel
         if not isinstance(size, (int, float)) or not size > 0:
             p.problem("markers.size must be a positive number (mm)")
         sites = m.get("sites", []) if isinstance(m, dict) else []
-        corners = p.floats(sites, len(sites) * 12 if isinstance(sites, list) and sites else 12, "markers.sites")
+        corners = p.floats(
+            sites, len(sites) * 12 if isinstance(sites, list) and sites else 12, "markers.sites"
+        )
         if corners is not None and isinstance(size, (int, float)) and size > 0:
             markers = MarkerSites(size=float(size), corners=corners.reshape(-1, 4, 3))
     instances: list[Instance] = []
@@ -258,12 +279,16 @@ def _parse_symmetry(p: _Parser, doc: Any) -> Symmetry:
         return Symmetry()
     kind = doc.get("class", "none")
     if kind not in SYMMETRY_CLASSES:
-        p.problem(f"unknown symmetry class {kind!r} (expected one of {', '.join(SYMMETRY_CLASSES)})")
+        p.problem(
+            f"unknown symmetry class {kind!r} (expected one of {', '.join(SYMMETRY_CLASSES)})"
+        )
         return Symmetry()
     if kind == "finite":
         gens = []
         for i, g in enumerate(doc.get("generators") or []):
-            axis = p.floats(g.get("axis") if isinstance(g, dict) else None, 3, f"symmetry.generators[{i}].axis")
+            axis = p.floats(
+                g.get("axis") if isinstance(g, dict) else None, 3, f"symmetry.generators[{i}].axis"
+            )
             order = g.get("order") if isinstance(g, dict) else None
             if not isinstance(order, int) or order < 2:
                 p.problem(f"symmetry.generators[{i}].order must be an integer >= 2")
@@ -290,6 +315,9 @@ def _check_marker_ids(objects: dict[str, ObjectModel], problems: list[Problem]) 
                 here = f"{obj.name}/{inst.name}"
                 if mid in seen and seen[mid] != here:
                     problems.append(
-                        Problem(obj.folder / "object.yaml", f"marker id {mid} of {here} is also used by {seen[mid]}")
+                        Problem(
+                            obj.folder / "object.yaml",
+                            f"marker id {mid} of {here} is also used by {seen[mid]}",
+                        )
                     )
                 seen.setdefault(mid, here)

@@ -184,7 +184,11 @@ class Dataset:
         folder = self.root / "scenes"
         if not folder.is_dir():
             return []
-        return [Scene(p.name, p) for p in sorted(folder.iterdir()) if p.is_dir() and not p.name.startswith(".")]
+        return [
+            Scene(p.name, p)
+            for p in sorted(folder.iterdir())
+            if p.is_dir() and not p.name.startswith(".")
+        ]
 
     def scene(self, scene_id: str) -> Scene:
         """The scene called ``scene_id`` (KeyError if absent)."""

@@ -72,10 +72,18 @@ def read_pose_file(path: str | Path) -> tuple[list[InstancePose], dict[str, Any]
             t = np.asarray(rec["cam_t_m2c"], dtype=np.float64).reshape(3)
             obj, inst = str(rec["object"]), str(rec["instance"])
         except (KeyError, TypeError, ValueError):
-            raise UserError(f"instances[{i}] needs object, instance, cam_R_m2c (9) and cam_t_m2c (3)", path=path) from None
+            raise UserError(
+                f"instances[{i}] needs object, instance, cam_R_m2c (9) and cam_t_m2c (3)", path=path
+            ) from None
         if not is_rotation(R, tol=1e-3):
-            raise UserError(f"instances[{i}] ({obj}/{inst}): cam_R_m2c is not a rotation", path=path)
-        extra = {k: v for k, v in rec.items() if k not in ("object", "instance", "cam_R_m2c", "cam_t_m2c")}
+            raise UserError(
+                f"instances[{i}] ({obj}/{inst}): cam_R_m2c is not a rotation", path=path
+            )
+        extra = {
+            k: v
+            for k, v in rec.items()
+            if k not in ("object", "instance", "cam_R_m2c", "cam_t_m2c")
+        }
         poses.append(InstancePose(obj, inst, R, t, extra))
     rest = {k: v for k, v in doc.items() if k != "instances"}
     return poses, rest

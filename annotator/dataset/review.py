@@ -67,7 +67,12 @@ def poses_fingerprint(poses: list[InstancePose]) -> str:
     does not make earlier decisions stale.
     """
     rows = sorted(
-        (p.object, p.instance, [round(float(x), 6) for x in np.ravel(p.R)], [round(float(x), 4) for x in np.ravel(p.t)])
+        (
+            p.object,
+            p.instance,
+            [round(float(x), 6) for x in np.ravel(p.R)],
+            [round(float(x), 4) for x in np.ravel(p.t)],
+        )
         for p in poses
     )
     return hashlib.sha256(json.dumps(rows).encode()).hexdigest()
@@ -88,7 +93,9 @@ def read_review(path: str | Path) -> Review | None:
     instances = doc.get("instances", {})
     if status not in SCENE_STATUSES:
         raise UserError(f"unknown scene status {status!r}", path=path)
-    if not isinstance(instances, dict) or any(v not in INSTANCE_STATUSES for v in instances.values()):
+    if not isinstance(instances, dict) or any(
+        v not in INSTANCE_STATUSES for v in instances.values()
+    ):
         raise UserError("'instances' must map object/instance to accepted or rejected", path=path)
     known = {"status", "instances", "decided_at", "annotation_fingerprint"}
     return Review(

@@ -80,6 +80,11 @@ def write_object_yaml(
             "size": float(markers.size),
             "sites": [[_floats(c, 6) for c in site] for site in markers.corners],
         }
-    doc["instances"] = [{"name": i.name, "marker_ids": [int(m) for m in i.marker_ids]} for i in instances]
+    doc["instances"] = [
+        {"name": i.name, "marker_ids": [int(m) for m in i.marker_ids]} for i in instances
+    ]
     doc.update(extra)
-    write_text(Path(folder) / "object.yaml", yaml.safe_dump(doc, sort_keys=False, width=120, default_flow_style=None))
+    write_text(
+        Path(folder) / "object.yaml",
+        yaml.safe_dump(doc, sort_keys=False, width=120, default_flow_style=None),
+    )

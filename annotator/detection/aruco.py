@@ -35,7 +35,9 @@ class MarkerDetector:
     def __init__(self, dictionary_name: str, *, refine_edges: bool = True) -> None:
         params = cv2.aruco.DetectorParameters()
         params.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_SUBPIX
-        self._detector = cv2.aruco.ArucoDetector(dictionary(dictionary_name), params, cv2.aruco.RefineParameters())
+        self._detector = cv2.aruco.ArucoDetector(
+            dictionary(dictionary_name), params, cv2.aruco.RefineParameters()
+        )
         self.refine_edges = refine_edges
 
     def detect(self, image: np.ndarray) -> list[Detection]:
@@ -51,7 +53,9 @@ class MarkerDetector:
         return [Detection(int(i), q) for i, q in zip(ids, quads)]
 
 
-def refine_quads(gray: np.ndarray, quads: np.ndarray, *, samples: int = 12, cells: int = 6) -> np.ndarray:
+def refine_quads(
+    gray: np.ndarray, quads: np.ndarray, *, samples: int = 12, cells: int = 6
+) -> np.ndarray:
     """Refine (N, 4, 2) quads by fitting lines to the gradient peaks across each side.
 
     The search across a side reaches at most half a marker cell (``cells`` per side, border

@@ -6,8 +6,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from annotator.evaluation.metrics import RECALL_GRID, SceneCounts, Summary, scene_counts, summarise
 from annotator.evaluation.readers import GroundTruth, PoseSet, Table
 
@@ -38,7 +36,10 @@ class Report:
                 "TP": x.tp,
                 "FP": x.fp,
                 "FN": x.fn,
-                "mean_curve": {"recall": RECALL_GRID.round(3).tolist(), "precision": x.mean_curve.round(5).tolist()},
+                "mean_curve": {
+                    "recall": RECALL_GRID.round(3).tolist(),
+                    "precision": x.mean_curve.round(5).tolist(),
+                },
             }
 
         return {
@@ -55,7 +56,9 @@ class Report:
 def evaluate(gt: GroundTruth, results: Table, options: Options = Options()) -> Report:
     """Score ``results`` against ``gt`` (see :mod:`annotator.evaluation.metrics`)."""
     thresholds = {
-        name: options.threshold_mm if options.threshold_mm is not None else options.threshold_fraction * sp.diameter
+        name: options.threshold_mm
+        if options.threshold_mm is not None
+        else options.threshold_fraction * sp.diameter
         for name, sp in gt.spaces.items()
     }
     counts: dict[str, list[SceneCounts]] = {name: [] for name in gt.spaces}
@@ -79,16 +82,26 @@ def evaluate(gt: GroundTruth, results: Table, options: Options = Options()) -> R
 def format_table(report: Report) -> str:
     """A table like the paper's table 3."""
     ns = list(report.options.max_results)
-    head = ["object", "AP"] + [f"AP_{n}" for n in ns] + ["scene AP", "best F1", "TP", "FP", "FN", "threshold"]
+    head = (
+        ["object", "AP"]
+        + [f"AP_{n}" for n in ns]
+        + ["scene AP", "best F1", "TP", "FP", "FN", "threshold"]
+    )
     rows = []
     for name, s in list(report.per_object.items()) + [("all", report.overall)]:
         thr = f"{report.thresholds[name]:.2f} mm" if name in report.thresholds else "-"
         rows.append(
-            [name, f"{s.ap:.3f}"] + [f"{s.ap_n[n]:.3f}" for n in ns]
+            [name, f"{s.ap:.3f}"]
+            + [f"{s.ap_n[n]:.3f}" for n in ns]
             + [f"{s.mean_scene_ap:.3f}", f"{s.best_f1:.3f}", str(s.tp), str(s.fp), str(s.fn), thr]
         )
     widths = [max(len(r[i]) for r in [head] + rows) for i in range(len(head))]
-    line = lambda r: "  ".join(c.ljust(w) if i == 0 else c.rjust(w) for i, (c, w) in enumerate(zip(r, widths)))  # noqa: E731
+
+    def line(r: list[str]) -> str:
+        return "  ".join(
+            c.ljust(w) if i == 0 else c.rjust(w) for i, (c, w) in enumerate(zip(r, widths))
+        )
+
     return "\n".join([line(head), line(["-" * w for w in widths])] + [line(r) for r in rows])
 
 
@@ -111,7 +124,9 @@ def plot_curves(report: Report, path: str | Path) -> None:
     ax.set_ylim(0, 1.02)
     ax.grid(alpha=0.3)
     ax.legend(loc="lower left")
-    ax.set_title(f"mean precision/recall over scenes (max occlusion {report.options.max_occlusion:g})")
+    ax.set_title(
+        f"mean precision/recall over scenes (max occlusion {report.options.max_occlusion:g})"
+    )
     import io
 
     buf = io.BytesIO()

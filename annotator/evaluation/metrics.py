@@ -46,7 +46,9 @@ class SceneCounts:
         return self.n_interest - self.tp
 
 
-def scene_counts(distances: np.ndarray, scores: np.ndarray, interest: np.ndarray, threshold: float) -> SceneCounts:
+def scene_counts(
+    distances: np.ndarray, scores: np.ndarray, interest: np.ndarray, threshold: float
+) -> SceneCounts:
     """Counts for every prefix of the results ranked by decreasing score.
 
     Args:
@@ -78,7 +80,9 @@ def scene_counts(distances: np.ndarray, scores: np.ndarray, interest: np.ndarray
     return SceneCounts(tp, fp, int(interest.sum()))
 
 
-def precision_recall(c: SceneCounts, *, max_results: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+def precision_recall(
+    c: SceneCounts, *, max_results: int | None = None
+) -> tuple[np.ndarray, np.ndarray]:
     """Precision and recall for each non-empty prefix (recall with at most n if given)."""
     k = np.arange(1, len(c.tp))
     if max_results is not None:
@@ -115,7 +119,11 @@ class Summary:
 
 
 def _area(curve: np.ndarray) -> float:
-    return float(np.trapezoid(curve, RECALL_GRID)) if hasattr(np, "trapezoid") else float(np.trapz(curve, RECALL_GRID))
+    return (
+        float(np.trapezoid(curve, RECALL_GRID))
+        if hasattr(np, "trapezoid")
+        else float(np.trapezoid(curve, RECALL_GRID))
+    )
 
 
 def summarise(counts: Sequence[SceneCounts], *, max_results: Sequence[int] = ()) -> Summary:
@@ -127,7 +135,9 @@ def summarise(counts: Sequence[SceneCounts], *, max_results: Sequence[int] = ())
     for n in max_results:
         cn = [interpolated_precision(*precision_recall(c, max_results=n)) for c in scored]
         ap_n[int(n)] = _area(np.mean(cn, axis=0)) if cn else 0.0
-    f1 = np.where(mean + RECALL_GRID > 0, 2 * mean * RECALL_GRID / np.maximum(mean + RECALL_GRID, 1e-12), 0.0)
+    f1 = np.where(
+        mean + RECALL_GRID > 0, 2 * mean * RECALL_GRID / np.maximum(mean + RECALL_GRID, 1e-12), 0.0
+    )
     return Summary(
         ap=_area(mean),
         ap_n=ap_n,

@@ -83,7 +83,10 @@ def read_ground_truth(path: str | Path, *, symmetry: str | None = None) -> Groun
         return _read_bop(path)
     if (path / "gt").is_dir():
         return _read_sileane(path, symmetry)
-    raise UserError("not a dataset: no dataset.yaml (ours), models/models_info.json (BOP) or gt/ (Siléane)", path=path)
+    raise UserError(
+        "not a dataset: no dataset.yaml (ours), models/models_info.json (BOP) or gt/ (Siléane)",
+        path=path,
+    )
 
 
 def _read_ours(root: Path) -> GroundTruth:
@@ -123,7 +126,9 @@ def bop_symmetry(info: dict) -> Symmetry:
     if cont:
         axis = np.asarray(cont[0]["axis"], float)
         flip = any(np.asarray(s, float).reshape(4, 4)[:3, :3] @ axis @ axis < 0 for s in disc)
-        return Symmetry("revolution_flip" if flip else "revolution", axis=axis / np.linalg.norm(axis))
+        return Symmetry(
+            "revolution_flip" if flip else "revolution", axis=axis / np.linalg.norm(axis)
+        )
     if disc:
         gens = []
         for s in disc:
@@ -168,31 +173,41 @@ def _read_bop(root: Path) -> GroundTruth:
 
 
 def _read_sileane(root: Path, symmetry: str | None) -> GroundTruth:
-    mesh_path = next((p for p in (root / "mesh.ply", root / "mesh.obj", root / "mesh.stl") if p.exists()), root / "mesh.ply")
+    mesh_path = next(
+        (p for p in (root / "mesh.ply", root / "mesh.obj", root / "mesh.stl") if p.exists()),
+        root / "mesh.ply",
+    )
     mesh = load_mesh(mesh_path)
     sym = Symmetry()
     if (root / "symmetry.yaml").exists():
         doc = yaml.safe_load((root / "symmetry.yaml").read_text())
         kind = doc.get("class", "none")
         if kind == "finite":
-            sym = Symmetry(kind, tuple((np.asarray(g["axis"], float), int(g["order"])) for g in doc["generators"]))
+            sym = Symmetry(
+                kind,
+                tuple((np.asarray(g["axis"], float), int(g["order"])) for g in doc["generators"]),
+            )
         elif kind in ("revolution", "revolution_flip"):
             sym = Symmetry(kind, axis=np.asarray(doc.get("axis", [0, 0, 1]), float))
         else:
             sym = Symmetry(kind)
     elif symmetry:
-        sym = Symmetry(symmetry, axis=np.array([0.0, 0.0, 1.0]) if "revolution" in symmetry else None)
+        sym = Symmetry(
+            symmetry, axis=np.array([0.0, 0.0, 1.0]) if "revolution" in symmetry else None
+        )
     name = root.name
     table: Table = defaultdict(PoseSet)
     scenes = []
     for f in sorted((root / "gt").glob("*.json")):
         scenes.append(f.stem)
-        for k, inst in enumerate(_load_json(f)):
+        for _k, inst in enumerate(_load_json(f)):
             ps = table[(f.stem, name)]
             ps.R.append(np.asarray(inst["R"], float).reshape(3, 3))
             ps.t.append(np.asarray(inst["t"], float).reshape(3) * 1000.0)
             ps.values.append(float(inst.get("occlusion_rate", float("nan"))))
-    return GroundTruth({name: PoseSpace.from_moments(mesh.moments, sym)}, dict(table), scenes, "sileane", {1: name})
+    return GroundTruth(
+        {name: PoseSpace.from_moments(mesh.moments, sym)}, dict(table), scenes, "sileane", {1: name}
+    )
 
 
 def _pose(R, t, where: str, path: Path) -> tuple[np.ndarray, np.ndarray]:
@@ -249,7 +264,9 @@ def read_results(path: str | Path, gt: GroundTruth) -> Table:
         if obj not in gt.spaces:
             raise UserError(f"{where}: result for unknown object {row[2].strip()!r}", path=path)
         Rm, tv = _pose(R, t, where, path)
-        key = f"{int(scene_id)}/{im_id}" if gt.kind == "bop" else _our_scene_key(scene_id, gt.scenes)
+        key = (
+            f"{int(scene_id)}/{im_id}" if gt.kind == "bop" else _our_scene_key(scene_id, gt.scenes)
+        )
         ps = table[(key, obj)]
         ps.R.append(Rm)
         ps.t.append(tv)

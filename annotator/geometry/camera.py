@@ -106,7 +106,9 @@ def _pixel_rays(cam: Camera) -> np.ndarray:
     key = (cam.width, cam.height, cam.K.tobytes(), np.asarray(cam.dist, float).tobytes())
     rays = _RAY_CACHE.get(key)
     if rays is None:
-        u, v = np.meshgrid(np.arange(cam.width, dtype=np.float64), np.arange(cam.height, dtype=np.float64))
+        u, v = np.meshgrid(
+            np.arange(cam.width, dtype=np.float64), np.arange(cam.height, dtype=np.float64)
+        )
         xy = cam.undistort_pixels(np.stack([u, v], axis=-1))
         rays = np.concatenate([xy, np.ones((*xy.shape[:2], 1))], axis=-1).astype(np.float32)
         rays.setflags(write=False)

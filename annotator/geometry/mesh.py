@@ -119,7 +119,9 @@ def surface_moments(vertices: np.ndarray, faces: np.ndarray) -> SurfaceMoments:
     second = np.einsum("m,mij->ij", areas, outer) / (12.0 * S)
     used = np.unique(np.asarray(faces))
     radius = float(np.linalg.norm(v[used] - centroid, axis=1).max())
-    return SurfaceMoments(area=S, centroid=centroid, second=0.5 * (second + second.T), radius=radius)
+    return SurfaceMoments(
+        area=S, centroid=centroid, second=0.5 * (second + second.T), radius=radius
+    )
 
 
 def load_mesh(path: str | Path) -> Mesh:
@@ -136,7 +138,9 @@ def load_mesh(path: str | Path) -> Mesh:
     try:
         loaded = trimesh.load(path, force="mesh", process=False)
     except Exception as exc:  # trimesh raises many types for corrupt files
-        raise UserError(f"unreadable mesh ({type(exc).__name__}: {exc})".split("\n")[0], path=path) from None
+        raise UserError(
+            f"unreadable mesh ({type(exc).__name__}: {exc})".split("\n")[0], path=path
+        ) from None
     faces = np.asarray(getattr(loaded, "faces", np.zeros((0, 3))), dtype=np.int32)
     vertices = np.asarray(getattr(loaded, "vertices", np.zeros((0, 3))), dtype=np.float64)
     if faces.ndim != 2 or faces.shape[0] == 0 or faces.shape[1] != 3:

@@ -52,7 +52,9 @@ def read_depth(path: str | Path, scale: float) -> np.ndarray:
     """Read a uint16 depth PNG as float32 millimetres, NaN where there is no measurement."""
     raw = read_image(path)
     if raw.dtype != np.uint16 or raw.ndim != 2:
-        raise UserError(f"depth map must be single-channel uint16, got {raw.dtype} {raw.shape}", path=path)
+        raise UserError(
+            f"depth map must be single-channel uint16, got {raw.dtype} {raw.shape}", path=path
+        )
     depth = raw.astype(np.float32) * np.float32(scale)
     depth[raw == 0] = np.nan
     return depth

@@ -56,14 +56,18 @@ def fibonacci_sphere(n: int) -> np.ndarray:
     return np.column_stack([np.cos(theta) * np.sin(phi), np.sin(theta) * np.sin(phi), np.cos(phi)])
 
 
-def facing_counts(normals: np.ndarray, directions: np.ndarray, *, max_angle_deg: float = 60.0) -> np.ndarray:
+def facing_counts(
+    normals: np.ndarray, directions: np.ndarray, *, max_angle_deg: float = 60.0
+) -> np.ndarray:
     """For each view direction (towards the viewer), how many site normals face it."""
     if len(normals) == 0:
         return np.zeros(len(directions), dtype=int)
     return (directions @ normals.T > np.cos(np.radians(max_angle_deg))).sum(axis=1)
 
 
-def square_corners(centre: np.ndarray, normal: np.ndarray, right: np.ndarray, size: float) -> np.ndarray:
+def square_corners(
+    centre: np.ndarray, normal: np.ndarray, right: np.ndarray, size: float
+) -> np.ndarray:
     """The (4, 3) ArUco-ordered corners of a square centred at ``centre`` with outward
     ``normal`` and ``right`` (TL -> TR) direction (made orthogonal to the normal here)."""
     n = normal / np.linalg.norm(normal)
@@ -71,7 +75,14 @@ def square_corners(centre: np.ndarray, normal: np.ndarray, right: np.ndarray, si
     r /= np.linalg.norm(r)
     d = np.cross(r, n)  # so that d x r = n: seen from outside, rows go down
     h = size / 2
-    return np.array([centre - r * h - d * h, centre + r * h - d * h, centre + r * h + d * h, centre - r * h + d * h])
+    return np.array(
+        [
+            centre - r * h - d * h,
+            centre + r * h - d * h,
+            centre + r * h + d * h,
+            centre - r * h + d * h,
+        ]
+    )
 
 
 def place_markers(
@@ -99,7 +110,10 @@ def place_markers(
     gap = size / 10 if gap is None else gap
     rng = np.random.default_rng(seed)
     scene = o3d.t.geometry.RaycastingScene()
-    scene.add_triangles(o3d.core.Tensor(mesh.vertices.astype(np.float32)), o3d.core.Tensor(mesh.faces.astype(np.uint32)))
+    scene.add_triangles(
+        o3d.core.Tensor(mesh.vertices.astype(np.float32)),
+        o3d.core.Tensor(mesh.faces.astype(np.uint32)),
+    )
     centres, normals = _candidates(mesh, size, rng)
     u = np.linspace(-0.5, 0.5, 5) * size
     grid = np.stack(np.meshgrid(u, u), axis=-1).reshape(-1, 2)
@@ -125,7 +139,9 @@ def place_markers(
         if np.min(face_n @ n) < cos_tol:
             continue
         # On a curved patch, glue the corners to the surface (the printed square bends onto it).
-        on_surface = scene.compute_closest_points(o3d.core.Tensor(corners.astype(np.float32)))["points"].numpy()
+        on_surface = scene.compute_closest_points(o3d.core.Tensor(corners.astype(np.float32)))[
+            "points"
+        ].numpy()
         moved = on_surface - corners
         sideways = moved - np.outer(moved @ n, n)
         if np.linalg.norm(sideways, axis=1).max() > 0.1:  # a corner slid off the patch (an edge)
@@ -178,7 +194,9 @@ def _candidates(mesh: Mesh, size: float, rng: np.random.Generator) -> tuple[np.n
     pts, face_idx = _sample_surface(mesh, n_samples, rng)
     order = rng.permutation(len(pts))
     centres = np.concatenate([np.asarray(first_c).reshape(-1, 3), pts[order]])
-    normals = np.concatenate([np.asarray(first_n).reshape(-1, 3), mesh.face_normals[face_idx[order]]])
+    normals = np.concatenate(
+        [np.asarray(first_n).reshape(-1, 3), mesh.face_normals[face_idx[order]]]
+    )
     return centres, normals
 
 

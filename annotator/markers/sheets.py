@@ -28,7 +28,9 @@ class SheetMarker:
     label: str
 
 
-def render_pages(dictionary: str, markers: Sequence[SheetMarker], *, size_mm: float, dpi: int) -> list[np.ndarray]:
+def render_pages(
+    dictionary: str, markers: Sequence[SheetMarker], *, size_mm: float, dpi: int
+) -> list[np.ndarray]:
     """Render A4 pages (uint8 grey, portrait) holding every marker at true scale."""
     px_per_mm = dpi / 25.4
     w, h = (round(A4_MM[0] * px_per_mm), round(A4_MM[1] * px_per_mm))
@@ -47,7 +49,16 @@ def render_pages(dictionary: str, markers: Sequence[SheetMarker], *, size_mm: fl
             r, c = divmod(k, cols)
             x, y = margin + c * cell_w, margin + r * cell_h
             page[y : y + side, x : x + side] = marker_image(dictionary, m.marker_id, side)
-            cv2.putText(page, m.label, (x, y + side + round(4 * px_per_mm)), cv2.FONT_HERSHEY_SIMPLEX, font, 0, max(1, dpi // 150), cv2.LINE_AA)
+            cv2.putText(
+                page,
+                m.label,
+                (x, y + side + round(4 * px_per_mm)),
+                cv2.FONT_HERSHEY_SIMPLEX,
+                font,
+                0,
+                max(1, dpi // 150),
+                cv2.LINE_AA,
+            )
         # Scale bar: 50 mm with 10 mm ticks.
         y0 = h - margin - round(4 * px_per_mm)
         x0 = margin
@@ -56,8 +67,16 @@ def render_pages(dictionary: str, markers: Sequence[SheetMarker], *, size_mm: fl
         for t in range(6):
             xt = x0 + round(t * 10 * px_per_mm)
             cv2.line(page, (xt, y0 - round(2 * px_per_mm)), (xt, y0), 0, max(1, dpi // 150))
-        cv2.putText(page, f"50 mm  (print at 100%, {size_mm:g} mm markers, {dictionary})", (x0 + bar + round(3 * px_per_mm), y0),
-                    cv2.FONT_HERSHEY_SIMPLEX, font, 0, max(1, dpi // 150), cv2.LINE_AA)
+        cv2.putText(
+            page,
+            f"50 mm  (print at 100%, {size_mm:g} mm markers, {dictionary})",
+            (x0 + bar + round(3 * px_per_mm), y0),
+            cv2.FONT_HERSHEY_SIMPLEX,
+            font,
+            0,
+            max(1, dpi // 150),
+            cv2.LINE_AA,
+        )
         pages.append(page)
     return pages
 
@@ -67,8 +86,8 @@ def write_sheets(folder: Path, pages: Sequence[np.ndarray], *, dpi: int) -> None
     import matplotlib
 
     matplotlib.use("Agg")
-    from matplotlib.backends.backend_pdf import PdfPages
     import matplotlib.pyplot as plt
+    from matplotlib.backends.backend_pdf import PdfPages
 
     for k, page in enumerate(pages, start=1):
         write_png(folder / f"sheet_{k:02d}.png", page)

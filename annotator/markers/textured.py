@@ -18,7 +18,14 @@ from annotator.markers.texture import marker_image
 
 
 def write_textured_obj(
-    folder: Path, name: str, mesh: Mesh, corners: np.ndarray, marker_ids: Sequence[int], dictionary: str, *, tile: int = 120
+    folder: Path,
+    name: str,
+    mesh: Mesh,
+    corners: np.ndarray,
+    marker_ids: Sequence[int],
+    dictionary: str,
+    *,
+    tile: int = 120,
 ) -> Path:
     """Write ``<name>.obj``, ``<name>.mtl`` and ``<name>_texture.png``; return the OBJ path."""
     n = len(marker_ids)
@@ -27,7 +34,9 @@ def write_textured_obj(
     atlas = np.full((rows * tile, cols * tile), 255, np.uint8)
     for k, mid in enumerate(marker_ids):
         r, c = divmod(k, cols)
-        atlas[r * tile : (r + 1) * tile, c * tile : (c + 1) * tile] = marker_image(dictionary, int(mid), tile)
+        atlas[r * tile : (r + 1) * tile, c * tile : (c + 1) * tile] = marker_image(
+            dictionary, int(mid), tile
+        )
     write_png(folder / f"{name}_texture.png", atlas)
     write_text(
         folder / f"{name}.mtl",
@@ -51,7 +60,12 @@ def write_textured_obj(
         # Texture v runs upwards in OBJ; image row 0 is the top of the atlas.
         u0, u1 = c / cols, (c + 1) / cols
         v0, v1 = 1 - r / rows, 1 - (r + 1) / rows
-        lines += [f"vt {u0:.6f} {v0:.6f}", f"vt {u1:.6f} {v0:.6f}", f"vt {u1:.6f} {v1:.6f}", f"vt {u0:.6f} {v1:.6f}"]
+        lines += [
+            f"vt {u0:.6f} {v0:.6f}",
+            f"vt {u1:.6f} {v0:.6f}",
+            f"vt {u1:.6f} {v1:.6f}",
+            f"vt {u0:.6f} {v1:.6f}",
+        ]
         v = base + 4 * k + 1
         t = vt + 1
         # TL, TR, BR, BL seen from outside: (TL, BL, BR) and (TL, BR, TR) wind outward.

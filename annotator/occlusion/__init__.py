@@ -58,7 +58,12 @@ def _bbox(mask: np.ndarray, x0: int = 0, y0: int = 0) -> Box | None:
     ys, xs = np.nonzero(mask)
     if len(xs) == 0:
         return None
-    return (int(xs.min() + x0), int(ys.min() + y0), int(xs.max() - xs.min() + 1), int(ys.max() - ys.min() + 1))
+    return (
+        int(xs.min() + x0),
+        int(ys.min() + y0),
+        int(xs.max() - xs.min() + 1),
+        int(ys.max() - ys.min() + 1),
+    )
 
 
 def scene_visibility(
@@ -84,7 +89,16 @@ def scene_visibility(
             box = projected_bbox(cam, pm.mesh, pm.cam_T_model)
             full = np.zeros((cam.height, cam.width), bool) if masks else None
             if box is None:
-                vis = CameraVisibility(name, 0, 0, 0 if use_depth else None, None, None, 1.0, 1.0 if use_depth else None)
+                vis = CameraVisibility(
+                    name,
+                    0,
+                    0,
+                    0 if use_depth else None,
+                    None,
+                    None,
+                    1.0,
+                    1.0 if use_depth else None,
+                )
             else:
                 x0, y0, x1, y1 = box
                 alone = RayScene([pm]).cast(cam.pixel_rays()[y0:y1, x0:x1])
@@ -95,13 +109,21 @@ def scene_visibility(
                 m_dep = m_vis
                 if use_depth:
                     meas = depth[y0:y1, x0:x1]
-                    hidden = np.isfinite(meas) & (meas < together.depth[y0:y1, x0:x1] - depth_tolerance)
+                    hidden = np.isfinite(meas) & (
+                        meas < together.depth[y0:y1, x0:x1] - depth_tolerance
+                    )
                     m_dep = m_vis & ~hidden
                     px_dep = int(m_dep.sum())
                     occ_dep = 1.0 - px_dep / px_all if px_all else 1.0
                 vis = CameraVisibility(
-                    name, px_all, px_vis, px_dep, _bbox(m_all, x0, y0), _bbox(m_vis, x0, y0),
-                    1.0 - px_vis / px_all if px_all else 1.0, occ_dep,
+                    name,
+                    px_all,
+                    px_vis,
+                    px_dep,
+                    _bbox(m_all, x0, y0),
+                    _bbox(m_vis, x0, y0),
+                    1.0 - px_vis / px_all if px_all else 1.0,
+                    occ_dep,
                 )
                 if masks:
                     full[y0:y1, x0:x1] = m_all

@@ -8,8 +8,8 @@ from annotator.pnp.multiview import (
     Observation,
     PoseEstimate,
     candidate_poses,
-    reprojection_errors,
     refine_pose,
+    reprojection_errors,
 )
 from annotator.pnp.uncertainty import rms_displacement_matrix, rms_uncertainty
 

@@ -61,7 +61,9 @@ def _project(cameras: Sequence[Camera], obs: Sequence[Observation], T: np.ndarra
     return out
 
 
-def reprojection_errors(cameras: Sequence[Camera], obs: Sequence[Observation], T: np.ndarray) -> np.ndarray:
+def reprojection_errors(
+    cameras: Sequence[Camera], obs: Sequence[Observation], T: np.ndarray
+) -> np.ndarray:
     """RMS corner reprojection error (px) of each observation under ``rig_T_model`` T.
 
     Observations behind their camera get infinity.
@@ -69,7 +71,9 @@ def reprojection_errors(cameras: Sequence[Camera], obs: Sequence[Observation], T
     if not obs:
         return np.zeros(0)
     proj = _project(cameras, obs, T)
-    err = np.sqrt(np.mean(np.sum((proj - np.stack([o.image_corners for o in obs])) ** 2, axis=-1), axis=-1))
+    err = np.sqrt(
+        np.mean(np.sum((proj - np.stack([o.image_corners for o in obs])) ** 2, axis=-1), axis=-1)
+    )
     for k, o in enumerate(obs):
         M = cameras[o.camera].cam_T_rig @ T
         if np.any(o.model_corners @ M[2, :3] + M[2, 3] <= 0):
@@ -104,7 +108,10 @@ def lone_marker_poses(cam: Camera, o: Observation) -> list[np.ndarray]:
     """Both IPPE solutions ``cam_T_model`` of one (planar) marker, best first."""
     try:
         n, rvecs, tvecs, _ = cv2.solvePnPGeneric(
-            o.model_corners.astype(np.float64), o.image_corners.astype(np.float64), cam.K, cam.dist,
+            o.model_corners.astype(np.float64),
+            o.image_corners.astype(np.float64),
+            cam.K,
+            cam.dist,
             flags=cv2.SOLVEPNP_IPPE,
         )
     except cv2.error:
@@ -125,7 +132,7 @@ def refine_pose(
     standard deviation, never below ``sigma_floor`` px: with few corners the residuals
     underestimate the corner noise (the pose absorbs part of it).
     """
-    X = [o.model_corners for o in obs]
+    [o.model_corners for o in obs]
     x = np.concatenate([o.image_corners for o in obs]).ravel()
     R0, t0 = T0[:3, :3], T0[:3, 3]
 
@@ -135,7 +142,9 @@ def refine_pose(
     def residuals(p: np.ndarray) -> np.ndarray:
         return _project(cameras, obs, pose(p)).ravel() - x
 
-    res = least_squares(residuals, np.zeros(6), method="lm", x_scale=np.array([1e-3] * 3 + [1.0] * 3))
+    res = least_squares(
+        residuals, np.zeros(6), method="lm", x_scale=np.array([1e-3] * 3 + [1.0] * 3)
+    )
     T = pose(res.x)
     # Re-linearise at the optimum so the covariance is that of a perturbation of T itself.
     R0, t0 = T[:3, :3], T[:3, 3]
@@ -149,7 +158,9 @@ def refine_pose(
         cov = np.linalg.inv(JtJ) * sigma**2
     except np.linalg.LinAlgError:
         cov = np.full((6, 6), np.inf)
-    return PoseEstimate(T=T, covariance=cov, residual_rms=float(np.sqrt(np.mean(r**2) * 2)), sigma_px=sigma)
+    return PoseEstimate(
+        T=T, covariance=cov, residual_rms=float(np.sqrt(np.mean(r**2) * 2)), sigma_px=sigma
+    )
 
 
 def _numeric_jacobian(f, p: np.ndarray) -> np.ndarray:

@@ -55,9 +55,15 @@ class Hits:
         """Model-frame coordinates of each hit (NaN on a miss), shape (..., 3)."""
         out = np.full((*self.instance.shape, 3), np.nan)
         hit = self.hit
-        tri = stacked_triangles(placed)[_global_triangle(placed, self.instance[hit], self.triangle[hit])]
+        tri = stacked_triangles(placed)[
+            _global_triangle(placed, self.instance[hit], self.triangle[hit])
+        ]
         uv = self.barycentric[hit].astype(np.float64)
-        out[hit] = (1.0 - uv[:, :1] - uv[:, 1:]) * tri[:, 0] + uv[:, :1] * tri[:, 1] + uv[:, 1:] * tri[:, 2]
+        out[hit] = (
+            (1.0 - uv[:, :1] - uv[:, 1:]) * tri[:, 0]
+            + uv[:, :1] * tri[:, 1]
+            + uv[:, 1:] * tri[:, 2]
+        )
         return out
 
     def normals(self, placed: Sequence[PlacedMesh]) -> np.ndarray:
@@ -74,7 +80,9 @@ def stacked_triangles(placed: Sequence[PlacedMesh]) -> np.ndarray:
     return np.concatenate([pm.mesh.triangles for pm in placed])
 
 
-def _global_triangle(placed: Sequence[PlacedMesh], instance: np.ndarray, triangle: np.ndarray) -> np.ndarray:
+def _global_triangle(
+    placed: Sequence[PlacedMesh], instance: np.ndarray, triangle: np.ndarray
+) -> np.ndarray:
     offsets = np.cumsum([0] + [len(pm.mesh.faces) for pm in placed])
     return offsets[instance] + triangle
 

@@ -54,7 +54,9 @@ class PoseSpace:
         kind = symmetry.kind
         B = np.eye(3)
         if kind in ("revolution", "revolution_flip"):
-            B = _frame_with_z(symmetry.axis if symmetry.axis is not None else np.array([0.0, 0.0, 1.0]))
+            B = _frame_with_z(
+                symmetry.axis if symmetry.axis is not None else np.array([0.0, 0.0, 1.0])
+            )
         second = B.T @ moments.second @ B
         w, V = np.linalg.eigh(second)
         L = (V * np.sqrt(np.clip(w, 0, None))) @ V.T
@@ -70,7 +72,9 @@ class PoseSpace:
 
     @property
     def dim(self) -> int:
-        return {"none": 12, "finite": 12, "revolution": 6, "revolution_flip": 6, "spherical": 3}[self.kind]
+        return {"none": 12, "finite": 12, "revolution": 6, "revolution_flip": 6, "spherical": 3}[
+            self.kind
+        ]
 
     @property
     def count(self) -> int:
@@ -88,7 +92,9 @@ class PoseSpace:
         n = len(R)
         if self.kind in ("none", "finite"):
             M = np.einsum("nij,gjk,kl->ngil", Rc, self.group, self.L)
-            return np.concatenate([M.reshape(n, self.count, 9), np.repeat(tc[:, None], self.count, 1)], axis=2)
+            return np.concatenate(
+                [M.reshape(n, self.count, 9), np.repeat(tc[:, None], self.count, 1)], axis=2
+            )
         if self.kind == "spherical":
             return tc[:, None, :]
         axis = self.lam * Rc[:, :, 2]
@@ -97,13 +103,17 @@ class PoseSpace:
             reps.append(np.concatenate([-axis, tc], axis=1))
         return np.stack(reps, axis=1)
 
-    def distance(self, R1: np.ndarray, t1: np.ndarray, R2: np.ndarray, t2: np.ndarray) -> np.ndarray:
+    def distance(
+        self, R1: np.ndarray, t1: np.ndarray, R2: np.ndarray, t2: np.ndarray
+    ) -> np.ndarray:
         """Pairwise-aligned distances between poses 1 and poses 2 (same N), shape (N,)."""
         a = self.representatives(R1, t1)[:, 0]
         b = self.representatives(R2, t2)
         return np.linalg.norm(b - a[:, None], axis=2).min(axis=1)
 
-    def distance_matrix(self, R1: np.ndarray, t1: np.ndarray, R2: np.ndarray, t2: np.ndarray) -> np.ndarray:
+    def distance_matrix(
+        self, R1: np.ndarray, t1: np.ndarray, R2: np.ndarray, t2: np.ndarray
+    ) -> np.ndarray:
         """All distances between poses 1 (N) and poses 2 (M), shape (N, M)."""
         a = self.representatives(R1, t1)[:, 0]
         b = self.representatives(R2, t2)
@@ -112,7 +122,9 @@ class PoseSpace:
         d = np.linalg.norm(a[:, None, None, :] - b[None], axis=3)
         return d.min(axis=2)
 
-    def nearest(self, R_query: np.ndarray, t_query: np.ndarray, R_set: np.ndarray, t_set: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def nearest(
+        self, R_query: np.ndarray, t_query: np.ndarray, R_set: np.ndarray, t_set: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
         """For each query pose, the index of the nearest pose of the set and the distance
         (KD-tree over the set's representatives)."""
         reps = self.representatives(R_set, t_set)
@@ -121,7 +133,9 @@ class PoseSpace:
         d, i = tree.query(self.representatives(R_query, t_query)[:, 0])
         return owner[i], d
 
-    def remove_duplicates(self, R: np.ndarray, t: np.ndarray, scores: np.ndarray, radius: float) -> np.ndarray:
+    def remove_duplicates(
+        self, R: np.ndarray, t: np.ndarray, scores: np.ndarray, radius: float
+    ) -> np.ndarray:
         """Indices of the poses kept when, in decreasing score order, every pose closer than
         ``radius`` to an already kept one is dropped (section 4.2's early duplicate removal)."""
         order = np.argsort(-np.asarray(scores), kind="stable")

@@ -15,14 +15,14 @@ import trimesh
 
 from annotator.dataset.model import Instance, Rig
 from annotator.dataset.poses import InstancePose, write_poses
-from annotator.errors import UserError
 from annotator.dataset.write import write_dataset_yaml, write_object_yaml
+from annotator.errors import UserError
 from annotator.geometry.mesh import Mesh
 from annotator.geometry.transforms import invert
 from annotator.io.images import encode_depth, write_png
-from annotator.occlusion import scene_visibility
 from annotator.markers.layout import MarkerLayout, assign_ids, place_markers
 from annotator.markers.texture import dictionary_size, marker_bits
+from annotator.occlusion import scene_visibility
 from annotator.parts import Part, build_part
 from annotator.rendering.raycast import PlacedMesh, RayScene
 from annotator.synthesis.physics import Bin, drop_parts
@@ -79,7 +79,10 @@ def plan_dataset(config: SynthConfig) -> DatasetPlan:
             f"{pool} instances of {len(parts)} parts need more marker ids than {DICTIONARY} has "
             "(at most 4 sites each would not be enough): use fewer instances per scene"
         )
-    layouts = [place_markers(p.mesh, size=p.marker_size, max_sites=max_sites, seed=config.seed) for p in parts]
+    layouts = [
+        place_markers(p.mesh, size=p.marker_size, max_sites=max_sites, seed=config.seed)
+        for p in parts
+    ]
     instances, next_id = [], 0
     for layout in layouts:
         ids = assign_ids(len(layout.corners), pool, start=next_id)
@@ -94,15 +97,25 @@ def write_dataset_files(plan: DatasetPlan, root: Path) -> None:
     for part, layout, insts in zip(plan.parts, plan.layouts, plan.instances):
         folder = root / "objects" / part.name
         folder.mkdir(parents=True, exist_ok=True)
-        trimesh.Trimesh(part.mesh.vertices, part.mesh.faces, process=False).export(folder / "model.ply")
-        write_object_yaml(folder, mesh_file="model.ply", symmetry=part.symmetry, markers=layout.sites, instances=insts)
+        trimesh.Trimesh(part.mesh.vertices, part.mesh.faces, process=False).export(
+            folder / "model.ply"
+        )
+        write_object_yaml(
+            folder,
+            mesh_file="model.ply",
+            symmetry=part.symmetry,
+            markers=layout.sites,
+            instances=insts,
+        )
     write_dataset_yaml(
         root,
         name=f"synthetic ({', '.join(plan.config.parts)})",
         dictionary=DICTIONARY,
         rig=plan.setup.rig,
         objects=[p.name for p in plan.parts],
-        synth={k: v if not isinstance(v, tuple) else list(v) for k, v in plan.config.__dict__.items()},
+        synth={
+            k: v if not isinstance(v, tuple) else list(v) for k, v in plan.config.__dict__.items()
+        },
     )
 
 
@@ -111,7 +124,9 @@ def _box_mesh(size: np.ndarray) -> Mesh:
     return Mesh(np.asarray(b.vertices), np.asarray(b.faces, dtype=np.int32))
 
 
-def make_scene(plan: DatasetPlan, index: int, folder: Path) -> tuple[list[InstancePose], SceneTiming]:
+def make_scene(
+    plan: DatasetPlan, index: int, folder: Path
+) -> tuple[list[InstancePose], SceneTiming]:
     """Simulate, render and write scene ``index`` into ``folder``; return its true poses."""
     cfg = plan.config
     rng = np.random.default_rng([cfg.seed, index])
@@ -131,7 +146,9 @@ def make_scene(plan: DatasetPlan, index: int, folder: Path) -> tuple[list[Instan
 
     table = np.eye(4)
     table[2, 3] = -plan.bin.wall - 5.0
-    surfaces: list[Surface] = [Surface(_box_mesh(np.array([2000.0, 2000.0, 10.0])), table, albedo=0.3)]
+    surfaces: list[Surface] = [
+        Surface(_box_mesh(np.array([2000.0, 2000.0, 10.0])), table, albedo=0.3)
+    ]
     for centre, size in plan.bin.meshes():
         T = np.eye(4)
         T[:3, 3] = centre
@@ -153,8 +170,12 @@ def make_scene(plan: DatasetPlan, index: int, folder: Path) -> tuple[list[Instan
     t0 = time.perf_counter()
     views = []
     for cam, world_T_cam in zip(plan.setup.rig.cameras, plan.setup.world_T_cams):
-        img, view = render_intensity(cam, invert(world_T_cam), surfaces, supersample=cfg.supersample)
-        write_png(folder / f"{cam.name}.png", finish_image(img, blur=cfg.blur, noise=cfg.noise, rng=rng))
+        img, view = render_intensity(
+            cam, invert(world_T_cam), surfaces, supersample=cfg.supersample
+        )
+        write_png(
+            folder / f"{cam.name}.png", finish_image(img, blur=cfg.blur, noise=cfg.noise, rng=rng)
+        )
         views.append(view)
     timing.rendering = time.perf_counter() - t0
 
@@ -166,16 +187,23 @@ def make_scene(plan: DatasetPlan, index: int, folder: Path) -> tuple[list[Instan
     # True occlusion rates: posed instances occlude each other, and the exact depth of
     # everything else (bin walls, clutter) hides what lies behind it.
     vis = scene_visibility(
-        plan.setup.rig, [plan.parts[plan.config.parts.index(p.object)].mesh for p in poses], [p.T for p in poses],
+        plan.setup.rig,
+        [plan.parts[plan.config.parts.index(p.object)].mesh for p in poses],
+        [p.T for p in poses],
         depth=views[0].hits.depth,
     )
     for p, v in zip(poses, vis):
-        p.extra["occlusion"] = {"rate": round(v.occlusion, 4), "per_camera": {c.camera: round(c.occlusion, 4) for c in v.cameras}}
+        p.extra["occlusion"] = {
+            "rate": round(v.occlusion, 4),
+            "per_camera": {c.camera: round(c.occlusion, 4) for c in v.cameras},
+        }
     write_poses(folder / "gt.json", poses, format=1)
     return poses, timing
 
 
-def simulate_depth(plan: DatasetPlan, surfaces: list[Surface], views: list, rng: np.random.Generator) -> np.ndarray:
+def simulate_depth(
+    plan: DatasetPlan, surfaces: list[Surface], views: list, rng: np.random.Generator
+) -> np.ndarray:
     """Active-stereo depth on the reference camera's pixel grid (mm, NaN = hole)."""
     setup = plan.setup
     w, h = setup.projector_size
@@ -185,14 +213,22 @@ def simulate_depth(plan: DatasetPlan, surfaces: list[Surface], views: list, rng:
     imgs = []
     for cam, world_T_cam, view in zip(setup.rig.cameras, setup.world_T_cams, views):
         img = pattern_image(
-            view, cam, world_T_cam, projector_T_world=projector_T_world, projector_K=setup.projector_K,
-            pattern=pattern, occluders=world_scene, world_T_projector=setup.world_T_projector,
+            view,
+            cam,
+            world_T_cam,
+            projector_T_world=projector_T_world,
+            projector_K=setup.projector_K,
+            pattern=pattern,
+            occluders=world_scene,
+            world_T_projector=setup.world_T_projector,
         )
         imgs.append(finish_image(img, blur=0.5, noise=1.5, rng=rng))
     ideal = views[0].hits.depth
     finite = ideal[np.isfinite(ideal)]
     z_range = (float(finite.min()) - 20.0, float(finite.max()) + 20.0)
-    return stereo_depth(imgs[0], imgs[1], setup.rig.cameras[0], setup.rig.cameras[1], z_range=z_range)
+    return stereo_depth(
+        imgs[0], imgs[1], setup.rig.cameras[0], setup.rig.cameras[1], z_range=z_range
+    )
 
 
 def ideal_depth(rig: Rig, poses: list[InstancePose], meshes: dict[str, Mesh]) -> np.ndarray:

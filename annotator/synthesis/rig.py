@@ -19,7 +19,10 @@ from annotator.geometry.transforms import invert
 DEPTH_SCALE = 0.1  # mm per depth.png unit: 0.1 mm resolution up to 6.5 m
 
 
-def look_at(eye: np.ndarray, target: np.ndarray, up: np.ndarray = np.array([0.0, -1.0, 0.0])) -> np.ndarray:
+IMAGE_UP = np.array([0.0, -1.0, 0.0])
+
+
+def look_at(eye: np.ndarray, target: np.ndarray, up: np.ndarray = IMAGE_UP) -> np.ndarray:
     """``world_T_cam`` of an OpenCV camera (+z forward, +y down) at ``eye`` looking at ``target``;
     ``up`` is the world direction that appears towards the top of the image (world -y, so
     that image x runs along world +x and the right camera really is on the right)."""
@@ -85,7 +88,9 @@ def make_rig(
         rig_T_cam = invert(poses[0]) @ world_T_cam
         if k == 0:
             rig_T_cam = np.eye(4)
-        cams.append(Camera(name=name, width=width, height=height, K=K, dist=dist, rig_T_cam=rig_T_cam))
+        cams.append(
+            Camera(name=name, width=width, height=height, K=K, dist=dist, rig_T_cam=rig_T_cam)
+        )
     proj_size = (width, height)
     fp = width * 0.9
     projector_K = np.array([[fp, 0, (width - 1) / 2], [0, fp, (height - 1) / 2], [0, 0, 1.0]])

@@ -49,7 +49,9 @@ class View:
     on_marker: np.ndarray  # (H, W) bool: the pixel centre is on a marker
 
 
-def _albedo(surfaces: Sequence[Surface], placed: Sequence[PlacedMesh], hits: Hits) -> tuple[np.ndarray, np.ndarray]:
+def _albedo(
+    surfaces: Sequence[Surface], placed: Sequence[PlacedMesh], hits: Hits
+) -> tuple[np.ndarray, np.ndarray]:
     """Albedo at each hit (markers textured) and whether the hit is on a marker."""
     base = np.array([s.albedo for s in surfaces] + [0.0], np.float32)
     albedo = base[hits.instance]  # NO_HIT = -1 picks the trailing 0
@@ -62,8 +64,12 @@ def _albedo(surfaces: Sequence[Surface], placed: Sequence[PlacedMesh], hits: Hit
     inst = hits.instance.reshape(-1)[flat]
     tri_all = hits.triangle.reshape(-1)[flat]
     uv = hits.barycentric.reshape(-1, 2)[flat].astype(np.float64)
-    tri = stacked_triangles(placed)[np.cumsum([0] + [len(pm.mesh.faces) for pm in placed])[inst] + tri_all]
-    pts_all = (1.0 - uv[:, :1] - uv[:, 1:]) * tri[:, 0] + uv[:, :1] * tri[:, 1] + uv[:, 1:] * tri[:, 2]
+    tri = stacked_triangles(placed)[
+        np.cumsum([0] + [len(pm.mesh.faces) for pm in placed])[inst] + tri_all
+    ]
+    pts_all = (
+        (1.0 - uv[:, :1] - uv[:, 1:]) * tri[:, 0] + uv[:, :1] * tri[:, 1] + uv[:, 1:] * tri[:, 2]
+    )
     order = np.argsort(inst, kind="stable")
     bounds = np.searchsorted(inst[order], np.arange(len(surfaces) + 1))
     a_flat = albedo.reshape(-1)
@@ -82,7 +88,9 @@ def _albedo(surfaces: Sequence[Surface], placed: Sequence[PlacedMesh], hits: Hit
         n_site = np.cross(ey, ex)
         n_site /= np.linalg.norm(n_site, axis=1, keepdims=True)
         rel = p - tl
-        st = np.column_stack([(rel * ex).sum(1) / (ex * ex).sum(1), (rel * ey).sum(1) / (ey * ey).sum(1)])
+        st = np.column_stack(
+            [(rel * ex).sum(1) / (ex * ex).sum(1), (rel * ey).sum(1) / (ey * ey).sum(1)]
+        )
         tri_n = surf.mesh.face_normals[tri_all[rows]]
         inside = (
             (st >= 0).all(axis=1)
@@ -102,7 +110,9 @@ def _normals(placed: Sequence[PlacedMesh], hits: Hits) -> np.ndarray:
     return hits.normals(placed)
 
 
-def _shade(albedo: np.ndarray, normals: np.ndarray, rays: np.ndarray, hit: np.ndarray, ambient: float) -> np.ndarray:
+def _shade(
+    albedo: np.ndarray, normals: np.ndarray, rays: np.ndarray, hit: np.ndarray, ambient: float
+) -> np.ndarray:
     """Lambert shading with a light at the camera centre (direction towards the camera = -ray)."""
     d = rays / np.linalg.norm(rays, axis=-1, keepdims=True)
     lambert = np.clip(-(normals * d).sum(axis=-1), 0.0, 1.0)
@@ -111,7 +121,12 @@ def _shade(albedo: np.ndarray, normals: np.ndarray, rays: np.ndarray, hit: np.nd
     return img
 
 
-def render_view(camera: Camera, cam_T_world: np.ndarray, surfaces: Sequence[Surface], scene: RayScene | None = None) -> View:
+def render_view(
+    camera: Camera,
+    cam_T_world: np.ndarray,
+    surfaces: Sequence[Surface],
+    scene: RayScene | None = None,
+) -> View:
     """Cast one ray per pixel centre; albedo (markers included) and normals per pixel."""
     placed = [PlacedMesh(s.mesh, cam_T_world @ s.world_T_model) for s in surfaces]
     scene = scene or RayScene(placed)
@@ -166,7 +181,9 @@ def _interpolate_rays(rays: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndar
     return top * (1 - fv) + bottom * fv
 
 
-def finish_image(img: np.ndarray, *, blur: float, noise: float, rng: np.random.Generator) -> np.ndarray:
+def finish_image(
+    img: np.ndarray, *, blur: float, noise: float, rng: np.random.Generator
+) -> np.ndarray:
     """Blur (Gaussian sigma, px), add Gaussian noise (sigma, grey levels), quantise to uint8."""
     out = img.astype(np.float32) * 255.0
     if blur > 0:

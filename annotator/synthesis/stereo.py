@@ -52,7 +52,9 @@ def pattern_image(
     p_proj = p_world @ projector_T_world[:3, :3].T + projector_T_world[:3, 3]
     uv = p_proj[:, :2] / p_proj[:, 2:3] @ projector_K[:2, :2].T + projector_K[:2, 2]
     # OpenCV's remap limits maps to 32767 rows: sample with scipy instead.
-    lit = map_coordinates(pattern, [uv[:, 1], uv[:, 0]], order=1, mode="constant", cval=0.0).astype(np.float32)
+    lit = map_coordinates(pattern, [uv[:, 1], uv[:, 0]], order=1, mode="constant", cval=0.0).astype(
+        np.float32
+    )
     if occluders is not None and world_T_projector is not None:
         origin = world_T_projector[:3, 3]
         d = p_world - origin
@@ -93,17 +95,34 @@ def _rectify(cam1: Camera, cam2: Camera) -> Rectification:
     size = (cam1.width, cam1.height)
     c2_T_c1 = invert(cam2.rig_T_cam) @ cam1.rig_T_cam
     R1, R2, P1, P2, _, _, _ = cv2.stereoRectify(
-        cam1.K, cam1.dist, cam2.K, cam2.dist, size, c2_T_c1[:3, :3], c2_T_c1[:3, 3].reshape(3, 1),
-        flags=0, alpha=0,  # not CALIB_ZERO_DISPARITY: a converging pair keeps disparities small
+        cam1.K,
+        cam1.dist,
+        cam2.K,
+        cam2.dist,
+        size,
+        c2_T_c1[:3, :3],
+        c2_T_c1[:3, 3].reshape(3, 1),
+        flags=0,
+        alpha=0,  # not CALIB_ZERO_DISPARITY: a converging pair keeps disparities small
     )
     m1 = cv2.initUndistortRectifyMap(cam1.K, cam1.dist, R1, P1, size, cv2.CV_32FC1)
     m2 = cv2.initUndistortRectifyMap(cam2.K, cam2.dist, R2, P2, size, cv2.CV_32FC1)
-    u, v = np.meshgrid(np.arange(cam1.width, dtype=np.float64), np.arange(cam1.height, dtype=np.float64))
+    u, v = np.meshgrid(
+        np.arange(cam1.width, dtype=np.float64), np.arange(cam1.height, dtype=np.float64)
+    )
     xy = cam1.undistort_pixels(np.stack([u, v], axis=-1)).reshape(-1, 2)
     ray = np.column_stack([xy, np.ones(len(xy))]) @ R1.T
-    ref_in_rect = (ray[:, :2] / ray[:, 2:3] * P1[0, 0] + P1[:2, 2]).reshape(cam1.height, cam1.width, 2)
+    ref_in_rect = (ray[:, :2] / ray[:, 2:3] * P1[0, 0] + P1[:2, 2]).reshape(
+        cam1.height, cam1.width, 2
+    )
     return Rectification(
-        m1, m2, R1, P1, float(P1[0, 0]), float(-P2[0, 3] / P2[0, 0]), float(P1[0, 2] - P2[0, 2]),
+        m1,
+        m2,
+        R1,
+        P1,
+        float(P1[0, 0]),
+        float(-P2[0, 3] / P2[0, 0]),
+        float(P1[0, 2] - P2[0, 2]),
         ref_in_rect.astype(np.float32),
     )
 
@@ -123,9 +142,15 @@ def stereo_depth(
     n_disp = int(np.ceil((fb / z_range[0] + rect.offset - d_min + 2) / 16.0)) * 16
     block = 5
     sgbm = cv2.StereoSGBM_create(
-        minDisparity=d_min, numDisparities=n_disp, blockSize=block,
-        P1=8 * block * block, P2=32 * block * block, disp12MaxDiff=1,
-        uniquenessRatio=10, speckleWindowSize=100, speckleRange=2,
+        minDisparity=d_min,
+        numDisparities=n_disp,
+        blockSize=block,
+        P1=8 * block * block,
+        P2=32 * block * block,
+        disp12MaxDiff=1,
+        uniquenessRatio=10,
+        speckleWindowSize=100,
+        speckleRange=2,
         mode=cv2.STEREO_SGBM_MODE_SGBM_3WAY,
     )
     disp = sgbm.compute(r1, r2).astype(np.float32) / 16.0
@@ -133,7 +158,14 @@ def stereo_depth(
     # Sample the disparity at each reference pixel's rectified position (nearest: no blending
     # of foreground and background disparities across depth edges).
     m = rect.ref_in_rect
-    d = cv2.remap(disp, m[..., 0], m[..., 1], cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT, borderValue=np.nan)
+    d = cv2.remap(
+        disp,
+        m[..., 0],
+        m[..., 1],
+        cv2.INTER_NEAREST,
+        borderMode=cv2.BORDER_CONSTANT,
+        borderValue=np.nan,
+    )
     z_rect = fb / (d - rect.offset)
     xr = (m[..., 0] - rect.P1[0, 2]) / rect.focal * z_rect
     yr = (m[..., 1] - rect.P1[1, 2]) / rect.focal * z_rect
