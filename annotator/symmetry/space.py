@@ -88,10 +88,10 @@ class PoseSpace:
         R = np.asarray(R, float).reshape(-1, 3, 3)
         t = np.asarray(t, float).reshape(-1, 3)
         Rc = R @ self.B
-        tc = t + R @ self.centroid
+        tc = t + np.einsum("nij,j->ni", R, self.centroid)
         n = len(R)
         if self.kind in ("none", "finite"):
-            M = np.einsum("nij,gjk,kl->ngil", Rc, self.group, self.L)
+            M = np.matmul(np.matmul(Rc[:, None], self.group[None]), self.L)
             return np.concatenate(
                 [M.reshape(n, self.count, 9), np.repeat(tc[:, None], self.count, 1)], axis=2
             )
@@ -107,6 +107,20 @@ class PoseSpace:
         self, R1: np.ndarray, t1: np.ndarray, R2: np.ndarray, t2: np.ndarray
     ) -> np.ndarray:
         """Pairwise-aligned distances between poses 1 and poses 2 (same N), shape (N,)."""
+        if self.kind in ("none", "finite"):
+            # ||R1' L - R2' G L||^2 = 2 tr(L^2) - 2 tr(R1'^T R2' G L^2): one (N, 9) x (9, G)
+            # product instead of N x G differences of 12-D points.
+            R1 = np.asarray(R1, float).reshape(-1, 3, 3)
+            R2 = np.asarray(R2, float).reshape(-1, 3, 3)
+            M = np.matmul(np.swapaxes(R1, 1, 2), R2)  # R1^T R2, model axes
+            # tr(B^T M B G L^2) = <M, B (G L^2)^T B^T>_F
+            W = np.matmul(np.matmul(self.B, np.matmul(self.group, self.L @ self.L)), self.B.T)
+            best = (M.reshape(-1, 9) @ np.swapaxes(W, 1, 2).reshape(-1, 9).T).max(axis=1)
+            dt = (np.asarray(t1, float).reshape(-1, 3) + R1 @ self.centroid) - (
+                np.asarray(t2, float).reshape(-1, 3) + R2 @ self.centroid
+            )
+            sq = 2 * np.trace(self.L @ self.L) - 2 * best + np.einsum("ni,ni->n", dt, dt)
+            return np.sqrt(np.clip(sq, 0.0, None))
         a = self.representatives(R1, t1)[:, 0]
         b = self.representatives(R2, t2)
         return np.linalg.norm(b - a[:, None], axis=2).min(axis=1)
