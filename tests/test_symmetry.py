@@ -83,10 +83,10 @@ def test_distance_is_invariant_under_the_group(name: str) -> None:
     for g in G[:: max(1, len(G) // 12)]:
         Rg, tg = R2 @ g, t2 + R2 @ (c - g @ c)
         assert space.distance(R1[None], t1[None], Rg[None], tg[None])[0] == pytest.approx(
-            d0, abs=1e-6
+            d0, abs=1e-4
         )
         assert space.distance(Rg[None], tg[None], R2[None], t2[None])[0] == pytest.approx(
-            0.0, abs=1e-6
+            0.0, abs=1e-4
         )
 
 
