@@ -26,7 +26,6 @@ from annotator.pnp import (
     rms_uncertainty,
 )
 from annotator.pnp.multiview import lone_marker_poses
-from annotator.rendering.raycast import PlacedMesh, projected_bbox, render
 
 
 @dataclass(frozen=True)
@@ -231,31 +230,17 @@ def _add_visibility(
             "rate": round(v.occlusion, 4),
             "per_camera": {c.camera: round(c.occlusion, 4) for c in v.cameras},
         }
-    if depth is None or ds.rig.depth is None:
-        return
-    cam = ds.rig.depth_camera
-    placed = [PlacedMesh(ds.objects[r.object].mesh, cam.cam_T_rig @ r.T) for r in results]
-    hits = render(cam, placed)
-    for k, r in enumerate(results):
-        box = projected_bbox(cam, placed[k].mesh, placed[k].cam_T_model)
-        if box is None:
+    depth_cam = ds.rig.depth.camera if ds.rig.depth is not None else None
+    for r, v in zip(results, vis):
+        cv = next((c for c in v.cameras if c.camera == depth_cam), None)
+        if depth is None or cv is None or cv.depth_agreement is None or cv.depth_pixels < 20:
             continue
-        x0, y0, x1, y1 = box
-        mine = hits.instance[y0:y1, x0:x1] == k
-        meas = depth[y0:y1, x0:x1][mine]
-        rend = hits.depth[y0:y1, x0:x1][mine]
-        ok = np.isfinite(meas)
-        if ok.sum() < 20:
-            continue
-        diff = np.abs(meas[ok] - rend[ok])
-        tol = np.maximum(s.depth_tolerance_mm, 0.01 * rend[ok])
-        agreement = float(np.mean(diff < tol))
         r.extra["depth"] = {
-            "agreement": round(agreement, 4),
-            "median_abs_mm": round(float(np.median(diff)), 3),
-            "pixels": int(ok.sum()),
+            "agreement": round(cv.depth_agreement, 4),
+            "median_abs_mm": round(cv.depth_median_abs_mm, 3),
+            "pixels": cv.depth_pixels,
         }
-        if agreement < s.depth_min_agreement:
+        if cv.depth_agreement < s.depth_min_agreement:
             r.extra["flags"].append("depth_disagreement")
     for r in results:
         r.extra["flags"] = [f for f in FLAGS if f in r.extra["flags"]]

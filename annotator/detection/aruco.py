@@ -59,41 +59,48 @@ def refine_quads(
     """Refine (N, 4, 2) quads by fitting lines to the gradient peaks across each side.
 
     The search across a side reaches at most half a marker cell (``cells`` per side, border
-    included) each way, so that it never reaches the edges of the inner bits.
+    included) each way, so that it never reaches the edges of the inner bits. All sides of all
+    quads are processed at once.
     """
+    if len(quads) == 0:
+        return quads
     img = cv2.GaussianBlur(gray.astype(np.float32), (0, 0), 0.5)
+    a = quads.reshape(-1, 2)  # (N*4, 2): side k runs from corner k to corner k+1
+    b = np.roll(quads, -1, axis=1).reshape(-1, 2)
+    side = b - a
+    length = np.linalg.norm(side, axis=1)
+    tangent = side / np.maximum(length, 1e-9)[:, None]
+    normal = np.column_stack([-tangent[:, 1], tangent[:, 0]])
+    reach = np.clip(0.5 * length / cells, 1.0, 2.5)
+    steps = 21
+    offs = np.linspace(-1.0, 1.0, steps)[None, :] * reach[:, None]  # (S, steps)
+    s = np.linspace(0.15, 0.85, samples)  # stay away from the corners
+    base = a[:, None, :] + s[None, :, None] * side[:, None, :]  # (S, samples, 2)
+    pts = base[:, :, None, :] + offs[:, None, :, None] * normal[:, None, None, :]
+    prof = _bilinear(img, pts.reshape(-1, 2)).reshape(len(a), samples, steps)
+    grad = np.abs(np.diff(prof, axis=2))  # between consecutive offsets
+    mid = 0.5 * (offs[:, 1:] + offs[:, :-1])  # (S, steps-1)
+    j = np.clip(np.argmax(grad, axis=2), 1, steps - 3)
+    take = lambda d: np.take_along_axis(grad, (j + d)[..., None], axis=2)[..., 0]  # noqa: E731
+    g0, g1, g2 = take(-1), take(0), take(1)
+    denom = g0 - 2 * g1 + g2
+    safe = np.where(np.abs(denom) > 1e-9, denom, 1.0)
+    frac = np.clip(np.where(np.abs(denom) > 1e-9, 0.5 * (g0 - g2) / safe, 0.0), -1, 1)
+    step = (offs[:, 1] - offs[:, 0])[:, None]
+    pos = np.take_along_axis(mid, j, axis=1) + frac * step  # (S, samples)
+    edge = base + pos[..., None] * normal[:, None, :]
+    strong = g1 > 0.25 * np.median(g1, axis=1, keepdims=True)
     out = quads.copy()
-    for n, q in enumerate(quads):
+    for n in range(len(quads)):
         lines = []
         for k in range(4):
-            a, b = q[k], q[(k + 1) % 4]
-            side = b - a
-            length = np.linalg.norm(side)
-            if length < 8:
+            i = 4 * n + k
+            if length[i] < 8 or strong[i].sum() < 4:
                 break
-            reach = float(np.clip(0.5 * length / cells, 1.0, 2.5))
-            tangent = side / length
-            normal = np.array([-tangent[1], tangent[0]])
-            # Stay away from the corners, where the neighbouring side disturbs the profile.
-            s = np.linspace(0.15, 0.85, samples)
-            base = a + s[:, None] * side
-            offs = np.linspace(-reach, reach, int(reach * 8) + 1)
-            pts = base[:, None, :] + offs[None, :, None] * normal
-            prof = _bilinear(img, pts.reshape(-1, 2)).reshape(samples, -1)
-            grad = np.abs(np.gradient(prof, offs, axis=1))
-            j = np.clip(np.argmax(grad, axis=1), 1, len(offs) - 2)
-            g0, g1, g2 = (grad[np.arange(samples), j + d] for d in (-1, 0, 1))
-            denom = g0 - 2 * g1 + g2
-            frac = np.where(np.abs(denom) > 1e-9, 0.5 * (g0 - g2) / denom, 0.0)
-            step = offs[1] - offs[0]
-            edge = base + ((offs[j] + np.clip(frac, -1, 1) * step)[:, None]) * normal
-            strong = g1 > 0.25 * np.median(g1)
-            if strong.sum() < 4:
-                break
-            lines.append(_fit_line(edge[strong]))
+            lines.append(_fit_line(edge[i][strong[i]]))
         if len(lines) == 4:
             corners = np.array([_intersect(lines[(k - 1) % 4], lines[k]) for k in range(4)])
-            if np.all(np.isfinite(corners)) and np.abs(corners - q).max() < 2.0:
+            if np.all(np.isfinite(corners)) and np.abs(corners - quads[n]).max() < 2.0:
                 out[n] = corners
     return out
 

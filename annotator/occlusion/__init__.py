@@ -10,7 +10,9 @@ For every posed instance and camera:
   several times the sensor noise) is hidden by something nobody annotated (bin walls, clutter);
   a pixel without measurement counts as visible.
 
-``occlusion = 1 - visible / full`` (1.0 when the full silhouette is empty). The rate reported
+``occlusion = 1 - visible / full`` (1.0 when the full silhouette is empty). In the depth camera
+the *depth agreement* is also measured: the fraction of visible pixels with a measurement where
+measured and rendered depth agree within ``max(3 mm, 1% of the depth)``. The rate reported
 for an instance is the reference camera's, with the depth test when the depth camera is the
 reference camera and a depth map exists. Pixels follow OpenCV's convention, lens distortion
 included, exactly as the overlays and the synthetic images.
@@ -44,6 +46,11 @@ class CameraVisibility:
     occlusion_depth: float | None
     mask_all: np.ndarray | None = None
     mask_visib: np.ndarray | None = None
+    depth_agreement: float | None = (
+        None  # visible pixels with |measured - rendered| within tolerance
+    )
+    depth_median_abs_mm: float | None = None
+    depth_pixels: int = 0  # visible pixels with a measurement
 
 
 @dataclass
@@ -52,6 +59,33 @@ class InstanceVisibility:
 
     cameras: list[CameraVisibility]
     occlusion: float
+
+
+#: Depth agreement: measured and rendered depth agree within max(3 mm, 1% of the depth).
+AGREEMENT_TOLERANCE_MM = 3.0
+
+
+def _cast_union(cam, placed: Sequence[PlacedMesh], boxes: Sequence[Box | None]):
+    """Cast all placed meshes together, but only over the union of their bounding boxes (the
+    rest of the image cannot show any of them)."""
+    from annotator.rendering.raycast import NO_HIT, Hits
+
+    mask = np.zeros((cam.height, cam.width), bool)
+    for b in boxes:
+        if b is not None:
+            mask[b[1] : b[3], b[0] : b[2]] = True
+    hits = RayScene(placed).cast(cam.pixel_rays()[mask])
+    full = Hits(
+        depth=np.full(mask.shape, np.inf, np.float32),
+        instance=np.full(mask.shape, NO_HIT, np.int32),
+        triangle=np.full(mask.shape, -1, np.int32),
+        barycentric=np.zeros((*mask.shape, 2), np.float32),
+    )
+    full.depth[mask] = hits.depth
+    full.instance[mask] = hits.instance
+    full.triangle[mask] = hits.triangle
+    full.barycentric[mask] = hits.barycentric
+    return full
 
 
 def _bbox(mask: np.ndarray, x0: int = 0, y0: int = 0) -> Box | None:
@@ -83,10 +117,11 @@ def scene_visibility(
     for name in names:
         cam = rig.camera(name)
         placed = [PlacedMesh(m, cam.cam_T_rig @ T) for m, T in zip(meshes, poses)]
-        together = RayScene(placed).cast(cam.pixel_rays())
+        boxes = [projected_bbox(cam, pm.mesh, pm.cam_T_model) for pm in placed]
+        together = _cast_union(cam, placed, boxes)
         use_depth = depth is not None and name == depth_cam
         for k, pm in enumerate(placed):
-            box = projected_bbox(cam, pm.mesh, pm.cam_T_model)
+            box = boxes[k]
             full = np.zeros((cam.height, cam.width), bool) if masks else None
             if box is None:
                 vis = CameraVisibility(
