@@ -1,13 +1,115 @@
-"""`annotator occlusion` (not built yet)."""
+"""``annotator occlusion DATASET``: masks' pixel counts, boxes and occlusion rates per instance.
+
+Reads annotation.json (or gt.json with ``--poses gt``) and writes ``visibility.json`` per scene
+(atomically; up-to-date scenes are skipped unless ``--force``). annotate already stores the
+rates in annotation.json; this command gives the full per-camera detail.
+"""
 
 from __future__ import annotations
 
 import argparse
+import fnmatch
+import json
+import sys
+from dataclasses import dataclass
+from typing import Any
+
+from annotator.batch import run_batch
+from annotator.dataset import load_dataset, read_poses
+from annotator.errors import UserError
+from annotator.io.atomic import write_json
+from annotator.occlusion import scene_visibility
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("dataset")
+    parser.add_argument("dataset", help="dataset folder (FORMAT.md)")
+    parser.add_argument("--poses", choices=("annotation", "gt"), default="annotation")
+    parser.add_argument("--scenes", default="*", metavar="PATTERN")
+    parser.add_argument("--depth-tolerance", type=float, default=5.0, help="mm (default 5)")
+    parser.add_argument("--workers", type=int, default=1)
+    parser.add_argument("--force", action="store_true")
+    parser.add_argument("--json", action="store_true")
+    parser.add_argument("--quiet", action="store_true")
+
+
+@dataclass(frozen=True)
+class VisibilityJob:
+    root: str
+    poses: str
+    tolerance: float
+
+    def __call__(self, scene_id: str) -> dict[str, Any]:
+        ds = load_dataset(self.root)
+        scene = ds.scene(scene_id)
+        src = scene.annotation_path if self.poses == "annotation" else scene.gt_path
+        if not src.exists():
+            raise UserError(f"no {src.name}", path=scene.path)
+        poses = read_poses(src)
+        vis = scene_visibility(
+            ds.rig,
+            [ds.objects[p.object].mesh for p in poses],
+            [p.T for p in poses],
+            depth=scene.read_depth(ds.rig),
+            depth_tolerance=self.tolerance,
+        )
+        out = {"depth_tolerance_mm": self.tolerance, "instances": []}
+        for p, v in zip(poses, vis):
+            cams = {}
+            for c in v.cameras:
+                cams[c.camera] = {
+                    "px_all": c.px_all,
+                    "px_visib": c.px_visib,
+                    "px_visib_depth": c.px_visib_depth,
+                    "bbox_all": c.bbox_all,
+                    "bbox_visib": c.bbox_visib,
+                    "occlusion": round(c.occlusion, 5),
+                    "occlusion_depth": None
+                    if c.occlusion_depth is None
+                    else round(c.occlusion_depth, 5),
+                }
+            out["instances"].append(
+                {
+                    "object": p.object,
+                    "instance": p.instance,
+                    "occlusion": round(v.occlusion, 5),
+                    "cameras": cams,
+                }
+            )
+        write_json(scene.path / "visibility.json", out)
+        return {"instances": len(poses)}
 
 
 def run(args: argparse.Namespace) -> int:
-    raise SystemExit("annotator occlusion: not built yet")
+    ds = load_dataset(args.dataset)
+    scenes = [s for s in ds.scenes() if fnmatch.fnmatch(s.id, args.scenes)]
+    if not scenes:
+        raise UserError(f"no scene matches {args.scenes!r}", path=ds.root / "scenes")
+
+    def fresh(s) -> bool:
+        src = s.annotation_path if args.poses == "annotation" else s.gt_path
+        v = s.path / "visibility.json"
+        return v.exists() and src.exists() and v.stat().st_mtime >= src.stat().st_mtime
+
+    todo = [s.id for s in scenes if args.force or not fresh(s)]
+    report = run_batch(
+        VisibilityJob(str(ds.root), args.poses, args.depth_tolerance),
+        todo,
+        workers=args.workers,
+        desc="occlusion",
+        quiet=args.quiet,
+    )
+    summary = {
+        "done": len(report.done),
+        "skipped": len(scenes) - len(todo),
+        "failed": len(report.failed),
+        "failures": report.failed,
+    }
+    if args.json:
+        print(json.dumps(summary, indent=1))
+    else:
+        for sid, err in sorted(report.failed.items()):
+            print(f"failed: {sid}: {err}", file=sys.stderr)
+        print(
+            f"occlusion: {summary['done']} scenes done, {summary['skipped']} up to date, {summary['failed']} failed"
+        )
+    return 1 if report.failed else 0

@@ -153,10 +153,18 @@ def _read_bop(root: Path) -> GroundTruth:
         spaces[name] = PoseSpace.from_moments(mesh.moments, bop_symmetry(entry))
     table: Table = defaultdict(PoseSet)
     scenes = []
-    for gt_path in sorted(root.glob("*/*/scene_gt.json")):
-        scene_dir = gt_path.parent
+    for scene_dir in sorted({p.parent for p in root.glob("*/*/scene_gt*.json")}):
+        # Single-sensor scenes have scene_gt.json; multi-sensor ones scene_gt_<sensor>.json:
+        # the first sensor (sorted by name) is evaluated.
+        sensors = sorted(
+            p.name[len("scene_gt") : -len(".json")]
+            for p in scene_dir.glob("scene_gt*.json")
+            if not p.name.startswith("scene_gt_info")
+        )
+        sfx = "" if "" in sensors else sensors[0]
+        gt_path = scene_dir / f"scene_gt{sfx}.json"
         gt = _load_json(gt_path)
-        gi_path = scene_dir / "scene_gt_info.json"
+        gi_path = scene_dir / f"scene_gt_info{sfx}.json"
         gi = _load_json(gi_path) if gi_path.exists() else {}
         for im_id, insts in gt.items():
             key = f"{int(scene_dir.name)}/{int(im_id)}"

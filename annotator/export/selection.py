@@ -1,0 +1,75 @@
+"""Which scenes an export takes, from the human decisions in review.json.
+
+By default only *accepted* scenes whose decision is not stale (the annotation has not changed
+since) and that have no rejected instance are exported; ``include_pending`` adds undecided
+scenes, ``drop_rejected_instances`` exports scenes with rejected instances without them.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from annotator.dataset import Dataset, InstancePose, Scene
+from annotator.dataset.poses import read_poses
+from annotator.dataset.review import poses_fingerprint, read_review
+from annotator.errors import UserError
+
+
+@dataclass
+class Selected:
+    scene: Scene
+    poses: list[InstancePose]
+
+
+@dataclass
+class Selection:
+    scenes: list[Selected] = field(default_factory=list)
+    skipped: dict[str, str] = field(default_factory=dict)  # scene id -> reason
+
+    def reasons(self) -> dict[str, int]:
+        out: dict[str, int] = {}
+        for r in self.skipped.values():
+            out[r] = out.get(r, 0) + 1
+        return out
+
+
+def select_scenes(
+    ds: Dataset,
+    *,
+    include_pending: bool = False,
+    drop_rejected_instances: bool = False,
+    poses_from: str = "annotation",
+) -> Selection:
+    """Scenes to export and why the others are left out."""
+    sel = Selection()
+    for scene in ds.scenes():
+        path = scene.annotation_path if poses_from == "annotation" else scene.gt_path
+        if not path.exists():
+            sel.skipped[scene.id] = f"no {path.name}"
+            continue
+        try:
+            poses = read_poses(path)
+            review = read_review(scene.review_path)
+        except UserError as exc:
+            sel.skipped[scene.id] = f"error: {exc}"
+            continue
+        status = "pending" if review is None else review.status
+        if (
+            review is not None
+            and poses_from == "annotation"
+            and review.is_stale(poses_fingerprint(poses))
+        ):
+            sel.skipped[scene.id] = "stale review (annotation changed since)"
+            continue
+        if status == "rejected":
+            sel.skipped[scene.id] = "rejected"
+            continue
+        if status == "pending" and not include_pending:
+            sel.skipped[scene.id] = "pending"
+            continue
+        rejected = {k for k, v in (review.instances if review else {}).items() if v == "rejected"}
+        if rejected and not drop_rejected_instances:
+            sel.skipped[scene.id] = "has a rejected instance"
+            continue
+        sel.scenes.append(Selected(scene, [p for p in poses if p.key not in rejected]))
+    return sel
