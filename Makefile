@@ -21,11 +21,14 @@ $(STAMP): pyproject.toml
 	$(BIN)/pip install -q -e '.[dev]'
 	touch $(STAMP)
 
+# The main job on a copy of sample_scenes/ (the committed files stay untouched).
 demo: $(STAMP)
-	$(BIN)/annotator check sample_scenes
-	$(BIN)/annotator annotate sample_scenes --force
-	$(BIN)/annotator evaluate sample_scenes
-	@echo "Next: $(BIN)/annotator review sample_scenes  (then open the printed address)"
+	rm -rf out/demo && mkdir -p out && cp -r sample_scenes out/demo && rm -f out/demo/scenes/*/annotation.json
+	$(BIN)/annotator check out/demo
+	$(BIN)/annotator annotate out/demo --workers 2
+	$(BIN)/annotator evaluate out/demo --plot out/demo_precision_recall.png
+	$(BIN)/annotator export out/demo out/demo_bop --format bop --include-pending --overwrite
+	@echo "Next: $(BIN)/annotator review out/demo   (then open the printed address)"
 
 test: $(STAMP)
 	$(BIN)/ruff check .
