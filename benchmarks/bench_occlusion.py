@@ -26,7 +26,9 @@ def main() -> None:
     ref_T_world = setup.ref_T_world
     poses = []
     for R in random_rotations(30, rng):
-        world = make_transform(R, [rng.uniform(-120, 120), rng.uniform(-90, 90), rng.uniform(20, 80)])
+        world = make_transform(
+            R, [rng.uniform(-120, 120), rng.uniform(-90, 90), rng.uniform(20, 80)]
+        )
         poses.append(ref_T_world @ world)
     for cam in rig.cameras:
         cam.pixel_rays()  # per-camera ray tables are built once per process: not counted
@@ -46,8 +48,12 @@ def main() -> None:
     base = time.perf_counter() - t0
     ours_ref = [v.cameras[0].occlusion for v in fast]
     assert np.allclose(ours_ref, naive[:30], atol=1e-9)
-    print(f"occlusion of 30 instances in two 1280x1024 cameras: {ours:.2f} s (target 1 s: ratio {ours:.2f})")
-    print(f"  naive one-render-per-instance: {base:.2f} s; ours is x{base / ours:.1f} faster, same rates")
+    print(
+        f"occlusion of 30 instances in two 1280x1024 cameras: {ours:.2f} s (target 1 s: ratio {ours:.2f})"
+    )
+    print(
+        f"  naive one-render-per-instance: {base:.2f} s; ours is x{base / ours:.1f} faster, same rates"
+    )
 
 
 if __name__ == "__main__":

@@ -60,6 +60,9 @@ def test_annotate_sample_is_accurate_and_honest(sample_copy, capsys) -> None:
     ):
         assert key in extra
     assert {"unknown_markers", "duplicates", "errors", "created_at"} <= set(top)
+    # Measured and rendered depth agree where the poses are right.
+    depths = [p.extra["depth"] for p in poses if p.extra["depth"] is not None]
+    assert len(depths) >= len(poses) // 2 and np.median([d["agreement"] for d in depths]) > 0.8
 
 
 def test_resumable_skips_up_to_date_scenes(sample_copy, capsys) -> None:

@@ -17,8 +17,14 @@ from viewer.app import ReviewApp  # noqa: E402
 pytestmark = pytest.mark.browser
 
 CHROMIUM_ARGS = [
-    "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-    "--disable-background-networking", "--disable-component-update", "--disable-sync",
+    "--headless",
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-quic",
+    "--no-first-run",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
 ]
 
 
@@ -68,7 +74,11 @@ def test_review_page_end_to_end(served, tmp_path) -> None:
             import cv2
 
             img = cv2.imread(str(shot))[:, :, ::-1].astype(int)
-            yellow = (np.abs(img[..., 0] - 255) < 40) & (np.abs(img[..., 1] - 220) < 40) & (img[..., 2] < 80)
+            yellow = (
+                (np.abs(img[..., 0] - 255) < 40)
+                & (np.abs(img[..., 1] - 220) < 40)
+                & (img[..., 2] < 80)
+            )
             assert yellow.sum() > 200, "no pending contour visible in the screenshot"
             assert img.std() > 20, "blank page"
 

@@ -65,7 +65,9 @@ class ReviewApp:
         nflag.on_click(lambda _: self.next_flagged())
         toggle.on_click(lambda _: self.toggle())
         self.flt.on_update(lambda _: self.set_filter(self.flt.value))
-        self.inst.on_update(lambda _: self.select(None if self.inst.value == "-" else self.inst.value))
+        self.inst.on_update(
+            lambda _: self.select(None if self.inst.value == "-" else self.inst.value)
+        )
         for label, key, fn in (
             ("Accept scene", "Y", lambda: self.decide("accepted")),
             ("Reject scene", "N", lambda: self.decide("rejected")),
@@ -172,13 +174,17 @@ class ReviewApp:
                 if name in self.images:
                     self.images[name].image = img
                 else:
-                    self.images[name] = self.server.gui.add_image(img, label=name, format="jpeg", jpeg_quality=85)
+                    self.images[name] = self.server.gui.add_image(
+                        img, label=name, format="jpeg", jpeg_quality=85
+                    )
         status = info.status + (" (stale: the annotation changed since)" if info.stale else "")
         idx = self.state.ids.index(self.current)
         self.title.content = f"## Scene {self.current}\n**{status}** · {idx + 1} of {len(self.state.ids)} · filter: {self.filter}"
         messages = list(prep.messages)
         if not info.annotated:
-            messages.append(f"scene {self.current} has no annotation.json: run `annotator annotate` first")
+            messages.append(
+                f"scene {self.current} has no annotation.json: run `annotator annotate` first"
+            )
         if info.error:
             messages.append(info.error)
         self.notice.content = "\n".join(f"⚠ {m}" for m in messages)
@@ -200,7 +206,10 @@ class ReviewApp:
                 self._prepared_for(ids[ids.index(self.current) + 1])
 
     def _table(self, info) -> str:
-        rows = ["| instance | state | flags | markers used/rej. | reproj. px | unc. mm | occl. | depth agr. |", "|---|---|---|---|---|---|---|---|"]
+        rows = [
+            "| instance | state | flags | markers used/rej. | reproj. px | unc. mm | occl. | depth agr. |",
+            "|---|---|---|---|---|---|---|---|",
+        ]
         for p in info.poses:
             e = p.extra
             used = sum(len(v.get("used", [])) for v in (e.get("markers") or {}).values())
@@ -225,8 +234,12 @@ class ReviewApp:
             q = Rotation.from_matrix(R).as_quat()
             fov = 2 * np.arctan(cam.height / 2 / cam.K[1, 1])
             scene.add_camera_frustum(
-                f"/cameras/{cam.name}", fov=float(fov), aspect=cam.width / cam.height, scale=0.05,
-                wxyz=(q[3], q[0], q[1], q[2]), position=tuple(cam.rig_T_cam[:3, 3] / 1000.0),
+                f"/cameras/{cam.name}",
+                fov=float(fov),
+                aspect=cam.width / cam.height,
+                scale=0.05,
+                wxyz=(q[3], q[0], q[1], q[2]),
+                position=tuple(cam.rig_T_cam[:3, 3] / 1000.0),
             )
         depth = None
         try:
@@ -240,16 +253,26 @@ class ReviewApp:
             ok = np.isfinite(d)
             pts = rays[ok] * d[ok][:, None] / 1000.0
             pts = pts @ cam.rig_T_cam[:3, :3].T + cam.rig_T_cam[:3, 3] / 1000.0
-            scene.add_point_cloud("/depth", pts.astype(np.float32), colors=(150, 150, 150), point_size=0.0015)
+            scene.add_point_cloud(
+                "/depth", pts.astype(np.float32), colors=(150, 150, 150), point_size=0.0015
+            )
         for p in info.poses:
             obj = ds.objects.get(p.object)
             if obj is None:
                 continue
             q = Rotation.from_matrix(p.R).as_quat()
-            colour = (255, 255, 255) if p.key == self.selected else STATE_RGB[info.instance_status(p.key)]
+            colour = (
+                (255, 255, 255)
+                if p.key == self.selected
+                else STATE_RGB[info.instance_status(p.key)]
+            )
             handle = scene.add_mesh_simple(
-                f"/parts/{p.object}_{p.instance}", obj.mesh.vertices / 1000.0, obj.mesh.faces, color=colour,
-                wxyz=(q[3], q[0], q[1], q[2]), position=tuple(p.t / 1000.0),
+                f"/parts/{p.object}_{p.instance}",
+                obj.mesh.vertices / 1000.0,
+                obj.mesh.faces,
+                color=colour,
+                wxyz=(q[3], q[0], q[1], q[2]),
+                position=tuple(p.t / 1000.0),
             )
             handle.on_click(lambda _, key=p.key: self.select(key))
 

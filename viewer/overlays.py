@@ -52,7 +52,9 @@ def _display(img: np.ndarray, max_width: int) -> tuple[np.ndarray, float]:
     return img, s
 
 
-def prepare(ds: Dataset, scene: Scene, poses: list[InstancePose], *, max_width: int = 960) -> Prepared:
+def prepare(
+    ds: Dataset, scene: Scene, poses: list[InstancePose], *, max_width: int = 960
+) -> Prepared:
     """Read the images and render the silhouettes of ``poses`` in every camera."""
     prep = Prepared(scene.id, [p.key for p in poses], [])
     meshes = [ds.objects[p.object].mesh if p.object in ds.objects else None for p in poses]
@@ -63,7 +65,9 @@ def prepare(ds: Dataset, scene: Scene, poses: list[InstancePose], *, max_width: 
         except Exception as exc:  # a vanished or corrupt image must not stop the viewer
             prep.messages.append(str(exc))
             gray = np.zeros((cam.height, cam.width), np.uint8)
-        placed = [PlacedMesh(m, cam.cam_T_rig @ p.T) for m, p in zip(meshes, poses) if m is not None]
+        placed = [
+            PlacedMesh(m, cam.cam_T_rig @ p.T) for m, p in zip(meshes, poses) if m is not None
+        ]
         boxes = [projected_bbox(cam, pm.mesh, pm.cam_T_model) for pm in placed]
         mask = np.zeros((cam.height, cam.width), bool)
         for b in boxes:
@@ -85,10 +89,14 @@ def prepare(ds: Dataset, scene: Scene, poses: list[InstancePose], *, max_width: 
                 continue
             sub = (instance[b[1] : b[3], b[0] : b[2]] == k).astype(np.uint8)
             cs, _ = cv2.findContours(sub, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
-            cs = [((c.reshape(-1, 2) + [b[0], b[1]]) * s).astype(np.int32) for c in cs if len(c) > 2]
+            cs = [
+                ((c.reshape(-1, 2) + [b[0], b[1]]) * s).astype(np.int32) for c in cs if len(c) > 2
+            ]
             contours.append(cs)
             ys, xs = np.nonzero(sub)
-            centres.append((int((xs.mean() + b[0]) * s), int((ys.mean() + b[1]) * s)) if len(xs) else None)
+            centres.append(
+                (int((xs.mean() + b[0]) * s), int((ys.mean() + b[1]) * s)) if len(xs) else None
+            )
         layer = CameraLayer(cam.name, img, s, contours, centres)
         prep.layers.append(layer)
         if ds.rig.depth is not None and cam.name == ds.rig.depth.camera:
@@ -104,8 +112,12 @@ def prepare(ds: Dataset, scene: Scene, poses: list[InstancePose], *, max_width: 
             prep.depth, _ = _display(colourise_depth(measured), max_width)
             diff = np.abs(measured - rendered_depth)
             show = np.isfinite(rendered_depth) & np.isfinite(measured)
-            heat = np.nan_to_num(np.clip(diff / DISAGREEMENT_RANGE_MM * 255, 0, 255), nan=255.0).astype(np.uint8)
-            out = cv2.cvtColor((np.nan_to_num(measured, nan=0) > 0).astype(np.uint8) * 60, cv2.COLOR_GRAY2BGR)
+            heat = np.nan_to_num(
+                np.clip(diff / DISAGREEMENT_RANGE_MM * 255, 0, 255), nan=255.0
+            ).astype(np.uint8)
+            out = cv2.cvtColor(
+                (np.nan_to_num(measured, nan=0) > 0).astype(np.uint8) * 60, cv2.COLOR_GRAY2BGR
+            )
             out[show] = cv2.applyColorMap(heat, cv2.COLORMAP_INFERNO)[show]
             prep.disagreement, _ = _display(out, max_width)
     return prep
@@ -123,7 +135,14 @@ def colourise_depth(depth: np.ndarray) -> np.ndarray:
     return out
 
 
-def draw(base: np.ndarray, layer: CameraLayer, keys: list[str], states: dict[str, str], flagged: set[str], selected: str | None) -> np.ndarray:
+def draw(
+    base: np.ndarray,
+    layer: CameraLayer,
+    keys: list[str],
+    states: dict[str, str],
+    flagged: set[str],
+    selected: str | None,
+) -> np.ndarray:
     """Contours coloured by state on ``base`` (grey or BGR, display size); returns RGB."""
     img = cv2.cvtColor(base, cv2.COLOR_GRAY2BGR) if base.ndim == 2 else base.copy()
     for k, key in enumerate(keys):
@@ -132,19 +151,37 @@ def draw(base: np.ndarray, layer: CameraLayer, keys: list[str], states: dict[str
         colour = COLOURS[states.get(key, "pending")]
         if key in flagged:
             cv2.polylines(img, layer.contours[k], True, FLAG_COLOUR, 4, cv2.LINE_AA)
-        cv2.polylines(img, layer.contours[k], True, SELECTED_COLOUR if key == selected else colour, 2, cv2.LINE_AA)
+        cv2.polylines(
+            img,
+            layer.contours[k],
+            True,
+            SELECTED_COLOUR if key == selected else colour,
+            2,
+            cv2.LINE_AA,
+        )
         if layer.centres[k] is not None:
             label = key.split("/")[0][:3] + key.split("/")[-1] + ("!" if key in flagged else "")
             x, y = layer.centres[k]
-            cv2.putText(img, label, (x - 12, y), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 0, 0), 3, cv2.LINE_AA)
-            cv2.putText(img, label, (x - 12, y), cv2.FONT_HERSHEY_SIMPLEX, 0.45, colour, 1, cv2.LINE_AA)
+            cv2.putText(
+                img, label, (x - 12, y), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 0, 0), 3, cv2.LINE_AA
+            )
+            cv2.putText(
+                img, label, (x - 12, y), cv2.FONT_HERSHEY_SIMPLEX, 0.45, colour, 1, cv2.LINE_AA
+            )
     return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
 
 
-def compose(prep: Prepared, states: dict[str, str], flagged: set[str], selected: str | None) -> dict[str, np.ndarray]:
+def compose(
+    prep: Prepared, states: dict[str, str], flagged: set[str], selected: str | None
+) -> dict[str, np.ndarray]:
     """All panels as RGB images: one per camera, ``depth`` and ``disagreement`` if available."""
-    out = {layer.name: draw(layer.image, layer, prep.keys, states, flagged, selected) for layer in prep.layers}
+    out = {
+        layer.name: draw(layer.image, layer, prep.keys, states, flagged, selected)
+        for layer in prep.layers
+    }
     if prep.depth is not None and prep.depth_layer is not None:
         out["depth"] = draw(prep.depth, prep.depth_layer, prep.keys, states, flagged, selected)
-        out["disagreement"] = draw(prep.disagreement, prep.depth_layer, prep.keys, states, flagged, selected)
+        out["disagreement"] = draw(
+            prep.disagreement, prep.depth_layer, prep.keys, states, flagged, selected
+        )
     return out

@@ -36,7 +36,9 @@ class SceneInfo:
 
     def instance_status(self, key: str) -> str:
         """``accepted``, ``rejected`` or ``pending`` (no decision yet)."""
-        return self.review.instances.get(key, "accepted" if self.review.status == "accepted" else "pending")
+        return self.review.instances.get(
+            key, "accepted" if self.review.status == "accepted" else "pending"
+        )
 
 
 class ReviewState:
@@ -99,7 +101,9 @@ class ReviewState:
         with self._lock:
             info = self.info(sid)
             instances = {k: v for k, v in info.review.instances.items() if v == "rejected"}
-            self._write(sid, Review(status=status, instances=instances, extra=dict(info.review.extra)))
+            self._write(
+                sid, Review(status=status, instances=instances, extra=dict(info.review.extra))
+            )
 
     def toggle_instance(self, sid: str, key: str) -> str:
         """Flip one instance between accepted and rejected; return its new status."""
@@ -108,7 +112,12 @@ class ReviewState:
             new = "accepted" if info.instance_status(key) == "rejected" else "rejected"
             instances = dict(info.review.instances)
             instances[key] = new
-            self._write(sid, Review(status=info.review.status, instances=instances, extra=dict(info.review.extra)))
+            self._write(
+                sid,
+                Review(
+                    status=info.review.status, instances=instances, extra=dict(info.review.extra)
+                ),
+            )
             return new
 
     def matches(self, sid: str, flt: str) -> bool:

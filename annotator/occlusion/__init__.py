@@ -142,14 +142,22 @@ def scene_visibility(
                 px_all, px_vis = int(m_all.sum()), int(m_vis.sum())
                 px_dep = occ_dep = None
                 m_dep = m_vis
+                agreement = median_abs = None
+                n_meas = 0
                 if use_depth:
                     meas = depth[y0:y1, x0:x1]
-                    hidden = np.isfinite(meas) & (
-                        meas < together.depth[y0:y1, x0:x1] - depth_tolerance
-                    )
+                    rend = together.depth[y0:y1, x0:x1]
+                    hidden = np.isfinite(meas) & (meas < rend - depth_tolerance)
                     m_dep = m_vis & ~hidden
                     px_dep = int(m_dep.sum())
                     occ_dep = 1.0 - px_dep / px_all if px_all else 1.0
+                    measured = m_vis & np.isfinite(meas)
+                    n_meas = int(measured.sum())
+                    if n_meas:
+                        diff = np.abs(meas[measured] - rend[measured])
+                        tol = np.maximum(AGREEMENT_TOLERANCE_MM, 0.01 * rend[measured])
+                        agreement = float(np.mean(diff < tol))
+                        median_abs = float(np.median(diff))
                 vis = CameraVisibility(
                     name,
                     px_all,
@@ -159,6 +167,9 @@ def scene_visibility(
                     _bbox(m_vis, x0, y0),
                     1.0 - px_vis / px_all if px_all else 1.0,
                     occ_dep,
+                    depth_agreement=agreement,
+                    depth_median_abs_mm=median_abs,
+                    depth_pixels=n_meas,
                 )
                 if masks:
                     full[y0:y1, x0:x1] = m_all
