@@ -15,9 +15,10 @@ import numpy as np
 import viser
 from scipy.spatial.transform import Rotation
 
-from viewer.overlays import Prepared, compose, prepare
+from viewer.overlays import Prepared, compose, mosaic, prepare
 from viewer.state import FILTERS, ReviewState
 
+SCENE3D = "/scene3d"  # the 3D view sits beside the overlays (x + 2.5 m)
 STATE_RGB = {"pending": (255, 220, 0), "accepted": (60, 220, 60), "rejected": (255, 40, 40)}
 
 
@@ -34,6 +35,7 @@ class ReviewApp:
         self.filter = "all"
         self.current = self.state.ids[0] if self.state.ids else None
         self.selected: str | None = None
+        self._parts_shown: set[str] = set()
         self._build_gui()
         self.show()
 
@@ -55,8 +57,8 @@ class ReviewApp:
             self.inst = gui.add_dropdown("Instance", ["-"], initial_value="-")
             toggle = gui.add_button("Toggle instance (T)")
         self.table = gui.add_markdown("")
-        self.images: dict[str, viser.GuiImageHandle] = {}
-        self.image_folder = gui.add_folder("Images")
+        self._overlay: viser.ImageHandle | None = None
+        self.server.on_client_connect(self._frame_overlays)
 
         accept.on_click(lambda _: self.decide("accepted"))
         reject.on_click(lambda _: self.decide("rejected"))
@@ -169,14 +171,7 @@ class ReviewApp:
         states = {p.key: info.instance_status(p.key) for p in info.poses}
         flagged = {p.key for p in info.poses if p.extra.get("flags")}
         panels = compose(prep, states, flagged, self.selected)
-        with self.image_folder:
-            for name, img in panels.items():
-                if name in self.images:
-                    self.images[name].image = img
-                else:
-                    self.images[name] = self.server.gui.add_image(
-                        img, label=name, format="jpeg", jpeg_quality=85
-                    )
+        self._show_mosaic(mosaic(panels))
         status = info.status + (" (stale: the annotation changed since)" if info.stale else "")
         idx = self.state.ids.index(self.current)
         self.title.content = f"## Scene {self.current}\n**{status}** · {idx + 1} of {len(self.state.ids)} · filter: {self.filter}"
@@ -205,6 +200,29 @@ class ReviewApp:
             if self.current in ids and ids.index(self.current) + 1 < len(ids):
                 self._prepared_for(ids[ids.index(self.current) + 1])
 
+    def _show_mosaic(self, img: np.ndarray) -> None:
+        """The overlays as one picture filling the initial 3D view (1 unit = 1000 px)."""
+        h, w = img.shape[:2]
+        if self._overlay is None or self._overlay_size != (w, h):
+            self._overlay = self.server.scene.add_image(
+                "/overlays",
+                img,
+                render_width=w / 1000,
+                render_height=h / 1000,
+                format="jpeg",
+                jpeg_quality=85,
+            )
+            self._overlay_size = (w, h)
+        else:
+            self._overlay.image = img
+
+    def _frame_overlays(self, client: viser.ClientHandle) -> None:
+        w, h = getattr(self, "_overlay_size", (1920, 1536))
+        # Images follow the camera convention (rows down +y): look along +z with -y up.
+        client.camera.up_direction = (0.0, -1.0, 0.0)
+        client.camera.position = (0.0, 0.0, -1.05 * h / 1000)
+        client.camera.look_at = (0.0, 0.0, 0.0)
+
     def _table(self, info) -> str:
         rows = [
             "| instance | state | flags | markers used/rej. | reproj. px | unc. mm | occl. | depth agr. |",
@@ -228,13 +246,14 @@ class ReviewApp:
     def _scene3d(self, info, prep: Prepared) -> None:
         ds = self.state.ds
         scene = self.server.scene
-        scene.reset()
+        root = SCENE3D
+        off = np.array([2.5, 0.0, 0.0])  # beside the overlays
         for cam in ds.rig.cameras:
             R = cam.rig_T_cam[:3, :3]
             q = Rotation.from_matrix(R).as_quat()
             fov = 2 * np.arctan(cam.height / 2 / cam.K[1, 1])
             scene.add_camera_frustum(
-                f"/cameras/{cam.name}",
+                f"{root}/cameras/{cam.name}",
                 fov=float(fov),
                 aspect=cam.width / cam.height,
                 scale=0.05,
@@ -252,7 +271,7 @@ class ReviewApp:
             d = depth[::4, ::4]
             ok = np.isfinite(d)
             pts = rays[ok] * d[ok][:, None] / 1000.0
-            pts = pts @ cam.rig_T_cam[:3, :3].T + cam.rig_T_cam[:3, 3] / 1000.0
+            pts = pts @ cam.rig_T_cam[:3, :3].T + cam.rig_T_cam[:3, 3] / 1000.0 + off
             scene.add_point_cloud(
                 "/depth", pts.astype(np.float32), colors=(150, 150, 150), point_size=0.0015
             )
@@ -267,7 +286,7 @@ class ReviewApp:
                 else STATE_RGB[info.instance_status(p.key)]
             )
             handle = scene.add_mesh_simple(
-                f"/parts/{p.object}_{p.instance}",
+                f"{root}/parts/{p.object}_{p.instance}",
                 obj.mesh.vertices / 1000.0,
                 obj.mesh.faces,
                 color=colour,
@@ -275,6 +294,10 @@ class ReviewApp:
                 position=tuple(p.t / 1000.0),
             )
             handle.on_click(lambda _, key=p.key: self.select(key))
+        shown = {f"{root}/parts/{p.object}_{p.instance}" for p in info.poses}
+        for name in self._parts_shown - shown:
+            scene.remove_by_name(name) if hasattr(scene, "remove_by_name") else None
+        self._parts_shown = shown
 
     def stop(self) -> None:
         self.server.stop()

@@ -185,3 +185,26 @@ def compose(
             prep.disagreement, prep.depth_layer, prep.keys, states, flagged, selected
         )
     return out
+
+
+def mosaic(panels: dict[str, np.ndarray]) -> np.ndarray:
+    """Panels side by side, two per row (cameras first, then depth and disagreement), each
+    titled; RGB."""
+    tiles = []
+    for name, img in panels.items():
+        t = img.copy()
+        cv2.rectangle(t, (0, 0), (8 + 11 * len(name), 24), (0, 0, 0), -1)
+        cv2.putText(
+            t, name, (4, 17), cv2.FONT_HERSHEY_SIMPLEX, 0.55, (255, 255, 255), 1, cv2.LINE_AA
+        )
+        tiles.append(t)
+    h = max(t.shape[0] for t in tiles)
+    w = max(t.shape[1] for t in tiles)
+    tiles = [
+        cv2.copyMakeBorder(t, 0, h - t.shape[0], 0, w - t.shape[1], cv2.BORDER_CONSTANT)
+        for t in tiles
+    ]
+    if len(tiles) % 2:
+        tiles.append(np.zeros_like(tiles[0]))
+    rows = [np.hstack(tiles[k : k + 2]) for k in range(0, len(tiles), 2)]
+    return np.vstack(rows)
