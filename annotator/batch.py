@@ -27,6 +27,11 @@ class BatchReport:
     done: dict[str, dict[str, Any]] = field(default_factory=dict)
     failed: dict[str, str] = field(default_factory=dict)
 
+    def print_failures(self) -> None:
+        """One line per failed scene on stderr, in scene order."""
+        for sid, err in sorted(self.failed.items()):
+            print(f"failed: scene {sid}: {err}", file=sys.stderr)
+
 
 def _run_one(
     job: Callable[[str], dict[str, Any]], scene_id: str

@@ -5,7 +5,6 @@ from __future__ import annotations
 import argparse
 import fnmatch
 import json
-import sys
 
 from annotator.annotation.batch import AnnotateJob, is_up_to_date
 from annotator.batch import run_batch
@@ -52,8 +51,7 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(summary, indent=1))
     else:
-        for sid, err in sorted(report.failed.items()):
-            print(f"failed: {sid}: {err}", file=sys.stderr)
+        report.print_failures()
         print(
             f"annotate: {len(report.done)} scenes done, {skipped} up to date (skipped), {len(report.failed)} failed; "
             f"{posed} instances posed, {flagged} flagged"

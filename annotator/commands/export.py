@@ -5,9 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import shutil
 import sys
-import tempfile
 from pathlib import Path
 
 from tqdm import tqdm
@@ -17,6 +15,7 @@ from annotator.errors import UserError
 from annotator.export.bop import export_bop
 from annotator.export.selection import select_scenes
 from annotator.export.sileane import export_sileane
+from annotator.io.atomic import atomic_folder
 
 FORMATS = ("bop", "sileane")
 
@@ -82,7 +81,6 @@ def run(args: argparse.Namespace) -> int:
             f"no accepted scene to export ({why}); review them with `annotator review`, or use --include-pending",
             path=ds.root,
         )
-    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=parent))
     bar = tqdm(
         total=len(sel.scenes),
         desc=f"export {args.format}",
@@ -90,19 +88,11 @@ def run(args: argparse.Namespace) -> int:
         disable=args.quiet or not sys.stderr.isatty(),
         file=sys.stderr,
     )
-    try:
+    with bar, atomic_folder(out) as tmp:
         if args.format == "bop":
             export_bop(ds, sel.scenes, tmp, cameras=cameras, progress=bar.update)
         else:
             export_sileane(ds, sel.scenes, tmp, progress=bar.update)
-        if out.exists():
-            shutil.rmtree(out) if out.is_dir() else out.unlink()
-        tmp.rename(out)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
-    finally:
-        bar.close()
     summary = {
         "format": args.format,
         "out": str(out),

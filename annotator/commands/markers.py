@@ -9,8 +9,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import shutil
-import tempfile
 from pathlib import Path
 
 import trimesh
@@ -19,6 +17,7 @@ from annotator.dataset.model import Instance, Symmetry
 from annotator.dataset.write import write_object_yaml
 from annotator.errors import UserError
 from annotator.geometry.mesh import load_mesh
+from annotator.io.atomic import atomic_folder
 from annotator.markers.layout import assign_ids, place_markers
 from annotator.markers.sheets import SheetMarker, render_pages, write_sheets
 from annotator.markers.texture import dictionary_size
@@ -98,9 +97,7 @@ def run(args: argparse.Namespace) -> int:
             f"but {args.dictionary} has {n_dict}: use fewer instances, --max-sites or a larger dictionary"
         )
     instances = [Instance(f"{k + 1:02d}", tuple(i)) for k, i in enumerate(ids)]
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
-    try:
+    with atomic_folder(out) as tmp:
         trimesh.Trimesh(mesh.vertices, mesh.faces, process=False).export(tmp / "model.ply")
         write_object_yaml(
             tmp, mesh_file="model.ply", symmetry=symmetry, markers=layout.sites, instances=instances
@@ -122,12 +119,6 @@ def run(args: argparse.Namespace) -> int:
             write_textured_obj(
                 tmp / "textured", stem, mesh, layout.corners, inst.marker_ids, args.dictionary
             )
-        if out.exists():
-            shutil.rmtree(out)
-        tmp.rename(out)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
     summary = {
         "part": name,
         "sites": len(layout.corners),

@@ -10,7 +10,6 @@ from __future__ import annotations
 import argparse
 import fnmatch
 import json
-import sys
 from dataclasses import dataclass
 from typing import Any
 
@@ -107,8 +106,7 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(summary, indent=1))
     else:
-        for sid, err in sorted(report.failed.items()):
-            print(f"failed: {sid}: {err}", file=sys.stderr)
+        report.print_failures()
         print(
             f"occlusion: {summary['done']} scenes done, {summary['skipped']} up to date, {summary['failed']} failed"
         )

@@ -5,12 +5,11 @@ from __future__ import annotations
 import argparse
 import json
 import shutil
-import sys
-import tempfile
 from pathlib import Path
 
 from annotator.batch import run_batch
 from annotator.errors import UserError
+from annotator.io.atomic import atomic_folder
 from annotator.parts import PART_NAMES, build_part
 from annotator.synthesis.generate import SceneJob, SynthConfig, _plan, write_dataset_files
 
@@ -91,9 +90,7 @@ def run(args: argparse.Namespace) -> int:
         raise UserError("already exists (use --overwrite to replace it)", path=out)
     if out.exists() and not out.is_dir():
         raise UserError("exists and is not a folder", path=out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
-    try:
+    with atomic_folder(out) as tmp:
         plan = _plan(config)
         write_dataset_files(plan, tmp)
         ids = [f"{k:06d}" for k in range(config.scenes)]
@@ -102,12 +99,6 @@ def run(args: argparse.Namespace) -> int:
         )
         for sid in report.failed:
             shutil.rmtree(tmp / "scenes" / sid, ignore_errors=True)
-        if out.exists():
-            shutil.rmtree(out)
-        tmp.rename(out)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
     summary = {
         "out": str(out),
         "scenes": len(report.done),
@@ -122,8 +113,7 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(summary, indent=1))
     else:
-        for sid, err in sorted(report.failed.items()):
-            print(f"failed: scene {sid}: {err}", file=sys.stderr)
+        report.print_failures()
         t = summary["seconds_per_scene"]
         print(
             f"synth: {summary['scenes']} scenes ({summary['instances']} instances) written to {out}, "
