@@ -88,22 +88,26 @@ def test_selection_and_bad_inputs(sample_copy, tmp_path, capsys) -> None:
     assert "file" in capsys.readouterr().err
 
 
-def test_bop_round_trip(sample_copy, tmp_path, capsys) -> None:
-    _review_all(sample_copy)
-    out = tmp_path / "bop"
-    assert main(["export", str(sample_copy), str(out), "--format", "bop", "--quiet"]) == 0
-    ds = load_dataset(sample_copy)
+def _expected(root, cameras=None):
+    """What the export of scene 0 must contain: its poses and their masks, computed directly
+    with the pinhole (undistorted) cameras."""
+    ds = load_dataset(root)
     scene = ds.scenes()[0]
     poses = read_poses(scene.annotation_path)
     rig = pinhole_rig(ds.rig)
     depth = undistort_depth(scene.read_depth(ds.rig), ds.rig.depth_camera)
+    meshes = [ds.objects[p.object].mesh for p in poses]
     vis = scene_visibility(
-        rig,
-        [ds.objects[p.object].mesh for p in poses],
-        [p.T for p in poses],
-        depth=depth,
-        masks=True,
+        rig, meshes, [p.T for p in poses], depth=depth, cameras=cameras, masks=True
     )
+    return ds, scene, poses, rig, vis
+
+
+def test_bop_round_trip(sample_copy, tmp_path, capsys) -> None:
+    _review_all(sample_copy)
+    out = tmp_path / "bop"
+    assert main(["export", str(sample_copy), str(out), "--format", "bop", "--quiet"]) == 0
+    ds, scene, poses, rig, vis = _expected(sample_copy)
     for ci, cam in enumerate(rig.cameras):
         back = read_bop_scene(out, "000000", cam.name)
         for k, p in enumerate(poses):
@@ -145,19 +149,7 @@ def test_sileane_round_trip(sample_copy, tmp_path) -> None:
     _review_all(sample_copy)
     out = tmp_path / "sil"
     assert main(["export", str(sample_copy), str(out), "--format", "sileane", "--quiet"]) == 0
-    ds = load_dataset(sample_copy)
-    scene = ds.scenes()[0]
-    poses = read_poses(scene.annotation_path)
-    rig = pinhole_rig(ds.rig)
-    depth = undistort_depth(scene.read_depth(ds.rig), ds.rig.depth_camera)
-    vis = scene_visibility(
-        rig,
-        [ds.objects[p.object].mesh for p in poses],
-        [p.T for p in poses],
-        depth=depth,
-        cameras=["left"],
-        masks=True,
-    )
+    ds, scene, poses, rig, vis = _expected(sample_copy, cameras=["left"])
     for name in ds.objects:
         back = read_sileane_scene(out / name, scene.id)
         mine = [(p, v) for p, v in zip(poses, vis) if p.object == name]
