@@ -116,3 +116,84 @@ def _box():
     b = trimesh.creation.box((40, 30, 20))
     b.apply_translation([3.0, -2.0, 1.0])
     return np.asarray(b.vertices), np.asarray(b.faces, dtype=np.int32)
+
+
+# --- Robust per-instance pose (annotator.annotation.scene) on the same hand-made geometry ---
+
+
+def _fake_dataset(cams):
+    """The two things the per-instance pipeline reads from a Dataset: cameras and the mesh."""
+    from types import SimpleNamespace
+
+    mesh = Mesh(*_box())
+    return SimpleNamespace(
+        rig=SimpleNamespace(cameras=cams), objects={"box": SimpleNamespace(mesh=mesh)}
+    )
+
+
+def test_a_mislabeled_marker_is_rejected_and_flagged() -> None:
+    from annotator.annotation.scene import Settings, _pose_instance
+
+    rng = np.random.default_rng(11)
+    cams = _rig()
+    T = _true_pose(rng)
+    sites = _sites(5, rng)
+    obs = _observe(cams, sites, T, rng, noise=0.2)
+    # Marker 2 in the left image really belongs to another copy 40 mm away.
+    other = make_transform(T[:3, :3], T[:3, 3] + [40.0, 10.0, 0.0])
+    uv = cams[0].project(sites[2] @ other[:3, :3].T + other[:3, 3])
+    obs = [o if (o.camera, o.marker_id) != (0, 2) else Observation(0, 2, sites[2], uv) for o in obs]
+    r = _pose_instance(_fake_dataset(cams), "box", "01", obs, Settings())
+    assert np.abs(r.T[:3, 3] - T[:3, 3]).max() < 0.5
+    assert r.extra["markers"]["left"]["rejected"] == [2]
+    assert 2 in r.extra["markers"]["right"]["used"]
+    assert "rejected_markers" in r.extra["flags"]
+
+
+def test_an_id_seen_twice_keeps_the_consistent_detection() -> None:
+    from annotator.annotation.scene import Settings, _pose_instance
+
+    rng = np.random.default_rng(12)
+    cams = _rig()
+    T = _true_pose(rng)
+    sites = _sites(4, rng)
+    obs = _observe(cams, sites, T, rng, noise=0.2)
+    copy = next(o for o in obs if (o.camera, o.marker_id) == (1, 0))
+    obs.append(Observation(1, 0, copy.model_corners, copy.image_corners + [-300.0, 150.0]))
+    r = _pose_instance(_fake_dataset(cams), "box", "01", obs, Settings())
+    assert np.abs(r.T[:3, 3] - T[:3, 3]).max() < 0.5
+    assert r.extra["markers"]["right"]["used"].count(0) == 1
+    assert r.extra["markers"]["right"]["rejected"] == [0]
+    assert r.extra["flags"] == ["rejected_markers"]
+
+
+def test_a_lone_fronto_parallel_marker_is_flagged_ambiguous_not_guessed() -> None:
+    from annotator.annotation.scene import Settings, _pose_instance
+
+    rng = np.random.default_rng(13)
+    cams = _rig()[:1]
+    # A stray marker alone on a wall facing the camera, far away: its two IPPE poses tie.
+    site = square_corners(np.zeros(3), np.array([0.0, 0, -1]), np.array([1.0, 0, 0]), 10.0)
+    T = make_transform(rotvec_to_matrix(np.array([0.05, 0.0, 0.0])), [0.0, 0.0, 900.0])
+    obs = _observe(cams, site[None], T, rng, noise=0.2)
+    r = _pose_instance(_fake_dataset(cams), "box", "01", obs, Settings())
+    assert {"ambiguous", "single_view", "high_uncertainty"} <= set(r.extra["flags"])
+    # Seen by two cameras the same instance is not ambiguous.
+    cams2 = _rig()
+    obs2 = _observe(cams2, _sites(3, rng), _true_pose(rng), rng, noise=0.2)
+    r2 = _pose_instance(_fake_dataset(cams2), "box", "01", obs2, Settings())
+    assert r2.extra["flags"] == [] and r2.extra["views"] == 2
+
+
+def test_uncertainty_grows_with_corner_noise() -> None:
+    rng = np.random.default_rng(14)
+    cams = _rig()
+    moments = Mesh(*_box()).moments
+    T = _true_pose(rng)
+    sites = _sites(4, rng)
+    unc = []
+    for noise in (0.5, 2.0):
+        obs = _observe(cams, sites, T, rng, noise=noise)
+        est = refine_pose(cams, obs, candidate_poses(cams, obs)[0])
+        unc.append(rms_uncertainty(moments, est.T[:3, :3], est.covariance))
+    assert 2.0 < unc[1] / unc[0] < 8.0

@@ -132,7 +132,6 @@ def refine_pose(
     standard deviation, never below ``sigma_floor`` px: with few corners the residuals
     underestimate the corner noise (the pose absorbs part of it).
     """
-    [o.model_corners for o in obs]
     x = np.concatenate([o.image_corners for o in obs]).ravel()
     R0, t0 = T0[:3, :3], T0[:3, 3]
 
