@@ -27,7 +27,7 @@ import numpy as np
 
 from annotator.dataset.model import Rig
 from annotator.geometry.mesh import Mesh
-from annotator.rendering.raycast import PlacedMesh, RayScene, projected_bbox
+from annotator.rendering.raycast import NO_HIT, PlacedMesh, RayScene, projected_bbox
 
 Box = tuple[int, int, int, int]
 
@@ -136,9 +136,15 @@ def scene_visibility(
                 )
             else:
                 x0, y0, x1, y1 = box
-                alone = RayScene([pm]).cast(cam.pixel_rays()[y0:y1, x0:x1])
-                m_all = alone.hit
-                m_vis = m_all & (together.instance[y0:y1, x0:x1] == k)
+                seen = together.instance[y0:y1, x0:x1]
+                m_vis = seen == k
+                # The full silhouette: where the instance is seen, plus where a ray cast at it
+                # alone hits it behind another instance. Rays that hit nothing at all cannot
+                # hit it either, so only pixels showing another instance are cast again.
+                behind = (seen != k) & (seen != NO_HIT)
+                m_all = m_vis.copy()
+                if behind.any():
+                    m_all[behind] = RayScene([pm]).cast(cam.pixel_rays()[y0:y1, x0:x1][behind]).hit
                 px_all, px_vis = int(m_all.sum()), int(m_vis.sum())
                 px_dep = occ_dep = None
                 m_dep = m_vis
