@@ -52,6 +52,12 @@ def test_stereo_depth_agrees_with_ideal_depth(sample) -> None:
     )
     assert valid_fraction > 0.8
     assert close.mean() > 0.9
+    # The exact depth of everything in view (bin and table too) is written beside it.
+    from annotator.io.images import read_depth
+
+    exact = read_depth(scene.path / "depth_ideal.png", ds.rig.depth.scale)
+    both = np.isfinite(exact) & np.isfinite(depth)
+    assert np.mean(np.abs(exact[both] - depth[both]) < 2.0) > 0.9
 
 
 def _digest(folder) -> str:

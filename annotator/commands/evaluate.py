@@ -55,7 +55,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--symmetry", help="symmetry class for a Siléane folder without symmetry.yaml"
     )
     parser.add_argument(
-        "--per-object", action="store_true", help="print one row per object (default: when several)"
+        "--per-object",
+        action="store_true",
+        help="one row per object (default: only when there are several)",
     )
     parser.add_argument("--json", metavar="OUT", help="write the full report as JSON")
     parser.add_argument("--plot", metavar="OUT.png", help="draw the mean precision/recall curves")
@@ -94,7 +96,7 @@ def run(args: argparse.Namespace) -> int:
     print(
         f"evaluating {source} against {args.gt} ({gt.kind}); {thr}; instances of interest: occlusion < {args.max_occlusion:g}"
     )
-    print(format_table(report))
+    print(format_table(report, per_object=args.per_object or len(report.per_object) > 1))
     if not args.results and gt.kind == "ours":
         errs = per_instance_errors(Path(args.gt))
         if errs:

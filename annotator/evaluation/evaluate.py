@@ -79,8 +79,8 @@ def evaluate(gt: GroundTruth, results: Table, options: Options = Options()) -> R
     return Report(per_object, overall, thresholds, options)
 
 
-def format_table(report: Report) -> str:
-    """A table like the paper's table 3."""
+def format_table(report: Report, *, per_object: bool = True) -> str:
+    """A table like the paper's table 3: one row per object (if ``per_object``) and ``all``."""
     ns = list(report.options.max_results)
     head = (
         ["object", "AP"]
@@ -88,7 +88,8 @@ def format_table(report: Report) -> str:
         + ["scene AP", "best F1", "TP", "FP", "FN", "threshold"]
     )
     rows = []
-    for name, s in list(report.per_object.items()) + [("all", report.overall)]:
+    objects = list(report.per_object.items()) if per_object else []
+    for name, s in objects + [("all", report.overall)]:
         thr = f"{report.thresholds[name]:.2f} mm" if name in report.thresholds else "-"
         rows.append(
             [name, f"{s.ap:.3f}"]

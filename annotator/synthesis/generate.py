@@ -183,6 +183,11 @@ def make_scene(
         t0 = time.perf_counter()
         depth = simulate_depth(plan, surfaces, views, rng)
         write_png(folder / "depth.png", encode_depth(depth, plan.setup.rig.depth.scale))
+        # The exact depth of everything (parts, bin, clutter), for comparison with the sensor's.
+        write_png(
+            folder / "depth_ideal.png",
+            encode_depth(views[0].hits.depth, plan.setup.rig.depth.scale),
+        )
         timing.depth = time.perf_counter() - t0
     # True occlusion rates: posed instances occlude each other, and the exact depth of
     # everything else (bin walls, clutter) hides what lies behind it.
