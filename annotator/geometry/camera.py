@@ -94,10 +94,6 @@ class Camera:
         """
         return _pixel_rays(self)
 
-    def region_rays(self, x0: int, y0: int, x1: int, y1: int) -> np.ndarray:
-        """Ray directions for the pixel rectangle [x0, x1) x [y0, y1), shape (y1-y0, x1-x0, 3)."""
-        return self.pixel_rays()[y0:y1, x0:x1]
-
 
 _RAY_CACHE: dict[tuple, np.ndarray] = {}
 

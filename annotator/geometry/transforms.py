@@ -26,11 +26,6 @@ def invert(T: np.ndarray) -> np.ndarray:
     return Ti
 
 
-def apply(T: np.ndarray, points: np.ndarray) -> np.ndarray:
-    """Apply a 4x4 transform to points of shape (..., 3)."""
-    return points @ T[:3, :3].T + T[:3, 3]
-
-
 def is_rotation(R: np.ndarray, *, tol: float = 1e-4) -> bool:
     """True if ``R`` is a proper rotation (orthonormal, determinant +1) within ``tol``."""
     R = np.asarray(R, dtype=float)

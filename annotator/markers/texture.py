@@ -43,16 +43,3 @@ def marker_image(name: str, marker_id: int, pixels: int) -> np.ndarray:
         raise UserError(f"marker id {marker_id} is outside {name} (0..{dictionary_size(name) - 1})")
     bits = marker_bits(name, marker_id)
     return cv2.resize(bits, (pixels, pixels), interpolation=cv2.INTER_NEAREST)
-
-
-def site_coordinates(corners: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``(s, t)`` coordinates of ``points`` (N, 3) in the site ``corners`` (4, 3), and their
-    distance to the site's plane (N,)."""
-    tl, tr, _, bl = corners
-    ex, ey = tr - tl, bl - tl
-    n = np.cross(ey, ex)
-    n /= np.linalg.norm(n)
-    rel = points - tl
-    s = rel @ ex / (ex @ ex)
-    t = rel @ ey / (ey @ ey)
-    return np.stack([s, t], axis=-1), np.abs(rel @ n)

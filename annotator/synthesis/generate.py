@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from annotator.dataset.model import Instance, Rig
+from annotator.dataset.model import Instance
 from annotator.dataset.poses import InstancePose, write_poses
 from annotator.dataset.write import write_dataset_yaml, write_object_yaml
 from annotator.errors import UserError
@@ -234,15 +234,6 @@ def simulate_depth(
     return stereo_depth(
         imgs[0], imgs[1], setup.rig.cameras[0], setup.rig.cameras[1], z_range=z_range
     )
-
-
-def ideal_depth(rig: Rig, poses: list[InstancePose], meshes: dict[str, Mesh]) -> np.ndarray:
-    """The exact z-depth of the posed parts alone in the depth camera (inf where none)."""
-    from annotator.rendering.raycast import render
-
-    cam = rig.depth_camera or rig.cameras[0]
-    placed = [PlacedMesh(meshes[p.object], cam.cam_T_rig @ p.T) for p in poses]
-    return render(cam, placed).depth
 
 
 @dataclass(frozen=True)

@@ -106,10 +106,6 @@ def _albedo(
     return albedo, on_marker
 
 
-def _normals(placed: Sequence[PlacedMesh], hits: Hits) -> np.ndarray:
-    return hits.normals(placed)
-
-
 def _shade(
     albedo: np.ndarray, normals: np.ndarray, rays: np.ndarray, hit: np.ndarray, ambient: float
 ) -> np.ndarray:
@@ -132,7 +128,7 @@ def render_view(
     scene = scene or RayScene(placed)
     hits = scene.cast(camera.pixel_rays())
     albedo, on_marker = _albedo(surfaces, placed, hits)
-    return View(hits, placed, _normals(placed, hits), albedo, on_marker)
+    return View(hits, placed, hits.normals(placed), albedo, on_marker)
 
 
 def render_intensity(
@@ -160,7 +156,7 @@ def render_intensity(
                 sub_rays = _interpolate_rays(rays, us + dx, vs + dy)
                 h = scene.cast(sub_rays)
                 a, _ = _albedo(surfaces, placed, h)
-                acc += _shade(a, _normals(placed, h), sub_rays, h.hit, ambient)
+                acc += _shade(a, h.normals(placed), sub_rays, h.hit, ambient)
         img[vs, us] = acc / supersample**2
     return img, view
 
