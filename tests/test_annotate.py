@@ -143,3 +143,33 @@ def test_mislabeled_and_duplicated_markers_are_caught(sample_copy, capsys) -> No
     for key, err, diameter, flags in _errors(sample_copy, {"000000"}):
         if err > 0.05 * diameter:
             assert flags, f"{key} is {err:.1f} mm off without a flag"
+
+
+def test_two_workers_give_the_same_annotations_as_one(sample_copy, capsys) -> None:
+    # Workers are forked from a parent that has already used OpenCV's thread pool and open3d
+    # (as here, after other tests): they must neither hang nor differ from a single process.
+    from annotator.rendering.raycast import PlacedMesh, RayScene
+
+    ds = load_dataset(sample_copy)
+    cv2.GaussianBlur(np.random.default_rng(0).random((1500, 1500), np.float32), (0, 0), 4)
+    obj = next(iter(ds.objects.values()))
+    at = np.eye(4)
+    at[2, 3] = 500.0
+    assert RayScene([PlacedMesh(obj.mesh, at)]).cast(ds.rig.cameras[0].pixel_rays()).hit.any()
+    threads = cv2.getNumThreads()
+    results = []
+    for workers in ("1", "2"):
+        assert main(["annotate", str(sample_copy), "--force", "--quiet", "--workers", workers]) == 0
+        results.append(
+            {
+                (sc.id, p.key): (p.R, p.t, p.extra["flags"])
+                for sc in ds.scenes()
+                for p in read_poses(sc.annotation_path)
+            }
+        )
+    assert cv2.getNumThreads() == threads
+    one, two = results
+    assert one.keys() == two.keys() and len(one) > 30
+    for key, (R, t, flags) in one.items():
+        assert np.allclose(R, two[key][0], atol=1e-9) and np.allclose(t, two[key][1], atol=1e-6)
+        assert flags == two[key][2]

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 
 import numpy as np
 import pytest
@@ -103,3 +104,16 @@ def test_review_staleness_and_corruption(tmp_path) -> None:
     (tmp_path / "bad.json").write_text("{not json")
     with pytest.raises(UserError, match="bad.json: corrupt review file"):
         read_review(tmp_path / "bad.json")
+
+
+def test_cached_dataset_is_reloaded_when_its_description_changes(sample_copy) -> None:
+    from annotator.dataset import cached_dataset
+
+    first = cached_dataset(sample_copy)
+    assert cached_dataset(sample_copy) is first  # batch workers load once
+    obj = next(iter(first.objects.values()))
+    path = obj.folder / "object.yaml"
+    stat = path.stat()
+    os.utime(path, ns=(stat.st_atime_ns, stat.st_mtime_ns + 1_000_000_000))
+    again = cached_dataset(sample_copy)
+    assert again is not first and again.objects.keys() == first.objects.keys()

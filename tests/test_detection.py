@@ -8,21 +8,23 @@ import numpy as np
 import pytest
 
 from annotator.detection import MarkerDetector
+from annotator.detection.aruco import Codebook, pack_bits
 from annotator.markers.texture import marker_image
 
 DICT = "DICT_4X4_1000"
 SS = 4  # supersampling of the synthetic image
 
 
-def _scene(rng, sizes=(50, 80)) -> tuple[np.ndarray, dict[int, np.ndarray]]:
-    """A 640x480 grey image with 4 perspective-warped markers; their true corners by id."""
+def _scene(rng, sizes=(50, 80), turns=(0, 0, 0, 0)) -> tuple[np.ndarray, dict[int, np.ndarray]]:
+    """A 640x480 grey image with 4 perspective-warped markers, marker k turned by about
+    ``turns[k]`` quarter turns; their true corners by id."""
     h, w = 480, 640
     acc = np.full((h * SS, w * SS), 230.0, np.float32)
     truth = {}
     for k, (cx, cy) in enumerate([(150, 130), (470, 140), (160, 350), (480, 360)]):
         mid = 7 + 31 * k
         size = rng.uniform(*sizes)
-        ang = rng.uniform(-0.6, 0.6)
+        ang = rng.uniform(-0.6, 0.6) + turns[k] * np.pi / 2
         square = np.array([[-1, -1], [1, -1], [1, 1], [-1, 1]], float) * size / 2
         rot = np.array([[np.cos(ang), -np.sin(ang)], [np.sin(ang), np.cos(ang)]])
         corners = square @ rot.T + [cx, cy] + rng.normal(0, 4, (4, 2))  # a perspective quad
@@ -79,13 +81,41 @@ def test_edge_refinement_beats_opencv_subpixel_on_small_markers() -> None:
     refined, raw = [], []
     for seed in range(3):
         img, truth = _scene(np.random.default_rng(seed), sizes=(22, 36))
-        for refine, out in ((True, refined), (False, raw)):
-            for d in MarkerDetector(DICT, refine_edges=refine).detect(img):
+        for opencv_only, out in ((False, refined), (True, raw)):
+            for d in MarkerDetector(DICT, opencv_only=opencv_only).detect(img):
                 assert d.id in truth
                 out.append(np.sum((d.corners - truth[d.id]) ** 2, axis=1))
     assert len(refined) >= 10
     assert np.sqrt(np.mean(refined)) < 0.8 * np.sqrt(np.mean(raw))
     assert np.sqrt(np.mean(refined)) < 0.35
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_fast_identification_agrees_with_opencv_in_every_rotation(seed: int) -> None:
+    # Same ids and same corner order as OpenCV's own dictionary search, whatever the in-plane
+    # rotation of the marker.
+    img, truth = _scene(np.random.default_rng(seed), turns=(0, 1, 2, 3))
+    fast = {d.id: d.corners for d in MarkerDetector(DICT).detect(img)}
+    ref = {d.id: d.corners for d in MarkerDetector(DICT, opencv_only=True).detect(img)}
+    assert fast.keys() == ref.keys() == truth.keys()
+    for i in fast:
+        assert np.abs(fast[i] - ref[i]).max() < 1.0
+        assert np.abs(fast[i] - truth[i]).max() < 0.35
+
+
+def test_codebook_corrects_as_many_bits_as_opencv_allows() -> None:
+    d = cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_6X6_250)
+    book = Codebook.of(d)
+    assert book.max_correction >= 1
+    bits = cv2.aruco.Dictionary.getBitsFromByteList(d.bytesList[42:43], 6)
+    turned = np.rot90(bits, 1)
+    flipped = turned.copy()
+    flipped[2, 3] ^= 1
+    far = turned.copy()
+    far[:3, :] ^= 1  # 18 bits: no marker is that close
+    ids, rot = book.lookup(pack_bits(np.stack([turned, flipped, far])))
+    assert ids.tolist() == [42, 42, -1]
+    assert rot[:2].tolist() == [1, 1]
 
 
 def test_blank_image_has_no_markers() -> None:

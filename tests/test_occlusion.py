@@ -7,8 +7,10 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
+import pytest
 import trimesh
 
+from annotator.dataset import load_dataset, read_poses
 from annotator.dataset.model import Rig
 from annotator.geometry.camera import Camera
 from annotator.geometry.mesh import Mesh
@@ -70,3 +72,51 @@ def test_mask_matches_opencv_undistortion_and_projected_corners() -> None:
     assert bx + bw - 1 == int(np.floor(proj[:, 0].max()))
     assert by + bh - 1 == int(np.floor(proj[:, 1].max()))
     assert vis.cameras[0].px_all == int(mask.sum()) and vis.occlusion == 0.0
+
+
+def test_subsampled_visibility_estimates_the_exact_rates() -> None:
+    # Annotation casts every 2nd pixel of every 2nd row; its rates must stay close to the exact
+    # ones that exports use (sample scene: 20 parts in a bin, depth map included).
+    ds = load_dataset("sample_scenes")
+    scene = ds.scenes()[0]
+    poses = read_poses(scene.gt_path)
+    meshes = [ds.objects[p.object].mesh for p in poses]
+    Ts = [make_transform(p.R, p.t) for p in poses]
+    depth = scene.read_depth(ds.rig)
+    exact = scene_visibility(ds.rig, meshes, Ts, depth=depth)
+    rough = scene_visibility(ds.rig, meshes, Ts, depth=depth, step=2)
+    compared = 0
+    for e, r in zip(exact, rough):
+        for ce, cr in zip(e.cameras, r.cameras):
+            if ce.px_all < 500:
+                continue
+            compared += 1
+            assert abs(ce.occlusion - cr.occlusion) < 0.01
+            assert abs(cr.px_all / ce.px_all - 1) < 0.02
+            if ce.depth_agreement is not None and ce.depth_pixels > 500:
+                assert abs(ce.depth_agreement - cr.depth_agreement) < 0.01
+    assert compared >= 10
+    with pytest.raises(ValueError):
+        scene_visibility(ds.rig, meshes, Ts, masks=True, step=2)
+
+
+def test_occlusion_command_writes_exact_rates_and_resumes(sample_copy, capsys) -> None:
+    import json
+
+    from annotator.cli import main
+
+    assert main(["occlusion", str(sample_copy), "--poses", "gt", "--workers", "2", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["done"] == 4
+    ds = load_dataset(sample_copy)
+    scene = ds.scenes()[1]
+    poses = read_poses(scene.gt_path)
+    exact = scene_visibility(
+        ds.rig,
+        [ds.objects[p.object].mesh for p in poses],
+        [make_transform(p.R, p.t) for p in poses],
+        depth=scene.read_depth(ds.rig),
+    )
+    written = json.loads((scene.path / "visibility.json").read_text())["instances"]
+    assert [w["occlusion"] for w in written] == [round(v.occlusion, 5) for v in exact]
+    assert main(["occlusion", str(sample_copy), "--poses", "gt", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["skipped"] == 4

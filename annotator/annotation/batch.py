@@ -2,12 +2,13 @@
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from annotator.annotation.scene import Settings, annotate_scene
-from annotator.dataset import Dataset, Scene, load_dataset
+from annotator.dataset import Dataset, Scene, cached_dataset
 from annotator.dataset.poses import write_poses
 from annotator.dataset.review import now_iso
 from annotator.detection import MarkerDetector
@@ -39,6 +40,18 @@ class AnnotateJob:
     root: str
     settings: Settings = Settings()
 
+    def prepare(self) -> None:
+        """Do once what every scene needs (see :mod:`annotator.batch`): import open3d, load
+        the dataset, meshes and marker table, tabulate every camera's pixel rays."""
+        import annotator.occlusion  # noqa: F401  (imports open3d: seconds)
+
+        ds, _ = _context(self.root)
+        ds.marker_table  # noqa: B018  (cached property)
+        for obj in ds.objects.values():
+            obj.mesh.moments  # noqa: B018
+        for cam in ds.rig.cameras:
+            cam.pixel_rays(self.settings.visibility_step)
+
     def __call__(self, scene_id: str) -> dict[str, Any]:
         ds, detector = _context(self.root)
         scene = ds.scene(scene_id)
@@ -52,11 +65,11 @@ class AnnotateJob:
         }
 
 
-_CACHE: dict[str, tuple[Dataset, MarkerDetector]] = {}
-
-
 def _context(root: str) -> tuple[Dataset, MarkerDetector]:
-    if root not in _CACHE:
-        ds = load_dataset(root)
-        _CACHE[root] = (ds, MarkerDetector(ds.dictionary))
-    return _CACHE[root]
+    ds = cached_dataset(root)
+    return ds, _detector(ds.dictionary)
+
+
+@functools.cache
+def _detector(dictionary: str) -> MarkerDetector:
+    return MarkerDetector(dictionary)

@@ -8,13 +8,14 @@ import json
 
 from annotator.annotation.batch import AnnotateJob, is_up_to_date
 from annotator.batch import run_batch
+from annotator.commands import add_workers_option
 from annotator.dataset import load_dataset
 from annotator.errors import UserError
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("dataset", help="dataset folder (FORMAT.md)")
-    parser.add_argument("--workers", type=int, default=1, help="worker processes (default 1)")
+    add_workers_option(parser)
     parser.add_argument(
         "--scenes", default="*", metavar="PATTERN", help="only scenes whose id matches (fnmatch)"
     )
@@ -26,8 +27,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    if args.workers < 1:
-        raise UserError(f"--workers must be at least 1, got {args.workers}")
     ds = load_dataset(args.dataset)
     scenes = [s for s in ds.scenes() if fnmatch.fnmatch(s.id, args.scenes)]
     if not scenes:

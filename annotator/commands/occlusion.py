@@ -14,7 +14,8 @@ from dataclasses import dataclass
 from typing import Any
 
 from annotator.batch import run_batch
-from annotator.dataset import load_dataset, read_poses
+from annotator.commands import add_workers_option
+from annotator.dataset import cached_dataset, load_dataset, read_poses
 from annotator.errors import UserError
 from annotator.io.atomic import write_json
 from annotator.occlusion import scene_visibility
@@ -25,7 +26,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--poses", choices=("annotation", "gt"), default="annotation")
     parser.add_argument("--scenes", default="*", metavar="PATTERN")
     parser.add_argument("--depth-tolerance", type=float, default=5.0, help="mm (default 5)")
-    parser.add_argument("--workers", type=int, default=1)
+    add_workers_option(parser)
     parser.add_argument("--force", action="store_true")
     parser.add_argument("--json", action="store_true")
     parser.add_argument("--quiet", action="store_true")
@@ -37,8 +38,14 @@ class VisibilityJob:
     poses: str
     tolerance: float
 
+    def prepare(self) -> None:
+        """Import open3d, load the dataset and tabulate the rays once, before forking."""
+        ds = cached_dataset(self.root)
+        for cam in ds.rig.cameras:
+            cam.pixel_rays()
+
     def __call__(self, scene_id: str) -> dict[str, Any]:
-        ds = load_dataset(self.root)
+        ds = cached_dataset(self.root)
         scene = ds.scene(scene_id)
         src = scene.annotation_path if self.poses == "annotation" else scene.gt_path
         if not src.exists():

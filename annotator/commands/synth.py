@@ -8,6 +8,7 @@ import shutil
 from pathlib import Path
 
 from annotator.batch import run_batch
+from annotator.commands import add_workers_option
 from annotator.errors import UserError
 from annotator.io.atomic import atomic_folder
 from annotator.parts import PART_NAMES, build_part
@@ -28,7 +29,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--seed", type=int, default=0, help="random seed: same seed, same dataset (default 0)"
     )
-    parser.add_argument("--workers", type=int, default=1, help="worker processes (default 1)")
+    add_workers_option(parser)
     parser.add_argument(
         "--size", default="1280x1024", metavar="WxH", help="image size (default 1280x1024)"
     )
@@ -66,8 +67,8 @@ def _config(args: argparse.Namespace) -> SynthConfig:
         raise UserError(f"--size must be WxH, got {args.size!r}") from None
     if w < 160 or h < 120 or w > 8192 or h > 8192:
         raise UserError(f"--size {w}x{h} is out of range (160x120 to 8192x8192)")
-    if args.scenes < 1 or args.workers < 1 or args.clutter < 0:
-        raise UserError("--scenes and --workers must be at least 1, --clutter at least 0")
+    if args.scenes < 1 or args.clutter < 0:
+        raise UserError("--scenes must be at least 1, --clutter at least 0")
     if args.noise < 0 or args.blur < 0:
         raise UserError("--noise and --blur must not be negative")
     return SynthConfig(

@@ -8,7 +8,7 @@ Typical use::
         img = scene.read_image(ds.rig.cameras[0])
 """
 
-from annotator.dataset.load import Problem, load_dataset, read_dataset
+from annotator.dataset.load import Problem, cached_dataset, load_dataset, read_dataset
 from annotator.dataset.model import (
     Dataset,
     DepthSpec,
@@ -34,6 +34,7 @@ __all__ = [
     "Rig",
     "Scene",
     "Symmetry",
+    "cached_dataset",
     "load_dataset",
     "read_dataset",
     "read_poses",

@@ -54,6 +54,29 @@ def load_dataset(root: str | Path) -> Dataset:
     return dataset
 
 
+_LOADED: dict[Path, tuple[tuple[int, ...], Dataset]] = {}
+
+
+def cached_dataset(root: str | Path) -> Dataset:
+    """:func:`load_dataset`, loaded once per process while its description is unchanged
+    (dataset.yaml, the objects folder, every object.yaml and mesh): batch workers reuse one
+    load, meshes and ray tables included, for every scene."""
+    key = Path(root).resolve()
+    hit = _LOADED.get(key)
+    if hit is not None and hit[0] == _stamp(hit[1]):
+        return hit[1]
+    dataset = load_dataset(root)
+    _LOADED[key] = (_stamp(dataset), dataset)
+    return dataset
+
+
+def _stamp(ds: Dataset) -> tuple[int, ...]:
+    files = [ds.root / "dataset.yaml", ds.root / "objects"]
+    for obj in ds.objects.values():
+        files += [obj.folder / "object.yaml", obj.mesh_path]
+    return tuple(p.stat().st_mtime_ns if p.exists() else -1 for p in files)
+
+
 def read_dataset(root: str | Path) -> tuple[Dataset | None, list[Problem]]:
     """Parse a dataset folder, returning it (None if unusable) and every problem found."""
     root = Path(root)

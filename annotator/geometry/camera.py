@@ -87,28 +87,38 @@ class Camera:
             xy = cv2.undistortPoints(flat, self.K, self.dist, R=None, P=None, criteria=criteria)
         return xy.reshape(*shape, 2)
 
-    def pixel_rays(self) -> np.ndarray:
-        """Ray directions ``(x, y, 1)`` through every pixel centre, shape (height, width, 3).
+    def pixel_rays(self, step: int = 1) -> np.ndarray:
+        """Ray directions ``(x, y, 1)`` through every pixel centre, shape (height, width, 3);
+        with ``step``, through every ``step``-th pixel of every ``step``-th row only (the same
+        as ``pixel_rays()[::step, ::step]``).
 
-        Computed once per camera and cached (about 1 s for 1280x1024 with distortion).
+        Computed once per camera and step, and cached (about 1 s for 1280x1024 with
+        distortion, a quarter of that with ``step=2``).
         """
-        return _pixel_rays(self)
+        key = (
+            self.width,
+            self.height,
+            self.K.tobytes(),
+            np.asarray(self.dist, float).tobytes(),
+        )
+        rays = _RAY_CACHE.get((key, step))
+        if rays is None:
+            full = _RAY_CACHE.get((key, 1))
+            if full is not None:
+                rays = full[::step, ::step]
+            else:
+                u, v = np.meshgrid(
+                    np.arange(0, self.width, step, dtype=np.float64),
+                    np.arange(0, self.height, step, dtype=np.float64),
+                )
+                xy = self.undistort_pixels(np.stack([u, v], axis=-1))
+                rays = np.concatenate([xy, np.ones((*xy.shape[:2], 1))], axis=-1)
+                rays = rays.astype(np.float32)
+            rays.setflags(write=False)
+            if len(_RAY_CACHE) > 16:
+                _RAY_CACHE.clear()
+            _RAY_CACHE[(key, step)] = rays
+        return rays
 
 
 _RAY_CACHE: dict[tuple, np.ndarray] = {}
-
-
-def _pixel_rays(cam: Camera) -> np.ndarray:
-    key = (cam.width, cam.height, cam.K.tobytes(), np.asarray(cam.dist, float).tobytes())
-    rays = _RAY_CACHE.get(key)
-    if rays is None:
-        u, v = np.meshgrid(
-            np.arange(cam.width, dtype=np.float64), np.arange(cam.height, dtype=np.float64)
-        )
-        xy = cam.undistort_pixels(np.stack([u, v], axis=-1))
-        rays = np.concatenate([xy, np.ones((*xy.shape[:2], 1))], axis=-1).astype(np.float32)
-        rays.setflags(write=False)
-        if len(_RAY_CACHE) > 16:
-            _RAY_CACHE.clear()
-        _RAY_CACHE[key] = rays
-    return rays

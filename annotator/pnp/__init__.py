@@ -8,6 +8,7 @@ from annotator.pnp.multiview import (
     Observation,
     PoseEstimate,
     candidate_poses,
+    iter_candidate_poses,
     refine_pose,
     reprojection_errors,
 )
@@ -17,6 +18,7 @@ __all__ = [
     "Observation",
     "PoseEstimate",
     "candidate_poses",
+    "iter_candidate_poses",
     "refine_pose",
     "reprojection_errors",
     "rms_displacement_matrix",

@@ -9,12 +9,11 @@ the covariance returned is that of ``(w, v)``.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 
 import cv2
 import numpy as np
-from scipy.optimize import least_squares
 
 from annotator.geometry.camera import Camera
 from annotator.geometry.transforms import make_transform, rotvec_to_matrix
@@ -47,18 +46,39 @@ class PoseEstimate:
     sigma_px: float
 
 
-def _project(cameras: Sequence[Camera], obs: Sequence[Observation], T: np.ndarray) -> np.ndarray:
-    """Projected corners (len(obs), 4, 2) of every observation under ``rig_T_model`` T."""
-    out = np.empty((len(obs), 4, 2))
-    for j in {o.camera for o in obs}:
-        idx = [k for k, o in enumerate(obs) if o.camera == j]
+def _by_camera(obs: Sequence[Observation]) -> dict[int, list[int]]:
+    groups: dict[int, list[int]] = {}
+    for k, o in enumerate(obs):
+        groups.setdefault(o.camera, []).append(k)
+    return groups
+
+
+def _per_camera(
+    cameras: Sequence[Camera], obs: Sequence[Observation], T: np.ndarray
+) -> Iterator[tuple[Camera, list[int], np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
+    """For each camera with observations: the camera, their indices, their model corners X
+    (4n, 3), ``cam_T_model`` M, the projected corners (4n, 2) and OpenCV's Jacobian of the
+    projection (8n, 15: rvec, tvec, focal lengths, principal point, distortion)."""
+    for j, idx in _by_camera(obs).items():
         cam = cameras[j]
         M = cam.cam_T_rig @ T
         X = np.concatenate([obs[k].model_corners for k in idx])
         rvec, _ = cv2.Rodrigues(M[:3, :3])
-        uv, _ = cv2.projectPoints(X, rvec, M[:3, 3], cam.K, cam.dist)
-        out[idx] = uv.reshape(len(idx), 4, 2)
-    return out
+        uv, jac = cv2.projectPoints(X, rvec, M[:3, 3], cam.K, cam.dist)
+        yield cam, idx, X, M, uv.reshape(-1, 2), jac
+
+
+def _project(
+    cameras: Sequence[Camera], obs: Sequence[Observation], T: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Projected corners (len(obs), 4, 2) of every observation under ``rig_T_model`` T, and
+    their depths (len(obs), 4) in their camera (mm)."""
+    uv = np.empty((len(obs), 4, 2))
+    z = np.empty((len(obs), 4))
+    for _, idx, X, M, p, _ in _per_camera(cameras, obs, T):
+        uv[idx] = p.reshape(len(idx), 4, 2)
+        z[idx] = (X @ M[2, :3] + M[2, 3]).reshape(len(idx), 4)
+    return uv, z
 
 
 def reprojection_errors(
@@ -70,38 +90,43 @@ def reprojection_errors(
     """
     if not obs:
         return np.zeros(0)
-    proj = _project(cameras, obs, T)
+    uv, z = _project(cameras, obs, T)
     err = np.sqrt(
-        np.mean(np.sum((proj - np.stack([o.image_corners for o in obs])) ** 2, axis=-1), axis=-1)
+        np.mean(np.sum((uv - np.stack([o.image_corners for o in obs])) ** 2, axis=-1), axis=-1)
     )
-    for k, o in enumerate(obs):
-        M = cameras[o.camera].cam_T_rig @ T
-        if np.any(o.model_corners @ M[2, :3] + M[2, 3] <= 0):
-            err[k] = np.inf
+    err[(z <= 0).any(axis=1)] = np.inf
     return err
 
 
 def candidate_poses(cameras: Sequence[Camera], obs: Sequence[Observation]) -> list[np.ndarray]:
-    """Pose hypotheses ``rig_T_model`` from each camera alone.
+    """Pose hypotheses ``rig_T_model`` from each camera alone (see :func:`iter_candidate_poses`)."""
+    return list(iter_candidate_poses(cameras, obs))
 
-    Per camera: SQPnP on all its markers if it sees two or more, and both IPPE solutions of
-    every single marker (a lone square has two poses that explain it almost equally well).
+
+def iter_candidate_poses(
+    cameras: Sequence[Camera], obs: Sequence[Observation]
+) -> Iterator[np.ndarray]:
+    """Pose hypotheses ``rig_T_model`` from each camera alone, the likeliest first.
+
+    First SQPnP on all the markers of every camera that sees two or more, then both IPPE
+    solutions of every single marker (a lone square has two poses that explain it almost
+    equally well). Lazy, so that a caller satisfied early does not pay for the rest.
     """
-    out: list[np.ndarray] = []
-    for j in sorted({o.camera for o in obs}):
+    groups = _by_camera(obs)
+    for j in sorted(groups):
+        if len(groups[j]) < 2:
+            continue
         cam = cameras[j]
-        mine = [o for o in obs if o.camera == j]
-        rig_T_cam = cam.rig_T_cam
-        if len(mine) >= 2:
-            X = np.concatenate([o.model_corners for o in mine])
-            x = np.concatenate([o.image_corners for o in mine])
-            ok, rvec, tvec = cv2.solvePnP(X, x, cam.K, cam.dist, flags=cv2.SOLVEPNP_SQPNP)
-            if ok:
-                out.append(rig_T_cam @ make_transform(cv2.Rodrigues(rvec)[0], tvec.ravel()))
-        for o in mine:
-            for T in lone_marker_poses(cam, o):
-                out.append(rig_T_cam @ T)
-    return out
+        X = np.concatenate([obs[k].model_corners for k in groups[j]])
+        x = np.concatenate([obs[k].image_corners for k in groups[j]])
+        ok, rvec, tvec = cv2.solvePnP(X, x, cam.K, cam.dist, flags=cv2.SOLVEPNP_SQPNP)
+        if ok:
+            yield cam.rig_T_cam @ make_transform(cv2.Rodrigues(rvec)[0], tvec.ravel())
+    for j in sorted(groups):
+        cam = cameras[j]
+        for k in groups[j]:
+            for T in lone_marker_poses(cam, obs[k]):
+                yield cam.rig_T_cam @ T
 
 
 def lone_marker_poses(cam: Camera, o: Observation) -> list[np.ndarray]:
@@ -125,36 +150,41 @@ def refine_pose(
     T0: np.ndarray,
     *,
     sigma_floor: float = 0.3,
+    max_iterations: int = 50,
 ) -> PoseEstimate:
     """Jointly refine ``rig_T_model`` over all observations (all cameras), from ``T0``.
 
-    The covariance is ``sigma^2 (J^T J)^-1`` at the optimum, with ``sigma`` the residual
-    standard deviation, never below ``sigma_floor`` px: with few corners the residuals
-    underestimate the corner noise (the pose absorbs part of it).
+    Levenberg-Marquardt on the stacked corner residuals, with the analytic Jacobian (OpenCV's
+    projection derivatives, distortion included, chained with the pose perturbation). The
+    covariance is ``sigma^2 (J^T J)^-1`` at the optimum, with ``sigma`` the residual standard
+    deviation, never below ``sigma_floor`` px: with few corners the residuals underestimate
+    the corner noise (the pose absorbs part of it).
     """
-    x = np.concatenate([o.image_corners for o in obs]).ravel()
-    R0, t0 = T0[:3, :3], T0[:3, 3]
-
-    def pose(p: np.ndarray) -> np.ndarray:
-        return make_transform(rotvec_to_matrix(p[:3]) @ R0, t0 + p[3:])
-
-    def residuals(p: np.ndarray) -> np.ndarray:
-        return _project(cameras, obs, pose(p)).ravel() - x
-
-    res = least_squares(
-        residuals, np.zeros(6), method="lm", x_scale=np.array([1e-3] * 3 + [1.0] * 3)
-    )
-    T = pose(res.x)
-    # Re-linearise at the optimum so the covariance is that of a perturbation of T itself.
-    R0, t0 = T[:3, :3], T[:3, 3]
-    r = residuals(np.zeros(6))
-    J = _numeric_jacobian(residuals, np.zeros(6))
-    m = r.size
-    dof = max(m - 6, 1)
-    sigma = max(float(np.sqrt(r @ r / dof)), sigma_floor)
-    JtJ = J.T @ J
+    x = np.stack([o.image_corners for o in obs])
+    T = np.array(T0, dtype=float)
+    r, J = _residuals_jacobian(cameras, obs, T, x)
+    cost = r @ r
+    damping = 1e-3
+    for _ in range(max_iterations):
+        JtJ, g = J.T @ J, J.T @ r
+        step = np.linalg.solve(JtJ + damping * np.diag(np.diag(JtJ) + 1e-12), -g)
+        T_new = _perturb(T, step)
+        r_new, J_new = _residuals_jacobian(cameras, obs, T_new, x)
+        cost_new = r_new @ r_new
+        if cost_new < cost:
+            done = cost - cost_new < 1e-12 * max(cost, 1e-12) or np.abs(step).max() < 1e-10
+            T, r, J, cost = T_new, r_new, J_new, cost_new
+            damping = max(damping / 10, 1e-9)
+            if done:
+                break
+        else:
+            damping *= 10
+            if damping > 1e8:
+                break
+    dof = max(r.size - 6, 1)
+    sigma = max(float(np.sqrt(cost / dof)), sigma_floor)
     try:
-        cov = np.linalg.inv(JtJ) * sigma**2
+        cov = np.linalg.inv(J.T @ J) * sigma**2
     except np.linalg.LinAlgError:
         cov = np.full((6, 6), np.inf)
     return PoseEstimate(
@@ -162,11 +192,27 @@ def refine_pose(
     )
 
 
-def _numeric_jacobian(f, p: np.ndarray) -> np.ndarray:
-    eps = np.array([1e-6] * 3 + [1e-4] * 3)
-    cols = []
-    for k in range(6):
-        d = np.zeros(6)
-        d[k] = eps[k]
-        cols.append((f(p + d) - f(p - d)) / (2 * eps[k]))
-    return np.column_stack(cols)
+def _perturb(T: np.ndarray, d: np.ndarray) -> np.ndarray:
+    """``R -> exp([w]x) R``, ``t -> t + v`` for ``d = (w, v)``."""
+    return make_transform(rotvec_to_matrix(d[:3]) @ T[:3, :3], T[:3, 3] + d[3:])
+
+
+def _residuals_jacobian(
+    cameras: Sequence[Camera], obs: Sequence[Observation], T: np.ndarray, x: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Stacked corner residuals (projected - detected, (8 len(obs),)) and their Jacobian
+    (8 len(obs), 6) with respect to ``(w, v)`` at T.
+
+    A model point X is at ``y = R X + t`` in the rig and ``c = Rc y + tc`` in the camera;
+    ``dc/dw = -Rc [R X]x`` and ``dc/dv = Rc``. OpenCV's derivative of the pixel with respect
+    to its ``tvec`` is the derivative with respect to ``c``.
+    """
+    r = np.empty((len(obs), 4, 2))
+    J = np.empty((len(obs), 4, 2, 6))
+    for cam, idx, X, _, uv, jac in _per_camera(cameras, obs, T):
+        r[idx] = uv.reshape(len(idx), 4, 2) - x[idx]
+        G = jac[:, 3:6].reshape(-1, 2, 3) @ cam.cam_T_rig[:3, :3]  # d(pixel)/dy, (N, 2, 3)
+        y = X @ T[:3, :3].T  # R X, about the rig origin
+        Jw = np.cross(y[:, None, :], G)  # g^T (-[y]x) = (y x g)^T
+        J[idx] = np.concatenate([Jw, G], axis=-1).reshape(len(idx), 4, 2, 6)
+    return r.ravel(), J.reshape(-1, 6)

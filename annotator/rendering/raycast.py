@@ -21,6 +21,20 @@ from annotator.geometry.mesh import Mesh
 #: ``instance`` value of a pixel whose ray hits nothing.
 NO_HIT = -1
 
+_threads = 0  # open3d's "automatic": every core
+
+
+def set_threads(n: int) -> None:
+    """Threads of every later BVH build and cast in this process (0: every core). Batch
+    workers use one each: the workers are the parallelism."""
+    global _threads
+    _threads = int(n)
+
+
+def get_threads() -> int:
+    """The setting of :func:`set_threads`."""
+    return _threads
+
 
 @dataclass(frozen=True)
 class PlacedMesh:
@@ -96,7 +110,7 @@ class RayScene:
 
     def __init__(self, placed: Sequence[PlacedMesh]) -> None:
         self.placed = list(placed)
-        self._scene = o3d.t.geometry.RaycastingScene()
+        self._scene = o3d.t.geometry.RaycastingScene(nthreads=_threads)
         self._geometry_to_index: dict[int, int] = {}
         for k, pm in enumerate(self.placed):
             T = np.asarray(pm.cam_T_model, dtype=np.float64)
@@ -123,7 +137,7 @@ class RayScene:
                 triangle=np.full(shape, -1, np.int32),
                 barycentric=np.zeros((*shape, 2), np.float32),
             )
-        res = self._scene.cast_rays(o3d.core.Tensor(rays))
+        res = self._scene.cast_rays(o3d.core.Tensor(rays), nthreads=_threads)
         gid = res["geometry_ids"].numpy().astype(np.int64)
         miss = gid == o3d.t.geometry.RaycastingScene.INVALID_ID
         gid[miss] = len(self._lut) - 1

@@ -243,6 +243,12 @@ class SceneJob:
     config: SynthConfig
     root: str
 
+    def prepare(self) -> None:
+        """Plan the dataset (parts, rig, ray tables) once, before workers are forked."""
+        plan = _plan(self.config)
+        for cam in plan.setup.rig.cameras:
+            cam.pixel_rays()
+
     def __call__(self, scene_id: str) -> dict:
         plan = _plan(self.config)
         folder = Path(self.root) / "scenes" / scene_id
