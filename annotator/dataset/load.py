@@ -60,7 +60,7 @@ _LOADED: dict[Path, tuple[tuple[int, ...], Dataset]] = {}
 def cached_dataset(root: str | Path) -> Dataset:
     """:func:`load_dataset`, loaded once per process while its description is unchanged
     (dataset.yaml, the objects folder, every object.yaml and mesh): batch workers reuse one
-    load, meshes and ray tables included, for every scene."""
+    load, with its meshes and marker table, for every scene."""
     key = Path(root).resolve()
     hit = _LOADED.get(key)
     if hit is not None and hit[0] == _stamp(hit[1]):

@@ -89,8 +89,9 @@ class Camera:
 
     def pixel_rays(self, step: int = 1) -> np.ndarray:
         """Ray directions ``(x, y, 1)`` through every pixel centre, shape (height, width, 3);
-        with ``step``, through every ``step``-th pixel of every ``step``-th row only (the same
-        as ``pixel_rays()[::step, ::step]``).
+        with ``step``, through every ``step``-th pixel of every ``step``-th row only, shape
+        (ceil(height / step), ceil(width / step), 3) (the same as
+        ``pixel_rays()[::step, ::step]``).
 
         Computed once per camera and step, and cached (about 1 s for 1280x1024 with
         distortion, a quarter of that with ``step=2``).

@@ -7,6 +7,7 @@ needs (section 4.1): the surface centroid and ``(1/S) * integral of x x^T ds`` a
 
 from __future__ import annotations
 
+import hashlib
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
@@ -48,6 +49,13 @@ class Mesh:
         n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
         norm = np.linalg.norm(n, axis=1, keepdims=True)
         return np.divide(n, norm, out=np.zeros_like(n), where=norm > 0)
+
+    @cached_property
+    def digest(self) -> bytes:
+        """A 16-byte fingerprint of the geometry: equal for equal vertices and faces (a mesh
+        loaded twice), so that work on it can be cached across loads."""
+        data = self.vertices.tobytes() + self.faces.tobytes()
+        return hashlib.blake2b(data, digest_size=16).digest()
 
     @cached_property
     def moments(self) -> SurfaceMoments:

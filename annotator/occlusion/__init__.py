@@ -30,7 +30,6 @@ occlusion`` use the exact ``step=1``.
 
 from __future__ import annotations
 
-import hashlib
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -83,12 +82,11 @@ def _cast_alone(mesh: Mesh, cam_T_model: np.ndarray, rays: np.ndarray) -> Hits:
     """Cast camera rays (..., 3) at one placed mesh: the rays are brought into the model
     frame, where the mesh's cached ray-casting scene lives (keyed by content: a mesh loaded
     again reuses it). Depths are unchanged (a rigid motion keeps ray parameters)."""
-    key = hashlib.blake2b(mesh.vertices.tobytes() + mesh.faces.tobytes(), digest_size=16).digest()
-    scene = _MODEL_SCENES.get(key)
+    scene = _MODEL_SCENES.get(mesh.digest)
     if scene is None:
         if len(_MODEL_SCENES) >= 64:
             _MODEL_SCENES.clear()
-        scene = _MODEL_SCENES[key] = RayScene([PlacedMesh(mesh, np.eye(4))])
+        scene = _MODEL_SCENES[mesh.digest] = RayScene([PlacedMesh(mesh, np.eye(4))])
     R, t = cam_T_model[:3, :3], cam_T_model[:3, 3]
     return scene.cast(rays @ R, origin=-R.T @ t)
 
