@@ -5,7 +5,7 @@ identifies them, and an edge fit refines their corners.
 (and its four rotations); with the 1000-marker dictionaries that parts need, that costs about
 1 ms per candidate, 0.2-0.3 s per 1280x1024 image. Here OpenCV's detector is given a one-marker
 dictionary, so that it returns every candidate square (as "rejected") almost for free, and
-each candidate's bits are read and looked up in a hash table of all codes in all rotations.
+each candidate's bits are read and looked up in a sorted table of all codes in all rotations.
 The bits are read the way OpenCV reads them: the square is resampled to ``4`` pixels per cell,
 split by Otsu's threshold, the border cells must be black (up to OpenCV's tolerance), and a
 cell is white if most of its samples are. Dictionaries with error correction fall back to the
@@ -17,7 +17,8 @@ So each identified quad is refined here: cv2.cornerSubPix with a small window fi
 each side, at many points, the centroid of the intensity gradient across the side (within half
 a cell each way), a line fitted to these points, and the corners where adjacent lines meet. For
 a step edge under any symmetric blur, the centroid of the gradient is the edge itself, hence no
-bias (measured on rendered bin scenes: median corner error 0.10 px against OpenCV's 0.48 px).
+bias (benchmarks/bench_detection.py, rendered bin scenes: median corner error 0.12 px against
+OpenCV's 0.50 px).
 
 Corner order is OpenCV's: top-left, top-right, bottom-right, bottom-left of the printed marker.
 """
@@ -192,8 +193,8 @@ def identify(
     """Read the bits of (N, 4, 2) candidate quads and look them up.
 
     Returns the ids (M,) and quads (M, 4, 2) of the markers found, corners turned to OpenCV's
-    order (the marker's top-left first). A marker found twice (nested or duplicate candidates
-    with the same id within 2 px) is kept once.
+    order (the marker's top-left first). Several candidates of one printed marker are kept
+    once (see :func:`_one_per_marker`).
     """
     n = codebook.marker_size
     cells = n + 2
@@ -216,22 +217,23 @@ def identify(
     border = bits.copy()
     border[:, 1:-1, 1:-1] = False
     ok = border.sum(axis=(1, 2)) <= border_tolerance
-    shortest = np.linalg.norm(quads - np.roll(quads, 1, axis=1), axis=2).min(axis=1)
-    ok &= shortest >= MIN_PX_PER_CELL * cells
+    sides = np.linalg.norm(quads - np.roll(quads, 1, axis=1), axis=2)  # (N, 4) px
+    ok &= sides.min(axis=1) >= MIN_PX_PER_CELL * cells
     ids = np.full(len(quads), -1)
     rot = np.zeros(len(quads), int)
     ids[ok], rot[ok] = codebook.lookup(pack_bits(bits[ok, 1:-1, 1:-1]))
     ok &= ids >= 0
     # np.roll(quad, k, axis=0) for every quad at once: corner i comes from corner i - k.
     turned = quads[np.arange(len(quads))[:, None], (np.arange(4)[None, :] - rot[:, None]) % 4]
-    return _one_per_marker(ids[ok], turned[ok].reshape(-1, 4, 2))
+    return _one_per_marker(ids[ok], turned[ok].reshape(-1, 4, 2), sides[ok].sum(axis=1))
 
 
-def _one_per_marker(ids: np.ndarray, quads: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _one_per_marker(
+    ids: np.ndarray, quads: np.ndarray, perimeter: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     """Keep one of several quads of the same id on the same spot (nested or near-identical
     contours of one printed marker): the one with the largest perimeter. Copies of an id far
     apart are all kept, for the caller to report."""
-    perimeter = np.linalg.norm(quads - np.roll(quads, 1, axis=1), axis=2).sum(axis=1)
     centre = quads.mean(axis=1)
     keep: list[int] = []
     kept_where: dict[int, list[int]] = {}  # id -> indices kept so far
