@@ -21,6 +21,8 @@ from __future__ import annotations
 import multiprocessing
 import os
 import sys
+import threading
+import time
 import traceback
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
@@ -82,8 +84,10 @@ def run_batch(
         pool = ProcessPoolExecutor(
             max_workers=workers,
             mp_context=context,
-            initializer=None if context is not None else _one_thread,
+            initializer=_worker_start,
+            initargs=(os.getpid(), context is None),
         )
+        _POOLS.add(pool)
     bar = tqdm(
         total=len(scene_ids),
         desc=desc,
@@ -98,14 +102,71 @@ def run_batch(
                     _record(report, *_run_one(job, sid))
                     bar.update()
             else:
-                with pool:
+                try:
                     futures = [pool.submit(_run_one, job, sid) for sid in scene_ids]
                     for fut in as_completed(futures):
                         _record(report, *fut.result())
                         bar.update()
+                except BaseException:
+                    _stop_workers(pool)
+                    raise
+                finally:
+                    _POOLS.discard(pool)
+                pool.shutdown(wait=True)
     finally:
         bar.close()
     return report
+
+
+_POOLS: set[ProcessPoolExecutor] = set()
+
+
+def kill_workers() -> None:
+    """Kill every worker process of this process's running batches (last-resort exit path)."""
+    for pool in list(_POOLS):
+        for proc in list((getattr(pool, "_processes", None) or {}).values()):
+            proc.kill()
+
+
+def _worker_start(parent: int, one_thread: bool) -> None:
+    """Runs first in every worker: die with the parent, and (spawned workers) one thread."""
+    if sys.platform.startswith("linux"):
+        import ctypes
+        import signal
+
+        PR_SET_PDEATHSIG = 1
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(PR_SET_PDEATHSIG, int(signal.SIGKILL), 0, 0, 0)
+    if os.getppid() != parent:  # the parent died before the line above took effect
+        os._exit(1)
+    # Elsewhere (and as a second guard), a watcher notices the parent's death within a second.
+    threading.Thread(target=_exit_with_parent, args=(parent,), daemon=True).start()
+    if one_thread:
+        _one_thread()
+
+
+def _exit_with_parent(parent: int) -> None:
+    while True:
+        time.sleep(0.5)
+        if os.getppid() != parent:
+            os._exit(1)
+
+
+def _stop_workers(pool: ProcessPoolExecutor) -> None:
+    """After an interruption (Ctrl-C, SIGTERM) or a crash: kill the workers at once.
+
+    ``shutdown`` alone would wait for the running scenes and then start the queued ones.
+    """
+    # The executor keeps no public handle on its processes (Python < 3.14), and forgets them
+    # on shutdown: take them first.
+    procs = list((getattr(pool, "_processes", None) or {}).values())
+    pool.shutdown(wait=False, cancel_futures=True)
+    for proc in procs:
+        if proc.is_alive():
+            proc.kill()
+    for proc in procs:
+        proc.join(timeout=2.0)
+    pool.shutdown(wait=True)
 
 
 def available_cpus() -> int:

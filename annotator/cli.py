@@ -5,21 +5,31 @@ Each subcommand lives in ``annotator/commands/<name>.py`` and defines ``HELP`` (
 only when their subcommand runs, so ``annotator --help`` stays fast.
 
 Exit status: 0 success; 1 the command ran but found problems (failed scenes, check
-problems); 2 a usage error or bad input (one line on stderr, no traceback); 130 interrupted.
+problems); 2 a usage error or bad input (one line on stderr, no traceback); 130 interrupted
+(Ctrl-C); 143 terminated (SIGTERM).
 """
 
 from __future__ import annotations
 
 import argparse
 import importlib
+import os
+import signal
 import sys
+import threading
+import time
 from collections.abc import Sequence
 
-from annotator.errors import UserError
+from annotator.errors import Terminated, UserError
 
 #: (subcommand, module, one-line help), in pipeline order.
 COMMANDS: tuple[tuple[str, str, str], ...] = (
     ("check", "annotator.commands.check", "validate a dataset and list every problem"),
+    (
+        "calibrate",
+        "annotator.commands.calibrate",
+        "calibrate the rig from ChArUco board shots into dataset.yaml",
+    ),
     (
         "markers",
         "annotator.commands.markers",
@@ -82,14 +92,50 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.print_help()
         return 2
     mod = importlib.import_module(args._module)
+    in_main = threading.current_thread() is threading.main_thread()
+    previous = signal.signal(signal.SIGTERM, _terminate) if in_main else None
     try:
         return int(mod.run(args) or 0)
-    except UserError as exc:
-        print(f"annotator: error: {exc}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print("annotator: interrupted", file=sys.stderr)
-        return 130
+    except BaseException as exc:
+        # A SIGTERM may surface as another exception (a library turning it into an
+        # ImportError, say): once asked to stop, stopping is the outcome.
+        if isinstance(exc, Terminated) or _TERMINATING.is_set():
+            print("annotator: terminated", file=sys.stderr)
+            return 143
+        if isinstance(exc, UserError):
+            print(f"annotator: error: {exc}", file=sys.stderr)
+            return 2
+        if isinstance(exc, KeyboardInterrupt):
+            print("annotator: interrupted", file=sys.stderr)
+            return 130
+        raise
+    finally:
+        if in_main:
+            signal.signal(signal.SIGTERM, previous)
+
+
+def _terminate(signum: int, frame: object) -> None:
+    # Raised in the main thread wherever it is, so that the same clean-up as for Ctrl-C runs
+    # (batch workers are stopped, temporary folders removed). Some libraries swallow every
+    # exception around their imports: if the process is still there a few seconds later, it
+    # stops its workers and leaves at once (a temporary folder left behind is removed by the
+    # next run).
+    if not _TERMINATING.is_set():
+        _TERMINATING.set()
+        threading.Thread(target=_exit_soon, daemon=True).start()
+    raise Terminated()
+
+
+_TERMINATING = threading.Event()
+
+
+def _exit_soon(delay: float = 5.0) -> None:
+    time.sleep(delay)
+    batch = sys.modules.get("annotator.batch")
+    if batch is not None:
+        batch.kill_workers()
+    print("annotator: terminated", file=sys.stderr, flush=True)
+    os._exit(143)
 
 
 if __name__ == "__main__":

@@ -17,3 +17,8 @@ class UserError(Exception):
         self.path = None if path is None else Path(path)
         self.message = message
         super().__init__(f"{path}: {message}" if path is not None else message)
+
+
+class Terminated(KeyboardInterrupt):
+    """The process received SIGTERM: it stops like on Ctrl-C (work in progress is dropped,
+    files already written stay), and exits with status 143."""

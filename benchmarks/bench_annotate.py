@@ -134,12 +134,13 @@ def assess(root: Path, label: str) -> None:
 
 def speed(root: Path, ids: list[str]) -> None:
     """Seconds per scene, warm (in-process, start-up paid) and cold (the CLI, everything)."""
-    AnnotateJob(str(root)).prepare()  # imports, dataset, ray tables: once per process
-    AnnotateJob(str(root))(ids[0])
+    job = AnnotateJob.for_dataset(load_dataset(root))
+    job.prepare()  # imports, dataset, ray tables: once per process
+    job(ids[0])
     single = 0.0
     for workers in (1, 2):
         t0 = time.perf_counter()
-        report = run_batch(AnnotateJob(str(root)), ids, workers=workers, quiet=True)
+        report = run_batch(job, ids, workers=workers, quiet=True)
         per = (time.perf_counter() - t0) / len(ids)
         assert not report.failed, report.failed
         single = single or per
@@ -174,7 +175,9 @@ def main() -> None:
         faulty = Path(tmp) / "faulty"
         shutil.copytree(root, faulty)
         inject_faults(faulty)
-        report = run_batch(AnnotateJob(str(faulty)), ids, workers=2, quiet=True)
+        report = run_batch(
+            AnnotateJob.for_dataset(load_dataset(faulty)), ids, workers=2, quiet=True
+        )
         assert not report.failed, report.failed
         assess(faulty, "faults injected")
 

@@ -4,17 +4,16 @@ from __future__ import annotations
 
 import json
 
+import cv2
 import numpy as np
 import pytest
 import trimesh
+import yaml
 
 from annotator.cli import main
 from annotator.dataset import load_dataset, read_poses
 from annotator.dataset.model import DepthSpec, Rig
 from annotator.dataset.review import Review, now_iso, poses_fingerprint, write_review
-from annotator.export.bop import read_bop_scene
-from annotator.export.sileane import read_sileane_scene
-from annotator.export.undistort import pinhole_rig, undistort_depth
 from annotator.geometry.camera import Camera
 from annotator.geometry.mesh import Mesh
 from annotator.geometry.transforms import make_transform
@@ -88,74 +87,136 @@ def test_selection_and_bad_inputs(sample_copy, tmp_path, capsys) -> None:
     assert "file" in capsys.readouterr().err
 
 
-def _expected(root, cameras=None):
-    """What the export of scene 0 must contain: its poses and their masks, computed directly
-    with the pinhole (undistorted) cameras."""
-    ds = load_dataset(root)
-    scene = ds.scenes()[0]
-    poses = read_poses(scene.annotation_path)
-    rig = pinhole_rig(ds.rig)
-    depth = undistort_depth(scene.read_depth(ds.rig), ds.rig.depth_camera)
-    meshes = [ds.objects[p.object].mesh for p in poses]
-    vis = scene_visibility(
-        rig, meshes, [p.T for p in poses], depth=depth, cameras=cameras, masks=True
-    )
-    return ds, scene, poses, rig, vis
-
-
-def test_bop_round_trip(sample_copy, tmp_path, capsys) -> None:
-    _review_all(sample_copy)
-    out = tmp_path / "bop"
-    assert main(["export", str(sample_copy), str(out), "--format", "bop", "--quiet"]) == 0
-    ds, scene, poses, rig, vis = _expected(sample_copy)
-    for ci, cam in enumerate(rig.cameras):
-        back = read_bop_scene(out, "000000", cam.name)
-        for k, p in enumerate(poses):
-            M = cam.cam_T_rig @ p.T
-            assert np.allclose(back["R"][k], M[:3, :3], atol=1e-9) and np.allclose(
-                back["t"][k], M[:3, 3], atol=1e-6
-            )
-            assert np.array_equal(back["masks"][k], vis[k].cameras[ci].mask_all)
-            assert np.array_equal(back["masks_visib"][k], vis[k].cameras[ci].mask_visib)
-    info = json.loads((out / "models" / "models_info.json").read_text())
-    assert "symmetries_discrete" in info["2"] and "symmetries_continuous" in info["3"]
-    # Our evaluator reads the export back as a BOP dataset: the exported poses score perfectly.
-    lines = ["scene_id,im_id,obj_id,score,R,t,time"]
-    for sid in ("000000",):
-        gt = json.loads((out / "test" / sid / "scene_gt_left.json").read_text())["0"]
-        for g in gt:
-            lines.append(
-                f"{int(sid)},0,{g['obj_id']},1,{' '.join(map(str, g['cam_R_m2c']))},{' '.join(map(str, g['cam_t_m2c']))},-1"
-            )
-    (tmp_path / "r.csv").write_text("\n".join(lines) + "\n")
+def _export(root, out, fmt, *extra) -> None:
+    _review_all(root)
     assert (
-        main(
-            [
-                "evaluate",
-                str(out),
-                "--results",
-                str(tmp_path / "r.csv"),
-                "--json",
-                str(tmp_path / "e.json"),
-            ]
-        )
+        main(["export", str(root), str(out), "--format", fmt, "--poses", "gt", "--quiet", *extra])
         == 0
     )
+
+
+def _remapped(root, scene_id, camera="left"):
+    """The camera's image undistorted by the test itself: OpenCV's own maps from the raw K and
+    dist of dataset.yaml, bilinear, as a pinhole camera with the same K."""
+    raw = yaml.safe_load((root / "dataset.yaml").read_text())
+    cam = next(c for c in raw["rig"]["cameras"] if c["name"] == camera)
+    K = np.array(cam["K"], float).reshape(3, 3)
+    w, h = cam["size"]
+    mx, my = cv2.initUndistortRectifyMap(K, np.array(cam["dist"]), None, K, (w, h), cv2.CV_32FC1)
+    img = cv2.imread(str(root / "scenes" / scene_id / f"{camera}.png"), cv2.IMREAD_UNCHANGED)
+    return cv2.remap(img, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT), K
+
+
+def _gt(root, scene_id):
+    return json.loads((root / "scenes" / scene_id / "gt.json").read_text())["instances"]
+
+
+def test_bop_export_against_independent_truth(sample_copy, tmp_path, capsys) -> None:
+    out = tmp_path / "bop"
+    _export(sample_copy, out, "bop")
+    ids = json.loads((out / "test" / "scene_ids.json").read_text())
+    objects = yaml.safe_load((sample_copy / "dataset.yaml").read_text())["objects"]
+    raw = yaml.safe_load((sample_copy / "dataset.yaml").read_text())["rig"]["cameras"]
+    right_T = np.array(raw[1]["rig_T_cam"], float).reshape(4, 4)
+    lines, of_interest = ["scene_id,im_id,obj_id,score,R,t,time"], 0
+    for bop_id, sid in ids.items():
+        d = out / "test" / bop_id
+        truth = _gt(sample_copy, sid)
+        for camera, cam_T_rig in (("left", np.eye(4)), ("right", np.linalg.inv(right_T))):
+            gt = json.loads((d / f"scene_gt_{camera}.json").read_text())
+            assert list(gt) == ["0"] and len(gt["0"]) == len(truth)
+            for g, t in zip(gt["0"], truth):
+                assert set(g) == {"cam_R_m2c", "cam_t_m2c", "obj_id"}
+                assert g["obj_id"] == objects.index(t["object"]) + 1
+                T = np.eye(4)
+                T[:3, :3] = np.reshape(t["cam_R_m2c"], (3, 3))
+                T[:3, 3] = t["cam_t_m2c"]
+                T = cam_T_rig @ T  # mm, in that camera's frame
+                assert np.allclose(np.reshape(g["cam_R_m2c"], (3, 3)), T[:3, :3], atol=1e-9)
+                assert np.allclose(g["cam_t_m2c"], T[:3, 3], atol=1e-6)
+            cam = json.loads((d / f"scene_camera_{camera}.json").read_text())["0"]
+            assert len(cam["cam_K"]) == 9 and len(cam["cam_R_w2c"]) == 9
+        img, K = _remapped(sample_copy, sid)
+        assert np.array_equal(
+            cv2.imread(str(d / "gray_left" / "000000.png"), cv2.IMREAD_UNCHANGED), img
+        )
+        cam = json.loads((d / "scene_camera_left.json").read_text())["0"]
+        assert np.allclose(np.reshape(cam["cam_K"], (3, 3)), K) and cam["depth_scale"] > 0
+        depth = cv2.imread(str(d / "depth_left" / "000000.png"), cv2.IMREAD_UNCHANGED)
+        assert depth.dtype == np.uint16
+        infos = json.loads((d / "scene_gt_info_left.json").read_text())["0"]
+        assert all(0 <= i["visib_fract"] <= 1 and i["px_count_all"] > 0 for i in infos)
+        of_interest += sum(i["visib_fract"] >= 0.5 for i in infos)
+        for g in json.loads((d / "scene_gt_left.json").read_text())["0"]:
+            R, t = " ".join(map(str, g["cam_R_m2c"])), " ".join(map(str, g["cam_t_m2c"]))
+            lines.append(f"{int(bop_id)},0,{g['obj_id']},1,{R},{t},-1")
+    info = json.loads((out / "models" / "models_info.json").read_text())
+    assert "symmetries_discrete" in info["2"] and "symmetries_continuous" in info["3"]
+    cam_file = json.loads((out / "camera_left.json").read_text())
+    assert set(cam_file) == {"width", "height", "fx", "fy", "cx", "cy", "depth_scale"}
+    # The ground truth scored against itself finds every instance to find.
+    (tmp_path / "r.csv").write_text("\n".join(lines) + "\n")
+    args = [
+        "evaluate",
+        str(out),
+        "--results",
+        str(tmp_path / "r.csv"),
+        "--json",
+        str(tmp_path / "e.json"),
+    ]
+    assert main(args) == 0
     rep = json.loads((tmp_path / "e.json").read_text())["overall"]
-    assert rep["FP"] == 0 and rep["TP"] > 0
+    assert (rep["TP"], rep["FP"], rep["FN"]) == (of_interest, 0, 0) and of_interest > 0
 
 
-def test_sileane_round_trip(sample_copy, tmp_path) -> None:
-    _review_all(sample_copy)
+def test_sileane_export_against_independent_truth(sample_copy, tmp_path) -> None:
     out = tmp_path / "sil"
-    assert main(["export", str(sample_copy), str(out), "--format", "sileane", "--quiet"]) == 0
-    ds, scene, poses, rig, vis = _expected(sample_copy, cameras=["left"])
-    for name in ds.objects:
-        back = read_sileane_scene(out / name, scene.id)
-        mine = [(p, v) for p, v in zip(poses, vis) if p.object == name]
-        assert len(back["R"]) == len(mine)
-        for k, (p, v) in enumerate(mine):
-            assert np.allclose(back["R"][k], p.R) and np.allclose(back["t"][k], p.t, atol=1e-6)
-            assert back["occlusion_rate"][k] == pytest.approx(v.occlusion)
-            assert np.array_equal(back["masks_visib"][k], v.cameras[0].mask_visib)
-    assert (out / "cylinder" / "camera_params.txt").read_text().startswith("fu\t")
+    _export(sample_copy, out, "sileane")
+    of_interest = 0
+    res = tmp_path / "res"
+    for name in yaml.safe_load((sample_copy / "dataset.yaml").read_text())["objects"]:
+        folder = out / name
+        # Built-in parts are centred on their surface centroid, their axis on z: the
+        # canonical frame of the export is their own, so poses are unchanged (in metres).
+        mesh = trimesh.load(folder / "mesh.ply", process=False)
+        assert np.abs(mesh.centroid).max() < 1e-6 and mesh.extents.max() < 1.0  # metres
+        utils = json.loads((folder / "poseutils.json").read_text())
+        assert utils["type"] in ("AffinePoseUtils", "RevolutionPoseUtils")
+        assert 0 < utils["distance_threshold"] < 0.1
+        for f in sorted((folder / "gt").glob("*.json")):
+            sid = f.stem
+            truth = [t for t in _gt(sample_copy, sid) if t["object"] == name]
+            got = json.loads(f.read_text())
+            assert len(got) == len(truth)
+            for g, t in zip(got, truth):
+                assert {"R", "t", "occlusion_rate", "segmentation_id"} <= set(g)
+                assert np.allclose(g["R"], np.reshape(t["cam_R_m2c"], (3, 3)), atol=1e-9)
+                assert np.allclose(np.array(g["t"]) * 1000.0, t["cam_t_m2c"], atol=1e-6)
+            seg = cv2.imread(str(folder / "segmentation" / f"{sid}.PNG"), cv2.IMREAD_UNCHANGED)
+            for g in got:
+                assert (seg == g["segmentation_id"]).any() == (g["occlusion_rate"] < 1.0)
+            img, _ = _remapped(sample_copy, sid)
+            assert np.array_equal(
+                cv2.imread(str(folder / "rgb" / f"{sid}.PNG"), cv2.IMREAD_UNCHANGED), img
+            )
+            of_interest += sum(g["occlusion_rate"] <= 0.5 for g in got)
+            (res / name).mkdir(parents=True, exist_ok=True)
+            (res / name / f.name).write_text(
+                json.dumps([{"R": g["R"], "t": g["t"], "score": 1.0} for g in got])
+            )
+        assert (folder / "camera_params.txt").read_text().startswith("fu\t")
+    # The ground truth scored against itself (results in metres, like it) finds every
+    # instance to find.
+    tp = 0
+    for name in yaml.safe_load((sample_copy / "dataset.yaml").read_text())["objects"]:
+        rep_path = tmp_path / f"{name}.json"
+        assert (
+            main(
+                ["evaluate", str(out / name), "--results", str(res / name), "--json", str(rep_path)]
+            )
+            == 0
+        )
+        rep = json.loads(rep_path.read_text())["overall"]
+        assert rep["FP"] == 0 and rep["FN"] == 0
+        tp += rep["TP"]
+    assert tp == of_interest > 0

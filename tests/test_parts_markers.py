@@ -125,7 +125,7 @@ def test_markers_command_writes_object_sheets_and_textured_mesh(tmp_path, capsys
     # Refuses an existing folder, changes nothing.
     before = sorted(p.name for p in out.iterdir())
     assert main(["markers", "brick", str(out)]) == 2
-    assert "already exists" in capsys.readouterr().err
+    assert "exists and is not empty" in capsys.readouterr().err
     assert sorted(p.name for p in out.iterdir()) == before
     assert main(["markers", "brick", str(tmp_path / "x"), "--size", "-1"]) == 2
     assert main(["markers", str(tmp_path / "nope.ply"), str(tmp_path / "y")]) == 2

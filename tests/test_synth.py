@@ -103,7 +103,7 @@ def test_bad_options_give_one_line_and_change_nothing(tmp_path, capsys) -> None:
         (["synth", str(tmp_path / "x"), "--instances", "5-2"], "--instances"),
         (["synth", str(tmp_path / "x"), "--size", "20x10"], "--size"),
         (["synth", str(tmp_path / "x"), "--noise", "-1"], "--noise"),
-        (["synth", str(existing)], "already exists"),
+        (["synth", str(existing)], "exists and is not empty"),
     ]
     for argv, message in cases:
         assert main(argv) == 2

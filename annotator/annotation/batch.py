@@ -3,34 +3,54 @@
 from __future__ import annotations
 
 import functools
+import hashlib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from annotator.annotation.scene import Settings, annotate_scene
 from annotator.dataset import Dataset, Scene, cached_dataset
-from annotator.dataset.poses import write_poses
+from annotator.dataset.poses import read_pose_file, write_poses
 from annotator.dataset.review import now_iso
 from annotator.detection import MarkerDetector
 from annotator.errors import UserError
 
 
-def inputs_of(ds: Dataset, scene: Scene) -> list[Path]:
-    """Files an annotation depends on: the images, the depth map and the dataset's YAML."""
+def description_digest(ds: Dataset) -> str:
+    """SHA-256 of what every annotation of the dataset depends on besides its scene's images:
+    dataset.yaml, each object.yaml and each mesh file, by content."""
+    h = hashlib.sha256()
+    files = [ds.root / "dataset.yaml"]
+    for name in sorted(ds.objects):
+        files += [ds.objects[name].folder / "object.yaml", ds.objects[name].mesh_path]
+    for path in files:
+        h.update(str(path.relative_to(ds.root)).encode() + b"\0")
+        h.update(hashlib.sha256(path.read_bytes()).digest())
+    return h.hexdigest()
+
+
+def scene_inputs(ds: Dataset, scene: Scene) -> list[Path]:
+    """The scene's own files an annotation depends on: its images and depth map."""
     files = [scene.image_path(c) for c in ds.rig.cameras]
     if scene.depth_path.exists():
         files.append(scene.depth_path)
-    files.append(ds.root / "dataset.yaml")
-    files += [o.folder / "object.yaml" for o in ds.objects.values()]
     return files
 
 
-def is_up_to_date(ds: Dataset, scene: Scene) -> bool:
-    """True if annotation.json exists and is newer than every input."""
-    if not scene.annotation_path.exists():
+def is_up_to_date(ds: Dataset, scene: Scene, digest: str) -> bool:
+    """True if the scene's annotation.json is valid, was made from the dataset description
+    with ``digest`` (:func:`description_digest`), and is newer than the scene's images."""
+    path = scene.annotation_path
+    if not path.exists():
         return False
-    mtime = scene.annotation_path.stat().st_mtime
-    return all(p.exists() and p.stat().st_mtime <= mtime for p in inputs_of(ds, scene))
+    try:
+        _, top = read_pose_file(path)
+    except UserError:  # corrupt: annotate again
+        return False
+    if top.get("description_digest") != digest:
+        return False
+    mtime = path.stat().st_mtime
+    return all(p.exists() and p.stat().st_mtime <= mtime for p in scene_inputs(ds, scene))
 
 
 @dataclass(frozen=True)
@@ -38,7 +58,13 @@ class AnnotateJob:
     """The per-scene job (picklable, for worker processes: each loads the dataset once)."""
 
     root: str
+    digest: str  # description_digest() of the dataset, recorded in every annotation.json
     settings: Settings = Settings()
+
+    @classmethod
+    def for_dataset(cls, ds: Dataset, settings: Settings | None = None) -> AnnotateJob:
+        """The job for every scene of ``ds`` (computes the dataset's description digest)."""
+        return cls(str(ds.root), description_digest(ds), settings or Settings())
 
     def prepare(self) -> None:
         """Do once what every scene needs (see :mod:`annotator.batch`): import open3d, load
@@ -58,7 +84,15 @@ class AnnotateJob:
         poses, top = annotate_scene(ds, scene, detector, settings=self.settings)
         if not poses and top["warnings"]:
             raise UserError("no marker of any known instance detected", path=scene.path)
-        write_poses(scene.annotation_path, poses, format=1, created_at=now_iso(), errors=[], **top)
+        write_poses(
+            scene.annotation_path,
+            poses,
+            format=1,
+            created_at=now_iso(),
+            description_digest=self.digest,
+            errors=[],
+            **top,
+        )
         return {
             "instances": len(poses),
             "flagged": sum(1 for p in poses if p.extra.get("flags")),

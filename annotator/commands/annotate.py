@@ -9,7 +9,7 @@ import json
 from annotator.annotation.batch import AnnotateJob, is_up_to_date
 from annotator.batch import run_batch
 from annotator.commands import add_workers_option
-from annotator.dataset import load_dataset
+from annotator.dataset import load_dataset, require_meshes
 from annotator.errors import UserError
 
 
@@ -31,10 +31,16 @@ def run(args: argparse.Namespace) -> int:
     scenes = [s for s in ds.scenes() if fnmatch.fnmatch(s.id, args.scenes)]
     if not scenes:
         raise UserError(f"no scene matches {args.scenes!r}", path=ds.root / "scenes")
-    todo = [s.id for s in scenes if args.force or not is_up_to_date(ds, s)]
+    require_meshes(ds)
+    job = AnnotateJob.for_dataset(ds)
+    todo = [s.id for s in scenes if args.force or not is_up_to_date(ds, s, job.digest)]
     skipped = len(scenes) - len(todo)
     report = run_batch(
-        AnnotateJob(str(ds.root)), todo, workers=args.workers, desc="annotate", quiet=args.quiet
+        job,
+        todo,
+        workers=args.workers,
+        desc="annotate",
+        quiet=args.quiet,
     )
     posed = sum(r["instances"] for r in report.done.values())
     flagged = sum(r["flagged"] for r in report.done.values())

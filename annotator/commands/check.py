@@ -20,7 +20,14 @@ def run(args: argparse.Namespace) -> int:
             json.dumps(
                 {
                     "scenes": scenes,
-                    "problems": [{"path": str(p.path), "message": p.message} for p in problems],
+                    "problems": [
+                        {"path": str(p.path), "message": p.message}
+                        for p in problems
+                        if not p.warning
+                    ],
+                    "warnings": [
+                        {"path": str(p.path), "message": p.message} for p in problems if p.warning
+                    ],
                 },
                 indent=1,
             )
@@ -28,7 +35,11 @@ def run(args: argparse.Namespace) -> int:
     else:
         for p in problems:
             print(p)
+        n = sum(not p.warning for p in problems)
+        w = len(problems) - n
         print(
-            f"check: {scenes} scenes, {len(problems)} problem{'s' if len(problems) != 1 else ''} in {args.dataset}"
+            f"check: {scenes} scenes, {n} problem{'s' if n != 1 else ''}"
+            + (f", {w} warning{'s' if w != 1 else ''}" if w else "")
+            + f" in {args.dataset}"
         )
-    return 1 if problems else 0
+    return 1 if any(not p.warning for p in problems) else 0

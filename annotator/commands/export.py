@@ -12,20 +12,20 @@ from tqdm import tqdm
 
 from annotator.dataset import load_dataset
 from annotator.errors import UserError
-from annotator.export.bop import export_bop
 from annotator.export.selection import select_scenes
-from annotator.export.sileane import export_sileane
+from annotator.formats import EXPORTS, get_format
 from annotator.io.atomic import atomic_folder
-
-FORMATS = ("bop", "sileane")
+from annotator.io.output_folder import check_output_folder, write_manifest
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("dataset", help="dataset folder (FORMAT.md)")
     parser.add_argument(
-        "out", help="output folder (must not exist or be empty, unless --overwrite)"
+        "out",
+        help="output folder: new or empty, or an earlier export's with --overwrite; "
+        "never the dataset, inside it or around it",
     )
-    parser.add_argument("--format", required=True, help="bop or sileane")
+    parser.add_argument("--format", required=True, help=" or ".join(EXPORTS))
     parser.add_argument(
         "--include-pending", action="store_true", help="also export scenes not reviewed yet"
     )
@@ -43,14 +43,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--cameras", help="comma-separated rig cameras to export (BOP; default all)"
     )
-    parser.add_argument("--overwrite", action="store_true", help="replace a non-empty OUT")
+    parser.add_argument(
+        "--overwrite", action="store_true", help="replace OUT if an earlier export wrote it"
+    )
     parser.add_argument("--json", action="store_true", help="print the summary as JSON")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
 def run(args: argparse.Namespace) -> int:
-    if args.format not in FORMATS:
-        raise UserError(f"unknown format {args.format!r} (expected one of {', '.join(FORMATS)})")
+    if args.format not in EXPORTS:
+        raise UserError(f"unknown format {args.format!r} (expected one of {', '.join(EXPORTS)})")
+    fmt = get_format(args.format)
     ds = load_dataset(args.dataset)
     names = [c.name for c in ds.rig.cameras]
     cameras = (
@@ -60,8 +63,7 @@ def run(args: argparse.Namespace) -> int:
     if unknown:
         raise UserError(f"unknown camera(s) {', '.join(unknown)} (the rig has {', '.join(names)})")
     out = Path(args.out)
-    if out.exists() and (not out.is_dir() or any(out.iterdir())) and not args.overwrite:
-        raise UserError("exists and is not empty (use --overwrite to replace it)", path=out)
+    check_output_folder(out, command="export", overwrite=args.overwrite, protect=[ds.root])
     parent = out.resolve().parent
     try:
         parent.mkdir(parents=True, exist_ok=True)
@@ -89,23 +91,35 @@ def run(args: argparse.Namespace) -> int:
         file=sys.stderr,
     )
     with bar, atomic_folder(out) as tmp:
-        if args.format == "bop":
-            export_bop(ds, sel.scenes, tmp, cameras=cameras, progress=bar.update)
-        else:
-            export_sileane(ds, sel.scenes, tmp, progress=bar.update)
+        write_manifest(tmp, command="export")
+        unreadable = fmt.export(ds, sel.scenes, tmp, cameras=cameras, progress=bar.update)
+    # Scenes that could not be read (corrupt annotation, review, image or depth) are named
+    # and make the exit status 1; the rest of the export is complete.
+    errors = {sid: r[len("error: ") :] for sid, r in sel.skipped.items() if r.startswith("error: ")}
+    errors.update(unreadable)
+    left_out = {sid: r for sid, r in sel.skipped.items() if sid not in errors}
+    exported = len(sel.scenes) - len(unreadable)
+    reasons: dict[str, int] = {}
+    for r in left_out.values():
+        reasons[r] = reasons.get(r, 0) + 1
+    if errors:
+        reasons["unreadable"] = len(errors)
     summary = {
         "format": args.format,
         "out": str(out),
-        "exported": len(sel.scenes),
-        "left_out": sel.reasons(),
-        "scenes_left_out": sel.skipped,
+        "exported": exported,
+        "left_out": reasons,
+        "scenes_left_out": left_out,
+        "failures": dict(sorted(errors.items())),
     }
     if args.json:
         print(json.dumps(summary, indent=1))
     else:
-        why = "; ".join(f"{n} {r}" for r, n in sorted(sel.reasons().items()))
+        for sid, err in sorted(errors.items()):
+            print(f"failed: scene {sid}: {err}", file=sys.stderr)
+        why = "; ".join(f"{n} {r}" for r, n in sorted(reasons.items()))
         print(
-            f"export: {len(sel.scenes)} scenes written to {out} ({args.format})"
+            f"export: {exported} scenes written to {out} ({args.format})"
             + (f"; left out: {why}" if why else "")
         )
-    return 0
+    return 1 if errors else 0

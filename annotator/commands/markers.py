@@ -18,6 +18,7 @@ from annotator.dataset.write import write_object_yaml
 from annotator.errors import UserError
 from annotator.geometry.mesh import load_mesh
 from annotator.io.atomic import atomic_folder
+from annotator.io.output_folder import check_output_folder, write_manifest
 from annotator.markers.layout import assign_ids, place_markers
 from annotator.markers.sheets import SheetMarker, render_pages, write_sheets
 from annotator.markers.texture import dictionary_size
@@ -56,7 +57,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--dpi", type=int, default=300, help="resolution of the PNG sheets (default 300)"
     )
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--overwrite", action="store_true", help="replace OUT if it exists")
+    parser.add_argument(
+        "--overwrite", action="store_true", help="replace OUT if an earlier `markers` wrote it"
+    )
     parser.add_argument("--json", action="store_true", help="print the summary as JSON")
 
 
@@ -69,9 +72,8 @@ def run(args: argparse.Namespace) -> int:
             "--instances >= 1, --first-id >= 0, --dpi in 50..2400 and --flatness > 0 are required"
         )
     n_dict = dictionary_size(args.dictionary)
-    if out.exists() and not args.overwrite:
-        raise UserError("already exists (use --overwrite to replace it)", path=out)
     if args.part in PART_NAMES:
+        check_output_folder(out, command="markers", overwrite=args.overwrite)
         part = build_part(args.part)
         mesh, symmetry, name = part.mesh, part.symmetry, part.name
         size = args.size or part.marker_size
@@ -79,6 +81,7 @@ def run(args: argparse.Namespace) -> int:
         path = Path(args.part)
         if path.suffix == "" and not path.exists():
             build_part(args.part)  # a mistyped part name: UserError listing the known ones
+        check_output_folder(out, command="markers", overwrite=args.overwrite, protect=[path])
         mesh = load_mesh(path)
         symmetry = Symmetry(args.symmetry or "none")
         name = path.stem
@@ -98,6 +101,7 @@ def run(args: argparse.Namespace) -> int:
         )
     instances = [Instance(f"{k + 1:02d}", tuple(i)) for k, i in enumerate(ids)]
     with atomic_folder(out) as tmp:
+        write_manifest(tmp, command="markers")
         trimesh.Trimesh(mesh.vertices, mesh.faces, process=False).export(tmp / "model.ply")
         write_object_yaml(
             tmp, mesh_file="model.ply", symmetry=symmetry, markers=layout.sites, instances=instances

@@ -11,12 +11,15 @@ from annotator.batch import run_batch
 from annotator.commands import add_workers_option
 from annotator.errors import UserError
 from annotator.io.atomic import atomic_folder
+from annotator.io.output_folder import check_output_folder, write_manifest
 from annotator.parts import PART_NAMES, build_part
 from annotator.synthesis.generate import SceneJob, SynthConfig, _plan, write_dataset_files
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("out", help="output dataset folder (must not exist, unless --overwrite)")
+    parser.add_argument(
+        "out", help="output dataset folder (new or empty; an earlier synth's with --overwrite)"
+    )
     parser.add_argument(
         "--parts",
         default="bracket,cylinder",
@@ -43,7 +46,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--blur", type=float, default=0.6, help="image blur sigma, px (default 0.6)"
     )
     parser.add_argument("--no-depth", action="store_true", help="skip the active-stereo depth maps")
-    parser.add_argument("--overwrite", action="store_true", help="replace OUT if it exists")
+    parser.add_argument(
+        "--calibration",
+        action="store_true",
+        help="instead of scenes, render a ChArUco board in --scenes random poses (use 30) seen "
+        "by the rig, into OUT/<camera>/<shot>.png with board.yaml and truth.yaml "
+        "(for `annotator calibrate`)",
+    )
+    parser.add_argument(
+        "--overwrite", action="store_true", help="replace OUT if an earlier synth wrote it"
+    )
     parser.add_argument("--json", action="store_true", help="print the summary as JSON")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
 
@@ -87,11 +99,13 @@ def _config(args: argparse.Namespace) -> SynthConfig:
 def run(args: argparse.Namespace) -> int:
     out = Path(args.out)
     config = _config(args)
-    if out.exists() and not args.overwrite:
-        raise UserError("already exists (use --overwrite to replace it)", path=out)
-    if out.exists() and not out.is_dir():
-        raise UserError("exists and is not a folder", path=out)
+    check_output_folder(out, command="synth", overwrite=args.overwrite)
+    if args.calibration:
+        from annotator.commands.calibrate import synth_captures
+
+        return synth_captures(args, config)
     with atomic_folder(out) as tmp:
+        write_manifest(tmp, command="synth")
         plan = _plan(config)
         write_dataset_files(plan, tmp)
         ids = [f"{k:06d}" for k in range(config.scenes)]

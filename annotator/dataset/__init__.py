@@ -1,4 +1,4 @@
-"""The dataset contract (../shared/FORMAT.md): its records, its reader and its JSON files.
+"""The dataset contract (docs/FORMAT.md): its records, its reader and its JSON files.
 
 Typical use::
 
@@ -8,7 +8,13 @@ Typical use::
         img = scene.read_image(ds.rig.cameras[0])
 """
 
-from annotator.dataset.load import Problem, cached_dataset, load_dataset, read_dataset
+from annotator.dataset.load import (
+    Problem,
+    cached_dataset,
+    load_dataset,
+    read_dataset,
+    require_meshes,
+)
 from annotator.dataset.model import (
     Dataset,
     DepthSpec,
@@ -38,5 +44,6 @@ __all__ = [
     "load_dataset",
     "read_dataset",
     "read_poses",
+    "require_meshes",
     "write_poses",
 ]

@@ -59,6 +59,15 @@ def _check_objects(ds: Dataset) -> list[Problem]:
         except UserError as exc:
             out.append(Problem(obj.mesh_path, exc.message))
             continue
+        if not mesh.is_watertight:
+            out.append(
+                Problem(
+                    obj.mesh_path,
+                    "mesh is not watertight (open edges): occlusion rates and surface moments "
+                    "assume a closed surface",
+                    warning=True,
+                )
+            )
         if obj.markers is None:
             continue
         scene = o3d.t.geometry.RaycastingScene()
@@ -103,8 +112,11 @@ def _check_scene(ds: Dataset, scene) -> list[Problem]:
             scene.read_image(cam)
         except UserError as exc:
             out.append(Problem(exc.path or scene.image_path(cam), exc.message))
+    declared = isinstance(ds.raw.get("rig"), dict) and ds.raw["rig"].get("depth") is not None
     if scene.depth_path.exists():
-        if ds.rig.depth is None:
+        if ds.rig.depth is None and declared:
+            pass  # rig.depth is there but unusable: reported once, for dataset.yaml
+        elif ds.rig.depth is None:
             out.append(
                 Problem(
                     scene.depth_path,

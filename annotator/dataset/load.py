@@ -15,7 +15,6 @@ import numpy as np
 import yaml
 
 from annotator.dataset.model import (
-    SYMMETRY_CLASSES,
     Dataset,
     DepthSpec,
     Instance,
@@ -27,6 +26,7 @@ from annotator.dataset.model import (
 from annotator.errors import UserError
 from annotator.geometry.camera import Camera
 from annotator.geometry.transforms import is_rotation
+from annotator.symmetry.classes import symmetry_from_yaml
 
 
 @dataclass(frozen=True)
@@ -35,9 +35,10 @@ class Problem:
 
     path: Path
     message: str
+    warning: bool = False  # worth a look, but the dataset is usable as it is
 
     def __str__(self) -> str:
-        return f"{self.path}: {self.message}"
+        return f"{self.path}: {'warning: ' if self.warning else ''}{self.message}"
 
 
 def load_dataset(root: str | Path) -> Dataset:
@@ -52,6 +53,13 @@ def load_dataset(root: str | Path) -> Dataset:
         raise UserError(problems[0].message + more, path=problems[0].path)
     assert dataset is not None
     return dataset
+
+
+def require_meshes(ds: Dataset) -> None:
+    """Load every object's mesh now; a missing, unreadable or empty mesh is a dataset error
+    (one UserError naming the file) before any scene is worked on, not one per scene."""
+    for obj in ds.objects.values():
+        obj.mesh  # noqa: B018  (cached property: loads and checks the file)
 
 
 _LOADED: dict[Path, tuple[tuple[int, ...], Dataset]] = {}
@@ -136,6 +144,9 @@ class _Parser:
         return value
 
     def floats(self, value: Any, n: int | tuple[int, ...], what: str) -> np.ndarray | None:
+        if value is None:
+            self.problem(f"{what} is missing")
+            return None
         try:
             arr = np.asarray(value, dtype=np.float64).reshape(-1)
         except (TypeError, ValueError):
@@ -155,9 +166,16 @@ def _read_yaml(path: Path, problems: list[Problem]) -> dict[str, Any] | None:
         return None
     try:
         doc = yaml.safe_load(path.read_text(encoding="utf-8"))
-    except (yaml.YAMLError, UnicodeDecodeError) as exc:
-        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-        problems.append(Problem(path, f"not valid YAML ({first})"))
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None) or getattr(exc, "context_mark", None)
+        where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""
+        what = "; ".join(
+            str(x) for x in (getattr(exc, "context", None), getattr(exc, "problem", None)) if x
+        )
+        problems.append(Problem(path, f"not valid YAML{where} ({what or type(exc).__name__})"))
+        return None
+    except UnicodeDecodeError as exc:
+        problems.append(Problem(path, f"not UTF-8 text ({exc.reason} at byte {exc.start})"))
         return None
     if not isinstance(doc, dict):
         problems.append(Problem(path, "must be a YAML mapping"))
@@ -180,6 +198,7 @@ def _parse_rig(p: _Parser, rig: dict[str, Any] | None) -> Rig | None:
             p.problem("rig.cameras is empty")
         return None
     cameras: list[Camera] = []
+    broken: list[str] = []  # names of cameras with a problem, reported once each
     for i, c in enumerate(cams_doc):
         where = f"rig.cameras[{i}]"
         if not isinstance(c, dict):
@@ -212,6 +231,7 @@ def _parse_rig(p: _Parser, rig: dict[str, Any] | None) -> Rig | None:
                 )
                 ok = False
         if not ok:
+            broken.append(name)
             continue
         if i == 0 and not np.allclose(T, np.eye(4), atol=1e-9):
             p.problem(
@@ -233,6 +253,8 @@ def _parse_rig(p: _Parser, rig: dict[str, Any] | None) -> Rig | None:
             scale = d.get("scale")
             if not isinstance(scale, (int, float)) or isinstance(scale, bool) or not scale > 0:
                 p.problem("rig.depth.scale is missing or not a positive number (mm per depth unit)")
+            elif cam in broken:
+                pass  # that camera's own problem is already reported: no knock-on line
             elif cameras and cam not in [c.name for c in cameras]:
                 p.problem(f"rig.depth.camera {cam!r} is not a rig camera")
             else:
@@ -297,37 +319,11 @@ def _parse_object(root: Path, name: str, problems: list[Problem]) -> ObjectModel
 
 
 def _parse_symmetry(p: _Parser, doc: Any) -> Symmetry:
-    if not isinstance(doc, dict):
-        p.problem("symmetry must be a mapping with a 'class'")
+    try:
+        return symmetry_from_yaml(doc)
+    except ValueError as exc:
+        p.problem(str(exc))
         return Symmetry()
-    kind = doc.get("class", "none")
-    if kind not in SYMMETRY_CLASSES:
-        p.problem(
-            f"unknown symmetry class {kind!r} (expected one of {', '.join(SYMMETRY_CLASSES)})"
-        )
-        return Symmetry()
-    if kind == "finite":
-        gens = []
-        for i, g in enumerate(doc.get("generators") or []):
-            axis = p.floats(
-                g.get("axis") if isinstance(g, dict) else None, 3, f"symmetry.generators[{i}].axis"
-            )
-            order = g.get("order") if isinstance(g, dict) else None
-            if not isinstance(order, int) or order < 2:
-                p.problem(f"symmetry.generators[{i}].order must be an integer >= 2")
-                continue
-            if axis is None or np.linalg.norm(axis) == 0:
-                continue
-            gens.append((axis / np.linalg.norm(axis), order))
-        if not gens:
-            p.problem("finite symmetry needs at least one generator {axis, order}")
-        return Symmetry(kind=kind, generators=tuple(gens))
-    if kind in ("revolution", "revolution_flip"):
-        axis = p.floats(doc.get("axis", [0, 0, 1]), 3, "symmetry.axis")
-        if axis is None or np.linalg.norm(axis) == 0:
-            return Symmetry(kind=kind, axis=np.array([0.0, 0.0, 1.0]))
-        return Symmetry(kind=kind, axis=axis / np.linalg.norm(axis))
-    return Symmetry(kind=kind)
 
 
 def _check_marker_ids(objects: dict[str, ObjectModel], problems: list[Problem]) -> None:

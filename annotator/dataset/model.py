@@ -11,8 +11,9 @@ import numpy as np
 
 from annotator.geometry.camera import Camera
 from annotator.geometry.mesh import Mesh, load_mesh
+from annotator.symmetry.classes import SYMMETRY_CLASSES, Symmetry
 
-SYMMETRY_CLASSES = ("none", "finite", "revolution", "revolution_flip", "spherical")
+__all__ = ["SYMMETRY_CLASSES", "Symmetry"]  # re-exported: object.yaml records use them
 
 
 @dataclass(frozen=True)
@@ -41,22 +42,6 @@ class Rig:
     def depth_camera(self) -> Camera | None:
         """The camera whose pixel grid the depth maps use, or None without depth."""
         return None if self.depth is None else self.camera(self.depth.camera)
-
-
-@dataclass(frozen=True)
-class Symmetry:
-    """The proper symmetry group of a part.
-
-    Attributes:
-        kind: One of ``none``, ``finite``, ``revolution``, ``revolution_flip``, ``spherical``.
-        generators: For ``finite``: (axis (3,), order) pairs of rotations about axes through
-            the surface centroid.
-        axis: For revolution classes: the axis direction (through the surface centroid).
-    """
-
-    kind: str = "none"
-    generators: tuple[tuple[np.ndarray, int], ...] = ()
-    axis: np.ndarray | None = None
 
 
 @dataclass(frozen=True)

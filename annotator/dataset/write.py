@@ -13,22 +13,13 @@ from typing import Any
 import numpy as np
 import yaml
 
-from annotator.dataset.model import Instance, MarkerSites, Rig, Symmetry
+from annotator.dataset.model import Instance, MarkerSites, Rig
 from annotator.io.atomic import write_text
+from annotator.symmetry.classes import Symmetry, symmetry_to_yaml
 
 
 def _floats(a: np.ndarray, ndigits: int = 9) -> list[float]:
     return [round(float(x), ndigits) for x in np.asarray(a, dtype=float).reshape(-1)]
-
-
-def symmetry_to_yaml(sym: Symmetry) -> dict[str, Any]:
-    """The ``symmetry`` mapping of object.yaml."""
-    out: dict[str, Any] = {"class": sym.kind}
-    if sym.kind == "finite":
-        out["generators"] = [{"axis": _floats(a), "order": int(o)} for a, o in sym.generators]
-    if sym.kind in ("revolution", "revolution_flip"):
-        out["axis"] = _floats(sym.axis if sym.axis is not None else [0, 0, 1])
-    return out
 
 
 def rig_to_yaml(rig: Rig) -> dict[str, Any]:

@@ -1,21 +1,39 @@
-"""Putting it together: match results to ground truth per scene and object, aggregate."""
+"""Putting it together: match results to ground truth per scene and object, aggregate.
+
+Which scenes count, per object: every ground-truth scene in which the object has a true pose
+or a result (a scene where it neither appears nor is reported says nothing about it), or, with
+``only_scenes_with_results``, only those the results mention (as the authors' code, which
+walks the results folder). A scene counted without any result is one where nothing was found.
+"""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from annotator.evaluation.metrics import RECALL_GRID, SceneCounts, Summary, scene_counts, summarise
-from annotator.evaluation.readers import GroundTruth, PoseSet, Table
+from annotator.evaluation.metrics import SceneCurve, Summary, scene_curve, summarise
+from annotator.formats.base import GroundTruth, PoseSet, Results
 
 
 @dataclass(frozen=True)
 class Options:
+    """Evaluation settings (see :mod:`annotator.evaluation.metrics`).
+
+    Attributes:
+        max_occlusion: True poses up to this occlusion rate (inclusive) are to find.
+        max_results: The n of each AP_n.
+        threshold_mm: Match threshold; default: the dataset's own (the paper's files carry
+            one), else ``threshold_fraction`` times the object's diameter.
+        threshold_fraction: See ``threshold_mm``.
+        only_scenes_with_results: Score only the scenes the results mention.
+    """
+
     max_occlusion: float = 0.5
     max_results: tuple[int, ...] = (1, 3)
-    threshold_mm: float | None = None  # default: threshold_fraction * diameter
+    threshold_mm: float | None = None
     threshold_fraction: float = 0.1
+    only_scenes_with_results: bool = False
 
 
 @dataclass
@@ -24,6 +42,7 @@ class Report:
     overall: Summary
     thresholds: dict[str, float]
     options: Options
+    unscored_scenes: list[str] = field(default_factory=list)
 
     def to_json(self) -> dict[str, Any]:
         def s(x: Summary) -> dict[str, Any]:
@@ -37,8 +56,8 @@ class Report:
                 "FP": x.fp,
                 "FN": x.fn,
                 "mean_curve": {
-                    "recall": RECALL_GRID.round(3).tolist(),
-                    "precision": x.mean_curve.round(5).tolist(),
+                    "recall": x.recall.round(6).tolist(),
+                    "precision": x.precision.round(6).tolist(),
                 },
             }
 
@@ -46,6 +65,7 @@ class Report:
             "options": {
                 "max_occlusion": self.options.max_occlusion,
                 "max_results": list(self.options.max_results),
+                "only_scenes_with_results": self.options.only_scenes_with_results,
             },
             "thresholds_mm": self.thresholds,
             "overall": s(self.overall),
@@ -53,30 +73,47 @@ class Report:
         }
 
 
-def evaluate(gt: GroundTruth, results: Table, options: Options = Options()) -> Report:
+def thresholds_for(gt: GroundTruth, options: Options) -> dict[str, float]:
+    """The match threshold (mm) of each object."""
+    out = {}
+    for name, sp in gt.spaces.items():
+        if options.threshold_mm is not None:
+            out[name] = options.threshold_mm
+        elif name in gt.thresholds:
+            out[name] = gt.thresholds[name]
+        else:
+            out[name] = options.threshold_fraction * sp.diameter
+    return out
+
+
+def evaluate(gt: GroundTruth, results: Results, options: Options = Options()) -> Report:
     """Score ``results`` against ``gt`` (see :mod:`annotator.evaluation.metrics`)."""
-    thresholds = {
-        name: options.threshold_mm
-        if options.threshold_mm is not None
-        else options.threshold_fraction * sp.diameter
-        for name, sp in gt.spaces.items()
-    }
-    counts: dict[str, list[SceneCounts]] = {name: [] for name in gt.spaces}
-    for scene in gt.scenes:
+    thresholds = thresholds_for(gt, options)
+    scenes = [s for s in gt.scenes if s in results.scenes or not options.only_scenes_with_results]
+    curves: dict[str, list[SceneCurve]] = {name: [] for name in gt.spaces}
+    for scene in scenes:
         for name, space in gt.spaces.items():
-            g = gt.poses.get((scene, name), PoseSet())
-            r = results.get((scene, name), PoseSet())
-            if not g.R and not r.R:
+            g = gt.poses.get((scene, name))
+            r = results.poses.get((scene, name))
+            if g is None and r is None:
                 continue
-            Rg, tg, occ = g.arrays()
-            Rr, tr, score = r.arrays()
+            Rg, tg, occ = (g or PoseSet()).arrays()
+            Rr, tr, score = (r or PoseSet()).arrays()
             D = space.distance_matrix(Rr, tr, Rg, tg)
-            interest = ~(occ >= options.max_occlusion)  # NaN (unknown) counts as of interest
-            counts[name].append(scene_counts(D, score, interest, thresholds[name]))
+            curves[name].append(
+                scene_curve(
+                    D,
+                    score,
+                    occ,
+                    threshold=thresholds[name],
+                    max_occlusion=options.max_occlusion,
+                )
+            )
     n = options.max_results
-    per_object = {name: summarise(c, max_results=n) for name, c in counts.items()}
-    overall = summarise([c for cs in counts.values() for c in cs], max_results=n)
-    return Report(per_object, overall, thresholds, options)
+    per_object = {name: summarise(c, max_results=n) for name, c in curves.items()}
+    overall = summarise([c for cs in curves.values() for c in cs], max_results=n)
+    unscored = [s for s in gt.scenes if s not in scenes]
+    return Report(per_object, overall, thresholds, options, unscored)
 
 
 def format_table(report: Report, *, per_object: bool = True) -> str:
@@ -85,16 +122,17 @@ def format_table(report: Report, *, per_object: bool = True) -> str:
     head = (
         ["object", "AP"]
         + [f"AP_{n}" for n in ns]
-        + ["scene AP", "best F1", "TP", "FP", "FN", "threshold"]
+        + ["scene AP", "best F1", "TP", "FP", "FN", "scenes", "threshold"]
     )
     rows = []
     objects = list(report.per_object.items()) if per_object else []
     for name, s in objects + [("all", report.overall)]:
         thr = f"{report.thresholds[name]:.2f} mm" if name in report.thresholds else "-"
         rows.append(
-            [name, f"{s.ap:.3f}"]
-            + [f"{s.ap_n[n]:.3f}" for n in ns]
-            + [f"{s.mean_scene_ap:.3f}", f"{s.best_f1:.3f}", str(s.tp), str(s.fp), str(s.fn), thr]
+            [name, f"{s.ap:.4f}"]
+            + [f"{s.ap_n[n]:.4f}" for n in ns]
+            + [f"{s.mean_scene_ap:.4f}", f"{s.best_f1:.4f}"]
+            + [str(s.tp), str(s.fp), str(s.fn), str(s.scenes), thr]
         )
     widths = [max(len(r[i]) for r in [head] + rows) for i in range(len(head))]
 
@@ -108,6 +146,8 @@ def format_table(report: Report, *, per_object: bool = True) -> str:
 
 def plot_curves(report: Report, path: str | Path) -> None:
     """Mean precision/recall curves per object to a PNG (matplotlib, no display needed)."""
+    import io
+
     import matplotlib
 
     matplotlib.use("Agg")
@@ -118,7 +158,7 @@ def plot_curves(report: Report, path: str | Path) -> None:
     fig, ax = plt.subplots(figsize=(6, 4.5), dpi=120)
     for name, s in report.per_object.items():
         if s.scenes:
-            ax.plot(RECALL_GRID, s.mean_curve, label=f"{name} (AP {s.ap:.3f})")
+            ax.step(s.recall, s.precision, where="post", label=f"{name} (AP {s.ap:.3f})")
     ax.set_xlabel("recall")
     ax.set_ylabel("precision")
     ax.set_xlim(0, 1)
@@ -128,31 +168,10 @@ def plot_curves(report: Report, path: str | Path) -> None:
     ax.set_title(
         f"mean precision/recall over scenes (max occlusion {report.options.max_occlusion:g})"
     )
-    import io
-
     buf = io.BytesIO()
     fig.savefig(buf, format="png", bbox_inches="tight")
     plt.close(fig)
     write_bytes(path, buf.getvalue())
-
-
-def annotations_as_results(root: Path, gt: GroundTruth) -> Table:
-    """annotation.json poses as results (score = 1 / (1 + uncertainty_mm)): how good is the
-    auto-annotation against gt.json."""
-    from annotator.dataset import load_dataset, read_poses
-
-    ds = load_dataset(root)
-    table: Table = {}
-    for sc in ds.scenes():
-        if not sc.annotation_path.exists():
-            continue
-        for p in read_poses(sc.annotation_path):
-            ps = table.setdefault((sc.id, p.object), PoseSet())
-            ps.R.append(p.R)
-            ps.t.append(p.t)
-            unc = p.extra.get("uncertainty_mm")
-            ps.values.append(1.0 / (1.0 + float(unc)) if unc is not None else 0.0)
-    return table
 
 
 def per_instance_errors(root: Path) -> list[dict[str, Any]]:

@@ -1,26 +1,42 @@
-"""TP/FP/FN, precision, recall, recall with at most n results, AP and AP_n (paper section 5).
+"""TP/FP/FN, precision, recall, AP, AP_n, mean scene AP and F1: the definitions of the
+authors' published evaluation code (Brégier et al. 2017, ``evaluation_tools.py``), which gives
+the paper's numbers. Every one of them is tested in tests/test_evaluation.py.
 
-Definitions, per scene and object, with ``T`` the true poses, ``T_o`` those of interest
-(occlusion rate below ``max_occlusion``), ``P`` the results, ``d`` the pose distance,
-``m(p, t) = d(p, t) < threshold`` and ``n_S(q)`` the pose of ``S`` nearest to ``q``:
+Per scene and object: ``T`` the true poses, ``P`` the results, ``d`` the pose distance (mm),
+``thr`` the match threshold.
 
-- ``n_T`` is taken over *all* true poses ``T``, so that a result on an instance of no interest
-  that matches it (mutually) is neither a TP nor an FP, as the paper states;
-- TP = {(p, t) in P x T_o : m(p, t), p = n_P(t), t = n_T(p)} (mutual nearest neighbours);
-- FP = {p in P : not m(p, n_T(p)) or n_P(n_T(p)) != p} (so duplicates are FP);
-- FN = {t in T_o : not m(t, n_P(t)) or n_T(n_P(t)) != t};
-- precision = TP / (TP + FP), recall = TP / (TP + FN) = TP / |T_o|;
-- recall with at most n results = TP / min(n, |T_o|), P being the n best-scored results.
+- **To find**: the true poses with occlusion rate ``<= max_occlusion`` (inclusive; an
+  unknown rate, NaN, counts as to find).
+- **Kept results** at a score threshold ``s``: those with score ``>= s`` (ties enter
+  together); with "at most n results", the n best-scored of those (ties broken by file order).
+- ``n_T(p)``: the true pose nearest to result ``p`` among *all* true poses of the scene, to
+  find or not; fixed once for the scene. ``n_P(t)``: the kept result nearest to ``t``.
+- A kept result ``p`` **matches** when ``d(p, n_T(p)) <= thr`` (inclusive). It is a **TP**
+  when it matches, ``n_P(n_T(p)) = p``, and ``n_T(p)`` is to find; an **FP** when it does not
+  match or is not ``n_P(n_T(p))`` (a duplicate); otherwise (a match to a true pose not to
+  find) neither.
+- **FN**: a true pose ``t`` to find whose nearest kept result does not match it back
+  (``n_T(n_P(t)) != t`` or too far), or every ``t`` to find when nothing is kept.
+- precision = TP / (TP + FP), 1 when that is 0; recall = TP / (TP + FN), 1 when that is 0
+  (nothing to find); recall with at most n results = TP / min(n, TP + FN), 1 when that is 0.
 
-Curves: the results are ranked by decreasing score and the sets are recomputed for every
-prefix (every score threshold). A scene's interpolated precision at recall r is the best
-precision at any threshold reaching recall >= r (0 if none), on a grid of 101 recall levels.
-The *mean curve* averages that over the scenes having instances of interest; **AP** is the
-area under the mean curve; **AP_n** is the same with every scene limited to its n best results
-and recall measured as recall with at most n results; *mean scene AP* averages the per-scene
-areas; *best F1* is the best ``2PR / (P + R)`` along the mean curve. A scene without instance of
-interest counts only through its false positives: it adds no recall point (it is excluded from
-the mean curve), which is the usual convention.
+Curves and scores:
+
+- A scene's curve: one (precision, recall) point per threshold ``+inf`` (nothing kept), then
+  every distinct score of its results, descending.
+- The **mean curve** walks the thresholds ``+inf`` and then every distinct score of any scene,
+  descending (the authors' "highest next score of any scene"); at each, every scene gives its
+  point for the results it keeps there, and precision and recall are averaged over **all**
+  scenes (scenes with nothing to find included).
+- **AP** = sum of ``p_i (r_i - r_(i-1))`` along the mean curve, ``r_0 = 0``, no interpolation;
+  **AP_n** the same with at most n results per scene and recall with at most n results;
+  **mean scene AP** (the authors' MAP) applies that formula to each scene's own curve and
+  averages; **F1** is the best ``2pr / (p + r)`` over the points of the mean curve.
+
+Everything is computed per scene with prefix arrays: for results sorted by decreasing score,
+the nearest kept result of every true pose for every prefix comes from one running minimum,
+so a scene costs O(|P| (|P| + |T|)) operations instead of one nearest-neighbour search per
+threshold.
 """
 
 from __future__ import annotations
@@ -30,122 +46,165 @@ from dataclasses import dataclass
 
 import numpy as np
 
-RECALL_GRID = np.linspace(0.0, 1.0, 101)
-
 
 @dataclass(frozen=True)
-class SceneCounts:
-    """TP/FP/FN of one scene and object for each prefix of the score-ranked results."""
+class SceneCurve:
+    """One scene's classification for every number of kept results.
 
-    tp: np.ndarray  # (K+1,) for prefixes of 0..K results
+    Attributes:
+        scores: (|P|,) result scores, sorted decreasing.
+        tp, fp, fn: (|P|+1,) counts when the first k results (by decreasing score) are kept.
+        to_find: Number of true poses to find.
+    """
+
+    scores: np.ndarray
+    tp: np.ndarray
     fp: np.ndarray
-    n_interest: int
+    fn: np.ndarray
+    to_find: int
 
-    @property
-    def fn(self) -> np.ndarray:
-        return self.n_interest - self.tp
+    def kept(self, threshold: np.ndarray | float) -> np.ndarray:
+        """Number of results with score >= ``threshold`` (elementwise)."""
+        return np.searchsorted(-self.scores, -np.asarray(threshold, float), side="right")
+
+    def points(
+        self, kept: np.ndarray, max_results: int | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Precision and recall when ``kept`` results are (each entry a count)."""
+        k = np.asarray(kept, int)
+        if max_results is not None:
+            k = np.minimum(k, max_results)
+        tp, fp, fn = self.tp[k], self.fp[k], self.fn[k]
+        precision = np.where(tp + fp > 0, tp / np.maximum(tp + fp, 1), 1.0)
+        denom = tp + fn if max_results is None else np.minimum(max_results, tp + fn)
+        recall = np.where(denom > 0, tp / np.maximum(denom, 1), 1.0)
+        return precision, recall
+
+    def thresholds(self) -> np.ndarray:
+        """``+inf`` then every distinct score, descending: the scene's own curve."""
+        return np.concatenate([[np.inf], np.unique(self.scores)[::-1]])
 
 
-def scene_counts(
-    distances: np.ndarray, scores: np.ndarray, interest: np.ndarray, threshold: float
-) -> SceneCounts:
-    """Counts for every prefix of the results ranked by decreasing score.
+def scene_curve(
+    distances: np.ndarray,
+    scores: np.ndarray,
+    occlusion: np.ndarray,
+    *,
+    threshold: float,
+    max_occlusion: float,
+) -> SceneCurve:
+    """Classify a scene's results for every number of kept results.
 
     Args:
-        distances: (|P|, |T|) pose distances between results and true poses.
-        scores: (|P|,) result scores.
-        interest: (|T|,) bool, the instances of interest.
-        threshold: match threshold (same unit as distances).
+        distances: (|P|, |T|) pose distances between results and true poses (mm).
+        scores: (|P|,) result scores (finite).
+        occlusion: (|T|,) occlusion rates of the true poses (NaN: unknown, to find).
+        threshold: The match threshold (mm), inclusive.
+        max_occlusion: True poses up to this occlusion rate (inclusive) are to find.
     """
-    n_p, n_t = distances.shape
-    interest = np.asarray(interest, bool)
+    D = np.asarray(distances, float)
+    n_p, n_t = D.shape
+    occ = np.asarray(occlusion, float)
+    to_find = ~(occ > max_occlusion)
+    n_find = int(to_find.sum())
+    # Python's sort, which the reference uses, is stable: equal scores stay in file order.
+    order = np.argsort(-np.asarray(scores, float), kind="stable")
+    sorted_scores = np.asarray(scores, float)[order]
     tp = np.zeros(n_p + 1, int)
     fp = np.zeros(n_p + 1, int)
+    fn = np.full(n_p + 1, n_find)
     if n_p == 0:
-        return SceneCounts(tp, fp, int(interest.sum()))
-    order = np.argsort(-np.asarray(scores, float), kind="stable")
-    D = distances[order]
+        return SceneCurve(sorted_scores, tp, fp, fn, n_find)
     if n_t == 0:
         fp[1:] = np.arange(1, n_p + 1)
-        return SceneCounts(tp, fp, 0)
-    nT = D.argmin(axis=1)  # n_T(p): does not depend on the prefix
-    dT = D[np.arange(n_p), nT]
-    for k in range(1, n_p + 1):
-        nP = D[:k].argmin(axis=0)  # n_P(t) within the k best results
-        mutual = nP[nT[:k]] == np.arange(k)
-        matched = dT[:k] < threshold
-        good = mutual & matched
-        tp[k] = int(np.sum(good & interest[nT[:k]]))
-        fp[k] = int(np.sum(~good))
-    return SceneCounts(tp, fp, int(interest.sum()))
+        return SceneCurve(sorted_scores, tp, fp, fn, n_find)
+    D = D[order]
+    nearest_t = D.argmin(axis=1)  # n_T(p)
+    matched = D[np.arange(n_p), nearest_t] <= threshold
+    # nearest[k - 1, t]: index of n_P(t) among the first k results. A later result takes over
+    # only if strictly nearer (the first of equally near ones stays, as argmin does).
+    running = np.minimum.accumulate(D, axis=0)
+    better = np.zeros_like(D, dtype=bool)
+    better[0] = True
+    better[1:] = D[1:] < running[:-1]
+    nearest = np.maximum.accumulate(np.where(better, np.arange(n_p)[:, None], 0), axis=0)
+    # own[k - 1, p]: result p is n_P(n_T(p)) when the first k are kept.
+    own = nearest[:, nearest_t] == np.arange(n_p)[None, :]
+    kept = np.arange(n_p)[None, :] < np.arange(1, n_p + 1)[:, None]
+    good = kept & own & matched[None, :]
+    tp[1:] = (good & to_find[nearest_t][None, :]).sum(axis=1)
+    fp[1:] = (kept & ~good).sum(axis=1)
+    back = (nearest_t[nearest] == np.arange(n_t)[None, :]) & matched[nearest]
+    fn[1:] = (to_find[None, :] & ~back).sum(axis=1)
+    return SceneCurve(sorted_scores, tp, fp, fn, n_find)
 
 
-def precision_recall(
-    c: SceneCounts, *, max_results: int | None = None
-) -> tuple[np.ndarray, np.ndarray]:
-    """Precision and recall for each non-empty prefix (recall with at most n if given)."""
-    k = np.arange(1, len(c.tp))
-    if max_results is not None:
-        k = k[k <= max_results]
-    tp, fp = c.tp[k], c.fp[k]
-    precision = np.where(tp + fp > 0, tp / np.maximum(tp + fp, 1), 1.0)
-    denom = c.n_interest if max_results is None else min(max_results, c.n_interest)
-    recall = tp / denom if denom > 0 else np.zeros_like(precision)
-    return precision, recall
-
-
-def interpolated_precision(precision: np.ndarray, recall: np.ndarray) -> np.ndarray:
-    """Best precision reaching each recall level of :data:`RECALL_GRID` (0 where unreached)."""
-    out = np.zeros(len(RECALL_GRID))
-    for i, r in enumerate(RECALL_GRID):
-        ok = recall >= r - 1e-12
-        out[i] = precision[ok].max() if np.any(ok) else 0.0
-    return out
+def average_precision(precision: np.ndarray, recall: np.ndarray) -> float:
+    """``sum p_i (r_i - r_(i-1))`` with ``r_0 = 0``, no interpolation."""
+    r = np.asarray(recall, float)
+    return float(np.sum(np.asarray(precision, float) * np.diff(r, prepend=0.0)))
 
 
 @dataclass(frozen=True)
 class Summary:
-    """Aggregated metrics over scenes."""
+    """Scores over a set of scenes (see the module docstring).
+
+    Attributes:
+        ap: AP of the mean curve.
+        ap_n: AP with at most n results per scene, per n.
+        mean_scene_ap: Mean of the scenes' own APs (the authors' MAP).
+        best_f1: Best F1 along the mean curve.
+        precision, recall: The mean curve, one point per threshold.
+        scenes: Number of scenes averaged.
+        tp, fp, fn: Totals with every result kept.
+    """
 
     ap: float
     ap_n: dict[int, float]
     mean_scene_ap: float
     best_f1: float
-    mean_curve: np.ndarray  # precision over RECALL_GRID
+    precision: np.ndarray
+    recall: np.ndarray
     scenes: int
     tp: int
     fp: int
     fn: int
 
 
-def _area(curve: np.ndarray) -> float:
-    return (
-        float(np.trapezoid(curve, RECALL_GRID))
-        if hasattr(np, "trapezoid")
-        else float(np.trapezoid(curve, RECALL_GRID))
-    )
+def mean_curve(
+    curves: Sequence[SceneCurve], max_results: int | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """The mean precision and recall at ``+inf`` and every distinct score of any scene."""
+    if not curves:
+        return np.ones(1), np.ones(1)
+    all_scores = np.concatenate([c.scores for c in curves])
+    thresholds = np.concatenate([[np.inf], np.unique(all_scores)[::-1]])
+    precision = np.zeros(len(thresholds))
+    recall = np.zeros(len(thresholds))
+    for c in curves:
+        p, r = c.points(c.kept(thresholds), max_results)
+        precision += p
+        recall += r
+    return precision / len(curves), recall / len(curves)
 
 
-def summarise(counts: Sequence[SceneCounts], *, max_results: Sequence[int] = ()) -> Summary:
-    """AP, AP_n, mean per-scene AP and best F1 over scenes (see the module docstring)."""
-    scored = [c for c in counts if c.n_interest > 0]
-    curves = [interpolated_precision(*precision_recall(c)) for c in scored]
-    mean = np.mean(curves, axis=0) if curves else np.zeros(len(RECALL_GRID))
-    ap_n = {}
-    for n in max_results:
-        cn = [interpolated_precision(*precision_recall(c, max_results=n)) for c in scored]
-        ap_n[int(n)] = _area(np.mean(cn, axis=0)) if cn else 0.0
+def summarise(curves: Sequence[SceneCurve], *, max_results: Sequence[int] = ()) -> Summary:
+    """AP, AP_n, mean scene AP and best F1 over ``curves`` (see the module docstring)."""
+    precision, recall = mean_curve(curves)
+    ap_n = {int(n): average_precision(*mean_curve(curves, int(n))) for n in max_results}
+    scene_aps = [average_precision(*c.points(c.kept(c.thresholds()))) for c in curves]
     f1 = np.where(
-        mean + RECALL_GRID > 0, 2 * mean * RECALL_GRID / np.maximum(mean + RECALL_GRID, 1e-12), 0.0
+        precision + recall > 0, 2 * precision * recall / np.maximum(precision + recall, 1e-300), 0
     )
     return Summary(
-        ap=_area(mean),
+        ap=average_precision(precision, recall),
         ap_n=ap_n,
-        mean_scene_ap=float(np.mean([_area(c) for c in curves])) if curves else 0.0,
+        mean_scene_ap=float(np.mean(scene_aps)) if scene_aps else 0.0,
         best_f1=float(f1.max()),
-        mean_curve=mean,
-        scenes=len(scored),
-        tp=int(sum(c.tp[-1] for c in counts)),
-        fp=int(sum(c.fp[-1] for c in counts)),
-        fn=int(sum(c.fn[-1] for c in counts)),
+        precision=precision,
+        recall=recall,
+        scenes=len(curves),
+        tp=int(sum(c.tp[-1] for c in curves)),
+        fp=int(sum(c.fp[-1] for c in curves)),
+        fn=int(sum(c.fn[-1] for c in curves)),
     )

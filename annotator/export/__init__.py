@@ -1,2 +1,3 @@
-"""Exporting accepted scenes: to the BOP format (:mod:`.bop`) and to the paper's own dataset
-format (:mod:`.sileane`); which scenes go out is decided by :mod:`.selection`."""
+"""Exporting accepted scenes of one of our datasets: which scenes go out (:mod:`.selection`),
+what is read from each (:mod:`.inputs`) and the undistortion to pinhole cameras
+(:mod:`.undistort`). The writers are the formats' own (:mod:`annotator.formats`)."""

@@ -1,6 +1,6 @@
 """Geometry shared by every stage of the pipeline.
 
-Conventions, stated once for the whole project (they follow ../shared/FORMAT.md):
+Conventions, stated once for the whole project (they follow docs/FORMAT.md):
 
 - Lengths are millimetres; angles radians.
 - A rigid transform ``a_T_b`` is a 4x4 homogeneous matrix mapping coordinates in frame ``b``

@@ -62,6 +62,14 @@ class Mesh:
         """Exact surface moments (area, centroid, second moments about the centroid)."""
         return surface_moments(self.vertices, self.faces)
 
+    @cached_property
+    def is_watertight(self) -> bool:
+        """True if every edge is shared by exactly two triangles once coincident vertices
+        are merged (a closed surface)."""
+        import trimesh
+
+        return bool(trimesh.Trimesh(self.vertices, self.faces, process=True).is_watertight)
+
     def to_trimesh(self):  # noqa: ANN201 - trimesh is imported lazily
         """This mesh as a ``trimesh.Trimesh`` (no processing)."""
         import trimesh

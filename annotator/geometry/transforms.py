@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial.transform import Rotation
+
+# scipy.spatial is imported inside the functions that need it: it costs a third of a second,
+# which commands such as ``evaluate`` would otherwise pay at start-up.
 
 
 def make_transform(R: np.ndarray, t: np.ndarray) -> np.ndarray:
@@ -43,11 +45,15 @@ def nearest_rotation(M: np.ndarray) -> np.ndarray:
 
 def rotvec_to_matrix(rotvec: np.ndarray) -> np.ndarray:
     """Rotation vector (axis * angle, shape (..., 3)) to rotation matrices (..., 3, 3)."""
+    from scipy.spatial.transform import Rotation
+
     return Rotation.from_rotvec(np.asarray(rotvec, dtype=float)).as_matrix()
 
 
 def matrix_to_rotvec(R: np.ndarray) -> np.ndarray:
     """Rotation matrices (..., 3, 3) to rotation vectors (..., 3)."""
+    from scipy.spatial.transform import Rotation
+
     return Rotation.from_matrix(np.asarray(R, dtype=float)).as_rotvec()
 
 
@@ -59,4 +65,6 @@ def axis_angle(axis: np.ndarray, angle: float) -> np.ndarray:
 
 def random_rotations(n: int, rng: np.random.Generator) -> np.ndarray:
     """``n`` rotations drawn uniformly from SO(3), shape (n, 3, 3)."""
+    from scipy.spatial.transform import Rotation
+
     return Rotation.random(n, random_state=rng).as_matrix()

@@ -1,31 +1,65 @@
 """Atomic file writes: a temporary file in the same folder, fsync, then ``os.replace``.
 
 A reader (or a crash) therefore sees either the old file or the new one, never half of one.
+
+Modes: files and folders get the mode a plain ``open()`` / ``mkdir()`` would give them under
+the process's umask (0644 and 0755 under umask 022), and a replaced file keeps its mode, so a
+dataset shared between users stays readable by them.
+
+A write that fails (read-only folder, full disk, a folder in the way) raises
+:class:`WriteError`: a one-line :class:`~annotator.errors.UserError` naming the file, which
+is also an ``OSError`` for callers that catch those.
 """
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import shutil
+import stat
 import tempfile
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
+from annotator.errors import UserError
+
+
+class WriteError(UserError, OSError):
+    """A file or folder could not be written (the message names it and says why)."""
+
+
+def _umask() -> int:
+    # The only portable way to read the umask is to set it; set it straight back.
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
 
 def write_bytes(path: str | Path, data: bytes) -> None:
     """Write ``data`` to ``path`` atomically, creating parent folders as needed."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        try:
+            mode = stat.S_IMODE(path.stat().st_mode)
+        except FileNotFoundError:
+            mode = 0o666 & ~_umask()
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    except OSError as exc:
+        raise WriteError(f"cannot write ({exc.strerror or exc})", path=path) from None
     try:
         with os.fdopen(fd, "wb") as f:
+            os.fchmod(f.fileno(), mode)
             f.write(data)
             f.flush()
             os.fsync(f.fileno())
         os.replace(tmp, path)
+    except OSError as exc:
+        Path(tmp).unlink(missing_ok=True)
+        raise WriteError(f"cannot write ({exc.strerror or exc})", path=path) from None
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
@@ -58,18 +92,79 @@ def atomic_folder(out: str | Path) -> Iterator[Path]:
     """Build a folder in a temporary sibling and put it in place of ``out`` only on success.
 
     Whatever goes wrong inside the ``with`` block (an error, Ctrl-C), ``out`` is left as it was
-    and the temporary folder is removed: never half a dataset or half an export.
+    and the temporary folder is removed: never half a dataset or half an export. The old
+    ``out`` is moved aside before the new one takes its name and deleted only after, so a
+    crash at any moment leaves one of the two complete.
+
+    The temporary folder ``.<out>.<random>`` is locked (``flock``) while it is being built; one
+    left behind by a killed process is no longer locked and is removed by the next call for
+    the same ``out``, while one that another running process is building is left alone.
     """
     out = Path(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        _remove_abandoned(out)
+        tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
+        os.chmod(tmp, 0o777 & ~_umask())
+    except OSError as exc:
+        raise WriteError(f"cannot create the folder ({exc.strerror or exc})", path=out) from None
+    lock = _lock(tmp)
     try:
         yield tmp
-        if out.is_dir():
-            shutil.rmtree(out)
-        elif out.exists():
-            out.unlink()
+        old = None
+        if out.exists() or out.is_symlink():
+            old = out.parent / f".{out.name}.old.{os.getpid()}"
+            out.rename(old)
         tmp.rename(out)
+        if old is not None:
+            if old.is_dir() and not old.is_symlink():
+                shutil.rmtree(old, ignore_errors=True)
+            else:
+                old.unlink(missing_ok=True)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
+    finally:
+        if lock is not None:
+            os.close(lock)
+
+
+def _lock(folder: Path) -> int | None:
+    """An exclusive ``flock`` on ``folder`` (held until the descriptor is closed)."""
+    try:
+        import fcntl
+    except ImportError:  # not POSIX: abandoned folders are then left for the user
+        return None
+    fd = os.open(folder, os.O_RDONLY)
+    fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    return fd
+
+
+def _remove_abandoned(out: Path) -> None:
+    """Delete temporary siblings of ``out`` whose builder is gone (their lock is free)."""
+    try:
+        import fcntl
+    except ImportError:
+        return
+    prefix = f".{out.name}."
+    for cand in sorted(out.parent.iterdir()):
+        if not cand.name.startswith(prefix) or not cand.is_dir() or cand.is_symlink():
+            continue
+        if cand.name.startswith(prefix + "old.") and not out.exists():
+            # Killed between moving the old folder aside and putting the new one in place:
+            # the old one is still whole, so it goes back.
+            with contextlib.suppress(OSError):
+                cand.rename(out)
+            continue
+        try:
+            fd = os.open(cand, os.O_RDONLY)
+        except OSError:
+            continue
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            os.close(fd)  # another process is building it right now
+            continue
+        with contextlib.suppress(OSError):
+            shutil.rmtree(cand)
+        os.close(fd)

@@ -7,6 +7,11 @@ Depth maps are uint16 PNGs; ``scale`` converts units to millimetres and 0 means
 
 from __future__ import annotations
 
+import os
+import sys
+import threading
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import cv2
@@ -22,10 +27,36 @@ def read_image(path: str | Path) -> np.ndarray:
     if not path.is_file():
         raise UserError("image file is missing", path=path)
     data = np.fromfile(path, dtype=np.uint8)
-    img = cv2.imdecode(data, cv2.IMREAD_UNCHANGED) if data.size else None
+    with _native_stderr_hidden():
+        img = cv2.imdecode(data, cv2.IMREAD_UNCHANGED) if data.size else None
     if img is None:
         raise UserError("unreadable or corrupt image", path=path)
     return img
+
+
+_STDERR = threading.Lock()
+
+
+@contextmanager
+def _native_stderr_hidden() -> Iterator[None]:
+    """Silence what native code writes to file descriptor 2 meanwhile.
+
+    libpng and OpenCV print their own lines ("libpng error: ...", "[ WARN:0] ...") on a
+    corrupt file before returning the failure that we report as one clear line. (Output of
+    other threads in these few milliseconds is lost too; batch workers decode in their own
+    processes.)
+    """
+    with _STDERR:
+        sys.stderr.flush()
+        saved = os.dup(2)
+        null = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(null, 2)
+        os.close(null)
+        try:
+            yield
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
 
 
 def to_gray8(img: np.ndarray) -> np.ndarray:

@@ -18,15 +18,15 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial import cKDTree
 
-from annotator.dataset.model import Symmetry
 from annotator.geometry.mesh import SurfaceMoments
-from annotator.symmetry.group import finite_group
+from annotator.symmetry.classes import Symmetry, group_of
 
 
 def _frame_with_z(axis: np.ndarray) -> np.ndarray:
     z = axis / np.linalg.norm(axis)
+    if z[2] > 1.0 - 1e-12:
+        return np.eye(3)  # the model's own axes when they already fit
     ref = np.array([1.0, 0.0, 0.0]) if abs(z[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
     x = np.cross(ref, z)
     x /= np.linalg.norm(x)
@@ -62,7 +62,7 @@ class PoseSpace:
         L = (V * np.sqrt(np.clip(w, 0, None))) @ V.T
         group = np.eye(3)[None]
         if kind == "finite":
-            group = np.einsum("ij,gjk,kl->gil", B.T, finite_group(symmetry.generators), B)
+            group = np.einsum("ij,gjk,kl->gil", B.T, group_of(symmetry), B)
         lam = 0.0
         if kind in ("revolution", "revolution_flip"):
             # Radial moments are equal for a true solid of revolution; average the tessellation's.
@@ -107,20 +107,12 @@ class PoseSpace:
         self, R1: np.ndarray, t1: np.ndarray, R2: np.ndarray, t2: np.ndarray
     ) -> np.ndarray:
         """Pairwise-aligned distances between poses 1 and poses 2 (same N), shape (N,)."""
+        R1 = np.asarray(R1, float).reshape(-1, 3, 3)
+        R2 = np.asarray(R2, float).reshape(-1, 3, 3)
         if self.kind in ("none", "finite"):
-            # ||R1' L - R2' G L||^2 = 2 tr(L^2) - 2 tr(R1'^T R2' G L^2): one (N, 9) x (9, G)
-            # product instead of N x G differences of 12-D points.
-            R1 = np.asarray(R1, float).reshape(-1, 3, 3)
-            R2 = np.asarray(R2, float).reshape(-1, 3, 3)
-            M = np.matmul(np.swapaxes(R1, 1, 2), R2)  # R1^T R2, model axes
-            # tr(B^T M B G L^2) = <M, B (G L^2)^T B^T>_F
-            W = np.matmul(np.matmul(self.B, np.matmul(self.group, self.L @ self.L)), self.B.T)
-            best = (M.reshape(-1, 9) @ np.swapaxes(W, 1, 2).reshape(-1, 9).T).max(axis=1)
-            dt = (np.asarray(t1, float).reshape(-1, 3) + R1 @ self.centroid) - (
-                np.asarray(t2, float).reshape(-1, 3) + R2 @ self.centroid
-            )
-            sq = 2 * np.trace(self.L @ self.L) - 2 * best + np.einsum("ni,ni->n", dt, dt)
-            return np.sqrt(np.clip(sq, 0.0, None))
+            sq = self._rotation_term(np.matmul(np.swapaxes(R1, 1, 2), R2))
+            dt = self._origin(R1, t1) - self._origin(R2, t2)
+            return np.sqrt(np.clip(sq + np.einsum("ni,ni->n", dt, dt), 0.0, None))
         a = self.representatives(R1, t1)[:, 0]
         b = self.representatives(R2, t2)
         return np.linalg.norm(b - a[:, None], axis=2).min(axis=1)
@@ -129,18 +121,40 @@ class PoseSpace:
         self, R1: np.ndarray, t1: np.ndarray, R2: np.ndarray, t2: np.ndarray
     ) -> np.ndarray:
         """All distances between poses 1 (N) and poses 2 (M), shape (N, M)."""
+        R1 = np.asarray(R1, float).reshape(-1, 3, 3)
+        R2 = np.asarray(R2, float).reshape(-1, 3, 3)
+        n, m = len(R1), len(R2)
+        if n == 0 or m == 0:
+            return np.zeros((n, m))
+        if self.kind in ("none", "finite"):
+            M = np.einsum("aji,bjk->abik", R1, R2)  # R1^T R2 for every pair
+            sq = self._rotation_term(M.reshape(-1, 3, 3)).reshape(n, m)
+            dt = self._origin(R1, t1)[:, None] - self._origin(R2, t2)[None]
+            return np.sqrt(np.clip(sq + np.einsum("abi,abi->ab", dt, dt), 0.0, None))
         a = self.representatives(R1, t1)[:, 0]
         b = self.representatives(R2, t2)
-        if len(a) == 0 or len(b) == 0:
-            return np.zeros((len(a), len(b)))
         d = np.linalg.norm(a[:, None, None, :] - b[None], axis=3)
         return d.min(axis=2)
+
+    def _origin(self, R: np.ndarray, t: np.ndarray) -> np.ndarray:
+        """Where poses put the centroid: the translation part of the representatives."""
+        return np.asarray(t, float).reshape(-1, 3) + R @ self.centroid
+
+    def _rotation_term(self, M: np.ndarray) -> np.ndarray:
+        """``min_G ||R1' L - R2' G L||_F^2`` from ``M = R1^T R2`` (model axes), shape (N,):
+        ``2 tr(L L^T) - 2 max_G tr(M B G L L^T B^T)``, one (N, 9) x (9, G) product instead
+        of N x G differences of 12-D points."""
+        W = np.matmul(np.matmul(self.B, np.matmul(self.group, self.L @ self.L.T)), self.B.T)
+        best = (M.reshape(-1, 9) @ np.swapaxes(W, 1, 2).reshape(-1, 9).T).max(axis=1)
+        return 2 * np.trace(self.L @ self.L.T) - 2 * best
 
     def nearest(
         self, R_query: np.ndarray, t_query: np.ndarray, R_set: np.ndarray, t_set: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray]:
         """For each query pose, the index of the nearest pose of the set and the distance
         (KD-tree over the set's representatives)."""
+        from scipy.spatial import cKDTree
+
         reps = self.representatives(R_set, t_set)
         owner = np.repeat(np.arange(len(reps)), self.count)
         tree = cKDTree(reps.reshape(-1, self.dim))

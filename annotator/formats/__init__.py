@@ -1,0 +1,45 @@
+"""Dataset formats: ours (docs/FORMAT.md), BOP, and the paper's own (Siléane).
+
+One module per format, each with the same functions, found by name in :data:`FORMATS`:
+
+- ``detect(path) -> bool``: is this folder in the format?
+- ``read_ground_truth(path, *, symmetry=None) -> GroundTruth``: true poses, occlusion rates
+  and the objects' pose spaces, in millimetres;
+- ``read_results(path, gt) -> Results``: results to score, in millimetres;
+- ``export(ds, selected, out, *, cameras, progress) -> failed`` (BOP and Siléane): accepted
+  scenes of one of our datasets, written into an empty folder.
+
+Each module also holds its format's symmetry mapping. Adding a format is adding a module here.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from types import ModuleType
+
+from annotator.errors import UserError
+from annotator.formats import bop, ours, sileane
+
+FORMATS: dict[str, ModuleType] = {m.NAME: m for m in (ours, bop, sileane)}
+EXPORTS: tuple[str, ...] = tuple(n for n, m in FORMATS.items() if hasattr(m, "export"))
+
+
+def get_format(name: str) -> ModuleType:
+    """The format module called ``name`` (UserError listing the known ones otherwise)."""
+    if name not in FORMATS:
+        raise UserError(f"unknown format {name!r} (expected one of {', '.join(FORMATS)})")
+    return FORMATS[name]
+
+
+def detect_format(path: str | Path) -> ModuleType:
+    """The format of the dataset folder ``path`` (UserError if none matches)."""
+    path = Path(path)
+    if not path.is_dir():
+        raise UserError("dataset folder does not exist", path=path)
+    for module in FORMATS.values():
+        if module.detect(path):
+            return module
+    raise UserError(
+        "not a dataset: no dataset.yaml (ours), models/models_info.json (BOP) or gt/ (Siléane)",
+        path=path,
+    )

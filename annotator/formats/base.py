@@ -1,0 +1,203 @@
+"""What every dataset format's reader returns, and the checks they share.
+
+Units: millimetres for every pose handed to the evaluation, whatever the file's unit (the
+paper's format stores metres); the reader converts.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from annotator.errors import UserError
+from annotator.geometry.transforms import is_rotation
+from annotator.symmetry.space import PoseSpace
+
+
+@dataclass
+class PoseSet:
+    """Poses of one object in one scene, with one value each: the occlusion rate for ground
+    truth (NaN: unknown), the score for results."""
+
+    R: list[np.ndarray] = field(default_factory=list)
+    t: list[np.ndarray] = field(default_factory=list)
+    values: list[float] = field(default_factory=list)
+
+    def add(self, R: np.ndarray, t: np.ndarray, value: float) -> None:
+        self.R.append(R)
+        self.t.append(t)
+        self.values.append(value)
+
+    def arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        n = len(self.R)
+        return (
+            np.asarray(self.R, float).reshape(n, 3, 3),
+            np.asarray(self.t, float).reshape(n, 3),
+            np.asarray(self.values, float).reshape(n),
+        )
+
+
+Table = dict[tuple[str, str], PoseSet]  # (scene key, object) -> poses
+
+
+@dataclass
+class GroundTruth:
+    """True poses of a dataset, as the evaluation needs them.
+
+    Attributes:
+        spaces: Pose space (distance, diameter) per object name.
+        poses: True poses per (scene, object), occlusion rates as values.
+        scenes: Every scene key, in order.
+        format: The format's name (``ours``, ``bop``, ``sileane``).
+        unit: The length unit of its files (``mm`` or ``m``), which results in the same
+            format's per-scene JSON lists also use.
+        object_ids: Numeric object ids (BOP CSV) to names.
+        thresholds: Match thresholds (mm) that the dataset itself prescribes, per object
+            (the paper's files carry one).
+    """
+
+    spaces: dict[str, PoseSpace]
+    poses: Table
+    scenes: list[str]
+    format: str
+    unit: str = "mm"
+    object_ids: dict[int, str] = field(default_factory=dict)
+    thresholds: dict[str, float] = field(default_factory=dict)
+
+
+@dataclass
+class Results:
+    """Results to score: poses per (scene, object) with scores as values; ``unknown_scenes``
+    are scene keys found in the results but not in the ground truth (they are not scored);
+    ``scenes`` the known scenes the results mention (a file with an empty list included)."""
+
+    poses: Table
+    unknown_scenes: list[str] = field(default_factory=list)
+    scenes: set[str] = field(default_factory=set)  # scenes mentioned, with results or not
+
+    def __post_init__(self) -> None:
+        self.scenes |= {scene for scene, _ in self.poses}
+
+
+def load_json(path: Path) -> Any:
+    """A JSON file, or a one-line UserError naming it."""
+    try:
+        return json.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise UserError("file is missing", path=path) from None
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise UserError(f"not valid JSON ({exc})", path=path) from None
+    except OSError as exc:
+        raise UserError(f"cannot read ({exc.strerror})", path=path) from None
+
+
+def checked_pose(
+    R: Any, t: Any, where: str, path: Path, *, scale: float = 1.0
+) -> tuple[np.ndarray, np.ndarray]:
+    """``R`` (9 numbers or 3x3) and ``t`` (3 numbers, times ``scale``) as arrays, or a
+    one-line UserError naming the file, ``where`` (line or entry) and the field."""
+    try:
+        Rm = np.asarray(R, float).reshape(3, 3)
+    except (TypeError, ValueError):
+        raise UserError(f"{where}: R must be 9 numbers", path=path) from None
+    try:
+        tv = np.asarray(t, float).reshape(3) * scale
+    except (TypeError, ValueError):
+        raise UserError(f"{where}: t must be 3 numbers", path=path) from None
+    if not np.all(np.isfinite(Rm)):
+        raise UserError(f"{where}: R has a NaN or infinite value", path=path)
+    if not np.all(np.isfinite(tv)):
+        raise UserError(f"{where}: t has a NaN or infinite value", path=path)
+    if not is_rotation(Rm, tol=1e-3):
+        raise UserError(f"{where}: R is not a rotation matrix", path=path)
+    return Rm, tv
+
+
+def checked_poses(
+    Rs: list[Any], ts: list[Any], where: Callable[[int], str], path: Path, *, scale: float = 1.0
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`checked_pose` for many poses at once: (N, 3, 3) and (N, 3) arrays. The first
+    bad pose is reported as :func:`checked_pose` would (``where(i)`` names entry i)."""
+    n = len(Rs)
+    try:
+        R = np.asarray(Rs, float).reshape(n, 3, 3)
+        t = np.asarray(ts, float).reshape(n, 3) * scale
+        ok = (
+            np.isfinite(R).all(axis=(1, 2))
+            & np.isfinite(t).all(axis=1)
+            & (np.abs(R @ np.swapaxes(R, 1, 2) - np.eye(3)).max(axis=(1, 2)) < 1e-3)
+            & (np.abs(np.linalg.det(R) - 1.0) < 1e-3)
+        )
+    except (TypeError, ValueError):
+        ok = np.zeros(n, bool)
+    if not ok.all():
+        for i in np.flatnonzero(~ok):
+            checked_pose(Rs[i], ts[i], where(i), path, scale=scale)  # raises for the culprit
+        raise AssertionError("unreachable: a pose failed the batch check but not its own")
+    return R, t
+
+
+def checked_score(value: Any, where: str, path: Path) -> float:
+    """A finite score, or a one-line UserError."""
+    try:
+        score = float(value)
+    except (TypeError, ValueError):
+        raise UserError(f"{where}: score must be a number, got {value!r}", path=path) from None
+    if not math.isfinite(score):
+        raise UserError(f"{where}: score is {value!r}; it must be finite", path=path)
+    return score
+
+
+def read_json_lists(
+    folder: Path,
+    gt: GroundTruth,
+    *,
+    scale: float,
+    scene_key: Callable[[str], str] = lambda stem: stem,
+) -> Results:
+    """A folder of ``<scene>.json`` files, each a list of ``{"object"?, "R", "t", "score"}``
+    (the paper's results format; ``object`` may be left out when there is one object).
+    ``t`` is multiplied by ``scale`` to give millimetres."""
+    table: Table = {}
+    unknown = []
+    mentioned = set()
+    known = set(gt.scenes)
+    single = next(iter(gt.spaces)) if len(gt.spaces) == 1 else None
+    for f in sorted(folder.glob("*.json")):
+        doc = load_json(f)
+        if not isinstance(doc, list):
+            raise UserError("expected a JSON list of {R, t, score}", path=f)
+        key = scene_key(f.stem)
+        if key not in known:
+            unknown.append(f.stem)
+            continue
+        mentioned.add(key)
+        objects, scores = [], []
+        for i, r in enumerate(doc):
+            where = f"entry {i}"
+            if not isinstance(r, dict):
+                raise UserError(f"{where}: expected an object {{R, t, score}}", path=f)
+            obj = str(r["object"]) if "object" in r else single
+            if obj not in gt.spaces:
+                what = f"unknown object {obj!r}" if obj else "'object' is required"
+                raise UserError(f"{where}: {what} (objects: {', '.join(gt.spaces)})", path=f)
+            if "score" not in r:
+                raise UserError(f"{where}: 'score' is missing", path=f)
+            objects.append(obj)
+            scores.append(checked_score(r["score"], where, f))
+        R, t = checked_poses(
+            [r.get("R") for r in doc],
+            [r.get("t") for r in doc],
+            lambda i: f"entry {i}",
+            f,
+            scale=scale,
+        )
+        for i, obj in enumerate(objects):
+            table.setdefault((key, obj), PoseSet()).add(R[i], t[i], scores[i])
+    return Results(table, unknown, mentioned)

@@ -1,0 +1,88 @@
+"""Our own dataset format (docs/FORMAT.md) as ground truth and results for the evaluation.
+
+- Ground truth: ``scenes/<id>/gt.json``, or ``annotation.json`` when a scene has no gt.json;
+  occlusion from each instance's ``occlusion.rate`` (or ``occlusion_rate``); symmetries from
+  object.yaml (see :mod:`annotator.symmetry.classes`). Millimetres.
+- Results: a folder of ``<scene>.json`` lists (millimetres), a BOP CSV (see
+  :mod:`annotator.formats.bop`), or, with no results given, the dataset's own annotation.json
+  poses (how good is the auto-annotation against gt.json).
+
+The dataset itself is written by ``annotator synth`` and ``annotator markers``
+(:mod:`annotator.dataset.write`); there is no export to this format.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from annotator.formats.base import GroundTruth, PoseSet, Results, Table, read_json_lists
+
+NAME = "ours"
+
+
+def detect(path: Path) -> bool:
+    return (path / "dataset.yaml").is_file()
+
+
+def _occlusion(extra: dict) -> float:
+    occ = extra.get("occlusion")
+    if isinstance(occ, dict) and occ.get("rate") is not None:
+        return float(occ["rate"])
+    if extra.get("occlusion_rate") is not None:
+        return float(extra["occlusion_rate"])
+    return float("nan")
+
+
+def read_ground_truth(path: Path, *, symmetry: str | None = None) -> GroundTruth:
+    from annotator.dataset import load_dataset, read_poses
+    from annotator.symmetry import PoseSpace
+
+    ds = load_dataset(path)
+    spaces = {n: PoseSpace.from_moments(o.mesh.moments, o.symmetry) for n, o in ds.objects.items()}
+    table: Table = {}
+    scenes = []
+    for sc in ds.scenes():
+        src = sc.gt_path if sc.gt_path.exists() else sc.annotation_path
+        if not src.exists():
+            continue
+        scenes.append(sc.id)
+        for p in read_poses(src):
+            table.setdefault((sc.id, p.object), PoseSet()).add(p.R, p.t, _occlusion(p.extra))
+    ids = {k + 1: n for k, n in enumerate(ds.objects)}
+    return GroundTruth(spaces, table, scenes, NAME, "mm", ids)
+
+
+def read_results(path: Path, gt: GroundTruth) -> Results:
+    if path.is_dir():
+        return read_json_lists(path, gt, scale=1.0, scene_key=lambda stem: _scene_key(stem, gt))
+    from annotator.formats.bop import read_csv_results
+
+    return read_csv_results(path, gt, scene_key=lambda sid, im: _scene_key(sid, gt))
+
+
+def _scene_key(scene_id: str, gt: GroundTruth) -> str:
+    """Our scene folder for a results id: the same name, or the same number (``12`` for
+    ``000012``)."""
+    if scene_id in gt.scenes:
+        return scene_id
+    if scene_id.isdigit():
+        for s in gt.scenes:
+            if s.isdigit() and int(s) == int(scene_id):
+                return s
+    return scene_id
+
+
+def annotations_as_results(root: Path, gt: GroundTruth) -> Results:
+    """annotation.json poses as results, scored ``1 / (1 + uncertainty_mm)``."""
+    from annotator.dataset import load_dataset, read_poses
+
+    ds = load_dataset(root)
+    table: Table = {}
+    for sc in ds.scenes():
+        if not sc.annotation_path.exists():
+            continue
+        for p in read_poses(sc.annotation_path):
+            unc = p.extra.get("uncertainty_mm")
+            score = 1.0 / (1.0 + float(unc)) if unc is not None else 0.0
+            table.setdefault((sc.id, p.object), PoseSet()).add(p.R, p.t, score)
+    return Results(table)
