@@ -1,0 +1,32 @@
+"""Rig calibration from synchronised shots of a ChArUco board (``annotator calibrate``).
+
+One concept per module:
+
+- :mod:`.board`: the board (``board.yaml``, OpenCV's ``CharucoBoard``, its corners);
+- :mod:`.captures`: the captures folder, ``CAPTURES/<camera>/<shot>.png``, and its checks;
+- :mod:`.detect`: the board's chessboard corners in one image (OpenCV's ChArUco detector);
+- :mod:`.solve`: screening, per-camera ``calibrateCamera``, initial extrinsics, outliers;
+- :mod:`.bundle`: the joint Levenberg-Marquardt refinement of every camera and shot;
+- :mod:`.report`: RMS per camera and shot, rejections, coverage pictures, ``report.json``;
+- :mod:`.rig_yaml`: the ``rig:`` block of ``dataset.yaml``, spliced in, and its diff;
+- :mod:`.baseline`: OpenCV's own stereo pipelines, the reference in tests and benchmarks.
+
+Typical use::
+
+    from annotator.calibration.board import read_board_yaml
+    from annotator.calibration.captures import find_captures, read_images
+    from annotator.calibration.detect import BoardDetector
+    from annotator.calibration.solve import View, calibrate_rig
+
+    board = read_board_yaml("captures/board.yaml")
+    caps = find_captures("captures")
+    detector = BoardDetector(board)
+    views, sizes = [], {}
+    for c, s, img in read_images(caps):
+        det = detector.detect(img)
+        views.append(View(c, s, det.ids, det.corners, det.markers))
+        sizes[c] = (img.shape[1], img.shape[0])
+    cal = calibrate_rig(views, cameras=caps.cameras, sizes=[sizes[c] for c in sorted(sizes)],
+                        shots=caps.shots, board=board)
+    cal.rig_cameras  # Camera objects: K, dist, rig_T_cam
+"""

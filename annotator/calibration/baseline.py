@@ -1,0 +1,96 @@
+"""OpenCV's own two-camera calibration pipelines, kept as the reference that the joint
+refinement (:mod:`annotator.calibration.solve`) is measured against (tests, benchmark).
+
+- **Two-step:** ``calibrateCamera`` per camera, then ``stereoCalibrate`` with the intrinsics
+  fixed (``CALIB_FIX_INTRINSIC``): the extrinsics absorb the intrinsics' errors.
+- **Joint:** ``stereoCalibrate`` initialised from the per-camera results with every
+  intrinsic free (``CALIB_USE_INTRINSIC_GUESS``): one Levenberg-Marquardt over both cameras'
+  intrinsics, the relative pose and the board poses, but only on the shots both cameras saw
+  and only on the corners both found in them.
+
+Both use every view with at least ``min_corners`` corners, OpenCV's default distortion model
+(k1, k2, p1, p2, k3) and up to 100 iterations.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from annotator.calibration.board import BoardSpec
+from annotator.calibration.solve import View
+from annotator.geometry.transforms import invert, make_transform
+
+_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-12)
+
+
+@dataclass(frozen=True)
+class StereoResult:
+    """Intrinsics of both cameras and ``rig_T_cam`` of the second (camera 0 = rig frame)."""
+
+    K: tuple[np.ndarray, np.ndarray]
+    dist: tuple[np.ndarray, np.ndarray]
+    rig_T_cam1: np.ndarray
+    rms_px: float
+
+
+def opencv_stereo(
+    views: Sequence[View],
+    board: BoardSpec,
+    sizes: Sequence[tuple[int, int]],
+    *,
+    joint: bool,
+    min_corners: int = 8,
+) -> StereoResult:
+    """OpenCV's two-step (``joint=False``) or joint (``joint=True``) stereo calibration of
+    cameras 0 and 1 from the same detections the rig calibration uses."""
+    good = [v for v in views if len(v.ids) >= min_corners and v.camera in (0, 1)]
+    Ks, dists = [], []
+    for c in (0, 1):
+        mine = [v for v in good if v.camera == c]
+        _, K, dist, _, _ = cv2.calibrateCamera(
+            [board.corners[v.ids].astype(np.float32).reshape(-1, 1, 3) for v in mine],
+            [v.corners.astype(np.float32).reshape(-1, 1, 2) for v in mine],
+            tuple(sizes[c]),
+            None,
+            None,
+            criteria=_CRITERIA,
+        )
+        Ks.append(K)
+        dists.append(np.asarray(dist, float).reshape(-1)[:5])
+    by_shot: dict[int, dict[int, View]] = {}
+    for v in good:
+        by_shot.setdefault(v.shot, {})[v.camera] = v
+    obj, img0, img1 = [], [], []
+    for pair in by_shot.values():
+        if len(pair) < 2:
+            continue
+        common, i0, i1 = np.intersect1d(pair[0].ids, pair[1].ids, return_indices=True)
+        if len(common) < min_corners:
+            continue
+        obj.append(board.corners[common].astype(np.float32).reshape(-1, 1, 3))
+        img0.append(pair[0].corners[i0].astype(np.float32).reshape(-1, 1, 2))
+        img1.append(pair[1].corners[i1].astype(np.float32).reshape(-1, 1, 2))
+    flags = cv2.CALIB_USE_INTRINSIC_GUESS if joint else cv2.CALIB_FIX_INTRINSIC
+    rms, K0, d0, K1, d1, R, T, _, _ = cv2.stereoCalibrate(
+        obj,
+        img0,
+        img1,
+        Ks[0].copy(),
+        dists[0].copy(),
+        Ks[1].copy(),
+        dists[1].copy(),
+        tuple(sizes[0]),
+        flags=flags,
+        criteria=_CRITERIA,
+    )
+    cam1_T_cam0 = make_transform(R, np.ravel(T))
+    return StereoResult(
+        K=(np.asarray(K0, float), np.asarray(K1, float)),
+        dist=(np.asarray(d0, float).reshape(-1)[:5], np.asarray(d1, float).reshape(-1)[:5]),
+        rig_T_cam1=invert(cam1_T_cam0),
+        rms_px=float(rms),
+    )

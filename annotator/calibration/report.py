@@ -1,0 +1,200 @@
+"""What a calibration shows its user: per camera and per shot RMS, rejected shots and why,
+and how much of each image the board's corners covered (a picture per camera).
+
+Coverage: the image is divided into ``COVERAGE_GRID`` cells; a cell is covered if at least
+one corner used by the calibration fell in it. Lens distortion is only measured where
+corners were seen, so uncovered cells (typically the image corners) are where the model is
+extrapolated. The picture (``coverage_<camera>.png``) shades each cell by its number of
+corners, draws every used corner (green) and every outlier (red) with its residual
+magnified (by the factor printed at the top, the median residual drawn 8 px long), and
+prints the figures at the top.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from annotator.calibration.board import BoardSpec
+from annotator.calibration.solve import Calibration
+from annotator.io.atomic import write_json
+from annotator.io.images import write_png
+
+#: Columns and rows of the coverage grid.
+COVERAGE_GRID = (8, 6)
+#: Residual vectors are magnified so that the median one is drawn this long (picture px).
+RESIDUAL_LENGTH = 8.0
+#: The picture is at most this wide (px).
+PICTURE_WIDTH = 1024
+
+
+def coverage(cal: Calibration, camera: int) -> tuple[float, np.ndarray]:
+    """Fraction of the grid cells covered by used corners, and the (rows, cols) counts."""
+    w, h = cal.sizes[camera]
+    sel = cal.used & (cal.corners.camera == camera)
+    uv = cal.corners.pixel[sel]
+    cols, rows = COVERAGE_GRID
+    i = np.clip(((uv[:, 1] + 0.5) / h * rows).astype(int), 0, rows - 1)
+    j = np.clip(((uv[:, 0] + 0.5) / w * cols).astype(int), 0, cols - 1)
+    counts = np.zeros((rows, cols), int)
+    np.add.at(counts, (i, j), 1)
+    return float((counts > 0).mean()), counts
+
+
+def coverage_picture(cal: Calibration, camera: int) -> np.ndarray:
+    """The coverage picture of a camera (BGR uint8, at most ``PICTURE_WIDTH`` wide)."""
+    w, h = cal.sizes[camera]
+    s = min(1.0, PICTURE_WIDTH / w)
+    W, H = round(w * s), round(h * s)
+    banner = 44
+    img = np.full((H + banner, W, 3), 24, np.uint8)
+    frac, counts = coverage(cal, camera)
+    rows, cols = counts.shape
+    top = counts.max() if counts.max() > 0 else 1
+    for r in range(rows):
+        for c in range(cols):
+            x0, x1 = round(c * W / cols), round((c + 1) * W / cols)
+            y0, y1 = banner + round(r * H / rows), banner + round((r + 1) * H / rows)
+            if counts[r, c]:
+                level = 0.25 + 0.75 * counts[r, c] / top
+                img[y0:y1, x0:x1] = (int(40 * level), int(110 * level), int(40 * level))
+            else:
+                img[y0:y1, x0:x1] = (40, 40, 90)  # dull red: never seen
+            cv2.rectangle(img, (x0, y0), (x1 - 1, y1 - 1), (70, 70, 70), 1)
+    sel = cal.corners.camera == camera
+    norms = np.linalg.norm(cal.residuals[sel & cal.used], axis=1)
+    median = float(np.median(norms)) if len(norms) else 0.0
+    magnify = float(f"{RESIDUAL_LENGTH / (median * s):.1g}") if median > 0 else 1.0
+    for used, colour in ((True, (120, 255, 120)), (False, (60, 60, 255))):
+        pick = sel & (cal.used == used)
+        uv = cal.corners.pixel[pick] * s
+        res = cal.residuals[pick] * s * magnify
+        for (u, v), (du, dv) in zip(uv, res):
+            p = (int(round(u)), banner + int(round(v)))
+            cv2.circle(img, p, 1 if used else 3, colour, -1, cv2.LINE_AA)
+            if not used or np.hypot(du, dv) > 2:
+                q = (int(round(u + du)), banner + int(round(v + dv)))
+                cv2.line(img, p, q, colour, 1, cv2.LINE_AA)
+    rep = cal.cameras[camera]
+    lines = [
+        f"{rep.camera.name}: {w}x{h}, {rep.shots} shots, {rep.corners} corners, "
+        f"RMS {rep.rms_px:.3f} px, coverage {100 * frac:.0f}% of {rows * cols} cells",
+        f"green: corners used, red: outliers; residuals x{magnify:g}; "
+        "dull red cells: no corner, the distortion there is extrapolated",
+    ]
+    for k, text in enumerate(lines):
+        cv2.putText(
+            img,
+            text,
+            (8, 18 + 18 * k),
+            cv2.FONT_HERSHEY_SIMPLEX,
+            0.5,
+            (230, 230, 230),
+            1,
+            cv2.LINE_AA,
+        )
+    return img
+
+
+def report_dict(cal: Calibration, board: BoardSpec, *, captures: Path) -> dict[str, Any]:
+    """Everything about a calibration, for ``report.json`` and ``--json``."""
+    cams = []
+    for k, rep in enumerate(cal.cameras):
+        cam = rep.camera
+        frac, _ = coverage(cal, k)
+        cams.append(
+            {
+                "name": cam.name,
+                "size": [cam.width, cam.height],
+                "K": cam.K.ravel().tolist(),
+                "dist": cam.dist.tolist(),
+                "rig_T_cam": cam.rig_T_cam.ravel().tolist(),
+                "rms_px": round(rep.rms_px, 4),
+                "initial_rms_px": round(rep.initial_rms_px, 4),
+                "shots": rep.shots,
+                "corners": rep.corners,
+                "outlier_corners": rep.outlier_corners,
+                "coverage": round(frac, 3),
+                "std": {k: float(f"{v:.3g}") for k, v in rep.std.items()},
+            }
+        )
+    shots = [
+        {
+            "name": s.name,
+            "used": s.used,
+            "rms_px": {k: round(v, 4) for k, v in s.rms_px.items()},
+            "corners": s.corners,
+        }
+        for s in cal.shots
+    ]
+    return {
+        "captures": str(captures),
+        "board": board.to_yaml(),
+        "rms_px": round(cal.rms_px, 4),
+        "iterations": cal.iterations,
+        "cameras": cams,
+        "shots": shots,
+        "rejected": [
+            {"shot": r.shot, "camera": r.camera, "reason": r.reason} for r in cal.rejections
+        ],
+        "warnings": list(cal.warnings),
+    }
+
+
+def write_report(folder: Path, cal: Calibration, board: BoardSpec, *, captures: Path) -> list[Path]:
+    """Write ``report.json`` and ``coverage_<camera>.png`` into ``folder``; return the paths."""
+    folder.mkdir(parents=True, exist_ok=True)
+    paths = [folder / "report.json"]
+    write_json(paths[0], report_dict(cal, board, captures=captures))
+    for k, rep in enumerate(cal.cameras):
+        path = folder / f"coverage_{rep.camera.name}.png"
+        write_png(path, coverage_picture(cal, k))
+        paths.append(path)
+    return paths
+
+
+def summary_lines(cal: Calibration) -> list[str]:
+    """The terminal summary: one line per camera, the shots, the rejections."""
+    out = []
+    for k, rep in enumerate(cal.cameras):
+        cam = rep.camera
+        frac, _ = coverage(cal, k)
+        where = ""
+        if k > 0:
+            t = cam.rig_T_cam[:3, 3]
+            where = (
+                f", at ({t[0]:.1f}, {t[1]:.1f}, {t[2]:.1f}) mm "
+                f"+- {rep.std['position_mm']:.2f} mm, +- {rep.std['rotation_deg']:.3f} deg"
+            )
+        out.append(
+            f"{cam.name}: RMS {rep.rms_px:.3f} px ({rep.shots} shots, {rep.corners} corners, "
+            f"{rep.outlier_corners} outlier{'' if rep.outlier_corners == 1 else 's'}), f = {cam.K[0, 0]:.1f} +- {rep.std['fx']:.2f} px, "
+            f"c = ({cam.K[0, 2]:.1f}, {cam.K[1, 2]:.1f}) +- {max(rep.std['cx'], rep.std['cy']):.2f} px, "
+            f"coverage {100 * frac:.0f}%{where}"
+        )
+    used = sum(s.used for s in cal.shots)
+    worst = sorted((max(s.rms_px.values()), s.name) for s in cal.shots if s.used)[-3:]
+    out.append(
+        f"shots: {used} of {len(cal.shots)} used, RMS {cal.rms_px:.3f} px over all; worst: "
+        + ", ".join(f"{name} {rms:.3f} px" for rms, name in reversed(worst))
+    )
+    names = [rep.camera.name for rep in cal.cameras]
+    cells = [
+        f"{s.name} " + "/".join(f"{s.rms_px[n]:.2f}" if n in s.rms_px else "-" for n in names)
+        for s in cal.shots
+    ]
+    line = f"RMS per shot (px, {'/'.join(names)}):"
+    for cell in cells:
+        if len(line) + len(cell) + 2 > 100:
+            out.append(line)
+            line = " "
+        line += f" {cell},"
+    out.append(line.rstrip(","))
+    for r in cal.rejections:
+        out.append(f"rejected: {r}")
+    for w in cal.warnings:
+        out.append(f"warning: {w}")
+    return out

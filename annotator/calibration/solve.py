@@ -1,0 +1,624 @@
+"""Calibrating a rig from ChArUco corners: screening, initialisation, joint refinement and
+rejection of outliers.
+
+1. **Screening.** A view (one camera, one shot) is usable if it has at least
+   ``min_corners`` corners that do not lie on one line; the others are rejected with the
+   reason.
+2. **Per camera.** OpenCV's ``calibrateCamera`` on the camera's usable views gives its
+   intrinsics and the board pose in each view; views it cannot fit (RMS above five times
+   the median and 2 px) are rejected and the camera calibrated again.
+3. **Extrinsics.** For each pair of cameras that saw the same shots, the relative pose
+   ``a_T_board @ inv(b_T_board)`` of every common shot; their robust mean (rotations within
+   three times the median angle of the medoid, averaged; translations' median) chains every
+   camera to camera 0, the rig frame. Each shot's board pose comes from the camera that saw
+   most of its corners.
+4. **Joint refinement** (:mod:`annotator.calibration.bundle`): all intrinsics, extrinsics
+   and board poses at once, over every corner of every usable view (a corner seen by one
+   camera only still constrains that camera and the shot's pose).
+5. **Outliers.** Corners whose residual exceeds ``outlier_sigmas`` robust standard
+   deviations (at least ``min_outlier_px``) are left out, and whole views whose RMS exceeds
+   three times the median view's (at least 1 px) or that lose a quarter of their corners;
+   then step 4 again, until nothing changes.
+
+RMS figures are those of OpenCV's ``calibrateCamera``: the root mean square of the
+Euclidean distance (px) between detected and projected corners.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator, Mapping, Sequence
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from annotator.calibration.board import BoardSpec
+from annotator.calibration.bundle import (
+    INTRINSICS,
+    Corners,
+    RefineResult,
+    RigState,
+    project,
+    refine,
+)
+from annotator.errors import UserError
+from annotator.geometry.camera import Camera
+from annotator.geometry.transforms import invert, make_transform
+
+#: The distortion models offered: number of coefficients -> coefficients estimated.
+DISTORTION_MODELS = {
+    2: ("k1", "k2"),
+    4: ("k1", "k2", "p1", "p2"),
+    5: ("k1", "k2", "p1", "p2", "k3"),
+}
+
+
+@dataclass(frozen=True)
+class View:
+    """The board as detected by one camera in one shot.
+
+    Attributes:
+        camera: Index of the camera.
+        shot: Index of the shot.
+        ids: (n,) chessboard corner ids.
+        corners: (n, 2) their pixel positions.
+        markers: Markers of the board identified (0: the board was not found at all).
+    """
+
+    camera: int
+    shot: int
+    ids: np.ndarray
+    corners: np.ndarray
+    markers: int = 0
+
+
+@dataclass(frozen=True)
+class CalibrationOptions:
+    """Settings of :func:`calibrate_rig`.
+
+    Attributes:
+        min_shots: Usable shots each camera needs.
+        min_corners: Corners a view needs to be used.
+        dist_coeffs: Distortion model: 2 (k1 k2), 4 (+ p1 p2) or 5 (+ k3, OpenCV's default).
+        outlier_sigmas: A corner is an outlier beyond this many robust standard deviations.
+        min_outlier_px: ... and never below this residual (px).
+    """
+
+    min_shots: int = 6
+    min_corners: int = 8
+    dist_coeffs: int = 5
+    outlier_sigmas: float = 5.0
+    min_outlier_px: float = 0.5
+
+    def __post_init__(self) -> None:
+        if self.dist_coeffs not in DISTORTION_MODELS:
+            raise UserError(
+                f"the distortion model must have 2, 4 or 5 coefficients, not {self.dist_coeffs}"
+            )
+        if self.min_shots < 3:
+            raise UserError(f"at least 3 shots are needed per camera, not {self.min_shots}")
+        if self.min_corners < 6:
+            raise UserError(f"a view needs at least 6 corners, not {self.min_corners}")
+
+
+@dataclass(frozen=True)
+class Rejection:
+    """A shot, or one camera's view of it, left out of the calibration, and why."""
+
+    shot: str
+    camera: str | None
+    reason: str
+
+    def __str__(self) -> str:
+        who = f"shot {self.shot}" + (f", camera {self.camera}" if self.camera else "")
+        return f"{who}: {self.reason}"
+
+
+@dataclass(frozen=True)
+class CameraReport:
+    """How well one camera is calibrated.
+
+    Attributes:
+        camera: The calibrated camera (K, dist, rig_T_cam).
+        rms_px: RMS reprojection error of its corners after the joint refinement.
+        initial_rms_px: RMS of OpenCV's ``calibrateCamera`` for this camera alone.
+        shots: Shots whose view of this camera was used.
+        corners: Corners used.
+        outlier_corners: Corners left out as outliers (in views that were used).
+        std: One standard deviation of each estimated intrinsic (``fx`` ... ``k3``), of the
+            camera's orientation (``rotation_deg``) and of its position in the rig
+            (``position_mm``), from the refinement's covariance.
+    """
+
+    camera: Camera
+    rms_px: float
+    initial_rms_px: float
+    shots: int
+    corners: int
+    outlier_corners: int
+    std: dict[str, float]
+
+
+@dataclass(frozen=True)
+class ShotReport:
+    """One shot: its board pose and each camera's fit (cameras whose view was used)."""
+
+    name: str
+    rig_T_board: np.ndarray | None
+    rms_px: dict[str, float]
+    corners: dict[str, int]
+
+    @property
+    def used(self) -> bool:
+        return self.rig_T_board is not None
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """The result of :func:`calibrate_rig`.
+
+    Attributes:
+        cameras: Per camera, the calibrated :class:`Camera` and its figures (rig order).
+        shots: Per shot, in input order.
+        rejections: Shots and views left out, and why.
+        rms_px: RMS reprojection error over every corner used.
+        iterations: Levenberg-Marquardt iterations of the last refinement.
+        corners: Every corner of the usable views (including the outliers).
+        residuals: (N, 2) projected minus detected position of each of ``corners``.
+        used: (N,) bool, which of ``corners`` the refinement used.
+        sizes: Image size (width, height) per camera.
+        warnings: Things worth knowing that did not stop the calibration.
+    """
+
+    cameras: tuple[CameraReport, ...]
+    shots: tuple[ShotReport, ...]
+    rejections: tuple[Rejection, ...]
+    rms_px: float
+    iterations: int
+    corners: Corners
+    residuals: np.ndarray
+    used: np.ndarray
+    sizes: tuple[tuple[int, int], ...]
+    warnings: tuple[str, ...] = field(default=())
+
+    @property
+    def rig_cameras(self) -> tuple[Camera, ...]:
+        """The calibrated cameras, the first being the rig frame."""
+        return tuple(c.camera for c in self.cameras)
+
+
+def calibrate_rig(
+    views: Sequence[View],
+    *,
+    cameras: Sequence[str],
+    sizes: Sequence[tuple[int, int]],
+    shots: Sequence[str],
+    board: BoardSpec,
+    options: CalibrationOptions | None = None,
+    where: Mapping[str, Path] | None = None,
+) -> Calibration:
+    """Calibrate the rig (see the module docstring).
+
+    Args:
+        views: Every camera's detection in every shot (views without corners included:
+            they are reported as "board not found").
+        cameras: Camera names, in rig order (the first is the rig frame).
+        sizes: Image size (width, height) of each camera.
+        shots: Shot names, indexed by ``View.shot``.
+        board: The board.
+        options: Thresholds and the distortion model.
+        where: Optional folder of each camera's images, to name it in error messages.
+
+    Raises:
+        UserError: too few usable shots for a camera, cameras that never saw the board in
+            the same shot, or a calibration that cannot fit the detections.
+    """
+    opts = options or CalibrationOptions()
+    where = where or {}
+    rejections: list[Rejection] = []
+    usable = _screen(views, cameras, shots, board, opts, rejections)
+    for c, name in enumerate(cameras):
+        _require_shots(usable, c, name, views, opts, where)
+
+    # 2. Each camera alone.
+    flags = _flags(opts.dist_coeffs)
+    intrinsics = np.zeros((len(cameras), 9))
+    poses: dict[tuple[int, int], np.ndarray] = {}
+    initial_rms = []
+    for c, name in enumerate(cameras):
+        K, dist, cam_poses, rms = _calibrate_camera(
+            [v for v in usable if v.camera == c], board, sizes[c], flags, rejections, name, shots
+        )
+        usable = [v for v in usable if v.camera != c or (c, v.shot) in cam_poses]
+        _require_shots(usable, c, name, views, opts, where)
+        intrinsics[c] = [K[0, 0], K[1, 1], K[0, 2], K[1, 2], *dist]
+        poses.update(cam_poses)
+        initial_rms.append(rms)
+
+    # 3. Extrinsics and board poses.
+    cam_T_rig = _initial_extrinsics(poses, cameras, where)
+    rig_T_board = np.tile(np.eye(4), (len(shots), 1, 1))
+    best: dict[int, tuple[int, int]] = {}
+    for v in usable:
+        if len(v.ids) > best.get(v.shot, (-1, -1))[0]:
+            best[v.shot] = (len(v.ids), v.camera)
+    for s, (_, c) in best.items():
+        rig_T_board[s] = invert(cam_T_rig[c]) @ poses[(c, s)]
+
+    # 4-5. Joint refinement, outliers out, again.
+    free = np.ones(9, bool)
+    free[4:] = [k in DISTORTION_MODELS[opts.dist_coeffs] for k in INTRINSICS[4:]]
+    state = RigState(intrinsics, cam_T_rig, rig_T_board, free)
+    view_of = {(v.camera, v.shot): v for v in usable}
+    keys = sorted(view_of)
+    obs = Corners(
+        camera=np.concatenate([np.full(len(view_of[k].ids), k[0]) for k in keys]),
+        shot=np.concatenate([np.full(len(view_of[k].ids), k[1]) for k in keys]),
+        board=np.concatenate([board.corners[view_of[k].ids] for k in keys]),
+        pixel=np.concatenate([view_of[k].corners for k in keys]),
+    )
+    view_index = np.concatenate([np.full(len(view_of[k].ids), i) for i, k in enumerate(keys)])
+    keep = np.ones(len(obs.camera), bool)
+    dropped_views: dict[tuple[int, int], str] = {}
+    for _ in range(8):
+        result = refine(state, obs.subset(keep))
+        state = result.state
+        err = np.linalg.norm(project(state, obs) - obs.pixel, axis=1)
+        new_keep, new_dropped = _inliers(err, keep, view_index, len(keys), opts)
+        if np.array_equal(new_keep, keep):
+            break
+        if not np.any(new_keep):
+            raise UserError("no corner fits a calibration: check the board description")
+        keep = new_keep
+        dropped_views = {keys[i]: why for i, why in new_dropped.items()}
+    else:  # still changing after 8 rounds: settle on the last selection
+        result = refine(state, obs.subset(keep))
+        state = result.state
+    for (c, s), why in sorted(dropped_views.items(), key=lambda kv: (kv[0][1], kv[0][0])):
+        rejections.append(Rejection(shots[s], cameras[c], why))
+    used_views = {keys[i] for i in np.unique(view_index[keep])}
+    usable = [v for v in usable if (v.camera, v.shot) in used_views]
+    for c, name in enumerate(cameras):
+        _require_shots(usable, c, name, views, opts, where)
+
+    residuals = project(state, obs) - obs.pixel
+    return _assemble(
+        state, result, obs, residuals, keep, cameras, sizes, shots, initial_rms, rejections
+    )
+
+
+def _flags(dist_coeffs: int) -> int:
+    flags = 0
+    if dist_coeffs < 5:
+        flags |= cv2.CALIB_FIX_K3
+    if dist_coeffs < 4:
+        flags |= cv2.CALIB_ZERO_TANGENT_DIST
+    return flags
+
+
+def _screen(
+    views: Sequence[View],
+    cameras: Sequence[str],
+    shots: Sequence[str],
+    board: BoardSpec,
+    opts: CalibrationOptions,
+    rejections: list[Rejection],
+) -> list[View]:
+    """The usable views; the others are recorded as rejections (whole shots when no camera
+    could use the shot)."""
+    usable: list[View] = []
+    reasons: dict[int, list[tuple[str, str]]] = {}
+    for v in sorted(views, key=lambda v: (v.shot, v.camera)):
+        n = len(v.ids)
+        if n == 0:
+            why = (
+                "board not found"
+                if v.markers == 0
+                else f"board not found ({v.markers} of its markers, but no corner between two of them)"
+            )
+        elif n < opts.min_corners:
+            why = (
+                f"only {n} corner{'s' if n > 1 else ''} found (at least {opts.min_corners} needed)"
+            )
+        elif _collinear(board.corners[v.ids]):
+            why = f"the {n} corners found lie on one line"
+        else:
+            usable.append(v)
+            continue
+        reasons.setdefault(v.shot, []).append((cameras[v.camera], why))
+    seen = {v.shot for v in usable}
+    for s in sorted(reasons):
+        items = reasons[s]
+        if s not in seen and len(items) == len(cameras) and len({w for _, w in items}) == 1:
+            rejections.append(Rejection(shots[s], None, f"{items[0][1]} in any camera"))
+        else:
+            rejections.extend(Rejection(shots[s], cam, why) for cam, why in items)
+    return usable
+
+
+def _collinear(points: np.ndarray) -> bool:
+    """True if the board points (n, 3) lie on a line (within a tenth of their extent)."""
+    centred = points[:, :2] - points[:, :2].mean(axis=0)
+    s = np.linalg.svd(centred, compute_uv=False)
+    return bool(s[1] <= 0.1 * s[0])
+
+
+def _require_shots(
+    usable: Sequence[View],
+    c: int,
+    name: str,
+    views: Sequence[View],
+    opts: CalibrationOptions,
+    where: Mapping[str, Path],
+) -> None:
+    n = sum(1 for v in usable if v.camera == c)
+    if n >= opts.min_shots:
+        return
+    total = sum(1 for v in views if v.camera == c)
+    found = sum(1 for v in views if v.camera == c and len(v.ids) > 0)
+    if found == 0:
+        msg = f"the board was not found in any of the {total} images of camera {name}"
+    else:
+        msg = (
+            f"too few shots: camera {name} has {n} usable of {total} (the board was found in "
+            f"{found}), and calibration needs at least {opts.min_shots}"
+        )
+    raise UserError(msg, path=where.get(name))
+
+
+def _calibrate_camera(
+    views: list[View],
+    board: BoardSpec,
+    size: tuple[int, int],
+    flags: int,
+    rejections: list[Rejection],
+    name: str,
+    shots: Sequence[str],
+) -> tuple[np.ndarray, np.ndarray, dict[tuple[int, int], np.ndarray], float]:
+    """OpenCV's calibrateCamera on one camera's views; views it cannot fit are rejected.
+
+    Returns K, dist (5), ``{(camera, shot): cam_T_board}`` and the RMS (px)."""
+    criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-12)
+    while True:
+        obj = [board.corners[v.ids].astype(np.float32).reshape(-1, 1, 3) for v in views]
+        img = [v.corners.astype(np.float32).reshape(-1, 1, 2) for v in views]
+        try:
+            with _one_opencv_thread():
+                rms, K, dist, rvecs, tvecs = cv2.calibrateCamera(
+                    obj, img, tuple(size), None, None, flags=flags, criteria=criteria
+                )
+        except cv2.error as exc:
+            first = str(exc).strip().splitlines()[-1] if str(exc).strip() else "cv2.error"
+            raise UserError(
+                f"OpenCV could not calibrate camera {name} from its {len(views)} views ({first})"
+            ) from None
+        dist = np.asarray(dist, float).reshape(-1)[:5]
+        dist = np.pad(dist, (0, 5 - len(dist)))
+        per_view = []
+        for v, rv, tv in zip(views, rvecs, tvecs):
+            uv, _ = cv2.projectPoints(board.corners[v.ids], rv, tv, K, dist)
+            per_view.append(np.sqrt(np.mean(np.sum((uv.reshape(-1, 2) - v.corners) ** 2, 1))))
+        per_view = np.asarray(per_view)
+        limit = max(5.0 * float(np.median(per_view)), 2.0)
+        bad = per_view > limit
+        if not np.any(bad) or bad.sum() > len(views) // 2:
+            break
+        for v, e in zip(views, per_view):
+            if e > limit:
+                rejections.append(
+                    Rejection(
+                        shots[v.shot],
+                        name,
+                        f"calibrateCamera cannot fit it (RMS {e:.2f} px, limit {limit:.2f} px)",
+                    )
+                )
+        views = [v for v, b in zip(views, bad) if not b]
+    poses = {
+        (v.camera, v.shot): make_transform(cv2.Rodrigues(rv)[0], np.ravel(tv))
+        for v, rv, tv in zip(views, rvecs, tvecs)
+    }
+    return np.asarray(K, float), dist, poses, float(rms)
+
+
+@contextmanager
+def _one_opencv_thread() -> Iterator[None]:
+    """OpenCV on one thread meanwhile: with several, ``calibrateCamera`` sums in a varying
+    order and its results differ from run to run in the ninth digit, enough to change the
+    written dataset.yaml when nothing else changed."""
+    before = cv2.getNumThreads()
+    cv2.setNumThreads(1)
+    try:
+        yield
+    finally:
+        cv2.setNumThreads(before)
+
+
+def _initial_extrinsics(
+    poses: Mapping[tuple[int, int], np.ndarray],
+    cameras: Sequence[str],
+    where: Mapping[str, Path],
+) -> np.ndarray:
+    """``cam_T_rig`` of every camera from the per-camera board poses (robust means along the
+    pairs that share most shots, starting from camera 0)."""
+    C = len(cameras)
+    shots_of = [{s for (c, s) in poses if c == k} for k in range(C)]
+    cam_T_rig = np.tile(np.eye(4), (C, 1, 1))
+    placed = {0}
+    while len(placed) < C:
+        best = max(
+            (
+                (len(shots_of[a] & shots_of[b]), a, b)
+                for a in placed
+                for b in range(C)
+                if b not in placed
+            ),
+            default=(0, 0, 0),
+        )
+        common, a, b = best
+        if common == 0:
+            lonely = [cameras[k] for k in range(C) if k not in placed]
+            raise UserError(
+                f"camera(s) {', '.join(lonely)} never saw the board in the same shot as "
+                f"{', '.join(cameras[k] for k in sorted(placed))}: take shots with the board "
+                "in view of both",
+                path=where.get(lonely[0]),
+            )
+        common_shots = sorted(shots_of[a] & shots_of[b])
+        b_T_a = np.stack([poses[(b, s)] @ invert(poses[(a, s)]) for s in common_shots])
+        cam_T_rig[b] = robust_mean_transform(b_T_a) @ cam_T_rig[a]
+        placed.add(b)
+    return cam_T_rig
+
+
+def robust_mean_transform(Ts: np.ndarray) -> np.ndarray:
+    """Robust mean of rigid transforms (n, 4, 4): the rotations within three times the median
+    angle (at least 0.5 degree) of their medoid, averaged; the translations' median of the
+    same."""
+    rots = Rotation.from_matrix(Ts[:, :3, :3])
+    n = len(rots)
+    angles = np.stack([(rots[i].inv() * rots).magnitude() for i in range(n)])
+    medoid = int(np.argmin(angles.sum(axis=1)))
+    to_medoid = angles[medoid]
+    keep = to_medoid <= max(3.0 * float(np.median(to_medoid)), np.radians(0.5))
+    R = rots[keep].mean().as_matrix()
+    t = np.median(Ts[keep, :3, 3], axis=0)
+    return make_transform(R, t)
+
+
+def _inliers(
+    err: np.ndarray,
+    keep: np.ndarray,
+    view_index: np.ndarray,
+    n_views: int,
+    opts: CalibrationOptions,
+) -> tuple[np.ndarray, dict[int, str]]:
+    """Corners to keep after a refinement with residual norms ``err``, and the views dropped
+    as a whole (index -> reason)."""
+    # The norm of a 2D Gaussian residual has median 1.1774 sigma.
+    sigma = float(np.median(err[keep])) / 1.1774
+    limit = max(opts.outlier_sigmas * sigma, opts.min_outlier_px)
+    ok = err <= limit
+    counts = np.bincount(view_index, minlength=n_views)
+    good = np.bincount(view_index, weights=ok, minlength=n_views)
+    sq = np.bincount(view_index, weights=np.where(ok, err**2, 0.0), minlength=n_views)
+    rms = np.sqrt(sq / np.maximum(good, 1))
+    present = counts > 0
+    median_rms = float(np.median(rms[present & (good > 0)])) if np.any(good > 0) else 0.0
+    view_limit = max(3.0 * median_rms, 1.0)
+    dropped: dict[int, str] = {}
+    for i in np.flatnonzero(present):
+        lost = counts[i] - good[i]
+        if good[i] < opts.min_corners or lost > 0.25 * counts[i]:
+            dropped[i] = (
+                f"outlier residuals: {int(lost)} of its {counts[i]} corners off by more than "
+                f"{limit:.2f} px"
+            )
+            if lost == counts[i]:
+                dropped[i] += " (an image of another moment, or the board moved during the shot?)"
+        elif rms[i] > view_limit:
+            dropped[i] = (
+                f"outlier residuals: RMS {rms[i]:.2f} px, over {view_limit:.2f} px "
+                "(three times the median view's)"
+            )
+    ok &= ~np.isin(view_index, list(dropped))
+    return ok, dropped
+
+
+def _assemble(
+    state: RigState,
+    result: RefineResult,
+    obs: Corners,
+    residuals: np.ndarray,
+    keep: np.ndarray,
+    cameras: Sequence[str],
+    sizes: Sequence[tuple[int, int]],
+    shots: Sequence[str],
+    initial_rms: Sequence[float],
+    rejections: list[Rejection],
+) -> Calibration:
+    err2 = np.sum(residuals**2, axis=1)
+    free_names = [n for n, f in zip(INTRINSICS, state.free_intrinsics) if f]
+    reports = []
+    used_views = {(int(c), int(s)) for c, s in zip(obs.camera[keep], obs.shot[keep])}
+    for c, name in enumerate(cameras):
+        sel = keep & (obs.camera == c)
+        in_used_views = np.array([(c, int(s)) in used_views for s in obs.shot], bool) & (
+            obs.camera == c
+        )
+        cov = result.camera_covariance[c]
+        std = {n: float(np.sqrt(max(cov[i, i], 0.0))) for i, n in enumerate(free_names)}
+        R = state.cam_T_rig[c, :3, :3]
+        t = state.cam_T_rig[c, :3, 3]
+        if c > 0:
+            k = len(free_names)
+            cw = cov[k:, k:]
+            tx = np.array([[0, -t[2], t[1]], [t[2], 0, -t[0]], [-t[1], t[0], 0]])
+            Jc = -R.T @ np.hstack([tx, np.eye(3)])
+            std["rotation_deg"] = float(np.degrees(np.sqrt(max(np.trace(cw[:3, :3]), 0.0))))
+            std["position_mm"] = float(np.sqrt(max(np.trace(Jc @ cw @ Jc.T), 0.0)))
+        else:
+            std["rotation_deg"] = 0.0
+            std["position_mm"] = 0.0
+        camera = Camera(
+            name=name,
+            width=int(sizes[c][0]),
+            height=int(sizes[c][1]),
+            K=state.K(c),
+            dist=state.dist(c),
+            rig_T_cam=np.eye(4) if c == 0 else invert(state.cam_T_rig[c]),
+        )
+        reports.append(
+            CameraReport(
+                camera=camera,
+                rms_px=float(np.sqrt(np.mean(err2[sel]))) if np.any(sel) else float("nan"),
+                initial_rms_px=float(initial_rms[c]),
+                shots=len({s for (cc, s) in used_views if cc == c}),
+                corners=int(sel.sum()),
+                outlier_corners=int((in_used_views & ~keep).sum()),
+                std=std,
+            )
+        )
+    shot_reports = []
+    for s, name in enumerate(shots):
+        rms, count = {}, {}
+        for c, cam in enumerate(cameras):
+            sel = keep & (obs.camera == c) & (obs.shot == s)
+            if np.any(sel):
+                rms[cam] = float(np.sqrt(np.mean(err2[sel])))
+                count[cam] = int(sel.sum())
+        pose = state.rig_T_board[s].copy() if rms else None
+        shot_reports.append(ShotReport(name, pose, rms, count))
+        if not rms and not any(r.shot == name for r in rejections):
+            rejections.append(Rejection(name, None, "no usable view"))
+    warnings = []
+    for c, name in enumerate(cameras):
+        together = sum(
+            1
+            for s in range(len(shots))
+            if (c, s) in used_views
+            and any((o, s) in used_views for o in range(len(cameras)) if o != c)
+        )
+        if len(cameras) > 1 and together < 3:
+            warnings.append(
+                f"camera {name} saw the board together with another camera in only {together} "
+                "shot(s): its pose in the rig rests on very few shots"
+            )
+    order = {name: k for k, name in enumerate(shots)}
+    rejections.sort(
+        key=lambda r: (order[r.shot], -1 if r.camera is None else cameras.index(r.camera))
+    )
+    return Calibration(
+        cameras=tuple(reports),
+        shots=tuple(shot_reports),
+        rejections=tuple(rejections),
+        rms_px=float(np.sqrt(np.mean(err2[keep]))),
+        iterations=result.iterations,
+        corners=obs,
+        residuals=residuals,
+        used=keep,
+        sizes=tuple((int(w), int(h)) for w, h in sizes),
+        warnings=tuple(warnings),
+    )

@@ -1,0 +1,406 @@
+"""``annotator calibrate CAPTURES``: the rig's intrinsics and extrinsics from ChArUco shots.
+
+Also ``annotator synth --calibration OUT`` (:func:`synth_captures`): synthetic captures of
+a board in random poses seen by the synthetic rig, with the truth beside them.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from collections.abc import Iterator
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from tqdm import tqdm
+
+from annotator.errors import UserError
+
+if TYPE_CHECKING:  # imported when the command runs, so that `annotator --help` stays fast
+    from annotator.calibration.board import BoardSpec
+    from annotator.calibration.captures import Captures
+    from annotator.calibration.solve import Calibration, View
+    from annotator.dataset.model import DepthSpec
+
+DESCRIPTION = """\
+Calibrate the rig from synchronised shots of a ChArUco board: OpenCV's ChArUco detector,
+OpenCV's calibrateCamera per camera, then one joint refinement of every camera's intrinsics
+(fx fy cx cy k1 k2 p1 p2 k3) and pose in the rig and of every shot's board pose; outlier
+corners and views are left out and reported.
+
+Captures layout: CAPTURES/<camera>/<shot>.png (or .jpg, .tif, .bmp), one folder per camera,
+the same shot names in every folder (left/017.png and right/017.png are one board pose);
+the board from CAPTURES/board.yaml, --board FILE or the board options.
+
+Writes the report (report.json, coverage_<camera>.png, rig.yaml) into
+CAPTURES/calibration_report/ or --report DIR and, with --dataset DS, the rig section of
+DS/dataset.yaml (created if missing; its other sections are kept as they are) after showing
+the diff. The first camera (folder order, --cameras, or the existing rig's order) is the rig
+frame; depth maps are registered to the first camera or --depth-camera.
+"""
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.description = DESCRIPTION
+    parser.formatter_class = argparse.RawDescriptionHelpFormatter
+    parser.add_argument("captures", help="captures folder: CAPTURES/<camera>/<shot>.png")
+    parser.add_argument(
+        "--dataset",
+        metavar="DS",
+        help="write the rig into DS/dataset.yaml (created if missing); without it, only the report",
+    )
+    board = parser.add_argument_group(
+        "board", "the ChArUco board (default: CAPTURES/board.yaml; options override its fields)"
+    )
+    board.add_argument("--board", metavar="FILE", help="board description (YAML)")
+    board.add_argument(
+        "--squares", metavar="XxY", help="squares along the board's x and y, e.g. 7x5"
+    )
+    board.add_argument("--square-mm", type=float, help="square side as printed, mm")
+    board.add_argument("--marker-mm", type=float, help="marker side as printed, mm")
+    board.add_argument("--dictionary", help="ArUco dictionary (default DICT_4X4_50)")
+    board.add_argument(
+        "--legacy-pattern",
+        action="store_true",
+        default=None,
+        help="board printed by OpenCV < 4.6 (matters for an even number of rows)",
+    )
+    parser.add_argument(
+        "--cameras",
+        metavar="A,B",
+        help="camera folders to use, in rig order (default: the existing rig's order, else sorted)",
+    )
+    parser.add_argument(
+        "--depth-camera",
+        metavar="NAME",
+        help="rig camera whose pixel grid the depth maps use (default: kept, else the first)",
+    )
+    parser.add_argument(
+        "--depth-scale",
+        type=float,
+        metavar="MM",
+        help="mm per depth unit (default: kept from the dataset; without either, no depth section)",
+    )
+    parser.add_argument(
+        "--dist-coeffs",
+        type=int,
+        choices=(2, 4, 5),
+        default=5,
+        help="distortion model: k1 k2 (2), + p1 p2 (4), + k3 (5, default)",
+    )
+    parser.add_argument(
+        "--min-shots", type=int, default=6, help="usable shots each camera needs (default 6)"
+    )
+    parser.add_argument(
+        "--report",
+        metavar="DIR",
+        help="report folder (default CAPTURES/calibration_report)",
+    )
+    parser.add_argument("--yes", action="store_true", help="write dataset.yaml without asking")
+    parser.add_argument(
+        "--dry-run", action="store_true", help="show the diff of dataset.yaml, write nothing there"
+    )
+    parser.add_argument("--json", action="store_true", help="print the result as JSON")
+    parser.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
+def run(args: argparse.Namespace) -> int:
+    from annotator.calibration.captures import REPORT_FOLDER, find_captures
+    from annotator.calibration.rig_yaml import existing_rig, read_dataset_doc
+
+    root = Path(args.captures)
+    report_dir = Path(args.report) if args.report else root / REPORT_FOLDER
+    board = _board(args, root)
+    ds_yaml = Path(args.dataset) / "dataset.yaml" if args.dataset else None
+    if ds_yaml is not None and Path(args.dataset).exists() and not Path(args.dataset).is_dir():
+        raise UserError("exists and is not a folder", path=args.dataset)
+    old_text, old_doc = read_dataset_doc(ds_yaml) if ds_yaml else (None, None)
+    old_rig = existing_rig(old_doc)
+
+    cameras = None
+    if args.cameras:
+        cameras = [c.strip() for c in args.cameras.split(",") if c.strip()]
+    captures = find_captures(root, cameras=cameras, ignore=[report_dir])
+    if old_rig["cameras"]:
+        if sorted(old_rig["cameras"]) != sorted(captures.cameras):
+            raise UserError(
+                f"its rig has cameras {', '.join(old_rig['cameras'])} but the captures in "
+                f"{root} have {', '.join(captures.cameras)}: name the capture folders after the "
+                "rig's cameras (or choose them with --cameras)",
+                path=ds_yaml,
+            )
+        if cameras is None:
+            captures = find_captures(root, cameras=old_rig["cameras"], ignore=[report_dir])
+        elif captures.cameras[0] != old_rig["cameras"][0]:
+            print(
+                f"warning: the rig frame changes from camera {old_rig['cameras'][0]} to "
+                f"{captures.cameras[0]}: poses already in {args.dataset} (gt.json, "
+                "annotation.json) stay in the old frame",
+                file=sys.stderr,
+            )
+    depth = _depth(args, captures.cameras, old_rig, ds_yaml)
+
+    views, sizes = _detect(captures, board, old_rig["sizes"], ds_yaml, quiet=args.quiet)
+
+    from annotator.calibration.solve import CalibrationOptions, calibrate_rig
+
+    cal = calibrate_rig(
+        views,
+        cameras=captures.cameras,
+        sizes=sizes,
+        shots=captures.shots,
+        board=board,
+        options=CalibrationOptions(min_shots=args.min_shots, dist_coeffs=args.dist_coeffs),
+        where={c: captures.folder(c) for c in captures.cameras},
+    )
+    return _output(args, cal, board, captures.root, report_dir, ds_yaml, old_text, old_doc, depth)
+
+
+def _board(args: argparse.Namespace, root: Path) -> BoardSpec:
+    """The board from --board, CAPTURES/board.yaml and the board options (which win)."""
+    from annotator.calibration.board import BOARD_FILE, BoardSpec, read_board_yaml
+
+    fields: dict[str, Any] = {}
+    path = Path(args.board) if args.board else root / BOARD_FILE
+    if args.board or path.is_file():
+        fields = read_board_yaml(path).to_yaml()
+    if args.squares:
+        try:
+            x, y = (int(v) for v in args.squares.lower().split("x"))
+        except ValueError:
+            raise UserError(f"--squares must be XxY (e.g. 7x5), got {args.squares!r}") from None
+        fields.update(squares_x=x, squares_y=y)
+    for option, key in (
+        ("square_mm", "square_mm"),
+        ("marker_mm", "marker_mm"),
+        ("dictionary", "dictionary"),
+        ("legacy_pattern", "legacy_pattern"),
+    ):
+        if getattr(args, option) is not None:
+            fields[key] = getattr(args, option)
+    missing = [k for k in ("squares_x", "square_mm", "marker_mm") if k not in fields]
+    if missing:
+        raise UserError(
+            "no board description: give --board FILE, put a board.yaml in the captures folder, "
+            "or give --squares, --square-mm and --marker-mm (and --dictionary)",
+            path=path,
+        )
+    return BoardSpec(**fields)
+
+
+def _depth(
+    args: argparse.Namespace,
+    cameras: tuple[str, ...],
+    old_rig: dict[str, Any],
+    ds_yaml: Path | None,
+) -> DepthSpec | None:
+    """The depth section to write: kept from the dataset, changed by the options."""
+    from annotator.dataset.model import DepthSpec
+
+    if args.depth_camera is not None and args.depth_camera not in cameras:
+        raise UserError(
+            f"--depth-camera {args.depth_camera!r} is not one of the cameras ({', '.join(cameras)})"
+        )
+    if args.depth_scale is not None and not args.depth_scale > 0:
+        raise UserError(f"--depth-scale must be positive (mm per unit), got {args.depth_scale}")
+    old = old_rig["depth"] or {}
+    scale = args.depth_scale if args.depth_scale is not None else old.get("scale")
+    if scale is None:
+        if args.depth_camera is not None:
+            raise UserError(
+                "--depth-camera needs the depth maps' scale: add --depth-scale MM (mm per depth "
+                "unit)" + (f"; {ds_yaml} has none" if ds_yaml else "")
+            )
+        return None
+    camera = args.depth_camera or (
+        old.get("camera") if old.get("camera") in cameras else cameras[0]
+    )
+    return DepthSpec(camera=camera, scale=float(scale))
+
+
+def _detect(
+    captures: Captures,
+    board: BoardSpec,
+    expected_sizes: dict[str, tuple[int, int]],
+    ds_yaml: Path | None,
+    *,
+    quiet: bool,
+) -> tuple[list[View], list[tuple[int, int]]]:
+    """Every camera's detection in every shot, and each camera's image size."""
+    from annotator.calibration.captures import read_images
+    from annotator.calibration.detect import BoardDetector
+    from annotator.calibration.solve import View
+
+    detector = BoardDetector(board)
+    views: list[View] = []
+    sizes: dict[int, tuple[int, int]] = {}
+    foreign = 0
+
+    def bar(it: Iterator) -> Iterator:
+        return tqdm(
+            it,
+            total=len(captures.cameras) * len(captures.shots),
+            desc="detect",
+            unit="image",
+            disable=quiet or not sys.stderr.isatty(),
+            file=sys.stderr,
+        )
+
+    for c, s, img in read_images(
+        captures, expected_sizes=expected_sizes, expected_source=ds_yaml, progress=bar
+    ):
+        sizes[c] = (int(img.shape[1]), int(img.shape[0]))
+        det = detector.detect(img)
+        views.append(View(c, s, det.ids, det.corners, det.markers))
+        foreign += det.foreign_markers
+    if not any(len(v.ids) for v in views):
+        raise _board_not_found(views, foreign, captures, board)
+    return views, [sizes[c] for c in range(len(captures.cameras))]
+
+
+def _board_not_found(
+    views: list[View], foreign: int, captures: Captures, board: BoardSpec
+) -> UserError:
+    """One clear line when the board is in no image at all (usually a wrong board
+    description), rather than a complaint per camera."""
+    markers = sum(v.markers for v in views)
+    if markers:
+        hint = (
+            f"{markers} of its markers were seen, but never two around a chessboard corner: "
+            "check --squares (columns x rows) and --legacy-pattern"
+        )
+    elif foreign:
+        hint = (
+            f"{foreign} markers of {board.dictionary} were seen with ids outside the board's "
+            f"0..{board.marker_count - 1}: check --squares"
+        )
+    else:
+        hint = f"no marker of {board.dictionary} was seen: check --dictionary"
+    return UserError(
+        f"board not found: the {board.describe()} board is in none of the "
+        f"{len(views)} images ({hint})",
+        path=captures.root,
+    )
+
+
+def _output(
+    args: argparse.Namespace,
+    cal: Calibration,
+    board: BoardSpec,
+    root: Path,
+    report_dir: Path,
+    ds_yaml: Path | None,
+    old_text: str | None,
+    old_doc: dict[str, Any] | None,
+    depth: DepthSpec | None,
+) -> int:
+    """Write the report, show the diff, write dataset.yaml, print the summary."""
+    from annotator.calibration.report import report_dict, summary_lines, write_report
+    from annotator.calibration.rig_yaml import (
+        keep_other_fields,
+        rig_mapping,
+        rig_yaml_text,
+        unified_diff,
+        updated_text,
+    )
+    from annotator.io.atomic import write_text
+
+    rig = keep_other_fields(rig_mapping(cal.rig_cameras, depth), old_doc)
+    write_report(report_dir, cal, board, captures=root)
+    write_text(report_dir / "rig.yaml", rig_yaml_text(rig))
+    result: dict[str, Any] = report_dict(cal, board, captures=root)
+    result["report"] = str(report_dir)
+    status = 0
+    diff = ""
+    written = False
+    if ds_yaml is not None:
+        new_text = updated_text(old_text, rig, name=ds_yaml.parent.resolve().name)
+        diff = unified_diff(old_text, new_text, ds_yaml)
+        if not args.json:
+            for line in summary_lines(cal):
+                print(line)
+            print(diff if diff else f"{ds_yaml} already has this rig: nothing to write", end="")
+            if diff and not diff.endswith("\n"):
+                print()
+        if diff and not args.dry_run:
+            if args.yes or not sys.stdin.isatty() or _confirm(ds_yaml):
+                write_text(ds_yaml, new_text)
+                written = True
+            else:
+                status = 1
+        result.update(dataset_yaml=str(ds_yaml), diff=diff, written=written)
+    elif not args.json:
+        for line in summary_lines(cal):
+            print(line)
+    if args.json:
+        print(json.dumps(result, indent=1))
+    else:
+        what = (
+            f"wrote the rig into {ds_yaml}"
+            if written
+            else "dataset.yaml not written"
+            if ds_yaml is not None and diff
+            else "dataset.yaml unchanged"
+            if ds_yaml is not None
+            else f"rig section in {report_dir / 'rig.yaml'} (use --dataset DS to write it)"
+        )
+        print(f"calibrate: RMS {cal.rms_px:.3f} px; report in {report_dir}; {what}")
+    return status
+
+
+def _confirm(path: Path) -> bool:
+    """Ask on the terminal; anything but y/yes is no."""
+    print(f"write {path}? [y/N] ", end="", file=sys.stderr, flush=True)
+    try:
+        answer = sys.stdin.readline().strip().lower()
+    except (EOFError, KeyboardInterrupt):
+        return False
+    return answer in ("y", "yes")
+
+
+def synth_captures(args: argparse.Namespace, config: Any) -> int:
+    """``annotator synth --calibration OUT``: render a board in ``--scenes`` random poses seen by
+    the synthetic rig of ``--seed`` (``--size``, ``--noise``, ``--blur`` apply), into
+    OUT/<camera>/<shot>.png with OUT/board.yaml and OUT/truth.yaml."""
+    from annotator.batch import run_batch
+    from annotator.io.atomic import atomic_folder
+    from annotator.io.output_folder import write_manifest
+    from annotator.synthesis.board import CaptureConfig, ShotJob, plan_captures, write_truth
+
+    cfg = CaptureConfig(
+        shots=config.scenes,
+        seed=config.seed,
+        size=config.size,
+        noise=config.noise,
+        blur=config.blur,
+    )
+    out = Path(args.out)
+    with atomic_folder(out) as tmp:
+        write_manifest(tmp, command="synth")
+        plan = plan_captures(cfg)
+        write_truth(plan, tmp)
+        report = run_batch(
+            ShotJob(cfg, str(tmp)),
+            plan.shot_names,
+            workers=args.workers,
+            desc="synth --calibration",
+            quiet=args.quiet,
+        )
+        if report.failed:
+            report.print_failures()
+            raise UserError(f"{len(report.failed)} shots failed to render; nothing written")
+    summary = {
+        "out": str(out),
+        "shots": len(report.done),
+        "cameras": [c.name for c in plan.rig.cameras],
+        "board": cfg.board.to_yaml(),
+    }
+    if args.json:
+        print(json.dumps(summary, indent=1))
+    else:
+        print(
+            f"synth --calibration: {len(report.done)} shots of a {cfg.board.describe()} board "
+            f"seen by {', '.join(summary['cameras'])}, written to {out} (board.yaml, truth.yaml)"
+        )
+    return 0

@@ -1,0 +1,343 @@
+"""Synthetic calibration captures: a ChArUco board in random poses seen by the synthetic rig.
+
+The board is OpenCV's own picture of it (``CharucoBoard.generateImage``, 20 texels per mm
+for 30 mm squares, square edges exactly on texel edges) on the face of a thin slab with a
+white margin, posed in front of the rig of :mod:`annotator.synthesis.rig`. Each camera casts
+one ray per exact (distorted) OpenCV pixel centre (:meth:`Camera.pixel_rays`) with the
+project's ray caster; pixels near a change of the texture are supersampled on an ``n x n``
+grid of sub-pixel rays; the image is lit from the camera (Lambert plus ambient), blurred,
+noised and quantised like the bin scenes (:func:`annotator.synthesis.shading.finish_image`).
+The true chessboard corners therefore project exactly with ``cv2.projectPoints``.
+
+Board poses (reproducible from the seed): the board centre at a depth of 520-760 mm in the
+reference camera, anywhere in its image; the board facing the rig, tilted by up to 40
+degrees about a random axis in its plane and turned by up to 90 degrees in its plane; kept
+only if each camera sees at least 85% of the chessboard corners.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+import trimesh
+import yaml
+
+from annotator.calibration.board import BOARD_FILE, BoardSpec, write_board_yaml
+from annotator.dataset.model import Rig
+from annotator.dataset.write import rig_to_yaml
+from annotator.errors import UserError
+from annotator.geometry.camera import Camera
+from annotator.geometry.mesh import Mesh
+from annotator.geometry.transforms import axis_angle, make_transform
+from annotator.io.atomic import write_text
+from annotator.io.images import write_png
+from annotator.rendering.raycast import PlacedMesh, RayScene, clip_region, projected_bbox
+from annotator.synthesis.rig import make_rig
+from annotator.synthesis.shading import _interpolate_rays, finish_image
+
+#: The truth file written beside synthetic captures.
+TRUTH_FILE = "truth.yaml"
+
+#: White margin around the chessboard, as a fraction of a square (OpenCV prints half).
+MARGIN_SQUARES = 0.5
+#: Thickness of the board slab, mm (its sides show at grazing angles).
+THICKNESS_MM = 4.0
+#: Texels per square of the board texture (square edges fall exactly on texel edges).
+TEXELS_PER_SQUARE = 600
+
+WHITE, BLACK, SIDE, BACKGROUND = 0.85, 0.06, 0.35, 0.22
+
+
+@dataclass(frozen=True)
+class CaptureConfig:
+    """What defines a set of synthetic calibration captures (with the seed, every byte).
+
+    Attributes:
+        shots: Number of board poses.
+        seed: Random seed (rig perturbation, poses, noise).
+        size: Image size (width, height) of every camera.
+        board: The board.
+        distance: Range of the board centre's depth in the reference camera, mm.
+        max_tilt_deg: Largest angle between the board's normal and the direction to the rig.
+        min_visible: Fraction of the chessboard corners each camera must see.
+        noise: Image noise sigma, grey levels.
+        blur: Image blur sigma, px.
+        supersample: Sub-pixel rays per axis at texture edges.
+    """
+
+    shots: int = 30
+    seed: int = 0
+    size: tuple[int, int] = (1280, 1024)
+    board: BoardSpec = BoardSpec()
+    distance: tuple[float, float] = (520.0, 760.0)
+    max_tilt_deg: float = 40.0
+    min_visible: float = 0.85
+    noise: float = 2.0
+    blur: float = 0.6
+    supersample: int = 4
+
+
+def board_poses(rig: Rig, config: CaptureConfig, rng: np.random.Generator) -> list[np.ndarray]:
+    """``config.shots`` random poses ``rig_T_board`` (see the module docstring)."""
+    spec = config.board
+    ref = rig.cameras[0]
+    centre_board = np.array([*np.asarray(spec.size_mm) / 2, 0.0])
+    # The rig's centre: the board faces it, whichever camera is the reference.
+    rig_centre = np.mean([c.rig_T_cam[:3, 3] for c in rig.cameras], axis=0)
+    poses: list[np.ndarray] = []
+    for _ in range(10000 * config.shots):
+        if len(poses) == config.shots:
+            return poses
+        z = rng.uniform(*config.distance)
+        uv = rng.uniform([0.0, 0.0], [ref.width - 1.0, ref.height - 1.0])
+        xy = ref.undistort_pixels(uv)
+        centre = np.array([xy[0] * z, xy[1] * z, z])
+        # Facing the rig: the board's z axis (into the board) points away from the rig.
+        normal = centre - rig_centre
+        normal /= np.linalg.norm(normal)
+        facing = _frame_with_z(normal)
+        spin = axis_angle(normal, rng.uniform(-np.pi / 2, np.pi / 2))
+        phi = rng.uniform(0.0, 2 * np.pi)
+        tilt_axis = np.cos(phi) * facing[:, 0] + np.sin(phi) * facing[:, 1]
+        tilt = np.radians(config.max_tilt_deg) * np.sqrt(rng.uniform())
+        R = axis_angle(tilt_axis, tilt) @ spin @ facing
+        T = make_transform(R, centre - R @ centre_board)
+        if all(
+            _visible_fraction(cam, cam.cam_T_rig @ T, spec.corners) >= config.min_visible
+            for cam in rig.cameras
+        ):
+            poses.append(T)
+    raise UserError(
+        f"cannot place the {spec.describe()} board {config.distance[0]:g}-"
+        f"{config.distance[1]:g} mm away in view of every camera: the images are too small"
+    )
+
+
+def _frame_with_z(z: np.ndarray) -> np.ndarray:
+    """A rotation whose third column is ``z`` and whose x axis is as close to the rig's x as
+    possible (so an unturned board is upright in the images)."""
+    x = np.array([1.0, 0.0, 0.0]) - z * z[0]
+    x /= np.linalg.norm(x)
+    return np.column_stack([x, np.cross(z, x), z])
+
+
+def _visible_fraction(cam: Camera, cam_T_board: np.ndarray, points: np.ndarray) -> float:
+    pts = points @ cam_T_board[:3, :3].T + cam_T_board[:3, 3]
+    uv = cam.project(pts)
+    inside = (
+        np.isfinite(uv).all(axis=1)
+        & (uv[:, 0] >= 8)
+        & (uv[:, 1] >= 8)
+        & (uv[:, 0] <= cam.width - 9)
+        & (uv[:, 1] <= cam.height - 9)
+    )
+    # The board must face the camera: its normal -z points towards the camera centre.
+    facing = (cam_T_board[:3, 2] @ cam_T_board[:3, 3]) > 0
+    return float(inside.mean()) if facing else 0.0
+
+
+class BoardModel:
+    """The board's slab mesh and texture, built once per board."""
+
+    def __init__(self, spec: BoardSpec) -> None:
+        self.spec = spec
+        w, h = spec.size_mm
+        m = MARGIN_SQUARES * spec.square_mm
+        slab = trimesh.creation.box([w + 2 * m, h + 2 * m, THICKNESS_MM])
+        slab.apply_translation([w / 2, h / 2, THICKNESS_MM / 2])  # face at z = 0, body behind
+        self.mesh = Mesh(np.asarray(slab.vertices), np.asarray(slab.faces, dtype=np.int32))
+        texels = (spec.squares_x * TEXELS_PER_SQUARE, spec.squares_y * TEXELS_PER_SQUARE)
+        image = spec.cv_board.generateImage(texels, marginSize=0, borderBits=1)
+        self.texture = np.where(image > 127, WHITE, BLACK).astype(np.float32)
+        self.texels_per_mm = TEXELS_PER_SQUARE / spec.square_mm
+
+    def albedo(self, points: np.ndarray) -> np.ndarray:
+        """Albedo at board-frame points (..., 3) on the slab: the texture on the printed face,
+        white in the margin, grey on the sides and back."""
+        x, y, z = points[..., 0], points[..., 1], points[..., 2]
+        out = np.full(x.shape, SIDE, np.float32)
+        face = np.abs(z) < 1e-3
+        out[face] = WHITE
+        th, tw = self.texture.shape
+        col = np.floor(x * self.texels_per_mm).astype(np.int64)
+        row = np.floor(y * self.texels_per_mm).astype(np.int64)
+        inside = face & (col >= 0) & (row >= 0) & (col < tw) & (row < th)
+        out[inside] = self.texture[row[inside], col[inside]]
+        return out
+
+
+def render_board(
+    camera: Camera,
+    cam_T_board: np.ndarray,
+    model: BoardModel,
+    *,
+    supersample: int = 4,
+    ambient: float = 0.3,
+) -> np.ndarray:
+    """Float32 intensity image in [0, 1] of the board seen by ``camera`` (no blur, no noise)."""
+    img = np.full((camera.height, camera.width), BACKGROUND, np.float32)
+    box = projected_bbox(camera, model.mesh, cam_T_board, margin=2)
+    if box is None:
+        return img
+    x0, y0, x1, y1 = clip_region(box, camera.width, camera.height)
+    scene = RayScene([PlacedMesh(model.mesh, cam_T_board)])
+    rays = camera.pixel_rays()
+    albedo, light = _sample(scene, model, cam_T_board, rays[y0:y1, x0:x1], ambient)
+    value = albedo * light
+    if supersample > 1:
+        # Supersample wherever the albedo changes within a pixel's 3x3 neighbourhood (texture
+        # and slab edges); shading alone varies too slowly across a pixel to matter.
+        kernel = np.ones((3, 3), np.uint8)
+        edge = cv2.dilate(albedo, kernel) - cv2.erode(albedo, kernel) > 1e-6
+        vs, us = np.nonzero(edge)
+        offs = (np.arange(supersample) + 0.5) / supersample - 0.5
+        acc = np.zeros(len(us), np.float64)
+        for dy in offs:
+            for dx in offs:
+                sub = _interpolate_rays(rays, us + x0 + dx, vs + y0 + dy)
+                a, lit = _sample(scene, model, cam_T_board, sub, ambient)
+                acc += a * lit
+        value[vs, us] = acc / supersample**2
+    img[y0:y1, x0:x1] = value
+    return img
+
+
+def _sample(
+    scene: RayScene, model: BoardModel, cam_T_board: np.ndarray, rays: np.ndarray, ambient: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Albedo and lighting factor along rays ``(x, y, 1)``: Lambert with a light at the camera
+    centre plus ``ambient``; the background's albedo with full light where rays miss."""
+    hits = scene.cast(rays)
+    albedo = np.full(hits.instance.shape, BACKGROUND, np.float32)
+    light = np.ones(hits.instance.shape, np.float32)
+    hit = hits.hit
+    if np.any(hit):
+        r = rays[hit].astype(np.float64)
+        p_cam = r * hits.depth[hit][:, None]  # the ray parameter is the z-depth
+        R, t = cam_T_board[:3, :3], cam_T_board[:3, 3]
+        albedo[hit] = model.albedo((p_cam - t) @ R)
+        n_cam = model.mesh.face_normals[hits.triangle[hit]] @ R.T
+        cos = -(n_cam * r).sum(axis=-1) / np.linalg.norm(r, axis=-1)
+        light[hit] = ambient + (1.0 - ambient) * np.clip(cos, 0.0, 1.0)
+    return albedo, light
+
+
+def render_shot(
+    rig: Rig,
+    rig_T_board: np.ndarray,
+    model: BoardModel,
+    config: CaptureConfig,
+    rng: np.random.Generator,
+) -> list[np.ndarray]:
+    """The uint8 image of every rig camera for one board pose (blur and noise included)."""
+    return [
+        finish_image(
+            render_board(cam, cam.cam_T_rig @ rig_T_board, model, supersample=config.supersample),
+            blur=config.blur,
+            noise=config.noise,
+            rng=rng,
+        )
+        for cam in rig.cameras
+    ]
+
+
+def true_corners(cam: Camera, rig_T_board: np.ndarray, spec: BoardSpec) -> np.ndarray:
+    """(corner_count, 2) exact pixel positions of the chessboard corners in ``cam``."""
+    T = cam.cam_T_rig @ rig_T_board
+    return cam.project(spec.corners @ T[:3, :3].T + T[:3, 3])
+
+
+@dataclass
+class CapturePlan:
+    """The rig, the board and its poses: everything but the images."""
+
+    config: CaptureConfig
+    rig: Rig
+    poses: list[np.ndarray]
+    model: BoardModel
+
+    @property
+    def shot_names(self) -> list[str]:
+        """``000``, ``001``, ... (wider when there are more than 1000 shots)."""
+        digits = max(3, len(str(self.config.shots - 1)))
+        return [f"{k:0{digits}d}" for k in range(self.config.shots)]
+
+    def render(self, k: int) -> list[np.ndarray]:
+        """The images of shot ``k`` (uint8, one per camera), the same bytes every time."""
+        rng = np.random.default_rng([self.config.seed, k, _NOISE_STREAM])
+        return render_shot(self.rig, self.poses[k], self.model, self.config, rng)
+
+
+def plan_captures(config: CaptureConfig) -> CapturePlan:
+    """The synthetic rig of ``annotator synth --seed`` (the same rig as its scenes) and the
+    board poses, all from the seed."""
+    rig = make_rig(*config.size, rng=np.random.default_rng(config.seed)).rig
+    poses = board_poses(rig, config, np.random.default_rng([config.seed, _POSE_STREAM]))
+    return CapturePlan(config, rig, poses, BoardModel(config.board))
+
+
+def write_truth(plan: CapturePlan, root: Path) -> None:
+    """``board.yaml`` (the board, read by ``annotator calibrate``) and ``truth.yaml`` (the rig
+    in dataset.yaml's ``rig:`` format, each shot's ``rig_T_board`` and the settings)."""
+    write_board_yaml(root / BOARD_FILE, plan.config.board)
+    cfg = plan.config
+    doc = {
+        "rig": rig_to_yaml(plan.rig),
+        "board_poses": {
+            name: [round(float(v), 9) for v in T.ravel()]
+            for name, T in zip(plan.shot_names, plan.poses)
+        },
+        "synth": {
+            "shots": cfg.shots,
+            "seed": cfg.seed,
+            "size": list(cfg.size),
+            "distance_mm": list(cfg.distance),
+            "max_tilt_deg": cfg.max_tilt_deg,
+            "min_visible": cfg.min_visible,
+            "noise": cfg.noise,
+            "blur": cfg.blur,
+            "supersample": cfg.supersample,
+        },
+    }
+    header = (
+        "# The truth behind these synthetic captures (annotator synth --calibration):\n"
+        "# rig: the rig that rendered them, in dataset.yaml's format; board_poses: rig_T_board\n"
+        "# of every shot (16 floats, row-major, mm).\n"
+    )
+    write_text(
+        root / TRUTH_FILE,
+        header + yaml.safe_dump(doc, sort_keys=False, default_flow_style=None, width=200),
+    )
+
+
+@dataclass(frozen=True)
+class ShotJob:
+    """Render and write one shot (a job of :func:`annotator.batch.run_batch`, picklable)."""
+
+    config: CaptureConfig
+    root: str
+
+    def prepare(self) -> None:
+        """Plan the captures and tabulate the cameras' rays once, before workers fork."""
+        for cam in _plan(self.config).rig.cameras:
+            cam.pixel_rays()
+
+    def __call__(self, shot: str) -> dict:
+        plan = _plan(self.config)
+        images = plan.render(plan.shot_names.index(shot))
+        for cam, img in zip(plan.rig.cameras, images):
+            write_png(Path(self.root) / cam.name / f"{shot}.png", img)
+        return {}
+
+
+_POSE_STREAM, _NOISE_STREAM = 7919, 104729
+_PLANS: dict[CaptureConfig, CapturePlan] = {}
+
+
+def _plan(config: CaptureConfig) -> CapturePlan:
+    if config not in _PLANS:
+        _PLANS[config] = plan_captures(config)
+    return _PLANS[config]
