@@ -8,12 +8,13 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from annotator.annotation.scene import Settings, annotate_scene
+from annotator.annotation.scene import UNEXPLAINED_MASK, Settings, annotate_scene
 from annotator.dataset import Dataset, Scene, cached_dataset
-from annotator.dataset.poses import read_pose_file, write_poses
+from annotator.dataset.poses import read_pose_file
 from annotator.dataset.review import now_iso
 from annotator.detection import MarkerDetector
 from annotator.errors import UserError
+from annotator.io.images import write_png
 
 
 def description_digest(ds: Dataset) -> str:
@@ -81,21 +82,22 @@ class AnnotateJob:
     def __call__(self, scene_id: str) -> dict[str, Any]:
         ds, detector = _context(self.root)
         scene = ds.scene(scene_id)
-        poses, top = annotate_scene(ds, scene, detector, settings=self.settings)
-        if not poses and top["warnings"]:
+        result = annotate_scene(ds, scene, detector, settings=self.settings)
+        ann = result.annotation
+        if not ann.instances and any(w.kind == "no_markers" for w in ann.warnings):
             raise UserError("no marker of any known instance detected", path=scene.path)
-        write_poses(
-            scene.annotation_path,
-            poses,
-            format=1,
-            created_at=now_iso(),
-            description_digest=self.digest,
-            errors=[],
-            **top,
-        )
+        ann.created_at = now_iso()
+        ann.description_digest = self.digest
+        mask_path = scene.path / UNEXPLAINED_MASK
+        if ann.unexplained_mask is not None and result.unexplained is not None:
+            write_png(mask_path, result.unexplained)
+        ann.write(scene.annotation_path)
+        if ann.unexplained_mask is None:
+            mask_path.unlink(missing_ok=True)  # an earlier run's mask no longer holds
         return {
-            "instances": len(poses),
-            "flagged": sum(1 for p in poses if p.extra.get("flags")),
+            "instances": len(ann.instances),
+            "flagged": sum(1 for i in ann.instances if i.flags),
+            "warned": bool(ann.warnings),
         }
 
 

@@ -1,23 +1,50 @@
-"""Annotating one scene: detection in every camera, consensus per instance, refinement, trust.
+"""Annotating one scene: detection in every camera, consensus per instance, refinement, trust,
+and the scene's completeness.
 
 Robust consensus: every camera's candidate poses (see :mod:`annotator.pnp`) are scored by how
 many of the instance's markers, in all cameras, they reproject within ``inlier_px``; the best
 is refined on its inliers, all markers are re-tested against the refined pose, and refined
 again. Markers left out are *rejected* (a misread id, a marker glued elsewhere, a false
 detection). An id seen twice in one image keeps the detection consistent with the rest.
+
+Blurred markers (see :mod:`annotator.detection.deblur`) come in two ways, both held to the
+support of others: an id read only through the blur model (*soft*) poses an instance only when
+at least two soft observations (two markers, or one marker in two cameras) agree on the pose;
+and once an instance is posed, each of its markers that should be visible in a camera where it
+was not read is looked for among the unread candidate squares: a square within 2.5 px (or
+12% of its side) of the projected marker, whose bits differ from the marker's in at most 2,
+is *recovered*. Recovered markers are listed as such in annotation.json.
 """
 
 from __future__ import annotations
 
+import functools
 from collections import defaultdict
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+from scipy import ndimage
 
 from annotator.annotation import FLAGS
+from annotator.annotation.completeness import (
+    CompletenessSettings,
+    exposure,
+    find_regions,
+    fit_support_plane,
+    mean_silhouette_mm2,
+    plane_depth,
+    quality_warnings,
+    support_pixels,
+    unexplained_mask,
+)
+from annotator.annotation.record import InstanceAnnotation, SceneAnnotation, SceneWarning
 from annotator.dataset import Dataset, InstancePose, Scene
-from annotator.detection import Detection, MarkerDetector
+from annotator.detection import MarkerDetector
+from annotator.detection.aruco import ImageReading
+from annotator.io.images import to_gray8
+from annotator.markers.texture import marker_bits
 from annotator.pnp import (
     Observation,
     iter_candidate_poses,
@@ -42,6 +69,7 @@ class Settings:
     #: Occlusion and depth agreement from every 2nd pixel of every 2nd row (4x fewer rays;
     #: rates within 0.2% on the sample scenes); ``annotator occlusion`` gives the exact rates.
     visibility_step: int = 2
+    completeness: CompletenessSettings = field(default_factory=CompletenessSettings)
 
 
 @dataclass
@@ -52,9 +80,13 @@ class InstanceResult:
     extra: dict[str, Any] = field(default_factory=dict)
 
 
-def detect_scene(ds: Dataset, scene: Scene, detector: MarkerDetector) -> list[list[Detection]]:
-    """Detections per rig camera (UserError if an image is missing, corrupt or mis-sized)."""
-    return [detector.detect(scene.read_image(cam)) for cam in ds.rig.cameras]
+@dataclass
+class SceneResult:
+    """What annotating a scene gives: the annotation.json record and the unexplained-depth
+    mask (uint8, 255 = unexplained, on the depth camera's grid), or None without depth."""
+
+    annotation: SceneAnnotation
+    unexplained: np.ndarray | None
 
 
 def annotate_scene(
@@ -63,41 +95,258 @@ def annotate_scene(
     detector: MarkerDetector,
     *,
     settings: Settings = Settings(),
-) -> tuple[list[InstancePose], dict[str, Any]]:
-    """Pose every instance with detected markers; return the poses and top-level fields."""
+) -> SceneResult:
+    """Pose every instance with detected markers, and check the scene's completeness."""
     cams = ds.rig.cameras
-    detections = detect_scene(ds, scene, detector)
+    grays = [to_gray8(scene.read_image(cam)) for cam in cams]
+    readings = [detector.read(g) for g in grays]
     table = ds.marker_table
     unknown: dict[str, list[int]] = {}
     duplicates: dict[str, list[int]] = {}
     per_instance: dict[tuple[str, str], list[Observation]] = defaultdict(list)
-    for j, dets in enumerate(detections):
+    for j, reading in enumerate(readings):
         counts: dict[int, int] = defaultdict(int)
-        for d in dets:
+        for d in reading.markers:
             counts[d.id] += 1
-        for d in dets:
+        for d in reading.markers:
             ref = table.get(d.id)
             if ref is None:
-                unknown.setdefault(cams[j].name, []).append(d.id)
+                if not d.soft:  # a soft reading of an unknown id is most likely a misreading
+                    unknown.setdefault(cams[j].name, []).append(d.id)
                 continue
             if counts[d.id] > 1 and d.id not in duplicates.get(cams[j].name, []):
                 duplicates.setdefault(cams[j].name, []).append(d.id)
             X = ds.objects[ref.object].markers.corners[ref.site]
-            per_instance[(ref.object, ref.instance)].append(Observation(j, d.id, X, d.corners))
+            per_instance[(ref.object, ref.instance)].append(
+                Observation(j, d.id, X, d.corners, soft=d.soft)
+            )
     results: list[InstanceResult] = []
     for (obj, inst), obs in sorted(per_instance.items()):
         r = _pose_instance(ds, obj, inst, obs, settings)
+        if r is not None and _recover_markers(ds, r, obs, readings, grays, detector):
+            r = _pose_instance(ds, obj, inst, obs, settings) or r
         if r is not None:
             results.append(r)
     _flag_overlaps(ds, results)
     depth = scene.read_depth(ds.rig)
-    _add_visibility(ds, results, depth, settings)
-    poses = [InstancePose(r.object, r.instance, r.T[:3, :3], r.T[:3, 3], r.extra) for r in results]
-    warnings = []
-    if not any(detections):
-        warnings.append("no marker detected in any camera")
-    top = {"unknown_markers": unknown, "duplicates": duplicates, "warnings": warnings}
-    return poses, top
+    renders: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+    _add_visibility(ds, results, depth, settings, renders)
+    instances = [
+        InstanceAnnotation.from_pose(
+            InstancePose(r.object, r.instance, r.T[:3, :3], r.T[:3, 3], r.extra)
+        )
+        for r in results
+    ]
+    quality = {
+        cam.name: {
+            "edge_blur_px": None if reading.blur_px is None else round(reading.blur_px, 2),
+            **dict(zip(("median", "saturated"), (round(v, 4) for v in exposure(gray)))),
+        }
+        for cam, reading, gray in zip(cams, readings, grays)
+    }
+    warnings = [SceneWarning.from_json(w) for w in quality_warnings(quality, settings.completeness)]
+    if not any(r.markers for r in readings):
+        warnings.insert(0, SceneWarning("no_markers", "no marker detected in any camera"))
+    mask = None
+    if depth is not None and ds.rig.depth is not None:
+        ref = [c.name for c in cams].index(ds.rig.depth.camera)
+        found, mask = unexplained_depth(
+            ds,
+            depth,
+            renders,
+            disagreeing=[
+                k for k, r in enumerate(results) if "depth_disagreement" in r.extra["flags"]
+            ],
+            unread=readings[ref].unread,
+            settings=settings,
+        )
+        if found is not None:
+            warnings.append(found)
+    annotation = SceneAnnotation(
+        instances=instances,
+        warnings=warnings,
+        image_quality=quality,
+        unknown_markers=unknown,
+        duplicates=duplicates,
+        unexplained_mask=UNEXPLAINED_MASK if mask is not None and mask.any() else None,
+    )
+    return SceneResult(annotation, mask)
+
+
+#: File name of the unexplained-depth mask, beside annotation.json.
+UNEXPLAINED_MASK = "unexplained.png"
+
+
+def _recover_markers(
+    ds: Dataset,
+    r: InstanceResult,
+    obs: list[Observation],
+    readings: list[ImageReading],
+    grays: list[np.ndarray],
+    detector: MarkerDetector,
+) -> bool:
+    """Add to ``obs`` the markers of a posed instance found among the unread candidate
+    squares where the pose puts them (see the module docstring); True if any was."""
+    model = ds.objects[r.object]
+    inst = model.instance(r.instance)
+    seen = {(o.camera, o.marker_id) for o in obs}
+    added = False
+    for j, (cam, reading) in enumerate(zip(ds.rig.cameras, readings)):
+        if len(reading.unread) == 0:
+            continue
+        centres = reading.unread.mean(axis=1)
+        T = cam.cam_T_rig @ r.T
+        for site, mid in enumerate(inst.marker_ids):
+            if (j, mid) in seen:
+                continue
+            X = model.markers.corners[site]
+            C = X @ T[:3, :3].T + T[:3, 3]
+            normal = np.cross(C[3] - C[0], C[1] - C[0])
+            centre = C.mean(axis=0)
+            if C[:, 2].min() <= 0 or -(normal @ centre) < RECOVER_COS * np.linalg.norm(
+                normal
+            ) * np.linalg.norm(centre):
+                continue  # behind the camera, facing away or seen too obliquely
+            uv = cam.project(C)
+            side = float(np.linalg.norm(uv - np.roll(uv, 1, axis=0), axis=1).mean())
+            near = np.flatnonzero(np.linalg.norm(centres - uv.mean(axis=0), axis=1) < 0.35 * side)
+            for k in near:
+                quads = [np.roll(reading.unread[k], m, axis=0) for m in range(4)]
+                m = int(np.argmin([np.abs(q - uv).max() for q in quads]))
+                if np.linalg.norm(quads[m] - uv, axis=1).max() > max(2.5, 0.12 * side):
+                    continue
+                expected = np.rot90(_inner_bits(ds.dictionary, mid), m)
+                if int(np.sum(reading.unread_bits[k] != expected)) > RECOVER_MAX_BIT_ERRORS:
+                    continue
+                corners = detector.refine(grays[j], quads[m][None])[0]
+                obs.append(Observation(j, mid, X, corners, soft=True))
+                seen.add((j, mid))
+                added = True
+                break
+    return added
+
+
+#: Recovery: markers seen within 75 degrees of face-on; at most 2 of 16 bits may differ.
+RECOVER_COS = float(np.cos(np.radians(75.0)))
+RECOVER_MAX_BIT_ERRORS = 2
+
+
+@functools.lru_cache(maxsize=4096)
+def _inner_bits(dictionary: str, marker_id: int) -> np.ndarray:
+    """The marker's inner bits (True = white), rows and columns as printed."""
+    return marker_bits(dictionary, marker_id)[1:-1, 1:-1] > 127
+
+
+def render_poses(
+    ds: Dataset, poses: list[InstancePose], *, step: int = 2
+) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """What each camera sees of ``poses``: per camera, the depth of the nearest instance and
+    its index at every ``step``-th pixel (see :func:`annotator.occlusion.scene_visibility`)."""
+    from annotator.occlusion import scene_visibility
+
+    renders: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+    if poses:
+        meshes = [ds.objects[p.object].mesh for p in poses]
+        scene_visibility(ds.rig, meshes, [p.T for p in poses], step=step, renders=renders)
+    return renders
+
+
+def unexplained_depth(
+    ds: Dataset,
+    depth: np.ndarray,
+    renders: dict[str, tuple[np.ndarray, np.ndarray]],
+    *,
+    disagreeing: Sequence[int] = (),
+    unread: np.ndarray | None = None,
+    settings: Settings = Settings(),
+) -> tuple[SceneWarning | None, np.ndarray]:
+    """The ``unexplained_depth`` warning (or None) and the full-resolution mask (uint8, 255
+    where a reported region is), for a depth map (mm) and the posed instances as rendered
+    (:func:`render_poses`, on the grid of ``settings.visibility_step``).
+
+    Args:
+        disagreeing: Indices of instances flagged ``depth_disagreement``: a region lying
+            mostly on one's rendered silhouette is that instance's (a part with a doubtful
+            pose, already flagged), not a part without a pose.
+        unread: Candidate squares (K, 4, 2) of the depth camera that could not be read: those
+            on a region are listed with it.
+    """
+    cs = settings.completeness
+    step = settings.visibility_step
+    cam = ds.rig.depth_camera
+    rays = cam.pixel_rays(step)
+    measured = depth[::step, ::step]
+    rendered, front = renders.get(cam.name, (None, None))
+    if rendered is None:
+        rendered = np.full(measured.shape, np.inf, np.float32)
+        front = np.full(measured.shape, -1, np.int32)
+    full_bg = ds.background_depth
+    if full_bg is not None:
+        background = _filled(full_bg)[::step, ::step]
+        source = "the dataset's background depth"
+    else:
+        points = rays * measured[..., None]
+        plane = fit_support_plane(points)
+        background = (
+            plane_depth(plane, rays) if plane is not None else np.full(measured.shape, np.inf)
+        )
+        # A bin's rim and walls are setting, not parts: they count as background.
+        background = np.where(support_pixels(points, plane), measured, background)
+        source = "the support plane found in the depth"
+    mask = unexplained_mask(measured, background, rendered, cs)
+    z = float(np.nanmedian(measured)) if np.isfinite(measured).any() else 1000.0
+    f2 = float(cam.K[0, 0] * cam.K[1, 1]) / (z * z)
+    areas = [_silhouette_mm2(o.mesh) * f2 for o in ds.objects.values()]
+    min_px = cs.min_region_fraction * min(areas) if areas else np.inf
+    regions, kept = find_regions(
+        mask,
+        measured,
+        step=step,
+        min_pixels=min_px,
+        skip_border_bands=full_bg is None,
+        owned=np.isin(front, list(disagreeing)),
+    )
+    full = np.repeat(np.repeat(kept, step, axis=0), step, axis=1)[: cam.height, : cam.width]
+    full_mask = (full * 255).astype(np.uint8)
+    if not regions:
+        return None, full_mask
+    for q in unread if unread is not None else ():
+        x, y = q.mean(axis=0)
+        if 0 <= x < cam.width and 0 <= y < cam.height and full[int(y), int(x)]:
+            for reg in regions:
+                x0, y0, x1, y1 = reg.box
+                if x0 <= x < x1 and y0 <= y < y1:
+                    reg.unread_markers.append((float(x), float(y)))
+                    break
+    n_unread = sum(len(r.unread_markers) for r in regions)
+    message = (
+        f"{len(regions)} region(s) of measured depth in front of {source} that no pose explains "
+        f"({sum(r.pixels for r in regions)} px)"
+        + (f", with {n_unread} unread marker square(s)" if n_unread else "")
+        + ": a part may have no pose"
+    )
+    warning = SceneWarning(
+        "unexplained_depth", message, {"regions": [r.to_json() for r in regions]}
+    )
+    return warning, full_mask
+
+
+def _filled(depth: np.ndarray) -> np.ndarray:
+    """A background depth map with its holes filled from the nearest measured pixel."""
+    holes = ~np.isfinite(depth)
+    if not holes.any() or holes.all():
+        return depth
+    _, (iy, ix) = ndimage.distance_transform_edt(holes, return_indices=True)
+    return depth[iy, ix]
+
+
+@functools.lru_cache(maxsize=64)
+def _silhouette_cached(digest: bytes, vertices: bytes) -> float:
+    return mean_silhouette_mm2(np.frombuffer(vertices).reshape(-1, 3))
+
+
+def _silhouette_mm2(mesh) -> float:
+    return _silhouette_cached(mesh.digest, mesh.vertices.tobytes())
 
 
 def _pose_instance(
@@ -131,6 +380,8 @@ def _pose_instance(
         inliers = new
         est = refine_pose(cams, [obs[k] for k in inliers], est.T)
     used = [obs[k] for k in inliers]
+    if all(o.soft for o in used) and len({(o.camera, o.marker_id) for o in used}) < 2:
+        return None  # one blurred reading alone is not evidence enough
     err = reprojection_errors(cams, obs, est.T)
     flags: list[str] = []
     views = sorted({o.camera for o in used})
@@ -141,7 +392,8 @@ def _pose_instance(
     used_err = err[inliers]
     if float(np.sqrt(np.mean(used_err**2))) > s.high_residual_px:
         flags.append("high_residual")
-    rejected = [k for k in range(len(obs)) if k not in inliers]
+    # A blurred reading that disagrees is a misreading, not a marker glued elsewhere.
+    rejected = [k for k in range(len(obs)) if k not in inliers and not obs[k].soft]
     if rejected:
         flags.append("rejected_markers")
     model = ds.objects[obj]
@@ -152,6 +404,8 @@ def _pose_instance(
     for k, o in enumerate(obs):
         entry = markers.setdefault(cams[o.camera].name, {"used": [], "rejected": []})
         entry["used" if k in inliers else "rejected"].append(o.marker_id)
+        if o.soft and k in inliers:
+            entry.setdefault("recovered", []).append(o.marker_id)
     per_cam = {}
     for j in views:
         e = [err[k] for k in inliers if obs[k].camera == j]
@@ -222,16 +476,26 @@ def _ambiguous(cams, used: list[Observation], T: np.ndarray, s: Settings) -> boo
 
 
 def _add_visibility(
-    ds: Dataset, results: list[InstanceResult], depth: np.ndarray | None, s: Settings
+    ds: Dataset,
+    results: list[InstanceResult],
+    depth: np.ndarray | None,
+    s: Settings,
+    renders: dict[str, tuple[np.ndarray, np.ndarray]],
 ) -> None:
-    """Depth agreement and occlusion rates of the posed instances (all instances as occluders)."""
+    """Depth agreement and occlusion rates of the posed instances (all instances as
+    occluders); ``renders`` receives what each camera sees of the posed instances."""
     if not results:
         return
     from annotator.occlusion import scene_visibility
 
     meshes = [ds.objects[r.object].mesh for r in results]
     vis = scene_visibility(
-        ds.rig, meshes, [r.T for r in results], depth=depth, step=s.visibility_step
+        ds.rig,
+        meshes,
+        [r.T for r in results],
+        depth=depth,
+        step=s.visibility_step,
+        renders=renders,
     )
     for r, v in zip(results, vis):
         r.extra["occlusion"] = {

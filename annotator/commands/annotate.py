@@ -44,6 +44,7 @@ def run(args: argparse.Namespace) -> int:
     )
     posed = sum(r["instances"] for r in report.done.values())
     flagged = sum(r["flagged"] for r in report.done.values())
+    warned = sum(r["warned"] for r in report.done.values())
     summary = {
         "scenes": len(scenes),
         "done": len(report.done),
@@ -51,6 +52,7 @@ def run(args: argparse.Namespace) -> int:
         "failed": len(report.failed),
         "instances_posed": posed,
         "instances_flagged": flagged,
+        "scenes_warned": warned,
         "failures": dict(sorted(report.failed.items())),
     }
     if args.json:
@@ -59,6 +61,7 @@ def run(args: argparse.Namespace) -> int:
         report.print_failures()
         print(
             f"annotate: {len(report.done)} scenes done, {skipped} up to date (skipped), {len(report.failed)} failed; "
-            f"{posed} instances posed, {flagged} flagged"
+            f"{posed} instances posed, {flagged} flagged; {warned} scenes with warnings "
+            "(parts without a pose, blur, exposure: `annotator check --annotations`)"
         )
     return 1 if report.failed else 0

@@ -11,10 +11,16 @@ from annotator.dataset.check import check_dataset
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("dataset", help="dataset folder (FORMAT.md)")
     parser.add_argument("--json", action="store_true", help="print the problems as JSON")
+    parser.add_argument(
+        "--annotations",
+        action="store_true",
+        help="also list the scenes whose annotation.json carries warnings (a part without a "
+        "pose, blurred or badly exposed images), as warnings",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
-    problems, scenes = check_dataset(args.dataset)
+    problems, scenes = check_dataset(args.dataset, annotations=args.annotations)
     if args.json:
         print(
             json.dumps(

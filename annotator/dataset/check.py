@@ -21,17 +21,34 @@ SITE_TOLERANCE_MM = 0.5
 SIZE_TOLERANCE = 0.02  # relative
 
 
-def check_dataset(root: str | Path) -> tuple[list[Problem], int]:
-    """All problems of the dataset at ``root`` and the number of scenes looked at."""
+def check_dataset(root: str | Path, *, annotations: bool = False) -> tuple[list[Problem], int]:
+    """All problems of the dataset at ``root`` and the number of scenes looked at; with
+    ``annotations``, the warnings of every annotation.json too (as warning problems)."""
     ds, problems = read_dataset(root)
     if ds is None:
         return problems, 0
     problems += _check_objects(ds)
+    try:
+        ds.background_depth  # noqa: B018  (cached property: reads and checks the file)
+    except UserError as exc:
+        problems.append(Problem(exc.path or ds.root / "dataset.yaml", exc.message))
     n = 0
     for scene in ds.scenes():
         n += 1
         problems += _check_scene(ds, scene)
+        if annotations and scene.annotation_path.exists():
+            problems += _annotation_warnings(scene.annotation_path)
     return problems, n
+
+
+def _annotation_warnings(path: Path) -> list[Problem]:
+    from annotator.annotation.record import SceneAnnotation
+
+    try:
+        ann = SceneAnnotation.read(path)
+    except UserError:
+        return []  # reported by _check_scene
+    return [Problem(path, f"{w.kind}: {w.message}", warning=True) for w in ann.warnings]
 
 
 def _check_objects(ds: Dataset) -> list[Problem]:

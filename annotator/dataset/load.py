@@ -258,7 +258,11 @@ def _parse_rig(p: _Parser, rig: dict[str, Any] | None) -> Rig | None:
             elif cameras and cam not in [c.name for c in cameras]:
                 p.problem(f"rig.depth.camera {cam!r} is not a rig camera")
             else:
-                depth = DepthSpec(camera=cam, scale=float(scale))
+                bg = d.get("background")
+                if bg is not None and not isinstance(bg, str):
+                    p.problem("rig.depth.background must be a file name (the empty bin's depth)")
+                    bg = None
+                depth = DepthSpec(camera=cam, scale=float(scale), background=bg)
     if not cameras:
         return None
     return Rig(cameras=tuple(cameras), depth=depth)

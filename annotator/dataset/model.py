@@ -18,10 +18,13 @@ __all__ = ["SYMMETRY_CLASSES", "Symmetry"]  # re-exported: object.yaml records u
 
 @dataclass(frozen=True)
 class DepthSpec:
-    """Where depth maps live: the pixel grid/frame of ``camera``, ``scale`` mm per unit."""
+    """Where depth maps live: the pixel grid/frame of ``camera``, ``scale`` mm per unit, and
+    optionally ``background``, a depth map of the empty bin or support (a file name relative
+    to the dataset folder, same grid and scale)."""
 
     camera: str
     scale: float
+    background: str | None = None
 
 
 @dataclass(frozen=True)
@@ -181,6 +184,27 @@ class Dataset:
         if not path.is_dir():
             raise KeyError(scene_id)
         return Scene(scene_id, path)
+
+    @cached_property
+    def background_depth(self) -> np.ndarray | None:
+        """The depth (mm, NaN = none) of the empty bin or support declared as
+        ``rig.depth.background``, or None; UserError if unreadable or of the wrong size."""
+        from annotator.errors import UserError
+        from annotator.io.images import read_depth
+
+        spec = self.rig.depth
+        if spec is None or spec.background is None:
+            return None
+        path = self.root / spec.background
+        depth = read_depth(path, spec.scale)
+        cam = self.rig.camera(spec.camera)
+        if depth.shape != (cam.height, cam.width):
+            raise UserError(
+                f"background depth is {depth.shape[1]}x{depth.shape[0]}, the rig says "
+                f"{cam.width}x{cam.height}",
+                path=path,
+            )
+        return depth
 
     @cached_property
     def marker_table(self) -> dict[int, MarkerRef]:

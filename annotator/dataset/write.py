@@ -37,6 +37,8 @@ def rig_to_yaml(rig: Rig) -> dict[str, Any]:
     out: dict[str, Any] = {"cameras": cams}
     if rig.depth is not None:
         out["depth"] = {"camera": rig.depth.camera, "scale": float(rig.depth.scale)}
+        if rig.depth.background is not None:
+            out["depth"]["background"] = rig.depth.background
     return out
 
 

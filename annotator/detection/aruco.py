@@ -30,6 +30,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from annotator.detection.deblur import estimate_blur, read_soft_bits
+from annotator.detection.homography import apply_homographies, unit_square_homographies
 from annotator.io.images import to_gray8
 from annotator.markers.texture import dictionary
 
@@ -41,6 +43,14 @@ PIXELS_PER_CELL = 4
 #: code (measured: such slivers were false identifications, which OpenCV makes too).
 MIN_PX_PER_CELL = 1.0
 
+#: Candidates read through the blur model need cells of at least this many pixels: below,
+#: the model has too few samples per cell to tell the bits apart.
+SOFT_MIN_PX_PER_CELL = 2.0
+
+#: Images blurred more than this (px) get a second search for candidate squares with a looser
+#: polygon fit (measured on sigma = 2 px renderings: 7% more of the visible markers found).
+SECOND_PASS_BLUR_PX = 1.5
+
 
 #: Half-size of cv2.cornerSubPix's window before the edge fit; larger windows reach across
 #: the cells of 20 px markers and pull the corners inwards (measured: 2 px gives the
@@ -51,10 +61,35 @@ _SUBPIX_CRITERIA = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 30, 0.01
 
 @dataclass(frozen=True)
 class Detection:
-    """One detected marker: its id and its 4 corners (4, 2) in pixels, OpenCV order."""
+    """One detected marker: its id and its 4 corners (4, 2) in pixels, OpenCV order.
+
+    ``soft``: the id was read only through the blur model (:mod:`.deblur`), not by
+    thresholding; such a reading needs the support of other markers before it is trusted.
+    """
 
     id: int
     corners: np.ndarray
+    soft: bool = False
+
+
+@dataclass(frozen=True)
+class ImageReading:
+    """Everything the detector saw in one image.
+
+    Attributes:
+        markers: Identified markers (some ``soft``).
+        unread: (K, 4, 2) candidate squares that could not be identified, corners as found.
+        unread_bits: (K, n, n) their inner bits through the blur model (True = white), in
+            their own corner order, and ``unread_margin`` the bits' margins (contrasts).
+        blur_px: The image's blur (Gaussian sigma, px) estimated from the candidate squares,
+            or None when there were none large enough.
+    """
+
+    markers: list[Detection]
+    unread: np.ndarray
+    unread_bits: np.ndarray
+    unread_margin: np.ndarray
+    blur_px: float | None
 
 
 class MarkerDetector:
@@ -86,9 +121,13 @@ class MarkerDetector:
         params.minMarkerDistanceRate = 0.0
         probe = cv2.aruco.Dictionary(full.bytesList[:1].copy(), full.markerSize, 0)
         self._detector = cv2.aruco.ArucoDetector(probe, params, cv2.aruco.RefineParameters())
+        loose = cv2.aruco.DetectorParameters()
+        loose.minMarkerDistanceRate = 0.0
+        loose.polygonalApproxAccuracyRate = 0.06  # OpenCV's default: 0.03
+        self._blurred_detector = cv2.aruco.ArucoDetector(probe, loose, cv2.aruco.RefineParameters())
 
     def detect(self, image: np.ndarray) -> list[Detection]:
-        """Detect markers in an 8/16-bit grey or colour image."""
+        """Detect markers in an 8/16-bit grey or colour image (thresholded reading only)."""
         gray = to_gray8(image)
         found, ids, rejected = self._detector.detectMarkers(gray)
         if self.opencv_only:
@@ -96,23 +135,87 @@ class MarkerDetector:
                 return []
             quads = np.asarray(found, dtype=np.float64).reshape(-1, 4, 2)
             return [Detection(int(i), q) for i, q in zip(np.ravel(ids), quads)]
-        candidates = [np.asarray(q, np.float64).reshape(4, 2) for q in (*found, *rejected)]
-        if not candidates:
-            return []
-        ids, quads = identify(
+        candidates = _candidates(found, rejected)
+        ids, quads, _ = identify(
             gray,
-            np.stack(candidates),
+            candidates,
             self._codebook,
             border_tolerance=self._border_tolerance,
             min_std=self._min_std,
         )
-        if len(quads):
-            # A small-window corner fit first, so that the edge fit starts near the sides.
-            start = quads.reshape(-1, 1, 2).astype(np.float32)
-            window = (SUBPIX_HALF_WINDOW, SUBPIX_HALF_WINDOW)
-            start = cv2.cornerSubPix(gray, start, window, (-1, -1), _SUBPIX_CRITERIA)
-            quads = refine_quads(gray, start.reshape(-1, 4, 2).astype(np.float64))
-        return [Detection(int(i), q) for i, q in zip(ids, quads)]
+        return [Detection(int(i), q) for i, q in zip(ids, self.refine(gray, quads))]
+
+    def read(self, image: np.ndarray) -> ImageReading:
+        """:meth:`detect`, then a second reading, through the blur model, of the candidate
+        squares that thresholding could not identify (see :mod:`.deblur`)."""
+        if self.opencv_only:
+            raise ValueError("read() needs the project's own reader (opencv_only=False)")
+        gray = to_gray8(image)
+        found, _, rejected = self._detector.detectMarkers(gray)
+        candidates = _candidates(found, rejected)
+        n = self._codebook.marker_size
+        blur = estimate_blur(gray, candidates, n + 2) if len(candidates) else None
+        if blur is not None and blur > SECOND_PASS_BLUR_PX:
+            # Blurred corners are round: a looser polygon fit finds squares the first missed.
+            more = _candidates(*self._blurred_detector.detectMarkers(gray)[::2])
+            candidates = _merge_candidates(candidates, more)
+        ids, quads, identified = identify(
+            gray,
+            candidates,
+            self._codebook,
+            border_tolerance=self._border_tolerance,
+            min_std=self._min_std,
+        )
+        markers = [Detection(int(i), q) for i, q in zip(ids, self.refine(gray, quads))]
+        rest = candidates[~identified]
+        sides = np.linalg.norm(rest - np.roll(rest, 1, axis=1), axis=2).min(axis=1)
+        rest = rest[sides >= SOFT_MIN_PX_PER_CELL * (n + 2)] if len(rest) else rest
+        soft = read_soft_bits(gray, rest, n, blur if blur is not None else 1.0)
+        # An exact code with a clean border is a soft identification; the others stay unread.
+        codes = pack_bits(soft.bits)
+        soft_ids, rot = self._codebook.lookup_exact(codes)
+        ok = (soft_ids >= 0) & (soft.border_errors <= 1)
+        turned = rest[np.arange(len(rest))[:, None], (np.arange(4)[None, :] - rot[:, None]) % 4]
+        s_ids, s_quads = _one_per_marker(
+            soft_ids[ok],
+            turned[ok].reshape(-1, 4, 2),
+            np.linalg.norm(turned[ok] - np.roll(turned[ok], 1, axis=1), axis=2).sum(axis=1),
+        )
+        known = {int(m.id) for m in markers}
+        markers += [
+            Detection(int(i), q, soft=True)
+            for i, q in zip(s_ids, self.refine(gray, s_quads))
+            if int(i) not in known
+        ]
+        return ImageReading(markers, rest[~ok], soft.bits[~ok], soft.margin[~ok], blur)
+
+    def refine(self, gray: np.ndarray, quads: np.ndarray) -> np.ndarray:
+        """Sub-pixel corners of (N, 4, 2) quads (see the module docstring)."""
+        if len(quads) == 0:
+            return quads
+        # A small-window corner fit first, so that the edge fit starts near the sides.
+        start = quads.reshape(-1, 1, 2).astype(np.float32)
+        window = (SUBPIX_HALF_WINDOW, SUBPIX_HALF_WINDOW)
+        start = cv2.cornerSubPix(gray, start, window, (-1, -1), _SUBPIX_CRITERIA)
+        cells = self._codebook.marker_size + 2
+        return refine_quads(gray, start.reshape(-1, 4, 2).astype(np.float64), cells=cells)
+
+
+def _merge_candidates(first: np.ndarray, more: np.ndarray) -> np.ndarray:
+    """``first`` and those of ``more`` whose centre is not within a fifth of a side of one of
+    ``first``'s (the same square found twice)."""
+    if len(first) == 0 or len(more) == 0:
+        return first if len(more) == 0 else more
+    centre, side = first.mean(axis=1), np.linalg.norm(first[:, 1] - first[:, 0], axis=1)
+    d = np.linalg.norm(more.mean(axis=1)[:, None] - centre[None], axis=2)
+    new = ~(d < 0.2 * side[None]).any(axis=1)
+    return np.concatenate([first, more[new]])
+
+
+def _candidates(found, rejected) -> np.ndarray:
+    """OpenCV's candidate squares as one (N, 4, 2) float array."""
+    quads = [np.asarray(q, np.float64).reshape(4, 2) for q in (*found, *rejected)]
+    return np.stack(quads) if quads else np.zeros((0, 4, 2))
 
 
 @dataclass(frozen=True)
@@ -156,12 +259,16 @@ class Codebook:
             int(d.maxCorrectionBits * error_correction_rate),
         )
 
-    def lookup(self, codes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Marker id and rotation of each code; id -1 where no marker is close enough."""
+    def lookup_exact(self, codes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Marker id and rotation of each code that is exactly a marker's; id -1 otherwise."""
         at = np.clip(np.searchsorted(self.codes, codes), 0, len(self.codes) - 1)
         exact = self.codes[at] == codes
-        ids = np.where(exact, self.ids[at], -1)
-        rot = np.where(exact, self.rotations[at], 0)
+        return np.where(exact, self.ids[at], -1), np.where(exact, self.rotations[at], 0)
+
+    def lookup(self, codes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Marker id and rotation of each code; id -1 where no marker is close enough."""
+        ids, rot = self.lookup_exact(codes)
+        exact = ids >= 0
         if self.max_correction > 0 and not exact.all():
             for k in np.flatnonzero(~exact):
                 dist = _popcount(self.codes ^ codes[k])
@@ -193,15 +300,17 @@ def identify(
     """Read the bits of (N, 4, 2) candidate quads and look them up.
 
     Returns the ids (M,) and quads (M, 4, 2) of the markers found, corners turned to OpenCV's
-    order (the marker's top-left first). Several candidates of one printed marker are kept
-    once (see :func:`_one_per_marker`).
+    order (the marker's top-left first), and which of the N candidates were identified.
+    Several candidates of one printed marker are kept once (see :func:`_one_per_marker`).
     """
+    if len(quads) == 0:
+        return np.zeros(0, int), np.zeros((0, 4, 2)), np.zeros(0, bool)
     n = codebook.marker_size
     cells = n + 2
     side = cells * PIXELS_PER_CELL
     g = np.arange(side) / (side - 1)
     grid = np.stack(np.meshgrid(g, g), axis=-1).reshape(-1, 2)  # (u, v): column, row
-    pts = _apply_homographies(_unit_square_homographies(quads), grid)
+    pts = apply_homographies(unit_square_homographies(quads), grid)
     h, w = gray.shape
     xy = np.rint(pts.reshape(-1, 2)).astype(int)
     values = (
@@ -225,7 +334,10 @@ def identify(
     ok &= ids >= 0
     # np.roll(quad, k, axis=0) for every quad at once: corner i comes from corner i - k.
     turned = quads[np.arange(len(quads))[:, None], (np.arange(4)[None, :] - rot[:, None]) % 4]
-    return _one_per_marker(ids[ok], turned[ok].reshape(-1, 4, 2), sides[ok].sum(axis=1))
+    ids_kept, quads_kept = _one_per_marker(
+        ids[ok], turned[ok].reshape(-1, 4, 2), sides[ok].sum(axis=1)
+    )
+    return ids_kept, quads_kept, ok
 
 
 def _one_per_marker(
@@ -244,28 +356,6 @@ def _one_per_marker(
             keep.append(int(k))
     keep.sort()
     return ids[keep], quads[keep]
-
-
-def _unit_square_homographies(quads: np.ndarray) -> np.ndarray:
-    """(N, 3, 3) homographies taking the unit square's corners (0,0), (1,0), (1,1), (0,1)
-    to each quad's corners."""
-    src = np.array([[0, 0], [1, 0], [1, 1], [0, 1]], float)
-    A = np.zeros((len(quads), 8, 8))
-    b = quads.reshape(-1, 8)
-    for i, (x, y) in enumerate(src):
-        A[:, 2 * i, 0:3] = [x, y, 1]
-        A[:, 2 * i + 1, 3:6] = [x, y, 1]
-        A[:, 2 * i, 6:8] = -np.outer(quads[:, i, 0], [x, y])
-        A[:, 2 * i + 1, 6:8] = -np.outer(quads[:, i, 1], [x, y])
-    h = np.linalg.solve(A, b[..., None])[..., 0]
-    return np.concatenate([h, np.ones((len(quads), 1))], axis=1).reshape(-1, 3, 3)
-
-
-def _apply_homographies(H: np.ndarray, pts: np.ndarray) -> np.ndarray:
-    """(N, 3, 3) homographies applied to (P, 2) points: (N, P, 2)."""
-    u, v = pts[:, 0], pts[:, 1]
-    x, y, w = (H[:, i, 0:1] * u + H[:, i, 1:2] * v + H[:, i, 2:3] for i in range(3))
-    return np.stack([x / w, y / w], axis=-1)
 
 
 def _otsu_thresholds(values: np.ndarray) -> np.ndarray:

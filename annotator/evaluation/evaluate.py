@@ -177,6 +177,7 @@ def plot_curves(report: Report, path: str | Path) -> None:
 def per_instance_errors(root: Path) -> list[dict[str, Any]]:
     """For each annotated instance with a true pose: the pose error (mm, the paper's distance),
     the estimated uncertainty, the diameter and the flags."""
+    from annotator.annotation.record import InstanceAnnotation, SceneAnnotation
     from annotator.dataset import load_dataset, read_poses
     from annotator.symmetry import PoseSpace
 
@@ -186,23 +187,22 @@ def per_instance_errors(root: Path) -> list[dict[str, Any]]:
     for sc in ds.scenes():
         if not (sc.annotation_path.exists() and sc.gt_path.exists()):
             continue
-        gt = {p.key: p for p in read_poses(sc.gt_path)}
-        for p in read_poses(sc.annotation_path):
-            g = gt.get(p.key)
+        gt = {p.key: InstanceAnnotation.from_pose(p) for p in read_poses(sc.gt_path)}
+        for i in SceneAnnotation.read(sc.annotation_path).instances:
+            g = gt.get(i.key)
             if g is None:
                 continue
-            sp = spaces[p.object]
-            err = float(sp.distance(p.R[None], p.t[None], g.R[None], g.t[None])[0])
-            occ = g.extra.get("occlusion", {}) or {}
+            sp = spaces[i.object]
+            err = float(sp.distance(i.R[None], i.t[None], g.R[None], g.t[None])[0])
             out.append(
                 {
                     "scene": sc.id,
-                    "instance": p.key,
+                    "instance": i.key,
                     "error_mm": err,
-                    "uncertainty_mm": p.extra.get("uncertainty_mm"),
+                    "uncertainty_mm": i.uncertainty_mm,
                     "diameter_mm": sp.diameter,
-                    "occlusion": occ.get("rate") if isinstance(occ, dict) else None,
-                    "flags": p.extra.get("flags", []),
+                    "occlusion": g.occlusion_rate,
+                    "flags": i.flags,
                 }
             )
     return out

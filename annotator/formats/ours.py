@@ -74,15 +74,16 @@ def _scene_key(scene_id: str, gt: GroundTruth) -> str:
 
 def annotations_as_results(root: Path, gt: GroundTruth) -> Results:
     """annotation.json poses as results, scored ``1 / (1 + uncertainty_mm)``."""
-    from annotator.dataset import load_dataset, read_poses
+    from annotator.annotation.record import SceneAnnotation
+    from annotator.dataset import load_dataset
 
     ds = load_dataset(root)
     table: Table = {}
     for sc in ds.scenes():
         if not sc.annotation_path.exists():
             continue
-        for p in read_poses(sc.annotation_path):
-            unc = p.extra.get("uncertainty_mm")
+        for i in SceneAnnotation.read(sc.annotation_path).instances:
+            unc = i.uncertainty_mm
             score = 1.0 / (1.0 + float(unc)) if unc is not None else 0.0
-            table.setdefault((sc.id, p.object), PoseSet()).add(p.R, p.t, score)
+            table.setdefault((sc.id, i.object), PoseSet()).add(i.R, i.t, score)
     return Results(table)

@@ -124,6 +124,7 @@ def scene_visibility(
     cameras: Sequence[str] | None = None,
     masks: bool = False,
     step: int = 1,
+    renders: dict[str, tuple[np.ndarray, np.ndarray]] | None = None,
 ) -> list[InstanceVisibility]:
     """Silhouettes and occlusion of every posed instance (poses: ``rig_T_model`` 4x4).
 
@@ -133,6 +134,9 @@ def scene_visibility(
         cameras: Names of the cameras to process (default: all, the reference camera first).
         masks: Also return full-image masks (requires ``step=1``).
         step: Cast every ``step``-th pixel only (see the module's docstring).
+        renders: If given, receives per camera the scene as the poses render it: at each
+            sample, the depth (mm) of the nearest instance (inf where none) and its index
+            (``NO_HIT`` where none).
     """
     if masks and step != 1:
         raise ValueError("masks need step=1")
@@ -160,6 +164,8 @@ def scene_visibility(
             closer = hits.depth < zbuf[y0:y1, x0:x1]
             zbuf[y0:y1, x0:x1][closer] = hits.depth[closer]
             front[y0:y1, x0:x1][closer] = k
+        if renders is not None:
+            renders[name] = (zbuf, front)
         use_depth = depth is not None and name == depth_cam
         measured_depth = depth[::step, ::step] if use_depth else None
         for k, box in enumerate(boxes):

@@ -7,7 +7,7 @@ order by any number of worker processes and the dataset is the same byte for byt
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -27,7 +27,7 @@ from annotator.parts import Part, build_part
 from annotator.rendering.raycast import PlacedMesh, RayScene
 from annotator.synthesis.physics import Bin, drop_parts
 from annotator.synthesis.rig import RigSetup, make_rig
-from annotator.synthesis.shading import Surface, finish_image, render_intensity
+from annotator.synthesis.shading import Surface, finish_image, render_intensity, render_view
 from annotator.synthesis.stereo import dot_pattern, pattern_image, stereo_depth
 
 DICTIONARY = "DICT_4X4_1000"
@@ -92,8 +92,13 @@ def plan_dataset(config: SynthConfig) -> DatasetPlan:
     return DatasetPlan(config, parts, layouts, instances, setup)
 
 
+#: The empty bin's depth, as the sensor sees it (``rig.depth.background`` in dataset.yaml).
+BACKGROUND_DEPTH = "background_depth.png"
+
+
 def write_dataset_files(plan: DatasetPlan, root: Path) -> None:
-    """dataset.yaml, objects/<part>/object.yaml and model.ply."""
+    """dataset.yaml, objects/<part>/object.yaml and model.ply, and (with depth) the empty
+    bin's depth map, simulated like the scenes' (the capture a user makes once per rig)."""
     for part, layout, insts in zip(plan.parts, plan.layouts, plan.instances):
         folder = root / "objects" / part.name
         folder.mkdir(parents=True, exist_ok=True)
@@ -107,11 +112,23 @@ def write_dataset_files(plan: DatasetPlan, root: Path) -> None:
             markers=layout.sites,
             instances=insts,
         )
+    rig = plan.setup.rig
+    if plan.config.depth and rig.depth is not None:
+        surfaces = _setting(plan)
+        views = []
+        for cam, world_T_cam in zip(rig.cameras, plan.setup.world_T_cams):
+            cam_T_world = invert(world_T_cam)
+            scene = RayScene([PlacedMesh(s.mesh, cam_T_world @ s.world_T_model) for s in surfaces])
+            views.append(render_view(cam, cam_T_world, surfaces, scene))
+        rng = np.random.default_rng([plan.config.seed, 1 << 30])
+        depth = simulate_depth(plan, surfaces, views, rng)
+        write_png(root / BACKGROUND_DEPTH, encode_depth(depth, rig.depth.scale))
+        rig = replace(rig, depth=replace(rig.depth, background=BACKGROUND_DEPTH))
     write_dataset_yaml(
         root,
         name=f"synthetic ({', '.join(plan.config.parts)})",
         dictionary=DICTIONARY,
-        rig=plan.setup.rig,
+        rig=rig,
         objects=[p.name for p in plan.parts],
         synth={
             k: v if not isinstance(v, tuple) else list(v) for k, v in plan.config.__dict__.items()
@@ -122,6 +139,20 @@ def write_dataset_files(plan: DatasetPlan, root: Path) -> None:
 def _box_mesh(size: np.ndarray) -> Mesh:
     b = trimesh.creation.box(size)
     return Mesh(np.asarray(b.vertices), np.asarray(b.faces, dtype=np.int32))
+
+
+def _setting(plan: DatasetPlan) -> list[Surface]:
+    """The table and the bin, without parts."""
+    table = np.eye(4)
+    table[2, 3] = -plan.bin.wall - 5.0
+    surfaces: list[Surface] = [
+        Surface(_box_mesh(np.array([2000.0, 2000.0, 10.0])), table, albedo=0.3)
+    ]
+    for centre, size in plan.bin.meshes():
+        T = np.eye(4)
+        T[:3, 3] = centre
+        surfaces.append(Surface(_box_mesh(size), T, albedo=0.45))
+    return surfaces
 
 
 def make_scene(
@@ -144,15 +175,7 @@ def make_scene(
     world_T = drop_parts(meshes, bin=plan.bin, rng=rng)
     timing.physics = time.perf_counter() - t0
 
-    table = np.eye(4)
-    table[2, 3] = -plan.bin.wall - 5.0
-    surfaces: list[Surface] = [
-        Surface(_box_mesh(np.array([2000.0, 2000.0, 10.0])), table, albedo=0.3)
-    ]
-    for centre, size in plan.bin.meshes():
-        T = np.eye(4)
-        T[:3, 3] = centre
-        surfaces.append(Surface(_box_mesh(size), T, albedo=0.45))
+    surfaces = _setting(plan)
     poses: list[InstancePose] = []
     for k, (p, copy) in enumerate(chosen):
         if world_T[k] is None:

@@ -1,0 +1,314 @@
+"""Scene completeness: is every visible part explained by a pose, and are the images usable?
+
+**Background.** What lies behind the parts: the dataset's background depth map (the empty bin
+or support, captured once per rig and declared as ``rig.depth.background`` in dataset.yaml;
+``annotator synth`` writes one), or else the support found in the scene's own depth
+(:func:`fit_support`): the floor plane, and the other large planes (a bin's rim and walls).
+
+**Unexplained depth.** A measured depth pixel is *unexplained* when it lies in front of the
+background (by more than ``max(3 mm, 0.5%)``) and in front of every posed instance rendered at
+its pose (by more than ``max(5 mm, 1%)``; where no instance is rendered, in front of nothing):
+something is there that no pose accounts for. The mask is opened by one sample (thin slivers
+along depth edges are sensor artefacts) and cut into 8-connected regions.
+
+**The rule.** A region is reported (warning ``unexplained_depth``) when it covers at least
+``min_region_fraction`` (0.3) of the smallest part's mean silhouette: the mean projected area
+of its convex hull (a quarter of the hull's surface, Cauchy's formula) seen at the scene's
+median depth. So a part at least a third visible is never left silent.
+
+**Unread markers.** Candidate squares that could not be read, of a marker's size at their
+depth, lying on a reported region, are listed with it: a part is there, its markers are
+unreadable.
+
+**Image quality**, per camera: ``edge_blur_px``, the blur (Gaussian sigma, px) that best
+explains the candidate marker squares under a blur model
+(:func:`annotator.detection.deblur.estimate_blur`), and ``median``/``saturated``, the median
+grey level (8-bit) and the fraction of saturated pixels. Warnings: ``blurred`` when the edge blur exceeds
+``blur_warn_px`` (2.5 px: cells of 20 px markers then merge), ``under_exposed`` when the
+median is below 25, ``over_exposed`` when more than 5% of the pixels are saturated.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import cv2
+import numpy as np
+
+
+@dataclass(frozen=True)
+class CompletenessSettings:
+    """Thresholds of the completeness checks (see the module docstring)."""
+
+    background_tolerance_mm: float = 3.0
+    background_tolerance_rel: float = 0.005
+    pose_tolerance_mm: float = 5.0
+    pose_tolerance_rel: float = 0.01
+    min_region_fraction: float = 0.3
+    blur_warn_px: float = 2.5
+    dark_median: float = 25.0
+    saturated_fraction: float = 0.05
+
+
+# ------------------------------------------------------------------------- background
+
+
+def fit_support_plane(
+    points: np.ndarray, *, inlier_mm: float = 3.0, far_share: float = 0.3, seed: int = 0
+) -> tuple[np.ndarray, float] | None:
+    """The plane the parts rest on, ``n . x = d`` (unit ``n``, ``d > 0``, camera frame), from
+    the measured points (..., 3) (NaN where none); None with too few points.
+
+    In a bin the floor is mostly hidden by the parts and the most populated plane is often
+    the bin's rim, in front of them. So the plane is fitted by RANSAC to the farthest
+    ``far_share`` of the points only, among planes facing the camera (within 45 degrees).
+    """
+    pts = points.reshape(-1, 3)
+    pts = pts[np.isfinite(pts).all(axis=1)]
+    if len(pts) < 50:
+        return None
+    far = pts[pts[:, 2] >= np.quantile(pts[:, 2], 1.0 - far_share)]
+    rng = np.random.default_rng(seed)
+    sample = far[rng.choice(len(far), min(len(far), 8000), replace=False)]
+    return _ransac_plane(sample, inlier_mm, rng, min_facing=np.cos(np.radians(45.0)))
+
+
+def _ransac_plane(
+    sample: np.ndarray,
+    inlier_mm: float,
+    rng: np.random.Generator,
+    *,
+    iterations: int = 150,
+    min_facing: float = 0.0,
+) -> tuple[np.ndarray, float] | None:
+    """The plane with the most inliers whose normal makes at least ``min_facing`` (cosine)
+    with the optical axis, refined by least squares on its inliers."""
+    best, best_count = None, -1
+    trio = rng.integers(0, len(sample), (iterations, 3))
+    for i, j, k in trio:
+        n = np.cross(sample[j] - sample[i], sample[k] - sample[i])
+        norm = np.linalg.norm(n)
+        if norm < 1e-9:
+            continue
+        n /= norm
+        if abs(n[2]) < min_facing:
+            continue
+        count = int(np.sum(np.abs(sample @ n - n @ sample[i]) < inlier_mm))
+        if count > best_count:
+            best, best_count = (n, float(n @ sample[i])), count
+    if best is None:
+        return None
+    n, d = best
+    inl = sample[np.abs(sample @ n - d) < inlier_mm]
+    c = inl.mean(axis=0)
+    n = np.linalg.svd(inl - c, full_matrices=False)[2][-1]
+    d = float(n @ c)
+    return (n, d) if d > 0 else (-n, -d)
+
+
+def support_pixels(
+    points: np.ndarray,
+    floor: tuple[np.ndarray, float] | None,
+    *,
+    inlier_mm: float = 3.0,
+    min_share: float = 0.02,
+    seed: int = 0,
+) -> np.ndarray:
+    """Pixels of a grid of measured points (H, W, 3) that belong to the setting rather than
+    to parts: large planes other than the floor (a bin's rim and walls), found one after the
+    other by RANSAC, of which only the connected pieces that come within 12% of the image
+    border and span at least 30% of the image count (after an opening that cuts the thin lines
+    where planes cross parts). Parts do not reach across 30% of the image; faces of several parts
+    that happen to lie in one plane are not connected to the border."""
+    h, w = points.shape[:2]
+    ok = np.isfinite(points).all(axis=2)
+    out = np.zeros((h, w), bool)
+    idx = np.flatnonzero(ok.ravel())
+    if len(idx) < 50:
+        return out
+    rng = np.random.default_rng(seed)
+    sample = points.reshape(-1, 3)[idx[rng.choice(len(idx), min(len(idx), 8000), replace=False)]]
+    if floor is not None:
+        sample = sample[np.abs(sample @ floor[0] - floor[1]) >= inlier_mm]
+    kernel = np.ones((5, 5), np.uint8)
+    for _ in range(6):
+        if len(sample) < 50:
+            break
+        plane = _ransac_plane(sample, inlier_mm, rng)
+        if plane is None:
+            break
+        n, d = plane
+        on_sample = np.abs(sample @ n - d) < inlier_mm
+        if on_sample.sum() < min_share * 8000:
+            break
+        sample = sample[~on_sample]
+        with np.errstate(invalid="ignore"):
+            on = (np.abs(points @ n - d) < inlier_mm).astype(np.uint8)
+        on = cv2.morphologyEx(on, cv2.MORPH_OPEN, kernel)
+        count, labels, stats, _ = cv2.connectedComponentsWithStats(on, connectivity=8)
+        for k in range(1, count):
+            if _border_band(*(int(v) for v in stats[k, :4]), w, h):
+                out |= labels == k
+    return out
+
+
+def plane_depth(plane: tuple[np.ndarray, float], rays: np.ndarray) -> np.ndarray:
+    """z-depth where rays ``(x, y, 1)`` (..., 3) meet the plane (inf where they miss it)."""
+    n, d = plane
+    denom = rays @ n
+    with np.errstate(divide="ignore", invalid="ignore"):
+        z = np.where(denom > 1e-9, d / denom, np.inf)
+    return z
+
+
+# ------------------------------------------------------------------- unexplained depth
+
+
+def unexplained_mask(
+    measured: np.ndarray,
+    background: np.ndarray,
+    rendered: np.ndarray,
+    settings: CompletenessSettings = CompletenessSettings(),
+) -> np.ndarray:
+    """Pixels whose measured depth (mm, NaN = none) lies in front of the background and of
+    every posed instance (``rendered``: the nearest rendered depth, inf where none)."""
+    s = settings
+    bg_tol = np.maximum(s.background_tolerance_mm, s.background_tolerance_rel * measured)
+    pose_tol = np.maximum(s.pose_tolerance_mm, s.pose_tolerance_rel * measured)
+    with np.errstate(invalid="ignore"):
+        mask = (
+            np.isfinite(measured)
+            & (measured < background - bg_tol)
+            & (measured < rendered - pose_tol)
+        )
+    return cv2.morphologyEx(mask.astype(np.uint8), cv2.MORPH_OPEN, np.ones((3, 3), np.uint8)) > 0
+
+
+def mean_silhouette_mm2(vertices: np.ndarray) -> float:
+    """Mean projected area (mm^2) of a part over all viewing directions: a quarter of its
+    convex hull's surface area (Cauchy's formula)."""
+    from scipy.spatial import ConvexHull
+
+    return float(ConvexHull(vertices).area) / 4.0
+
+
+@dataclass
+class Region:
+    """A connected unexplained region, in full-resolution pixels of the depth camera."""
+
+    box: tuple[int, int, int, int]  # x0, y0, x1, y1 (inclusive-exclusive)
+    pixels: int
+    depth_mm: tuple[float, float]  # 5th and 95th percentiles
+    unread_markers: list[tuple[float, float]]
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "box": list(self.box),
+            "pixels": self.pixels,
+            "depth_mm": [round(self.depth_mm[0], 1), round(self.depth_mm[1], 1)],
+            "unread_markers": [[round(x, 1), round(y, 1)] for x, y in self.unread_markers],
+        }
+
+
+def find_regions(
+    mask: np.ndarray,
+    measured: np.ndarray,
+    *,
+    step: int,
+    min_pixels: float,
+    skip_border_bands: bool = False,
+    owned: np.ndarray | None = None,
+) -> tuple[list[Region], np.ndarray]:
+    """Connected regions of ``mask`` (on a grid of every ``step``-th pixel) with at least
+    ``min_pixels`` full-resolution pixels. With ``skip_border_bands``, pieces of a bin's wall
+    are dropped: regions within 12% of the image border that reach across 30% of the image
+    or run along that border (parts in the bin do not reach there). Regions with more than half their pixels in ``owned`` are dropped (they
+    belong to an instance already flagged). Returns the regions and the mask of the kept
+    ones."""
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(mask.astype(np.uint8), connectivity=8)
+    area = step * step
+    kept = np.zeros(mask.shape, bool)
+    out = []
+    for k in range(1, n):
+        px = int(stats[k, cv2.CC_STAT_AREA]) * area
+        if px < min_pixels:
+            continue
+        sel = labels == k
+        z = measured[sel]
+        x, y, w, h = (int(v) for v in stats[k, :4])
+        if skip_border_bands and _border_band(x, y, w, h, *mask.shape[::-1]):
+            continue
+        if owned is not None and owned[sel].mean() > 0.5:
+            continue
+        kept |= sel
+        lo, hi = np.percentile(z, [5, 95])
+        out.append(
+            Region(
+                (x * step, y * step, (x + w) * step, (y + h) * step), px, (float(lo), float(hi)), []
+            )
+        )
+    return out, kept
+
+
+def _border_band(x: int, y: int, w: int, h: int, width: int, height: int) -> bool:
+    """A box within 12% of the image border that reaches across 30% of the image, or lies
+    along that border at least 2.5 times longer than wide: a piece of a bin's wall."""
+    top_bottom = y <= 0.12 * height or y + h >= 0.88 * height
+    left_right = x <= 0.12 * width or x + w >= 0.88 * width
+    if not (top_bottom or left_right):
+        return False
+    if max(w / width, h / height) >= 0.3:
+        return True
+    return (top_bottom and w >= 2.5 * h) or (left_right and h >= 2.5 * w)
+
+
+# ------------------------------------------------------------------------ image quality
+
+
+def exposure(gray: np.ndarray) -> tuple[float, float]:
+    """Median grey level and fraction of saturated pixels (>= 250) of an 8-bit image."""
+    return float(np.median(gray)), float(np.mean(gray >= 250))
+
+
+def quality_warnings(
+    quality: dict[str, dict[str, Any]], settings: CompletenessSettings = CompletenessSettings()
+) -> list[dict[str, Any]]:
+    """``blurred`` / ``under_exposed`` / ``over_exposed`` warnings from per-camera figures."""
+    out = []
+    blurred = {
+        c: q["edge_blur_px"]
+        for c, q in quality.items()
+        if q.get("edge_blur_px") is not None and q["edge_blur_px"] > settings.blur_warn_px
+    }
+    if blurred:
+        out.append(
+            {
+                "kind": "blurred",
+                "message": "images blurred (edge blur "
+                + ", ".join(f"{c} {v:.1f} px" for c, v in blurred.items())
+                + f", above {settings.blur_warn_px} px): markers may be unreadable",
+                "cameras": sorted(blurred),
+            }
+        )
+    dark = [c for c, q in quality.items() if q["median"] < settings.dark_median]
+    if dark:
+        out.append(
+            {
+                "kind": "under_exposed",
+                "message": f"images too dark (median grey level below {settings.dark_median:g}): "
+                + ", ".join(dark),
+                "cameras": dark,
+            }
+        )
+    bright = [c for c, q in quality.items() if q["saturated"] > settings.saturated_fraction]
+    if bright:
+        out.append(
+            {
+                "kind": "over_exposed",
+                "message": f"images over-exposed (more than {settings.saturated_fraction:.0%} "
+                "of the pixels saturated): " + ", ".join(bright),
+                "cameras": bright,
+            }
+        )
+    return out
