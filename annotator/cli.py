@@ -53,6 +53,11 @@ COMMANDS: tuple[tuple[str, str, str], ...] = (
         "annotator.commands.evaluate",
         "score pose estimation results (symmetry-aware AP)",
     ),
+    (
+        "twin-report",
+        "annotator.commands.twin_report",
+        "compare real depth with the depth simulated on the scenes' synthetic twins",
+    ),
 )
 
 

@@ -1,20 +1,30 @@
-"""Auto-annotation on synthetic scenes with known truth: accuracy, honesty, calibration, speed.
+"""Auto-annotation on synthetic scenes with known truth: posed fraction, accuracy, honesty of
+flags and warnings, uncertainty calibration, speed; on sharp scenes, on blurred ones
+(sigma = 2 px over the renderer's own), and on sharp ones with injected faults (a marker id
+moved to another instance, a stray marker of an absent instance on the bin wall, heavy blur
+on every third scene).
 
-Scenes: two 1280x1024 cameras, 20 instances (bracket + cylinder), made by the synth library.
-Then the same scenes with injected faults: a marker id moved to another instance, a stray
-marker of an absent instance pasted on the bin wall, heavy blur.
+Scenes: two 1280x1024 cameras, 12-20 parts of bracket, brick and cylinder (8-10 mm markers,
+about 20-27 px), made by the synth library with its background depth.
 
     .venv/bin/python benchmarks/bench_annotate.py [--scenes N]
+
+Targets (issue 12): posed >= 95% sharp and >= 90% blurred of the parts at least half visible;
+0 gross errors (> 5% of D) without a flag; every scene with an unposed visible part warned;
+at most 1 complete scene in 8 warned; annotate time per scene no more than 25% above the
+0.41 s of before (0.51 s).
 """
 
 from __future__ import annotations
 
 import argparse
+import math
 import shutil
 import subprocess
 import sys
 import tempfile
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import cv2
@@ -22,20 +32,60 @@ import numpy as np
 import yaml
 
 from annotator.annotation.batch import AnnotateJob
+from annotator.annotation.record import SceneAnnotation
 from annotator.batch import run_batch
 from annotator.dataset import load_dataset, read_poses
 from annotator.markers.texture import marker_image
+from annotator.rendering.raycast import PlacedMesh, RayScene
 from annotator.symmetry import PoseSpace
-from annotator.synthesis.generate import SynthConfig, make_scene, plan_dataset, write_dataset_files
+from annotator.synthesis.generate import SynthConfig, plan_dataset, write_dataset_files
+
+BASELINE_S = 0.41  # annotate, warm, one worker, per scene, before issue 12
+CONFIG = SynthConfig(parts=("bracket", "brick", "cylinder"), instances=(12, 20), seed=11)
 
 
-def make_dataset(root: Path, scenes: int) -> None:
-    plan = plan_dataset(SynthConfig(parts=("bracket", "cylinder"), instances=(20, 20), seed=11))
+def make_dataset(root: Path, scenes: int, config: SynthConfig = CONFIG) -> None:
+    plan = plan_dataset(config)
     write_dataset_files(plan, root)
-    for k in range(scenes):
-        folder = root / "scenes" / f"{k:06d}"
-        folder.mkdir(parents=True)
-        make_scene(plan, k, folder)
+    ids = [f"{k:06d}" for k in range(scenes)]
+
+    from annotator.synthesis.generate import SceneJob
+
+    report = run_batch(SceneJob(config, str(root)), ids, workers=2, quiet=True)
+    assert not report.failed, report.failed
+
+
+def markable(root: Path) -> dict[tuple[str, str], bool]:
+    """For each true instance: does some camera see one of its markers (centre unoccluded,
+    within 60 degrees of face-on, side >= 14 px)? Parts whose markers all face away cannot
+    be posed from markers, whatever the reader."""
+    ds = load_dataset(root)
+    out = {}
+    for sc in ds.scenes():
+        gt = read_poses(sc.gt_path)
+        for cam in ds.rig.cameras:
+            scene = RayScene(
+                [PlacedMesh(ds.objects[q.object].mesh, cam.cam_T_rig @ q.T) for q in gt]
+            )
+            for p in gt:
+                obj = ds.objects[p.object]
+                T = cam.cam_T_rig @ p.T
+                seen = out.get((sc.id, p.key), False)
+                for site in range(len(obj.instance(p.instance).marker_ids)):
+                    if seen:
+                        break
+                    C = obj.markers.corners[site] @ T[:3, :3].T + T[:3, 3]
+                    n, c = np.cross(C[3] - C[0], C[1] - C[0]), C.mean(axis=0)
+                    if -(n / np.linalg.norm(n)) @ (c / np.linalg.norm(c)) < math.cos(
+                        math.radians(60)
+                    ):
+                        continue
+                    hit = scene.cast((c / c[2])[None, None, :]).depth[0, 0]
+                    uv = cam.project(C)
+                    seen = bool(np.isfinite(hit) and abs(hit - c[2]) < 2.0)
+                    seen &= bool(np.linalg.norm(uv[1] - uv[0]) >= 14)
+                out[(sc.id, p.key)] = seen
+    return out
 
 
 def inject_faults(root: Path) -> None:
@@ -69,66 +119,63 @@ def inject_faults(root: Path) -> None:
 def assess(root: Path, label: str) -> None:
     ds = load_dataset(root)
     spaces = {n: PoseSpace.from_moments(o.mesh.moments, o.symmetry) for n, o in ds.objects.items()}
-    rows, missing, wrong_id = [], 0, 0
+    can = markable(root)
+    visible = posed = visible_m = posed_m = absent = 0
+    errs, gross_silent, flagged, covered, with_unc = [], 0, 0, 0, 0
+    incomplete = incomplete_warned = complete = complete_warned = total = 0
     for sc in ds.scenes():
         gt = {p.key: p for p in read_poses(sc.gt_path)}
-        ann = (
-            {p.key: p for p in read_poses(sc.annotation_path)}
-            if sc.annotation_path.exists()
-            else {}
-        )
+        ann = SceneAnnotation.read(sc.annotation_path)
+        posed_keys = {i.key for i in ann.instances}
+        missing = False
         for key, g in gt.items():
-            if g.extra["occlusion"]["rate"] < 0.5 and key not in ann:
-                missing += 1
-        for key, p in ann.items():
-            sp = spaces[p.object]
-            g = gt.get(key)
-            if g is None:  # a pose for an instance that is not there (misread or stray marker)
-                wrong_id += 1
-                rows.append(
-                    (
-                        np.inf,
-                        sp.diameter,
-                        p.extra.get("uncertainty_mm") or np.inf,
-                        1.0,
-                        p.extra["flags"],
-                    )
-                )
+            if g.extra["occlusion"]["rate"] >= 0.5:
                 continue
-            err = float(sp.distance(p.R[None], p.t[None], g.R[None], g.t[None])[0])
-            rows.append(
-                (
-                    err,
-                    sp.diameter,
-                    p.extra.get("uncertainty_mm") or np.inf,
-                    g.extra["occlusion"]["rate"],
-                    p.extra["flags"],
-                )
-            )
-    err = np.array([r[0] for r in rows])
-    diam = np.array([r[1] for r in rows])
-    unc = np.array([r[2] for r in rows])
-    occ = np.array([r[3] for r in rows])
-    flagged = np.array([bool(r[4]) for r in rows])
-    interest = occ < 0.5
-    n_interest = interest.sum() + missing
-    gross = err > 0.05 * diam
-    finite = np.isfinite(err)
+            visible += 1
+            posed += key in posed_keys
+            if can[(sc.id, key)]:
+                visible_m += 1
+                posed_m += key in posed_keys
+            missing |= key not in posed_keys
+        warned = bool(ann.warnings)
+        if missing:
+            incomplete += 1
+            incomplete_warned += warned
+        else:
+            complete += 1
+            complete_warned += warned
+        for i in ann.instances:
+            total += 1
+            flagged += bool(i.flags)
+            g = gt.get(i.key)
+            sp = spaces[i.object]
+            if g is None:
+                absent += 1
+                gross_silent += not i.flags
+                continue
+            err = float(sp.distance(i.R[None], i.t[None], g.R[None], g.t[None])[0])
+            if g.extra["occlusion"]["rate"] < 0.5:
+                errs.append(err / sp.diameter)
+            gross_silent += err > 0.05 * sp.diameter and not i.flags
+            if i.uncertainty_mm is not None:
+                with_unc += 1
+                covered += err <= 3 * i.uncertainty_mm
+    print(f"[{label}] {len(ds.scenes())} scenes, {total} poses ({absent} for absent instances)")
     print(
-        f"[{label}] {len(rows)} poses ({wrong_id} for absent instances), {n_interest} instances < 50% occluded"
+        f"  posed: {posed}/{visible} = {posed / max(visible, 1):.1%} of the parts at least half "
+        f"visible; {posed_m}/{visible_m} = {posed_m / max(visible_m, 1):.1%} of those with a "
+        "marker in view (within 60 degrees of face-on, >= 14 px)"
+    )
+    print(f"  median error (half visible): {100 * np.median(errs):.3f}% of D (target < 0.5%)")
+    print(f"  gross errors (> 5% of D) without a flag: {gross_silent} (target 0)")
+    print(
+        f"  instances without a flag: {1 - flagged / max(total, 1):.1%}; error <= 3x estimated "
+        f"uncertainty: {covered / max(with_unc, 1):.1%}"
     )
     print(
-        f"  median error (< 50% occluded): {100 * np.median(err[interest] / diam[interest]):.3f}% of D (target < 0.5%)"
-    )
-    print(
-        f"  posed: {interest.sum()}/{n_interest} = {interest.sum() / max(n_interest, 1):.1%} (target >= 95%)"
-    )
-    print(
-        f"  gross errors (> 5% of D): {gross.sum()}, unflagged: {(gross & ~flagged).sum()} (target 0)"
-    )
-    ok = finite & np.isfinite(unc)
-    print(
-        f"  calibration: error <= 3x estimated uncertainty for {np.mean(err[ok] <= 3 * unc[ok]):.1%} (target >= 95%)"
+        f"  scenes with an unposed visible part that carry a warning: {incomplete_warned}/"
+        f"{incomplete} (target all); complete scenes that carry none: "
+        f"{complete - complete_warned}/{complete} (target at most 1 in 8 warned)"
     )
 
 
@@ -146,8 +193,8 @@ def speed(root: Path, ids: list[str]) -> None:
         single = single or per
         print(
             f"speed, warm, --workers {workers}: {per:.3f} s per scene = {per * workers:.3f} s per"
-            f" scene per worker (target < 0.5)"
-            + (f"; speed-up x{single / per:.2f} (target close to 2)" if workers == 2 else "")
+            f" scene per worker (before: {BASELINE_S} s; ratio {per * workers / BASELINE_S:.2f},"
+            " target <= 1.25)" + (f"; speed-up x{single / per:.2f}" if workers == 2 else "")
         )
     for workers in (1, 2):
         t0 = time.perf_counter()
@@ -162,24 +209,41 @@ def speed(root: Path, ids: list[str]) -> None:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__)
-    ap.add_argument("--scenes", type=int, default=12)
+    ap.add_argument("--scenes", type=int, default=8)
+    ap.add_argument("--keep", metavar="DIR", help="make (or reuse) the scenes in DIR")
     args = ap.parse_args()
-    with tempfile.TemporaryDirectory() as tmp:
-        root = Path(tmp) / "clean"
-        t0 = time.perf_counter()
-        make_dataset(root, args.scenes)
-        print(f"made {args.scenes} scenes in {time.perf_counter() - t0:.0f} s")
-        ids = [s.id for s in load_dataset(root).scenes()]
-        speed(root, ids)
-        assess(root, "clean")
+    with tempfile.TemporaryDirectory() as scratch:
+        tmp = args.keep or scratch
+        sets = {
+            "sharp": CONFIG,
+            "blurred (sigma 2 px)": replace(CONFIG, seed=12, blur=2.0),
+        }
+        roots = {}
+        for label, config in sets.items():
+            root = roots[label] = Path(tmp) / label.split()[0]
+            if (root / "dataset.yaml").exists():
+                continue
+            t0 = time.perf_counter()
+            make_dataset(root, args.scenes, config)
+            print(f"made {args.scenes} {label} scenes in {time.perf_counter() - t0:.0f} s")
+        ids = [s.id for s in load_dataset(roots["sharp"]).scenes()]
+        speed(roots["sharp"], ids)
+        for label, root in roots.items():
+            if label != "sharp":
+                report = run_batch(
+                    AnnotateJob.for_dataset(load_dataset(root)), ids, workers=2, quiet=True
+                )
+                assert not report.failed, report.failed
+            assess(root, label)
         faulty = Path(tmp) / "faulty"
-        shutil.copytree(root, faulty)
+        shutil.rmtree(faulty, ignore_errors=True)
+        shutil.copytree(roots["sharp"], faulty)
         inject_faults(faulty)
         report = run_batch(
             AnnotateJob.for_dataset(load_dataset(faulty)), ids, workers=2, quiet=True
         )
         assert not report.failed, report.failed
-        assess(faulty, "faults injected")
+        assess(faulty, "sharp, faults injected")
 
 
 if __name__ == "__main__":

@@ -1,11 +1,14 @@
-"""Auto-annotation of a scene: markers -> robust multi-view pose per instance -> trust.
+"""Auto-annotation of a scene: markers -> robust multi-view pose per instance -> trust, and the
+scene's completeness.
 
-``annotation.json`` (FORMAT.md) holds, per instance, the pose fields plus:
+``annotation.json`` (docs/FORMAT.md) is read and written through the records of
+:mod:`annotator.annotation.record`; per instance, besides the pose:
 
 - ``uncertainty_mm``: estimated 1-sigma pose error as RMS surface displacement (mm), from the
   joint refinement's covariance (the paper's distance, section 4.1);
 - ``reprojection_px``: ``{"rms", "max", "per_camera": {camera: rms}}`` over the markers used;
-- ``markers``: ``{camera: {"used": [ids], "rejected": [ids]}}``;
+- ``markers``: ``{camera: {"used": [ids], "rejected": [ids], "recovered": [ids]}}``
+  (``recovered``: read through the blur model, with the support of the others);
 - ``views``: number of cameras whose markers were used;
 - ``depth``: ``{"agreement", "median_abs_mm", "pixels"}`` or null: the fraction of the
   instance's visible pixels (depth camera) where the measured depth is within
@@ -14,9 +17,10 @@
   posed instances as occluders, plus the depth test in the depth camera;
 - ``flags``: reasons a reviewer should look, from :data:`FLAGS`.
 
-Top level: ``format``, ``created_at``, ``unknown_markers`` (``{camera: [ids]}``, ids that belong
-to no instance), ``duplicates`` (``{camera: [ids]}`` seen twice in one image), ``errors`` and
-``warnings`` (strings).
+Top level: ``format``, ``created_at``, ``description_digest``, ``unknown_markers``
+(``{camera: [ids]}``, ids that belong to no instance), ``duplicates`` (``{camera: [ids]}`` seen
+twice in one image), ``image_quality``, ``warnings`` (``{"kind", "message", ...}``, see
+:mod:`annotator.annotation.completeness`), ``unexplained_mask`` and ``errors``.
 """
 
 FLAGS: tuple[str, ...] = (

@@ -131,6 +131,14 @@ def annotate_scene(
     depth = scene.read_depth(ds.rig)
     renders: dict[str, tuple[np.ndarray, np.ndarray]] = {}
     _add_visibility(ds, results, depth, settings, renders)
+    # A pose resting on blurred readings alone must also agree with the measured depth (or,
+    # without depth, rest on two different markers): blur can misread one marker the same
+    # way in both cameras.
+    doubtful = [r for r in results if _soft_only(r) and not _supported(r, depth is not None)]
+    if doubtful:
+        results = [r for r in results if not any(r is d for d in doubtful)]
+        renders = {}
+        _add_visibility(ds, results, depth, settings, renders)
     instances = [
         InstanceAnnotation.from_pose(
             InstancePose(r.object, r.instance, r.T[:3, :3], r.T[:3, 3], r.extra)
@@ -171,6 +179,18 @@ def annotate_scene(
         unexplained_mask=UNEXPLAINED_MASK if mask is not None and mask.any() else None,
     )
     return SceneResult(annotation, mask)
+
+
+def _soft_only(r: InstanceResult) -> bool:
+    """True if every marker the pose uses was read through the blur model only."""
+    return all(set(m["used"]) <= set(m.get("recovered", [])) for m in r.extra["markers"].values())
+
+
+def _supported(r: InstanceResult, with_depth: bool) -> bool:
+    if with_depth and r.extra["depth"] is not None:
+        return "depth_disagreement" not in r.extra["flags"]
+    ids = {i for m in r.extra["markers"].values() for i in m["used"]}
+    return len(ids) >= 2
 
 
 #: File name of the unexplained-depth mask, beside annotation.json.

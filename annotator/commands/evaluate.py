@@ -59,6 +59,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         action="store_true",
         help="one row per object (default: only when there are several)",
     )
+    parser.add_argument(
+        "--twin",
+        metavar="TWIN",
+        help="the synthetic twin of GT (`annotator synth --twin`): scored too, with "
+        "--twin-results, and printed beside it, as the paper's table compares real and "
+        "simulated data",
+    )
+    parser.add_argument("--twin-results", metavar="RESULTS", help="results on the twin's scenes")
     parser.add_argument("--json", metavar="OUT", help="write the full report as JSON")
     parser.add_argument("--plot", metavar="OUT.png", help="draw the mean precision/recall curves")
 
@@ -129,13 +137,28 @@ def run(args: argparse.Namespace) -> int:
     elif not results.scenes >= set(gt.scenes) and results.scenes:
         missing = len(set(gt.scenes) - results.scenes)
         print(f"note: {missing} ground-truth scenes have no results: counted as nothing found")
-    print(format_table(report, per_object=args.per_object or len(report.per_object) > 1))
+    per_object = args.per_object or len(report.per_object) > 1
+    twin_report = None
+    if args.twin or args.twin_results:
+        if not (args.twin and args.twin_results and args.results):
+            raise UserError("--twin needs --twin-results, and --results for GT")
+        twin_fmt = detect_format(Path(args.twin))
+        twin_gt = twin_fmt.read_ground_truth(Path(args.twin), symmetry=args.symmetry)
+        twin_results = twin_fmt.read_results(Path(args.twin_results), twin_gt)
+        twin_report = evaluate(twin_gt, twin_results, opts)
+        others = {"real": report, "twin": twin_report}
+        print(format_table(report, per_object=per_object, others=others))
+    else:
+        print(format_table(report, per_object=per_object))
     if not args.results and fmt.NAME == "ours":
         _print_annotation_errors(gt_path)
     if args.json:
         from annotator.io.atomic import write_json
 
-        write_json(args.json, report.to_json())
+        doc = report.to_json()
+        if twin_report is not None:
+            doc = {"real": doc, "twin": twin_report.to_json()}
+        write_json(args.json, doc)
     if args.plot:
         from annotator.evaluation.evaluate import plot_curves
 

@@ -54,6 +54,22 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "(for `annotator calibrate`)",
     )
     parser.add_argument(
+        "--twin",
+        metavar="DATASET",
+        help="instead of new scenes, the synthetic twin of every accepted scene of DATASET: its "
+        "rig, its annotated poses, its background, the same sensor simulation (paper section 5)",
+    )
+    parser.add_argument(
+        "--include-pending",
+        action="store_true",
+        help="--twin: also the annotated scenes not reviewed yet",
+    )
+    parser.add_argument(
+        "--drop-rejected-instances",
+        action="store_true",
+        help="--twin: twin accepted scenes with rejected instances, without them",
+    )
+    parser.add_argument(
         "--overwrite", action="store_true", help="replace OUT if an earlier synth wrote it"
     )
     parser.add_argument("--json", action="store_true", help="print the summary as JSON")
@@ -98,6 +114,10 @@ def _config(args: argparse.Namespace) -> SynthConfig:
 
 def run(args: argparse.Namespace) -> int:
     out = Path(args.out)
+    if args.twin:
+        from annotator.commands.twin import synth_twin
+
+        return synth_twin(args)
     config = _config(args)
     check_output_folder(out, command="synth", overwrite=args.overwrite)
     if args.calibration:

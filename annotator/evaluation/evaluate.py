@@ -116,29 +116,41 @@ def evaluate(gt: GroundTruth, results: Results, options: Options = Options()) ->
     return Report(per_object, overall, thresholds, options, unscored)
 
 
-def format_table(report: Report, *, per_object: bool = True) -> str:
-    """A table like the paper's table 3: one row per object (if ``per_object``) and ``all``."""
+def format_table(
+    report: Report, *, per_object: bool = True, others: dict[str, Report] | None = None
+) -> str:
+    """A table like the paper's table 3: one row per object (if ``per_object``) and ``all``.
+
+    With ``others`` (label -> report, e.g. ``{"real": ..., "twin": ...}`` where ``report`` is
+    the first of them), their rows follow, each labelled, for a side-by-side comparison."""
+    reports = others or {"": report}
     ns = list(report.options.max_results)
     head = (
-        ["object", "AP"]
+        (["data"] if others else [])
+        + ["object", "AP"]
         + [f"AP_{n}" for n in ns]
         + ["scene AP", "best F1", "TP", "FP", "FN", "scenes", "threshold"]
     )
+    single = len(report.per_object) == 1 and not per_object
     rows = []
-    objects = list(report.per_object.items()) if per_object else []
-    for name, s in objects + [("all", report.overall)]:
-        thr = f"{report.thresholds[name]:.2f} mm" if name in report.thresholds else "-"
-        rows.append(
-            [name, f"{s.ap:.4f}"]
-            + [f"{s.ap_n[n]:.4f}" for n in ns]
-            + [f"{s.mean_scene_ap:.4f}", f"{s.best_f1:.4f}"]
-            + [str(s.tp), str(s.fp), str(s.fn), str(s.scenes), thr]
-        )
+    for label, rep in reports.items():
+        objects = list(rep.per_object.items()) if per_object else []
+        for name, s in objects + [("all", rep.overall)]:
+            key = next(iter(rep.per_object)) if single and name == "all" else name
+            thr = f"{rep.thresholds[key]:.2f} mm" if key in rep.thresholds else "-"
+            rows.append(
+                ([label] if others else [])
+                + [key, f"{s.ap:.4f}"]
+                + [f"{s.ap_n[n]:.4f}" for n in ns]
+                + [f"{s.mean_scene_ap:.4f}", f"{s.best_f1:.4f}"]
+                + [str(s.tp), str(s.fp), str(s.fn), str(s.scenes), thr]
+            )
+    text_cols = 2 if others else 1
     widths = [max(len(r[i]) for r in [head] + rows) for i in range(len(head))]
 
     def line(r: list[str]) -> str:
         return "  ".join(
-            c.ljust(w) if i == 0 else c.rjust(w) for i, (c, w) in enumerate(zip(r, widths))
+            c.ljust(w) if i < text_cols else c.rjust(w) for i, (c, w) in enumerate(zip(r, widths))
         )
 
     return "\n".join([line(head), line(["-" * w for w in widths])] + [line(r) for r in rows])

@@ -121,7 +121,7 @@ def write_dataset_files(plan: DatasetPlan, root: Path) -> None:
             scene = RayScene([PlacedMesh(s.mesh, cam_T_world @ s.world_T_model) for s in surfaces])
             views.append(render_view(cam, cam_T_world, surfaces, scene))
         rng = np.random.default_rng([plan.config.seed, 1 << 30])
-        depth = simulate_depth(plan, surfaces, views, rng)
+        depth = simulate_depth(plan.setup, surfaces, views, rng, pattern_seed=plan.config.seed + 7)
         write_png(root / BACKGROUND_DEPTH, encode_depth(depth, rig.depth.scale))
         rig = replace(rig, depth=replace(rig.depth, background=BACKGROUND_DEPTH))
     write_dataset_yaml(
@@ -204,7 +204,7 @@ def make_scene(
 
     if cfg.depth:
         t0 = time.perf_counter()
-        depth = simulate_depth(plan, surfaces, views, rng)
+        depth = simulate_depth(plan.setup, surfaces, views, rng, pattern_seed=plan.config.seed + 7)
         write_png(folder / "depth.png", encode_depth(depth, plan.setup.rig.depth.scale))
         # The exact depth of everything (parts, bin, clutter), for comparison with the sensor's.
         write_png(
@@ -230,12 +230,16 @@ def make_scene(
 
 
 def simulate_depth(
-    plan: DatasetPlan, surfaces: list[Surface], views: list, rng: np.random.Generator
+    setup: RigSetup,
+    surfaces: list[Surface],
+    views: list,
+    rng: np.random.Generator,
+    *,
+    pattern_seed: int,
 ) -> np.ndarray:
     """Active-stereo depth on the reference camera's pixel grid (mm, NaN = hole)."""
-    setup = plan.setup
     w, h = setup.projector_size
-    pattern = dot_pattern(w, h, seed=plan.config.seed + 7)
+    pattern = dot_pattern(w, h, seed=pattern_seed)
     projector_T_world = invert(setup.world_T_projector)
     world_scene = RayScene([PlacedMesh(s.mesh, s.world_T_model) for s in surfaces])
     imgs = []

@@ -1,0 +1,66 @@
+"""``annotator synth --twin DATASET OUT``: the synthetic twin of every accepted scene.
+
+Called by :mod:`annotator.commands.synth`; see :mod:`annotator.twins.render`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+from annotator.errors import UserError
+
+
+def synth_twin(args: argparse.Namespace) -> int:
+    from annotator.batch import run_batch
+    from annotator.dataset import load_dataset, require_meshes
+    from annotator.export.selection import select_scenes
+    from annotator.io.atomic import atomic_folder
+    from annotator.io.output_folder import check_output_folder, write_manifest
+    from annotator.twins.render import TwinJob, TwinSettings, write_twin_description
+
+    ds = load_dataset(args.twin)
+    require_meshes(ds)
+    out = Path(args.out)
+    check_output_folder(out, command="synth", overwrite=args.overwrite, protect=[ds.root])
+    sel = select_scenes(
+        ds,
+        include_pending=args.include_pending,
+        drop_rejected_instances=args.drop_rejected_instances,
+    )
+    if not sel.scenes:
+        why = ", ".join(f"{n} {r}" for r, n in sorted(sel.reasons().items())) or "no scenes"
+        raise UserError(
+            f"no accepted scene to make a twin of ({why}); use --include-pending", path=ds.root
+        )
+    poses = {
+        item.scene.id: [
+            (p.object, p.instance, p.R.ravel().tolist(), p.t.tolist()) for p in item.poses
+        ]
+        for item in sel.scenes
+    }
+    settings = TwinSettings(blur=args.blur, noise=args.noise, seed=args.seed)
+    with atomic_folder(out) as tmp:
+        write_manifest(tmp, command="synth")
+        write_twin_description(ds, tmp)
+        job = TwinJob(str(ds.root), str(tmp), poses, settings)
+        report = run_batch(job, sorted(poses), workers=args.workers, desc="twin", quiet=args.quiet)
+    summary = {
+        "out": str(out),
+        "twins": len(report.done),
+        "failed": len(report.failed),
+        "left_out": sel.reasons(),
+        "failures": dict(sorted(report.failed.items())),
+    }
+    if args.json:
+        print(json.dumps(summary, indent=1))
+    else:
+        report.print_failures()
+        why = "; ".join(f"{n} {r}" for r, n in sorted(sel.reasons().items()))
+        print(
+            f"synth --twin: {len(report.done)} twin scenes of {ds.root} written to {out}"
+            + (f"; left out: {why}" if why else "")
+            + f"; compare them: annotator twin-report {ds.root} {out}"
+        )
+    return 1 if report.failed else 0

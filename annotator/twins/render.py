@@ -1,0 +1,214 @@
+"""Synthetic twins of annotated scenes (the paper's section 5): the same rig, the annotated
+poses, the markers, and the depth sensor simulated as ``annotator synth`` does, so that real
+and simulated data can be compared scene by scene.
+
+The *setting* (what is not a part) comes from the dataset's background depth
+(``rig.depth.background``, the empty bin) turned into a surface: every 4th pixel of the depth
+camera back-projected, neighbours joined into triangles except across depth steps of more
+than 8 mm (a bin's rim seen from above is a step, not a slope). Without a background depth, it
+is the support plane fitted to the scene's own measured depth
+(:func:`annotator.annotation.completeness.fit_support_plane`), as a 2 m square.
+
+The projector of the simulated sensor sits midway between the first two cameras, looking
+along the reference camera's axis (as in ``synth``). Images get the renderer's default blur
+and noise. A twin dataset is a dataset: the same objects and rig, and per scene the two
+images, ``depth.png`` (simulated), ``depth_ideal.png`` (exact) and ``gt.json`` holding the
+annotated poses, so that the twin's ground truth *is* the annotation.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from annotator.dataset import Dataset, InstancePose, Scene
+from annotator.geometry.mesh import Mesh
+from annotator.io.images import encode_depth, write_png
+from annotator.markers.texture import marker_bits
+from annotator.synthesis.rig import RigSetup, look_at
+from annotator.synthesis.shading import Surface, finish_image, render_intensity
+
+BACKGROUND_ALBEDO = 0.45
+PART_ALBEDO = 0.8
+MESH_STEP = 4
+STEP_MM = 8.0
+
+
+def twin_setup(ds: Dataset) -> RigSetup:
+    """The dataset's rig in a world frame that is the reference camera's, with a projector
+    midway between the first two cameras."""
+    cams = ds.rig.cameras
+    world_T_cams = tuple(c.rig_T_cam for c in cams)
+    centre = 0.5 * (world_T_cams[0][:3, 3] + world_T_cams[min(1, len(cams) - 1)][:3, 3])
+    T = look_at(centre, centre + np.array([0.0, 0.0, 500.0]))
+    w, h = cams[0].width, cams[0].height
+    fp = w * 0.9
+    K = np.array([[fp, 0, (w - 1) / 2], [0, fp, (h - 1) / 2], [0, 0, 1.0]])
+    return RigSetup(ds.rig, world_T_cams, T, K, (w, h))
+
+
+def background_mesh(ds: Dataset, measured: np.ndarray | None) -> Mesh | None:
+    """The setting as a mesh in the reference camera's frame (see the module docstring)."""
+    from annotator.annotation.completeness import fit_support_plane
+
+    cam = ds.rig.depth_camera
+    depth = ds.background_depth
+    if depth is not None:
+        rays = cam.pixel_rays(MESH_STEP)
+        z = depth[::MESH_STEP, ::MESH_STEP]
+        pts = rays * z[..., None]
+        pts = pts @ cam.rig_T_cam[:3, :3].T + cam.rig_T_cam[:3, 3]
+        return _grid_mesh(pts, z)
+    if measured is None:
+        return None
+    plane = fit_support_plane(cam.pixel_rays(2) * measured[::2, ::2, None])
+    if plane is None:
+        return None
+    n, d = plane
+    n = cam.rig_T_cam[:3, :3] @ n
+    d = d + float(n @ cam.rig_T_cam[:3, 3])
+    u = np.cross(n, [1.0, 0.0, 0.0] if abs(n[0]) < 0.9 else [0.0, 1.0, 0.0])
+    u /= np.linalg.norm(u)
+    v = np.cross(n, u)
+    c = n * d
+    corners = np.array(
+        [c + a * u + b * v for a, b in ((-1e3, -1e3), (1e3, -1e3), (1e3, 1e3), (-1e3, 1e3))]
+    )
+    return Mesh(corners, np.array([[0, 1, 2], [0, 2, 3]], np.int32))
+
+
+def _grid_mesh(pts: np.ndarray, z: np.ndarray) -> Mesh:
+    """Triangles between neighbouring grid points, none across depth steps or holes."""
+    h, w = z.shape
+    ok = np.isfinite(z)
+    idx = np.arange(h * w).reshape(h, w)
+    a, b, c, d = idx[:-1, :-1], idx[:-1, 1:], idx[1:, :-1], idx[1:, 1:]
+    za, zb, zc, zd = z[:-1, :-1], z[:-1, 1:], z[1:, :-1], z[1:, 1:]
+    oka, okb, okc, okd = ok[:-1, :-1], ok[:-1, 1:], ok[1:, :-1], ok[1:, 1:]
+    faces = []
+    for (i, j, k), (zi, zj, zk), good in (
+        ((a, c, b), (za, zc, zb), oka & okc & okb),
+        ((b, c, d), (zb, zc, zd), okb & okc & okd),
+    ):
+        with np.errstate(invalid="ignore"):
+            spread = np.maximum(np.maximum(zi, zj), zk) - np.minimum(np.minimum(zi, zj), zk)
+        keep = good & (spread < STEP_MM)
+        faces.append(np.stack([i[keep], j[keep], k[keep]], axis=1))
+    vertices = np.nan_to_num(pts.reshape(-1, 3))
+    return Mesh(vertices, np.concatenate(faces).astype(np.int32))
+
+
+@dataclass(frozen=True)
+class TwinSettings:
+    blur: float = 0.6
+    noise: float = 2.0
+    supersample: int = 3
+    seed: int = 0
+
+
+def make_twin_scene(
+    ds: Dataset,
+    scene: Scene,
+    poses: list[InstancePose],
+    out: Path,
+    *,
+    settings: TwinSettings = TwinSettings(),
+) -> None:
+    """Render the twin of ``scene`` with ``poses`` into the scene folder ``out``."""
+    from annotator.dataset.poses import write_poses
+    from annotator.synthesis.generate import simulate_depth
+
+    setup = twin_setup(ds)
+    rng = np.random.default_rng([settings.seed, int.from_bytes(scene.id.encode()[:8], "little")])
+    surfaces: list[Surface] = []
+    bg = background_mesh(ds, scene.read_depth(ds.rig))
+    if bg is not None:
+        surfaces.append(Surface(bg, np.eye(4), BACKGROUND_ALBEDO))
+    for p in poses:
+        obj = ds.objects[p.object]
+        ids = obj.instance(p.instance).marker_ids
+        sites = obj.markers.corners[: len(ids)] if obj.markers is not None else None
+        bits = np.stack([marker_bits(ds.dictionary, m) for m in ids]) if ids else None
+        surfaces.append(Surface(obj.mesh, p.T, PART_ALBEDO, sites, bits))
+    views = []
+    for cam, world_T_cam in zip(ds.rig.cameras, setup.world_T_cams):
+        img, view = render_intensity(
+            cam, np.linalg.inv(world_T_cam), surfaces, supersample=settings.supersample
+        )
+        write_png(
+            out / f"{cam.name}.png",
+            finish_image(img, blur=settings.blur, noise=settings.noise, rng=rng),
+        )
+        views.append(view)
+    if ds.rig.depth is not None:
+        depth = simulate_depth(setup, surfaces, views, rng, pattern_seed=settings.seed + 7)
+        ref = [c.name for c in ds.rig.cameras].index(ds.rig.depth.camera)
+        if ref != 0:
+            raise ValueError("twins simulate depth on the reference camera's grid only")
+        write_png(out / "depth.png", encode_depth(depth, ds.rig.depth.scale))
+        write_png(out / "depth_ideal.png", encode_depth(views[0].hits.depth, ds.rig.depth.scale))
+    # True occlusion rates, as synth computes them: the instances and the exact depth of
+    # everything else hide each other.
+    from annotator.occlusion import scene_visibility
+
+    truth = [InstancePose(p.object, p.instance, p.R, p.t) for p in poses]
+    vis = scene_visibility(
+        ds.rig,
+        [ds.objects[p.object].mesh for p in truth],
+        [p.T for p in truth],
+        depth=views[0].hits.depth,
+    )
+    for p, v in zip(truth, vis):
+        p.extra["occlusion"] = {
+            "rate": round(v.occlusion, 4),
+            "per_camera": {c.camera: round(c.occlusion, 4) for c in v.cameras},
+        }
+    write_poses(out / "gt.json", truth, format=1)
+
+
+@dataclass(frozen=True)
+class TwinJob:
+    """Render the twin of one scene of ``root`` into ``out`` (picklable, for workers).
+
+    ``poses`` holds, per scene id, the poses to render (the accepted annotation)."""
+
+    root: str
+    out: str
+    poses: dict[str, list[tuple[str, str, list[float], list[float]]]]
+    settings: TwinSettings = TwinSettings()
+
+    def prepare(self) -> None:
+        """Load the dataset and tabulate the cameras' rays once, before workers fork."""
+        from annotator.dataset import cached_dataset
+
+        ds = cached_dataset(self.root)
+        for cam in ds.rig.cameras:
+            cam.pixel_rays()
+            cam.pixel_rays(MESH_STEP)
+
+    def __call__(self, scene_id: str) -> dict:
+        from annotator.dataset import cached_dataset
+
+        ds = cached_dataset(self.root)
+        poses = [
+            InstancePose(o, i, np.asarray(R, float).reshape(3, 3), np.asarray(t, float))
+            for o, i, R, t in self.poses[scene_id]
+        ]
+        folder = Path(self.out) / "scenes" / scene_id
+        folder.mkdir(parents=True, exist_ok=True)
+        make_twin_scene(ds, ds.scene(scene_id), poses, folder, settings=self.settings)
+        return {"instances": len(poses)}
+
+
+def write_twin_description(ds: Dataset, out: Path) -> None:
+    """The twin dataset's dataset.yaml, objects and background: the original's, unchanged."""
+    import shutil
+
+    shutil.copy2(ds.root / "dataset.yaml", out / "dataset.yaml")
+    shutil.copytree(ds.root / "objects", out / "objects")
+    if ds.rig.depth is not None and ds.rig.depth.background is not None:
+        target = out / ds.rig.depth.background
+        target.parent.mkdir(parents=True, exist_ok=True)
+        shutil.copy2(ds.root / ds.rig.depth.background, target)
