@@ -158,6 +158,8 @@ class SceneAnnotation:
         warnings: Scene-level warnings (completeness and image quality).
         image_quality: ``{camera: {"edge_blur_px", "median", "saturated"}}``.
         unknown_markers: ``{camera: [ids]}`` read but belonging to no instance.
+        unconfirmed_markers: ``{camera: [ids]}`` of poses left out because the measured depth
+            contradicted them and nothing else supported them.
         duplicates: ``{camera: [ids]}`` seen twice in one image.
         unexplained_mask: File name of the unexplained-depth mask beside annotation.json
             (uint8 PNG on the depth camera's grid, 255 = unexplained), or None.
@@ -169,6 +171,7 @@ class SceneAnnotation:
     warnings: list[SceneWarning] = field(default_factory=list)
     image_quality: dict[str, dict[str, Any]] = field(default_factory=dict)
     unknown_markers: dict[str, list[int]] = field(default_factory=dict)
+    unconfirmed_markers: dict[str, list[int]] = field(default_factory=dict)
     duplicates: dict[str, list[int]] = field(default_factory=dict)
     unexplained_mask: str | None = None
     created_at: str | None = None
@@ -189,6 +192,7 @@ class SceneAnnotation:
             created_at=self.created_at,
             description_digest=self.description_digest,
             unknown_markers=self.unknown_markers,
+            unconfirmed_markers=self.unconfirmed_markers,
             duplicates=self.duplicates,
             image_quality=self.image_quality,
             unexplained_mask=self.unexplained_mask,
@@ -208,6 +212,7 @@ class SceneAnnotation:
             warnings=[SceneWarning.from_json(w) for w in top.pop("warnings", None) or []],
             image_quality=top.pop("image_quality", None) or {},
             unknown_markers=top.pop("unknown_markers", None) or {},
+            unconfirmed_markers=top.pop("unconfirmed_markers", None) or {},
             duplicates=top.pop("duplicates", None) or {},
             unexplained_mask=top.pop("unexplained_mask", None),
             created_at=top.pop("created_at", None),

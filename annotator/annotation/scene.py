@@ -131,12 +131,17 @@ def annotate_scene(
     depth = scene.read_depth(ds.rig)
     renders: dict[str, tuple[np.ndarray, np.ndarray]] = {}
     _add_visibility(ds, results, depth, settings, renders)
-    # A pose resting on blurred readings alone must also agree with the measured depth (or,
-    # without depth, rest on two different markers): blur can misread one marker the same
-    # way in both cameras.
-    doubtful = [r for r in results if _soft_only(r) and not _supported(r, depth is not None)]
+    # A pose resting on blurred readings alone is kept only if the measured depth agrees
+    # (or, without depth, two different markers do): blur can misread a marker the same way
+    # in both cameras. Its markers are then listed as unconfirmed; a part really there shows
+    # as unexplained depth.
+    doubtful = [r for r in results if not _supported(r, depth is not None)]
+    unconfirmed: dict[str, list[int]] = {}
     if doubtful:
         results = [r for r in results if not any(r is d for d in doubtful)]
+        for r in doubtful:
+            for cam_name, m in r.extra["markers"].items():
+                unconfirmed.setdefault(cam_name, []).extend(m["used"])
         renders = {}
         _add_visibility(ds, results, depth, settings, renders)
     instances = [
@@ -162,9 +167,7 @@ def annotate_scene(
             ds,
             depth,
             renders,
-            disagreeing=[
-                k for k, r in enumerate(results) if "depth_disagreement" in r.extra["flags"]
-            ],
+            disagreeing=[k for k, r in enumerate(results) if _owns_its_region(r)],
             unread=readings[ref].unread,
             settings=settings,
         )
@@ -175,22 +178,36 @@ def annotate_scene(
         warnings=warnings,
         image_quality=quality,
         unknown_markers=unknown,
+        unconfirmed_markers={c: sorted(set(v)) for c, v in unconfirmed.items()},
         duplicates=duplicates,
         unexplained_mask=UNEXPLAINED_MASK if mask is not None and mask.any() else None,
     )
     return SceneResult(annotation, mask)
 
 
-def _soft_only(r: InstanceResult) -> bool:
-    """True if every marker the pose uses was read through the blur model only."""
-    return all(set(m["used"]) <= set(m.get("recovered", [])) for m in r.extra["markers"].values())
+#: Below this depth agreement a pose on one marker id is contradicted by the depth.
+CONTRADICTED = 0.3
 
 
 def _supported(r: InstanceResult, with_depth: bool) -> bool:
+    """False for a pose on blurred readings only that the depth does not confirm."""
+    markers = r.extra["markers"].values()
+    if not all(set(m["used"]) <= set(m.get("recovered", [])) for m in markers):
+        return True
     if with_depth and r.extra["depth"] is not None:
         return "depth_disagreement" not in r.extra["flags"]
+    return len({i for m in markers for i in m["used"]}) >= 2
+
+
+def _owns_its_region(r: InstanceResult) -> bool:
+    """A pose flagged ``depth_disagreement`` that still explains its part: on several
+    markers, or not contradicted outright. (A single marker id whose pose the depth
+    contradicts may be a misread or stray marker: the region stays reported.)"""
+    if "depth_disagreement" not in r.extra["flags"]:
+        return False
     ids = {i for m in r.extra["markers"].values() for i in m["used"]}
-    return len(ids) >= 2
+    depth = r.extra["depth"]
+    return len(ids) > 1 or depth is None or depth["agreement"] >= CONTRADICTED
 
 
 #: File name of the unexplained-depth mask, beside annotation.json.
@@ -372,6 +389,7 @@ def _silhouette_mm2(mesh) -> float:
 def _pose_instance(
     ds: Dataset, obj: str, inst: str, obs: list[Observation], s: Settings
 ) -> InstanceResult | None:
+    """Pose one instance from its observations (see the module docstring)."""
     cams = ds.rig.cameras
     best, best_key = None, None
     everything = len({(o.camera, o.marker_id) for o in obs})
@@ -508,6 +526,8 @@ def _add_visibility(
         return
     from annotator.occlusion import scene_visibility
 
+    for r in results:  # recomputed below, from these poses
+        r.extra["flags"] = [f for f in r.extra["flags"] if f != "depth_disagreement"]
     meshes = [ds.objects[r.object].mesh for r in results]
     vis = scene_visibility(
         ds.rig,
