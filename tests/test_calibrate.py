@@ -258,7 +258,13 @@ def test_calibrate_replaces_only_the_rig_of_an_existing_dataset(
     head = original[: original.index("rig:")]
     tail = original[original.index("objects:") :]
     assert new.startswith(head) and new.endswith(tail)
-    assert new_doc["rig"]["depth"] == {"camera": "right", "scale": 0.1, "comment": "ir"}
+    # Fields of the depth entry that calibration does not produce (the background) stay.
+    assert new_doc["rig"]["depth"] == {
+        **old_doc["rig"]["depth"],
+        "camera": "right",
+        "scale": 0.1,
+        "comment": "ir",
+    }
     assert new_doc["rig"]["note"] == "by hand"
     assert main(["check", str(sample_copy)]) == 0
     # Once more: the same rig, nothing to write.

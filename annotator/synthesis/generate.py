@@ -28,7 +28,7 @@ from annotator.rendering.raycast import PlacedMesh, RayScene
 from annotator.synthesis.physics import Bin, drop_parts
 from annotator.synthesis.rig import RigSetup, make_rig
 from annotator.synthesis.shading import Surface, finish_image, render_intensity, render_view
-from annotator.synthesis.stereo import dot_pattern, pattern_image, stereo_depth
+from annotator.synthesis.stereo import ShadowMap, dot_pattern, pattern_image, stereo_depth
 
 DICTIONARY = "DICT_4X4_1000"
 
@@ -241,7 +241,10 @@ def simulate_depth(
     w, h = setup.projector_size
     pattern = dot_pattern(w, h, seed=pattern_seed)
     projector_T_world = invert(setup.world_T_projector)
-    world_scene = RayScene([PlacedMesh(s.mesh, s.world_T_model) for s in surfaces])
+    projector_scene = RayScene(
+        [PlacedMesh(s.mesh, projector_T_world @ s.world_T_model) for s in surfaces]
+    )
+    shadows = ShadowMap.cast(projector_scene, setup.projector_K, setup.projector_size)
     imgs = []
     for cam, world_T_cam, view in zip(setup.rig.cameras, setup.world_T_cams, views):
         img = pattern_image(
@@ -251,8 +254,7 @@ def simulate_depth(
             projector_T_world=projector_T_world,
             projector_K=setup.projector_K,
             pattern=pattern,
-            occluders=world_scene,
-            world_T_projector=setup.world_T_projector,
+            shadows=shadows,
         )
         imgs.append(finish_image(img, blur=0.5, noise=1.5, rng=rng))
     ideal = views[0].hits.depth

@@ -16,7 +16,7 @@ from scipy.spatial import cKDTree
 
 from annotator.geometry.camera import Camera
 from annotator.geometry.mesh import Mesh
-from annotator.rendering.raycast import Hits, PlacedMesh, RayScene, stacked_triangles
+from annotator.rendering.raycast import Hits, PlacedMesh, RayScene
 
 
 @dataclass(frozen=True)
@@ -52,58 +52,122 @@ class View:
 def _albedo(
     surfaces: Sequence[Surface], placed: Sequence[PlacedMesh], hits: Hits
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Albedo at each hit (markers textured) and whether the hit is on a marker."""
+    """Albedo at each hit (markers textured) and whether the hit is on a marker.
+
+    Only hits on triangles that can reach a marker site are looked at (see
+    :func:`_site_faces`): on a part most of the surface carries no marker.
+    """
     base = np.array([s.albedo for s in surfaces] + [0.0], np.float32)
     albedo = base[hits.instance]  # NO_HIT = -1 picks the trailing 0
     on_marker = np.zeros(hits.instance.shape, bool)
-    marked = [k for k, s in enumerate(surfaces) if s.sites is not None and len(s.sites)]
-    sel_all = np.isin(hits.instance, marked)
-    if not np.any(sel_all):
-        return albedo, on_marker
-    flat = np.flatnonzero(sel_all)
-    inst = hits.instance.reshape(-1)[flat]
-    tri_all = hits.triangle.reshape(-1)[flat]
-    uv = hits.barycentric.reshape(-1, 2)[flat].astype(np.float64)
-    tri = stacked_triangles(placed)[
-        np.cumsum([0] + [len(pm.mesh.faces) for pm in placed])[inst] + tri_all
-    ]
-    pts_all = (
-        (1.0 - uv[:, :1] - uv[:, 1:]) * tri[:, 0] + uv[:, :1] * tri[:, 1] + uv[:, 1:] * tri[:, 2]
-    )
-    order = np.argsort(inst, kind="stable")
-    bounds = np.searchsorted(inst[order], np.arange(len(surfaces) + 1))
     a_flat = albedo.reshape(-1)
     m_flat = on_marker.reshape(-1)
-    for k in marked:
+    instance = hits.instance.reshape(-1)
+    triangle = hits.triangle.reshape(-1)
+    marked = [
+        _site_faces(s.mesh, s.sites)[0] != -1
+        if s.sites is not None and len(s.sites)
+        else np.zeros(len(s.mesh.faces), bool)
+        for s in surfaces
+    ]
+    offsets = np.cumsum([0] + [len(m) for m in marked])
+    hit = np.flatnonzero(instance >= 0)
+    near = hit[np.concatenate(marked)[offsets[instance[hit]] + triangle[hit]]]
+    if len(near) == 0:
+        return albedo, on_marker
+    order = near[np.argsort(instance[near], kind="stable")]
+    bounds = np.searchsorted(instance[order], np.arange(len(surfaces) + 1))
+    for k, surf in enumerate(surfaces):
         rows = order[bounds[k] : bounds[k + 1]]
         if len(rows) == 0:
             continue
-        surf = surfaces[k]
-        p = pts_all[rows]
-        # Sites never overlap (their circumscribed circles are disjoint), so the only site that
-        # can contain a point is the one with the nearest centre.
-        sites = surf.sites
-        _, idx = cKDTree(sites.mean(axis=1)).query(p)
-        tl, ex, ey = sites[idx, 0], sites[idx, 1] - sites[idx, 0], sites[idx, 3] - sites[idx, 0]
-        n_site = np.cross(ey, ex)
-        n_site /= np.linalg.norm(n_site, axis=1, keepdims=True)
-        rel = p - tl
-        st = np.column_stack(
-            [(rel * ex).sum(1) / (ex * ex).sum(1), (rel * ey).sum(1) / (ey * ey).sum(1)]
+        face_site, tree = _site_faces(surf.mesh, surf.sites)
+        tri_ids = triangle[rows]
+        uv = hits.barycentric.reshape(-1, 2)[rows]
+        tri = _triangles32(surf.mesh)[tri_ids]  # model frame
+        p = (
+            (1.0 - uv[:, :1] - uv[:, 1:]) * tri[:, 0]
+            + uv[:, :1] * tri[:, 1]
+            + uv[:, 1:] * tri[:, 2]
         )
-        tri_n = surf.mesh.face_normals[tri_all[rows]]
+        # Sites never overlap (their circumscribed circles are disjoint), so the only site that
+        # can contain a point is the one with the nearest centre: the face's own site when it
+        # meets just one, else the nearest one.
+        idx = face_site[tri_ids]
+        several = idx == MANY_SITES
+        if several.any():
+            idx[several] = tree.query(p[several])[1]
+        # The point in the site's own coordinates: (s, t) across the printed square, d off it.
+        frame, origin, normal = (a.astype(np.float32) for a in _site_frames(surf.sites))
+        sd = np.einsum("nij,nj->ni", frame[idx], p - origin[idx])
+        tri_n = surf.mesh.face_normals[tri_ids]
         inside = (
-            (st >= 0).all(axis=1)
-            & (st < 1).all(axis=1)
-            & (np.abs((rel * n_site).sum(1)) < 2.0)
-            & ((tri_n * n_site).sum(1) > 0.7)
+            (sd[:, 0] >= 0)
+            & (sd[:, 0] < 1)
+            & (sd[:, 1] >= 0)
+            & (sd[:, 1] < 1)
+            & (np.abs(sd[:, 2]) < 2.0)
+            & ((tri_n * normal[idx]).sum(1) > 0.7)
         )
         c = surf.bits.shape[1]
-        ij = np.minimum((st[inside] * c).astype(int), c - 1)
-        target = flat[rows[inside]]
+        ij = np.minimum((sd[inside, :2] * c).astype(int), c - 1)
+        target = rows[inside]
         a_flat[target] = np.where(surf.bits[idx[inside], ij[:, 1], ij[:, 0]] > 0, 0.92, 0.04)
         m_flat[target] = True
     return albedo, on_marker
+
+
+def _site_frames(sites: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per site: the matrix taking ``p - TL`` to ``(s, t, d)`` (fractions along TL->TR and
+    TL->BL, distance along the outward normal), the top-left corner, and the normal."""
+    tl = sites[:, 0]
+    ex, ey = sites[:, 1] - tl, sites[:, 3] - tl
+    n = np.cross(ey, ex)
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    frame = np.stack(
+        [ex / (ex * ex).sum(1, keepdims=True), ey / (ey * ey).sum(1, keepdims=True), n], axis=1
+    )
+    return frame, tl, n
+
+
+_TRIANGLES32: dict[bytes, np.ndarray] = {}
+
+
+def _triangles32(mesh: Mesh) -> np.ndarray:
+    """The mesh's triangles in float32 (half the memory traffic per textured point)."""
+    tri = _TRIANGLES32.get(mesh.digest)
+    if tri is None:
+        if len(_TRIANGLES32) > 64:
+            _TRIANGLES32.clear()
+        tri = _TRIANGLES32[mesh.digest] = mesh.triangles.astype(np.float32)
+    return tri
+
+
+MANY_SITES = -2
+_SITE_FACES: dict[tuple[bytes, bytes], tuple[np.ndarray, cKDTree]] = {}
+
+
+def _site_faces(mesh: Mesh, sites: np.ndarray) -> tuple[np.ndarray, cKDTree]:
+    """For each face of ``mesh``: the one marker site whose circumscribed sphere it meets, -1
+    if none, ``MANY_SITES`` if several; and a KD-tree of the sites' centres. Cached."""
+    key = (mesh.digest, np.ascontiguousarray(sites).tobytes())
+    hit = _SITE_FACES.get(key)
+    if hit is None:
+        centres = sites.mean(axis=1)
+        radius = np.linalg.norm(sites - centres[:, None], axis=2).max(axis=1)
+        tri = mesh.triangles
+        tc = tri.mean(axis=1)
+        tr = np.linalg.norm(tri - tc[:, None], axis=2).max(axis=1)
+        tree = cKDTree(centres)
+        face_site = np.full(len(tri), -1)
+        for f, js in enumerate(tree.query_ball_point(tc, r=tr + radius.max() + 2.0)):
+            meets = [j for j in js if np.linalg.norm(tc[f] - centres[j]) <= tr[f] + radius[j] + 2.0]
+            if meets:
+                face_site[f] = meets[0] if len(meets) == 1 else MANY_SITES
+        if len(_SITE_FACES) > 256:
+            _SITE_FACES.clear()
+        hit = _SITE_FACES[key] = (face_site, tree)
+    return hit
 
 
 def _shade(
@@ -146,8 +210,13 @@ def render_intensity(
     rays = camera.pixel_rays()
     img = _shade(view.albedo, view.normals_cam, rays, view.hits.hit, ambient)
     if supersample > 1 and np.any(view.on_marker):
-        # Supersample marker pixels and their neighbours (marker edges against the part).
+        # Supersample the pixels of markers and around them where an edge passes: where the
+        # albedo or the surface differs within the pixel's 3x3 neighbourhood (a straight edge
+        # through a pixel always separates its centre from a neighbour's).
         near = cv2.dilate(view.on_marker.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
+        kernel = np.ones((3, 3), np.uint8)
+        code = view.albedo * 1000.0 + view.hits.instance.astype(np.float32)
+        near &= cv2.dilate(code, kernel) != cv2.erode(code, kernel)
         vs, us = np.nonzero(near)
         offs = (np.arange(supersample) + 0.5) / supersample - 0.5
         acc = np.zeros(len(us), np.float64)

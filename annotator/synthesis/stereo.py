@@ -29,6 +29,43 @@ def dot_pattern(width: int, height: int, *, seed: int = 7, density: float = 0.12
     return np.clip(cv2.GaussianBlur(dots, (0, 0), 0.7) * 2.5, 0.0, 1.0)
 
 
+@dataclass(frozen=True)
+class ShadowMap:
+    """What the projector lights: the z-depth (mm, projector frame) of the nearest surface
+    through each of its pixels, cast once per scene (shadow mapping), instead of one ray from
+    the projector to every point each camera sees."""
+
+    depth: np.ndarray  # (H, W) float32, inf where nothing
+    K: np.ndarray
+
+    @classmethod
+    def cast(
+        cls, scene: RayScene, K: np.ndarray, size: tuple[int, int], *, scale: float = 1.0
+    ) -> ShadowMap:
+        """``scene`` in the projector's frame; ``K`` its pinhole intrinsics; the map has
+        ``scale`` times the projector's resolution (1: shadow edges within a projector
+        pixel; 0.5 casts a quarter of the rays, at the cost of blunter shadow edges)."""
+        K = K.copy()
+        K[:2] *= scale
+        K[:2, 2] += 0.5 * scale - 0.5  # pixel centres at integer coordinates at both scales
+        w, h = int(round(size[0] * scale)), int(round(size[1] * scale))
+        u, v = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
+        rays = np.stack([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1], np.ones_like(u)], -1)
+        return cls(scene.cast(rays).depth, K)
+
+    def lit(self, p: np.ndarray, tolerance: float = 1.0) -> np.ndarray:
+        """True for points ``p`` (N, 3, projector frame) that no other surface hides from the
+        projector (nearest map pixel; ``tolerance`` mm plus a slope bias of two pixels'
+        footprint)."""
+        h, w = self.depth.shape
+        z = p[:, 2]
+        uv = p[:, :2] / z[:, None] * self.K[[0, 1], [0, 1]] + self.K[:2, 2]
+        iu = np.clip(np.rint(uv[:, 0]).astype(int), 0, w - 1)
+        iv = np.clip(np.rint(uv[:, 1]).astype(int), 0, h - 1)
+        bias = tolerance + 2.0 * z / self.K[0, 0]
+        return z <= self.depth[iv, iu] + bias
+
+
 def pattern_image(
     view: View,
     camera: Camera,
@@ -37,34 +74,26 @@ def pattern_image(
     projector_T_world: np.ndarray,
     projector_K: np.ndarray,
     pattern: np.ndarray,
-    occluders: RayScene | None = None,
-    world_T_projector: np.ndarray | None = None,
+    shadows: ShadowMap | None = None,
 ) -> np.ndarray:
-    """What ``camera`` sees of the projected pattern (float32, 0..1), ambient included.
-
-    With ``occluders`` (a RayScene in the world frame) and ``world_T_projector``, points the
-    projector cannot see are left in its shadow.
-    """
+    """What ``camera`` sees of the projected pattern (float32, 0..1), ambient included; with
+    ``shadows``, the points the projector cannot see stay in its shadow."""
     hit = view.hits.hit
-    rays = camera.pixel_rays()[hit].astype(np.float64)
+    rays = camera.pixel_rays()[hit]
     p_cam = rays * view.hits.depth[hit][:, None]
-    p_world = p_cam @ world_T_cam[:3, :3].T + world_T_cam[:3, 3]
-    p_proj = p_world @ projector_T_world[:3, :3].T + projector_T_world[:3, 3]
-    uv = p_proj[:, :2] / p_proj[:, 2:3] @ projector_K[:2, :2].T + projector_K[:2, 2]
+    proj_T_cam = (projector_T_world @ world_T_cam).astype(np.float32)
+    p_proj = p_cam @ proj_T_cam[:3, :3].T + proj_T_cam[:3, 3]
+    uv = p_proj[:, :2] / p_proj[:, 2:3] @ projector_K[:2, :2].T.astype(np.float32)
+    uv += projector_K[:2, 2].astype(np.float32)
     # OpenCV's remap limits maps to 32767 rows: sample with scipy instead.
     lit = map_coordinates(pattern, [uv[:, 1], uv[:, 0]], order=1, mode="constant", cval=0.0).astype(
         np.float32
     )
-    if occluders is not None and world_T_projector is not None:
-        origin = world_T_projector[:3, 3]
-        d = p_world - origin
-        dist = np.linalg.norm(d, axis=1)
-        h = occluders.cast((d / dist[:, None]).astype(np.float32), origin=origin.astype(np.float32))
-        lit[h.depth < dist - 0.5] = 0.0
-    n_world = view.normals_cam[hit] @ world_T_cam[:3, :3].T
-    to_proj = -p_proj / np.linalg.norm(p_proj, axis=1, keepdims=True)
-    to_proj_world = to_proj @ invert(projector_T_world)[:3, :3].T
-    cos = np.clip((n_world * to_proj_world).sum(axis=1), 0.0, 1.0)
+    if shadows is not None:
+        lit[~shadows.lit(p_proj)] = 0.0
+    # Lambert towards the projector, in the projector's frame.
+    n_proj = view.normals_cam[hit] @ proj_T_cam[:3, :3].T
+    cos = np.clip(-(n_proj * p_proj).sum(axis=1) / np.linalg.norm(p_proj, axis=1), 0.0, 1.0)
     albedo = np.maximum(view.albedo[hit], 0.25)
     img = np.zeros(hit.shape, np.float32)
     img[hit] = albedo * (0.08 + 0.92 * lit * cos)
