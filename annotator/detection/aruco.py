@@ -135,14 +135,7 @@ class MarkerDetector:
                 return []
             quads = np.asarray(found, dtype=np.float64).reshape(-1, 4, 2)
             return [Detection(int(i), q) for i, q in zip(np.ravel(ids), quads)]
-        candidates = _candidates(found, rejected)
-        ids, quads, _ = identify(
-            gray,
-            candidates,
-            self._codebook,
-            border_tolerance=self._border_tolerance,
-            min_std=self._min_std,
-        )
+        ids, quads, _ = self._identify(gray, _candidates(found, rejected))
         return [Detection(int(i), q) for i, q in zip(ids, self.refine(gray, quads))]
 
     def read(self, image: np.ndarray) -> ImageReading:
@@ -159,13 +152,7 @@ class MarkerDetector:
             # Blurred corners are round: a looser polygon fit finds squares the first missed.
             more = _candidates(*self._blurred_detector.detectMarkers(gray)[::2])
             candidates = _merge_candidates(candidates, more)
-        ids, quads, identified = identify(
-            gray,
-            candidates,
-            self._codebook,
-            border_tolerance=self._border_tolerance,
-            min_std=self._min_std,
-        )
+        ids, quads, identified = self._identify(gray, candidates)
         markers = [Detection(int(i), q) for i, q in zip(ids, self.refine(gray, quads))]
         rest = candidates[~identified]
         sides = np.linalg.norm(rest - np.roll(rest, 1, axis=1), axis=2).min(axis=1)
@@ -188,6 +175,17 @@ class MarkerDetector:
             if int(i) not in known
         ]
         return ImageReading(markers, rest[~ok], soft.bits[~ok], soft.margin[~ok], blur)
+
+    def _identify(
+        self, gray: np.ndarray, candidates: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        return identify(
+            gray,
+            candidates,
+            self._codebook,
+            border_tolerance=self._border_tolerance,
+            min_std=self._min_std,
+        )
 
     def refine(self, gray: np.ndarray, quads: np.ndarray) -> np.ndarray:
         """Sub-pixel corners of (N, 4, 2) quads (see the module docstring)."""

@@ -143,6 +143,19 @@ def checked_poses(
     return R, t
 
 
+def checked_entries(
+    entries: list[dict[str, Any]], path: Path, *, scale: float = 1.0
+) -> tuple[np.ndarray, np.ndarray]:
+    """The ``R`` and ``t`` of a JSON list's entries, checked (see :func:`checked_poses`)."""
+    return checked_poses(
+        [e.get("R") for e in entries],
+        [e.get("t") for e in entries],
+        lambda i: f"entry {i}",
+        path,
+        scale=scale,
+    )
+
+
 def checked_score(value: Any, where: str, path: Path) -> float:
     """A finite score, or a one-line UserError."""
     try:
@@ -191,13 +204,7 @@ def read_json_lists(
                 raise UserError(f"{where}: 'score' is missing", path=f)
             objects.append(obj)
             scores.append(checked_score(r["score"], where, f))
-        R, t = checked_poses(
-            [r.get("R") for r in doc],
-            [r.get("t") for r in doc],
-            lambda i: f"entry {i}",
-            f,
-            scale=scale,
-        )
+        R, t = checked_entries(doc, f, scale=scale)
         for i, obj in enumerate(objects):
             table.setdefault((key, obj), PoseSet()).add(R[i], t[i], scores[i])
     return Results(table, unknown, mentioned)

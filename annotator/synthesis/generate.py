@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from annotator.dataset.model import Instance
+from annotator.dataset.model import Instance, Rig
 from annotator.dataset.poses import InstancePose, write_poses
 from annotator.dataset.write import write_dataset_yaml, write_object_yaml
 from annotator.errors import UserError
@@ -212,21 +212,24 @@ def make_scene(
             encode_depth(views[0].hits.depth, plan.setup.rig.depth.scale),
         )
         timing.depth = time.perf_counter() - t0
-    # True occlusion rates: posed instances occlude each other, and the exact depth of
-    # everything else (bin walls, clutter) hides what lies behind it.
-    vis = scene_visibility(
-        plan.setup.rig,
-        [plan.parts[plan.config.parts.index(p.object)].mesh for p in poses],
-        [p.T for p in poses],
-        depth=views[0].hits.depth,
-    )
+    meshes = [plan.parts[plan.config.parts.index(p.object)].mesh for p in poses]
+    add_true_occlusion(plan.setup.rig, poses, meshes, views[0].hits.depth)
+    write_poses(folder / "gt.json", poses, format=1)
+    return poses, timing
+
+
+def add_true_occlusion(
+    rig: Rig, poses: list[InstancePose], meshes: list[Mesh], ideal_depth: np.ndarray
+) -> None:
+    """Set each pose's true ``occlusion`` (``{"rate", "per_camera"}``): the posed instances
+    occlude each other, and the exact depth of everything else (bin walls, clutter) hides
+    what lies behind it."""
+    vis = scene_visibility(rig, meshes, [p.T for p in poses], depth=ideal_depth)
     for p, v in zip(poses, vis):
         p.extra["occlusion"] = {
             "rate": round(v.occlusion, 4),
             "per_camera": {c.camera: round(c.occlusion, 4) for c in v.cameras},
         }
-    write_poses(folder / "gt.json", poses, format=1)
-    return poses, timing
 
 
 def simulate_depth(

@@ -118,7 +118,7 @@ def make_twin_scene(
 ) -> None:
     """Render the twin of ``scene`` with ``poses`` into the scene folder ``out``."""
     from annotator.dataset.poses import write_poses
-    from annotator.synthesis.generate import simulate_depth
+    from annotator.synthesis.generate import add_true_occlusion, simulate_depth
 
     setup = twin_setup(ds)
     rng = np.random.default_rng([settings.seed, int.from_bytes(scene.id.encode()[:8], "little")])
@@ -149,22 +149,9 @@ def make_twin_scene(
             raise ValueError("twins simulate depth on the reference camera's grid only")
         write_png(out / "depth.png", encode_depth(depth, ds.rig.depth.scale))
         write_png(out / "depth_ideal.png", encode_depth(views[0].hits.depth, ds.rig.depth.scale))
-    # True occlusion rates, as synth computes them: the instances and the exact depth of
-    # everything else hide each other.
-    from annotator.occlusion import scene_visibility
-
     truth = [InstancePose(p.object, p.instance, p.R, p.t) for p in poses]
-    vis = scene_visibility(
-        ds.rig,
-        [ds.objects[p.object].mesh for p in truth],
-        [p.T for p in truth],
-        depth=views[0].hits.depth,
-    )
-    for p, v in zip(truth, vis):
-        p.extra["occlusion"] = {
-            "rate": round(v.occlusion, 4),
-            "per_camera": {c.camera: round(c.occlusion, 4) for c in v.cameras},
-        }
+    meshes = [ds.objects[p.object].mesh for p in truth]
+    add_true_occlusion(ds.rig, truth, meshes, views[0].hits.depth)
     write_poses(out / "gt.json", truth, format=1)
 
 
