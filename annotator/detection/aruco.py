@@ -200,14 +200,16 @@ class MarkerDetector:
 
 
 def _merge_candidates(first: np.ndarray, more: np.ndarray) -> np.ndarray:
-    """``first`` and those of ``more`` whose centre is not within a fifth of a side of one of
-    ``first``'s (the same square found twice)."""
+    """``first`` and those of ``more`` that are not the same square as one of ``first``'s
+    (every corner within 2 px, in some rotation)."""
     if len(first) == 0 or len(more) == 0:
         return first if len(more) == 0 else more
-    centre, side = first.mean(axis=1), np.linalg.norm(first[:, 1] - first[:, 0], axis=1)
-    d = np.linalg.norm(more.mean(axis=1)[:, None] - centre[None], axis=2)
-    new = ~(d < 0.2 * side[None]).any(axis=1)
-    return np.concatenate([first, more[new]])
+    same = np.zeros(len(more), bool)
+    for r in range(4):
+        turned = np.roll(first, r, axis=1)
+        d = np.linalg.norm(more[:, None] - turned[None], axis=3).max(axis=2)  # (M, N)
+        same |= (d < 2.0).any(axis=1)
+    return np.concatenate([first, more[~same]])
 
 
 def _candidates(found, rejected) -> np.ndarray:
