@@ -1,6 +1,17 @@
 """The validation viewer: ``annotator review DATASET`` serves it with viser.
 
-- :mod:`viewer.state`: what is decided about each scene (review.json), filters, progress;
-- :mod:`viewer.overlays`: pixel-exact silhouettes on the images and depth, rendered on the server;
-- :mod:`viewer.app`: the viser page, its buttons and hotkeys, prefetching of the next scene.
+- :mod:`viewer.app`: the server: shared state and cache, one session per browser page;
+- :mod:`viewer.session`: one page: its cursor, panel and canvas, and what its keys and
+  clicks do;
+- :mod:`viewer.navigation`: one reviewer's cursor, filter, selection and zoom (no viser);
+- :mod:`viewer.state`: what is decided about each scene (review.json), progress, polling;
+- :mod:`viewer.cache`: scenes prepared in the background before they are shown;
+- :mod:`viewer.overlays`: what the pictures are drawn from, rendered pixel-exact on the server;
+- :mod:`viewer.mosaic`, :mod:`viewer.zoom`: the pictures, and the way back to camera pixels;
+- :mod:`viewer.pictures`: the pictures on the page, laid over the 3D canvas as HTML images;
+- :mod:`viewer.style`: colours and what each instance's outline shows;
+- :mod:`viewer.scene_warnings`: annotation.json's warnings (unexplained depth regions);
+- :mod:`viewer.panel`: the control panel and hotkeys;
+- :mod:`viewer.scene3d`: the 3D canvas (clicks on the pictures, the 3D view) and its handles;
+- :mod:`viewer.access`: who may connect (Origin, token).
 """

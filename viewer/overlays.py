@@ -1,115 +1,226 @@
-"""Server-side overlays: silhouette contours of every proposed pose on each camera's image,
-on the colourised depth map, and the disagreement between measured and rendered depth.
+"""What the overlays are drawn from, prepared once per scene on the server.
 
-The silhouettes are ray cast with the real intrinsics and lens distortion (pixel-exact, the
-same renderer as the synthetic images and the occlusion rates). :func:`prepare` does the heavy
-part once per scene (images, instance maps, contours); :func:`compose` only draws, so that a
-decision re-colours the overlays at once.
+:func:`prepare` reads a scene's images and depth and ray casts the proposed poses in every
+camera with the real intrinsics and lens distortion (pixel-exact: the same renderer as the
+synthetic images and the occlusion rates). It keeps everything at **full resolution**, so the
+mosaic can be scaled to any browser viewport and the zoom can crop at full resolution:
+
+- per camera: the grey image, a map of which instance covers each pixel, a shaded rendering
+  of the parts (for blinking), and each instance's silhouette contours, box and centre;
+- on the depth camera's grid: the colourised depth, the disagreement between measured and
+  rendered depth, and the unexplained-depth mask (``unexplained.png``) if there is one;
+- the depth point cloud for the 3D view, downsampled once here.
+
+Drawing is done elsewhere (:mod:`viewer.mosaic`, :mod:`viewer.zoom`): a decision only
+re-colours what was prepared.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import cv2
 import numpy as np
 
-from annotator.dataset import Dataset, InstancePose, Scene
-from annotator.io.images import to_gray8
+from annotator.annotation.record import InstanceAnnotation
+from annotator.dataset import Dataset, Scene
+from annotator.io.images import read_image, to_gray8
 from annotator.rendering.raycast import PlacedMesh, RayScene, projected_bbox
 
-#: BGR colours by state.
-COLOURS = {"pending": (0, 220, 255), "accepted": (60, 220, 60), "rejected": (40, 40, 255)}
-FLAG_COLOUR = (255, 0, 255)
-SELECTED_COLOUR = (255, 255, 255)
 DISAGREEMENT_RANGE_MM = 10.0
+#: Every CLOUD_STEP-th pixel of every CLOUD_STEP-th row of the depth map goes to the 3D view.
+CLOUD_STEP = 8
+CONTOUR_TOLERANCE_PX = 0.7
+DEPTH_PANEL = "depth"
+DISAGREEMENT_PANEL = "disagreement"
+
+Box = tuple[int, int, int, int]  # x0, y0, x1, y1 in pixels, end exclusive
 
 
 @dataclass
 class CameraLayer:
+    """One camera's image and the silhouettes of the posed instances in it, full resolution."""
+
     name: str
-    image: np.ndarray  # display-size grey
-    scale: float  # display / full resolution
-    contours: list[list[np.ndarray]]  # per instance, in display pixels
-    centres: list[tuple[int, int] | None]
+    image: np.ndarray  # grey uint8
+    instance: np.ndarray  # int16: index into Prepared.keys of the visible instance, -1 none
+    shade: np.ndarray  # uint8 shading of the rendered parts (0 where none)
+    contours: list[list[np.ndarray]]  # per instance: (N, 2) int32 pixel outlines
+    boxes: list[Box | None]  # per instance: its visible pixels
+    centres: list[tuple[int, int] | None]  # per instance: centre of its visible pixels
+
+
+@dataclass
+class Panel:
+    """A picture of the mosaic: a camera image, or a depth picture on the depth camera's grid."""
+
+    name: str
+    image: np.ndarray  # full resolution, grey or BGR
+    layer: CameraLayer  # the silhouettes drawn on it, and the camera its pixels belong to
+
+    @property
+    def camera(self) -> str:
+        return self.layer.name
+
+    @property
+    def is_depth(self) -> bool:
+        return self.name in (DEPTH_PANEL, DISAGREEMENT_PANEL)
 
 
 @dataclass
 class Prepared:
+    """Everything drawn for one scene, ready before the reviewer gets there."""
+
     scene_id: str
     keys: list[str]
     layers: list[CameraLayer]
-    depth: np.ndarray | None = None  # display-size BGR colourised depth
-    disagreement: np.ndarray | None = None  # display-size BGR
+    depth: np.ndarray | None = None  # BGR colourised depth
+    disagreement: np.ndarray | None = None  # BGR
     depth_layer: CameraLayer | None = None
+    unexplained: np.ndarray | None = None  # bool mask on the depth grid
+    cloud: np.ndarray | None = None  # (N, 3) float32 points in the reference frame, metres
     messages: list[str] = field(default_factory=list)
+    _scaled: dict[tuple[str, int, int], np.ndarray] = field(default_factory=dict, repr=False)
+    pictures: dict[tuple, Any] = field(default_factory=dict, repr=False)  # viewer.mosaic
+
+    @property
+    def panels(self) -> list[Panel]:
+        """Cameras first, then depth and disagreement (if the rig has depth)."""
+        out = [Panel(layer.name, layer.image, layer) for layer in self.layers]
+        if self.depth_layer is not None and self.depth is not None:
+            out.append(Panel(DEPTH_PANEL, self.depth, self.depth_layer))
+            if self.disagreement is not None:
+                out.append(Panel(DISAGREEMENT_PANEL, self.disagreement, self.depth_layer))
+        return out
+
+    def scaled(self, panel: Panel, width: int, height: int) -> np.ndarray:
+        """``panel``'s picture resized to ``width`` x ``height`` as BGR (memoised: several
+        pages and several re-colourings use the same sizes)."""
+        key = (panel.name, width, height)
+        out = self._scaled.get(key)
+        if out is None:
+            img = panel.image
+            if (img.shape[1], img.shape[0]) != (width, height):
+                img = cv2.resize(img, (width, height), interpolation=cv2.INTER_AREA)
+            out = cv2.cvtColor(img, cv2.COLOR_GRAY2BGR) if img.ndim == 2 else img
+            if len(self._scaled) > 32:
+                self._scaled.clear()
+            self._scaled[key] = out
+        return out
+
+    def instance_at(self, camera: str, x: float, y: float, radius: float = 0.0) -> str | None:
+        """The instance seen at full-resolution pixel (x, y) of ``camera``; within ``radius``
+        pixels, the one covering most of the disc, if none is exactly there."""
+        layer = next((la for la in self.layers if la.name == camera), None)
+        if layer is None:
+            return None
+        h, w = layer.instance.shape
+        xi, yi = int(round(x)), int(round(y))
+        if 0 <= xi < w and 0 <= yi < h and layer.instance[yi, xi] >= 0:
+            return self.keys[int(layer.instance[yi, xi])]
+        r = int(np.ceil(radius))
+        if r <= 0:
+            return None
+        x0, y0, x1, y1 = max(0, xi - r), max(0, yi - r), min(w, xi + r + 1), min(h, yi + r + 1)
+        if x0 >= x1 or y0 >= y1:
+            return None
+        sub = layer.instance[y0:y1, x0:x1]
+        yy, xx = np.mgrid[y0:y1, x0:x1]
+        near = sub[((xx - x) ** 2 + (yy - y) ** 2 <= radius**2) & (sub >= 0)]
+        if near.size == 0:
+            return None
+        return self.keys[int(np.bincount(near).argmax())]
 
 
-def _display(img: np.ndarray, max_width: int) -> tuple[np.ndarray, float]:
-    s = min(1.0, max_width / img.shape[1])
-    if s < 1.0:
-        img = cv2.resize(img, None, fx=s, fy=s, interpolation=cv2.INTER_AREA)
-    return img, s
+def _read_unexplained(scene: Scene, shape: tuple[int, int], prep: Prepared) -> np.ndarray | None:
+    path = scene.path / "unexplained.png"
+    if not path.exists():
+        return None
+    try:
+        mask = read_image(path)
+    except Exception as exc:  # shown in the page; the scene stays reviewable
+        prep.messages.append(str(exc))
+        return None
+    if mask.ndim == 3:
+        mask = mask.max(axis=2)
+    if mask.shape != shape:
+        prep.messages.append(
+            f"{path}: {mask.shape[1]}x{mask.shape[0]} is not the depth camera's size "
+            f"{shape[1]}x{shape[0]}; not drawn"
+        )
+        return None
+    return mask > 0
 
 
-def prepare(
-    ds: Dataset, scene: Scene, poses: list[InstancePose], *, max_width: int = 960
-) -> Prepared:
+def prepare(ds: Dataset, scene: Scene, poses: list[InstanceAnnotation]) -> Prepared:
     """Read the images and render the silhouettes of ``poses`` in every camera."""
     prep = Prepared(scene.id, [p.key for p in poses], [])
     meshes = [ds.objects[p.object].mesh if p.object in ds.objects else None for p in poses]
+    index = [k for k, m in enumerate(meshes) if m is not None]  # placed -> pose index
     rendered_depth = None
+    light = np.array([0.3, -0.5, -1.0]) / np.linalg.norm([0.3, -0.5, -1.0])
     for cam in ds.rig.cameras:
         try:
             gray = to_gray8(scene.read_image(cam))
         except Exception as exc:  # a vanished or corrupt image must not stop the viewer
             prep.messages.append(str(exc))
             gray = np.zeros((cam.height, cam.width), np.uint8)
-        placed = [
-            PlacedMesh(m, cam.cam_T_rig @ p.T) for m, p in zip(meshes, poses) if m is not None
-        ]
+        placed = [PlacedMesh(meshes[k], cam.cam_T_rig @ poses[k].T) for k in index]
         boxes = [projected_bbox(cam, pm.mesh, pm.cam_T_model) for pm in placed]
         mask = np.zeros((cam.height, cam.width), bool)
         for b in boxes:
             if b is not None:
                 mask[b[1] : b[3], b[0] : b[2]] = True
-        instance = np.full(mask.shape, -1, np.int32)
+        instance = np.full(mask.shape, -1, np.int16)
         depth = np.full(mask.shape, np.inf, np.float32)
+        shade = np.zeros(mask.shape, np.uint8)
         if placed:
             hits = RayScene(placed).cast(cam.pixel_rays()[mask])
-            instance[mask] = hits.instance
+            hit_pose = np.where(hits.hit, np.asarray(index + [-1])[hits.instance], -1)
+            instance[mask] = hit_pose
             depth[mask] = hits.depth
-        img, s = _display(gray, max_width)
-        contours, centres = [], []
-        for k in range(len(placed)):
-            b = boxes[k]
+            lambert = np.abs(hits.normals(placed) @ light)
+            shade[mask] = np.where(hits.hit, 60 + 195 * lambert, 0).astype(np.uint8)
+        contours: list[list[np.ndarray]] = [[] for _ in poses]
+        vis_boxes: list[Box | None] = [None] * len(poses)
+        centres: list[tuple[int, int] | None] = [None] * len(poses)
+        for j, b in enumerate(boxes):
             if b is None:
-                contours.append([])
-                centres.append(None)
                 continue
+            k = index[j]
             sub = (instance[b[1] : b[3], b[0] : b[2]] == k).astype(np.uint8)
-            cs, _ = cv2.findContours(sub, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
-            cs = [
-                ((c.reshape(-1, 2) + [b[0], b[1]]) * s).astype(np.int32) for c in cs if len(c) > 2
-            ]
-            contours.append(cs)
             ys, xs = np.nonzero(sub)
-            centres.append(
-                (int((xs.mean() + b[0]) * s), int((ys.mean() + b[1]) * s)) if len(xs) else None
+            if not len(xs):
+                continue
+            cs, _ = cv2.findContours(sub, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
+            # Within 0.7 px of the pixel outline: below a pixel of the mosaic, which shows the
+            # images at half size or less, and many times fewer points to draw.
+            cs = [cv2.approxPolyDP(c, CONTOUR_TOLERANCE_PX, True) for c in cs if len(c) > 2]
+            contours[k] = [
+                (c.reshape(-1, 2) + [b[0], b[1]]).astype(np.int32) for c in cs if len(c) > 2
+            ]
+            vis_boxes[k] = (
+                int(xs.min() + b[0]),
+                int(ys.min() + b[1]),
+                int(xs.max() + b[0] + 1),
+                int(ys.max() + b[1] + 1),
             )
-        layer = CameraLayer(cam.name, img, s, contours, centres)
+            centres[k] = (int(xs.mean() + b[0]), int(ys.mean() + b[1]))
+        layer = CameraLayer(cam.name, gray, instance, shade, contours, vis_boxes, centres)
         prep.layers.append(layer)
         if ds.rig.depth is not None and cam.name == ds.rig.depth.camera:
             prep.depth_layer = layer
             rendered_depth = depth
     if prep.depth_layer is not None:
+        dcam = ds.rig.depth_camera
         try:
             measured = scene.read_depth(ds.rig)
         except Exception as exc:
             prep.messages.append(str(exc))
             measured = None
         if measured is not None:
-            prep.depth, _ = _display(colourise_depth(measured), max_width)
+            prep.depth = colourise_depth(measured)
             diff = np.abs(measured - rendered_depth)
             show = np.isfinite(rendered_depth) & np.isfinite(measured)
             heat = np.nan_to_num(
@@ -119,8 +230,20 @@ def prepare(
                 (np.nan_to_num(measured, nan=0) > 0).astype(np.uint8) * 60, cv2.COLOR_GRAY2BGR
             )
             out[show] = cv2.applyColorMap(heat, cv2.COLORMAP_INFERNO)[show]
-            prep.disagreement, _ = _display(out, max_width)
+            prep.disagreement = out
+            prep.unexplained = _read_unexplained(scene, measured.shape, prep)
+            prep.cloud = depth_cloud(dcam, measured)
     return prep
+
+
+def depth_cloud(camera, depth: np.ndarray, step: int = CLOUD_STEP) -> np.ndarray:
+    """Every ``step``-th measured point of a depth map, in the reference frame, metres."""
+    rays = camera.pixel_rays(step)
+    d = depth[::step, ::step]
+    ok = np.isfinite(d) & (d > 0)
+    pts = rays[ok] * d[ok][:, None]
+    pts = pts @ camera.rig_T_cam[:3, :3].T + camera.rig_T_cam[:3, 3]
+    return (pts / 1000.0).astype(np.float32)
 
 
 def colourise_depth(depth: np.ndarray) -> np.ndarray:
@@ -133,78 +256,3 @@ def colourise_depth(depth: np.ndarray) -> np.ndarray:
         col = cv2.applyColorMap((255 - norm * 255).astype(np.uint8), cv2.COLORMAP_TURBO)
         out[ok] = col[ok]
     return out
-
-
-def draw(
-    base: np.ndarray,
-    layer: CameraLayer,
-    keys: list[str],
-    states: dict[str, str],
-    flagged: set[str],
-    selected: str | None,
-) -> np.ndarray:
-    """Contours coloured by state on ``base`` (grey or BGR, display size); returns RGB."""
-    img = cv2.cvtColor(base, cv2.COLOR_GRAY2BGR) if base.ndim == 2 else base.copy()
-    for k, key in enumerate(keys):
-        if k >= len(layer.contours) or not layer.contours[k]:
-            continue
-        colour = COLOURS[states.get(key, "pending")]
-        if key in flagged:
-            cv2.polylines(img, layer.contours[k], True, FLAG_COLOUR, 4, cv2.LINE_AA)
-        cv2.polylines(
-            img,
-            layer.contours[k],
-            True,
-            SELECTED_COLOUR if key == selected else colour,
-            2,
-            cv2.LINE_AA,
-        )
-        if layer.centres[k] is not None:
-            label = key.split("/")[0][:3] + key.split("/")[-1] + ("!" if key in flagged else "")
-            x, y = layer.centres[k]
-            cv2.putText(
-                img, label, (x - 12, y), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 0, 0), 3, cv2.LINE_AA
-            )
-            cv2.putText(
-                img, label, (x - 12, y), cv2.FONT_HERSHEY_SIMPLEX, 0.45, colour, 1, cv2.LINE_AA
-            )
-    return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
-
-
-def compose(
-    prep: Prepared, states: dict[str, str], flagged: set[str], selected: str | None
-) -> dict[str, np.ndarray]:
-    """All panels as RGB images: one per camera, ``depth`` and ``disagreement`` if available."""
-    out = {
-        layer.name: draw(layer.image, layer, prep.keys, states, flagged, selected)
-        for layer in prep.layers
-    }
-    if prep.depth is not None and prep.depth_layer is not None:
-        out["depth"] = draw(prep.depth, prep.depth_layer, prep.keys, states, flagged, selected)
-        out["disagreement"] = draw(
-            prep.disagreement, prep.depth_layer, prep.keys, states, flagged, selected
-        )
-    return out
-
-
-def mosaic(panels: dict[str, np.ndarray]) -> np.ndarray:
-    """Panels side by side, two per row (cameras first, then depth and disagreement), each
-    titled; RGB."""
-    tiles = []
-    for name, img in panels.items():
-        t = img.copy()
-        cv2.rectangle(t, (0, 0), (8 + 11 * len(name), 24), (0, 0, 0), -1)
-        cv2.putText(
-            t, name, (4, 17), cv2.FONT_HERSHEY_SIMPLEX, 0.55, (255, 255, 255), 1, cv2.LINE_AA
-        )
-        tiles.append(t)
-    h = max(t.shape[0] for t in tiles)
-    w = max(t.shape[1] for t in tiles)
-    tiles = [
-        cv2.copyMakeBorder(t, 0, h - t.shape[0], 0, w - t.shape[1], cv2.BORDER_CONSTANT)
-        for t in tiles
-    ]
-    if len(tiles) % 2:
-        tiles.append(np.zeros_like(tiles[0]))
-    rows = [np.hstack(tiles[k : k + 2]) for k in range(0, len(tiles), 2)]
-    return np.vstack(rows)

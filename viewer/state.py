@@ -1,142 +1,255 @@
 """Review decisions of a dataset, read from and written to each scene's review.json.
 
 Every action writes review.json atomically at once (killing the server loses nothing), and
-every read goes back to the files (cached by modification time), so two browsers, or two
-servers, on the same dataset see the same decisions.
+every read goes back to the files (cached by inode and modification time), so several pages,
+and several servers, on the same dataset see the same decisions. :meth:`ReviewState.poll`
+tells which scenes changed on disk by other hands since it was last asked.
+
+A decision that cannot be written (read-only folder, full disk) raises :class:`SaveError`
+with one line for the person who made it; nothing is changed then.
 """
 
 from __future__ import annotations
 
+import os
 import threading
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
-from annotator.dataset import InstancePose, load_dataset
-from annotator.dataset.poses import read_poses
-from annotator.dataset.review import Review, now_iso, poses_fingerprint, read_review, write_review
+from annotator.annotation.record import InstanceAnnotation, SceneAnnotation
+from annotator.dataset import load_dataset
+from annotator.dataset.review import (
+    NO_POSE_REASON,
+    MissingPart,
+    Review,
+    ReviewStatus,
+    now_iso,
+    poses_fingerprint,
+    read_review,
+    write_review,
+)
 from annotator.errors import UserError
+from viewer.scene_warnings import SceneWarning, parse_warnings
 
 FILTERS = ("all", "pending", "flagged", "rejected", "stale")
+
+# (inode, mtime_ns) of a file, or None if it does not exist. Atomic writes replace the
+# file, so the inode changes with every write even within one clock tick.
+_Stamp = tuple[int, int] | None
+
+
+def _stamp(path: str) -> _Stamp:
+    try:
+        st = os.stat(path)
+    except OSError:  # missing (or unreadable: reading it will say so)
+        return None
+    return (st.st_ino, st.st_mtime_ns)
+
+
+class SaveError(Exception):
+    """A decision could not be written; the message is one line naming the file and why."""
 
 
 @dataclass(frozen=True)
 class SceneInfo:
+    """What is known about a scene: its proposed poses, the decisions about them, and what
+    deserves a look."""
+
     id: str
     annotated: bool
-    poses: tuple[InstancePose, ...]
+    poses: tuple[InstanceAnnotation, ...]
     review: Review
     stale: bool
-    flagged: bool
+    flagged: bool  # a pose has flags, or the annotation has warnings
     error: str | None  # a problem to show (unreadable annotation, corrupt review.json)
+    warnings: tuple[SceneWarning, ...] = ()
+    fingerprint: str = ""  # of the poses (annotator.dataset.review.poses_fingerprint)
 
     @property
-    def status(self) -> str:
+    def status(self) -> ReviewStatus:
         return self.review.status
 
-    def instance_status(self, key: str) -> str:
+    @property
+    def decided(self) -> bool:
+        """A current decision: not pending and not stale."""
+        return self.status != ReviewStatus.PENDING and not self.stale
+
+    def instance_status(self, key: str) -> ReviewStatus:
         """``accepted``, ``rejected`` or ``pending`` (no decision yet)."""
         return self.review.instances.get(
-            key, "accepted" if self.review.status == "accepted" else "pending"
+            key,
+            ReviewStatus.ACCEPTED
+            if self.review.status == ReviewStatus.ACCEPTED
+            else ReviewStatus.PENDING,
         )
+
+    def pose(self, key: str) -> InstanceAnnotation | None:
+        return next((p for p in self.poses if p.key == key), None)
 
 
 class ReviewState:
-    """The review state of one dataset."""
+    """The review state of one dataset, shared by every page of a server."""
 
     def __init__(self, root: str | Path) -> None:
         self.ds = load_dataset(root)
-        self.ids = [s.id for s in self.ds.scenes()]
-        self._lock = threading.Lock()
-        self._cache: dict[str, tuple[tuple[float, float], SceneInfo]] = {}
+        scenes = self.ds.scenes()
+        self.ids = [s.id for s in scenes]
+        # Paths as strings once: stat-ing every scene is what polling and progress cost.
+        self._paths = {s.id: (str(s.annotation_path), str(s.review_path)) for s in scenes}
+        self._lock = threading.RLock()
+        self._cache: dict[str, tuple[tuple[_Stamp, _Stamp], SceneInfo]] = {}
+        self._seen: dict[str, tuple[_Stamp, _Stamp]] = {}
         self.started = time.time()
         self.decided = 0  # decisions made through this server
 
-    def _mtimes(self, sid: str) -> tuple[float, float]:
-        sc = self.ds.scene(sid)
-        a = sc.annotation_path.stat().st_mtime if sc.annotation_path.exists() else 0.0
-        r = sc.review_path.stat().st_mtime_ns if sc.review_path.exists() else 0.0
-        return (a, r)
+    def _stamps(self, sid: str) -> tuple[_Stamp, _Stamp]:
+        annotation, review = self._paths[sid]
+        return (_stamp(annotation), _stamp(review))
 
     def info(self, sid: str) -> SceneInfo:
-        key = self._mtimes(sid)
+        """The scene as the files say now (re-read only when a file changed)."""
+        key = self._stamps(sid)
         hit = self._cache.get(sid)
         if hit and hit[0] == key:
             return hit[1]
         sc = self.ds.scene(sid)
         error = None
-        poses: list[InstancePose] = []
-        annotated = sc.annotation_path.exists()
+        poses: list[InstanceAnnotation] = []
+        warnings: tuple[SceneWarning, ...] = ()
+        annotated = key[0] is not None
         if annotated:
             try:
-                poses = read_poses(sc.annotation_path)
+                ann = SceneAnnotation.read(sc.annotation_path)
+                poses = ann.instances
+                warnings = parse_warnings([w.to_json() for w in ann.warnings])
             except UserError as exc:
                 error = str(exc)
         try:
             review = read_review(sc.review_path) or Review()
         except UserError as exc:
             review, error = Review(), f"{exc} (it will be replaced by the next decision)"
-        fp = poses_fingerprint(poses)
+        fingerprint = poses_fingerprint(poses)
         info = SceneInfo(
             id=sid,
             annotated=annotated,
             poses=tuple(poses),
             review=review,
-            stale=review.is_stale(fp),
-            flagged=any(p.extra.get("flags") for p in poses),
+            stale=review.is_stale(fingerprint),
+            flagged=bool(warnings) or any(p.flags for p in poses),
             error=error,
+            warnings=warnings,
+            fingerprint=fingerprint,
         )
         self._cache[sid] = (key, info)
         return info
 
-    def _write(self, sid: str, review: Review) -> None:
-        info = self.info(sid)
-        review.annotation_fingerprint = poses_fingerprint(list(info.poses))
-        review.decided_at = now_iso()
-        write_review(self.ds.scene(sid).review_path, review)
-        self.decided += 1
+    def poll(self) -> set[str]:
+        """Scenes whose annotation.json or review.json changed since the last poll, other than
+        by this server's own writes."""
+        changed = set()
+        with self._lock:  # a write between the stat and the update must not look foreign
+            for sid in self.ids:
+                stamps = self._stamps(sid)
+                if self._seen.get(sid, stamps) != stamps:
+                    changed.add(sid)
+                self._seen[sid] = stamps
+        return changed
 
-    def set_scene(self, sid: str, status: str) -> None:
-        """Accept or reject a whole scene (per-instance rejections are kept)."""
+    # ------------------------------------------------------------ decisions
+    def _write(self, sid: str, review: Review, by: str | None) -> Review:
+        review.annotation_fingerprint = self.info(sid).fingerprint
+        review.decided_at = now_iso()
+        review.decided_by = by
+        path = self.ds.scene(sid).review_path
+        try:
+            write_review(path, review)
+        except OSError as exc:
+            # annotator.io.atomic may already say it in one line ("<path>: cannot write (...)").
+            msg = (
+                str(exc)
+                if isinstance(exc, UserError)
+                else f"{path}: cannot write ({exc.strerror or exc})"
+            )
+            raise SaveError(msg) from None
+        self._seen[sid] = self._stamps(sid)
+        self.decided += 1
+        return review
+
+    def _next_review(self, info: SceneInfo, **changes: object) -> Review:
+        base = replace(
+            info.review, extra=dict(info.review.extra), missing=list(info.review.missing)
+        )
+        return replace(base, **changes)  # type: ignore[arg-type]
+
+    def set_scene(self, sid: str, status: str, *, by: str | None = None) -> Review:
+        """Accept or reject a whole scene. Per-instance rejections are kept. Rejecting keeps
+        the reason and the "no pose here" marks; accepting says every part is posed, so it
+        clears them."""
+        status = ReviewStatus(status)
         with self._lock:
             info = self.info(sid)
-            instances = {k: v for k, v in info.review.instances.items() if v == "rejected"}
-            self._write(
-                sid, Review(status=status, instances=instances, extra=dict(info.review.extra))
-            )
+            instances = {
+                k: v for k, v in info.review.instances.items() if v == ReviewStatus.REJECTED
+            }
+            accepted = status == ReviewStatus.ACCEPTED
+            changes = {"status": status, "instances": instances}
+            if accepted:
+                changes.update(reason=None, missing=[])
+            return self._write(sid, self._next_review(info, **changes), by)
 
-    def toggle_instance(self, sid: str, key: str) -> str:
+    def set_instance(self, sid: str, key: str, status: str, *, by: str | None = None) -> Review:
+        """Accept or reject one instance of a scene."""
+        with self._lock:
+            info = self.info(sid)
+            instances = dict(info.review.instances)
+            instances[key] = ReviewStatus(status)
+            return self._write(sid, self._next_review(info, instances=instances), by)
+
+    def toggle_instance(self, sid: str, key: str, *, by: str | None = None) -> ReviewStatus:
         """Flip one instance between accepted and rejected; return its new status."""
         with self._lock:
-            info = self.info(sid)
-            new = "accepted" if info.instance_status(key) == "rejected" else "rejected"
-            instances = dict(info.review.instances)
-            instances[key] = new
-            self._write(
-                sid,
-                Review(
-                    status=info.review.status, instances=instances, extra=dict(info.review.extra)
-                ),
+            new = (
+                ReviewStatus.ACCEPTED
+                if self.info(sid).instance_status(key) == ReviewStatus.REJECTED
+                else ReviewStatus.REJECTED
             )
+            self.set_instance(sid, key, new, by=by)
             return new
 
+    def mark_missing(
+        self, sid: str, camera: str, pixel: tuple[float, float], *, by: str | None = None
+    ) -> Review:
+        """Record "a part has no pose here" at ``pixel`` of ``camera``: the scene is rejected
+        with that reason."""
+        with self._lock:
+            info = self.info(sid)
+            mark = MissingPart(camera, (round(pixel[0], 1), round(pixel[1], 1)), now_iso())
+            return self._write(
+                sid,
+                self._next_review(
+                    info,
+                    status=ReviewStatus.REJECTED,
+                    reason=NO_POSE_REASON,
+                    missing=[*info.review.missing, mark],
+                ),
+                by,
+            )
+
+    # ----------------------------------------------------------- summaries
     def matches(self, sid: str, flt: str) -> bool:
         info = self.info(sid)
         return {
             "all": True,
-            "pending": info.status == "pending" or info.stale,
+            "pending": info.status == ReviewStatus.PENDING or info.stale,
             "flagged": info.flagged,
-            "rejected": info.status == "rejected",
+            "rejected": info.status == ReviewStatus.REJECTED,
             "stale": info.stale,
         }[flt]
 
     def progress(self) -> tuple[int, int]:
         """(scenes with a current decision, total)."""
-        done = 0
-        for sid in self.ids:
-            info = self.info(sid)
-            done += info.status != "pending" and not info.stale
-        return done, len(self.ids)
+        return sum(self.info(sid).decided for sid in self.ids), len(self.ids)
 
     def pace(self) -> float:
         """Decisions per minute made through this server."""

@@ -7,6 +7,7 @@ The JSON layout is described in :mod:`annotator.annotation`; unknown keys are ke
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -142,6 +143,8 @@ class SceneWarning:
     def from_json(cls, doc: Any) -> SceneWarning:
         if isinstance(doc, str):  # files of earlier versions held plain strings
             return cls("note", doc)
+        if not isinstance(doc, dict):  # never drop a warning: keep what it says
+            return cls("note", json.dumps(doc))
         d = dict(doc)
         return cls(str(d.pop("kind", "note")), str(d.pop("message", "")), d)
 

@@ -1,0 +1,183 @@
+"""The pictures without a browser: pixel-exact contours, the mosaic's way back to camera
+pixels, the zoom's one-pixel outline, picking an instance, unexplained depth in red and
+"no pose here" marks."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from annotator.dataset import load_dataset, read_poses
+from annotator.dataset.review import MissingPart, ReviewStatus
+from viewer.mosaic import Tile, compose, grid
+from viewer.overlays import prepare
+from viewer.pictures import picture_html
+from viewer.scene_warnings import DepthRegion
+from viewer.style import COLOURS, MISSING_COLOUR, UNEXPLAINED_COLOUR, Look
+from viewer.zoom import inner_outline, zoom
+
+
+@pytest.fixture(scope="module")
+def scene(sample):
+    ds = load_dataset(sample)
+    sc = ds.scenes()[0]
+    poses = read_poses(sc.annotation_path)
+    return ds, sc, poses, prepare(ds, sc, poses)
+
+
+def _rgb(bgr):
+    return np.array(bgr[::-1])
+
+
+def test_contours_follow_the_projected_silhouette(scene) -> None:
+    ds, _, poses, prep = scene
+    layer = prep.layers[0]
+    cam = ds.rig.cameras[0]
+    p = poses[0]
+    # The contour hugs the projection of the mesh's vertices.
+    M = cam.cam_T_rig @ p.T
+    uv = cam.project(ds.objects[p.object].mesh.vertices @ M[:3, :3].T + M[:3, 3])
+    contour = np.concatenate(layer.contours[0])
+    lo, hi = contour.min(axis=0), contour.max(axis=0)
+    assert np.all(uv.min(axis=0) >= lo - 1.5) and np.all(uv.max(axis=0) <= hi + 1.5)
+    # Every contour point lies on the silhouette's edge (within the simplification).
+    mask = (layer.instance == 0).astype(np.uint8)
+    edge = cv2.distanceTransform(
+        1 - inner_outline(mask.astype(bool)).astype(np.uint8), cv2.DIST_L2, 5
+    )
+    assert edge[contour[:, 1], contour[:, 0]].max() <= 1.0
+    look = Look(states=((p.key, ReviewStatus.ACCEPTED),))
+    picture = compose(prep, look, 1280, 1024)
+    tile = picture.tiles[0]
+    x, y = (round(v) for v in tile.to_picture(*contour[0]))
+    window = picture.image[max(y - 2, 0) : y + 3, max(x - 2, 0) : x + 3].reshape(-1, 3)
+    assert np.any(
+        np.abs(window.astype(int) - _rgb(COLOURS[ReviewStatus.ACCEPTED])).sum(axis=1) < 60
+    )
+    assert [t.name for t in picture.tiles] == ["left", "right", "depth", "disagreement"]
+
+
+def test_the_mosaic_fills_the_viewport_and_maps_back_to_camera_pixels(scene) -> None:
+    _, _, _, prep = scene
+    picture = compose(prep, Look(), 956, 1000)
+    assert picture.image.shape == (1000, 956, 3)
+    assert grid(4, 956, 1000, 1.25) == (2, 2) and grid(4, 2000, 400, 1.25) == (4, 1)
+    for tile in picture.tiles:
+        assert tile.x0 >= 0 and tile.x0 + tile.width <= 956 and tile.y0 + tile.height <= 1000
+        u, v = tile.to_picture(640.0, 512.0)
+        found, x, y = picture.locate(u, v)
+        assert found == tile and abs(x - 640.0) < 1e-9 and abs(y - 512.0) < 1e-9
+    assert picture.locate(-5, -5) is None
+    # The same look and size is made once.
+    assert compose(prep, Look(), 956, 1000) is picture
+
+
+def test_picking_an_instance_by_a_pixel(scene) -> None:
+    _, _, _, prep = scene
+    layer = prep.layers[0]
+    ys, xs = np.nonzero(layer.instance == 2)
+    assert prep.instance_at("left", xs[0], ys[0]) == prep.keys[2]
+    assert prep.instance_at("nowhere", xs[0], ys[0]) is None
+    # Just outside an instance: found within a radius, not without.
+    mask = (layer.instance >= 0).astype(np.uint8)
+    ring = cv2.dilate(mask, np.ones((3, 3), np.uint8)) - mask
+    yy, xx = np.nonzero(ring)
+    assert prep.instance_at("left", xx[0], yy[0]) is None
+    assert prep.instance_at("left", xx[0], yy[0], radius=3.0) is not None
+
+
+def test_the_zoom_crops_at_full_resolution_with_a_one_pixel_outline(scene) -> None:
+    _, _, _, prep = scene
+    key = prep.keys[1]
+    z = zoom(prep, key, Look(), 956, 1000)
+    assert z is not None and z.image.shape == (1000, 956, 3)
+    colour = _rgb(COLOURS[ReviewStatus.PENDING])
+    for tile, panel in zip(z.tiles, prep.panels):
+        m = int(tile.scale)
+        assert m >= 2 and tile.scale == m  # whole pixels, magnified
+        ox, oy = int(tile.origin[0]), int(tile.origin[1])
+        ch, cw = tile.height // m, tile.width // m
+        mask = panel.layer.instance[oy : oy + ch, ox : ox + cw] == 1
+        big = np.repeat(np.repeat(mask, m, 0), m, 1)
+        expected = inner_outline(big)
+        sub = z.image[tile.y0 : tile.y0 + tile.height, tile.x0 : tile.x0 + tile.width]
+        drawn = np.all(sub == colour, axis=-1)
+        # Drawn exactly on the silhouette's inner edge (the tile title may hide a little).
+        assert (drawn & ~expected)[30:].sum() == 0
+        assert (expected & drawn).sum() >= 0.95 * expected[30:].sum()
+        # One pixel wide: no 2x2 block of outline.
+        blocks = drawn[:-1, :-1] & drawn[1:, :-1] & drawn[:-1, 1:] & drawn[1:, 1:]
+        assert blocks.sum() <= 0.01 * drawn.sum()
+        # Outside the silhouette the crop is the image itself, pixel for pixel.
+        if not panel.is_depth:
+            img = panel.image[oy : oy + ch, ox : ox + cw]
+            plain = np.repeat(np.repeat(img, m, 0), m, 1)
+            outside = ~big
+            outside[:30] = False
+            assert np.array_equal(sub[outside][:, 0], plain[outside])
+    # The rendered version differs only inside the silhouette; fill tints it.
+    differs = np.any(z.rendered != z.image, axis=-1)
+    filled = zoom(prep, key, Look(), 956, 1000, fill=True)
+    assert differs.any() and np.any(filled.image != z.image)
+    assert zoom(prep, "no/such", Look(), 956, 1000) is None
+    # A click in the zoom comes back to the camera pixel under it.
+    t = z.tiles[0]
+    found, x, y = z.locate(*t.to_picture(t.origin[0] + 10, t.origin[1] + 7))
+    assert found == t and (x, y) == (t.origin[0] + 10, t.origin[1] + 7)
+
+
+def test_unexplained_depth_is_red_on_depth_panels_only(sample_copy) -> None:
+    ds = load_dataset(sample_copy)
+    sc = ds.scenes()[0]
+    poses = read_poses(sc.annotation_path)
+    cam = ds.rig.depth_camera
+    mask = np.zeros((cam.height, cam.width), np.uint8)
+    mask[900:1000, 40:200] = 255  # a corner of the bin, far from any part
+    cv2.imwrite(str(sc.path / "unexplained.png"), mask)
+    prep = prepare(ds, sc, poses)
+    assert prep.unexplained is not None and prep.unexplained.sum() == 100 * 160
+    region = DepthRegion((40, 900, 200, 1000), 16000, (500.0, 510.0))
+    missing = MissingPart("right", (600.0, 500.0))
+    picture = compose(prep, Look(regions=(region,), missing=(missing,)), 1280, 1024)
+    red = np.all(np.abs(picture.image.astype(int) - _rgb(UNEXPLAINED_COLOUR)) < 60, axis=-1)
+    cyan = np.all(np.abs(picture.image.astype(int) - _rgb(MISSING_COLOUR)) < 60, axis=-1)
+    by_tile = {
+        t.name: (
+            red[t.y0 : t.y0 + t.height, t.x0 : t.x0 + t.width].sum(),
+            cyan[t.y0 : t.y0 + t.height, t.x0 : t.x0 + t.width].sum(),
+        )
+        for t in picture.tiles
+    }
+    assert by_tile["depth"][0] > 500 and by_tile["disagreement"][0] > 500
+    assert by_tile["left"][0] < 50 and by_tile["right"][0] < 50
+    assert by_tile["right"][1] > 20 and by_tile["left"][1] == 0
+    # Inside the region box, the depth panel is red where the mask says so.
+    t: Tile = next(t for t in picture.tiles if t.name == "depth")
+    u, v = (round(c) for c in t.to_picture(120, 950))
+    assert red[v, u]
+    # A mask of the wrong size is reported, not drawn.
+    cv2.imwrite(str(sc.path / "unexplained.png"), mask[:10, :10])
+    prep = prepare(ds, sc, poses)
+    assert prep.unexplained is None and any("unexplained.png" in m for m in prep.messages)
+
+
+def test_pictures_go_to_the_page_as_images_over_the_canvas() -> None:
+    import base64
+    import re
+
+    img = np.zeros((40, 60, 3), np.uint8)
+    img[10:20, 5:50] = (255, 220, 0)
+    html = picture_html(img, exact=True, z=2)
+    data = re.search(r'src="data:image/png;base64,([^"]+)"', html).group(1)
+    back = cv2.imdecode(np.frombuffer(base64.b64decode(data), np.uint8), cv2.IMREAD_COLOR)
+    assert np.array_equal(back[:, :, ::-1], img)  # PNG: pixel for pixel
+    for css in (
+        "position:fixed",
+        "width:60px;height:40px",
+        "anchor-size(width)",
+        "pointer-events:none",
+    ):
+        assert css in html
+    assert "animation" not in html and "animation:review-blink" in picture_html(img, blink=True)
+    assert 'src="data:image/jpeg;base64,' in picture_html(img)

@@ -1,0 +1,212 @@
+"""One page's 3D canvas: clicks on it, and the 3D view. It keeps the handles of
+everything it adds and only updates them afterwards.
+
+- While the pictures are shown (:mod:`viewer.pictures`, laid over the canvas), the canvas
+  draws nothing and a click on it is a click on the picture: it is passed on as a position
+  in 0-1 of the canvas's size.
+- **The 3D view**, shown instead of the pictures on request: the cameras, the parts at their
+  proposed poses and the depth point cloud, all in the reference camera's frame (metres)
+  under one frame, ``/scene3d``, at the origin. Nothing is offset: the 3D view is not beside
+  the pictures but instead of them, and it is hidden while they are shown.
+
+Each object's mesh is uploaded once per page (the first time the 3D view is shown), as one
+batched mesh with one slot per physical instance (object.yaml); showing another scene only
+sends the slots' poses, scales (0 hides an instance without a pose in this scene) and
+colours, as viser's own examples move instances. The point cloud (downsampled when the scene
+was prepared) is replaced. While the pictures are shown the 3D view is not updated at all:
+it is brought up to date when it is shown.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Callable
+
+import numpy as np
+import viser
+from scipy.spatial.transform import Rotation
+
+from annotator.annotation.record import InstanceAnnotation
+from annotator.dataset import Dataset
+from viewer.style import SELECTED_COLOUR, Look
+
+#: A click on the canvas at (x, y), fractions of its width and height (0 to 1).
+CanvasClick = Callable[[float, float], None]
+
+
+def _wxyz(R: np.ndarray) -> np.ndarray:
+    x, y, z, w = Rotation.from_matrix(R).as_quat()
+    return np.array([w, x, y, z])
+
+
+def _rgb(bgr: tuple[int, int, int]) -> tuple[int, int, int]:
+    return (bgr[2], bgr[1], bgr[0])
+
+
+class Scene3D:
+    """The canvas of one page (``scene`` is that client's ``client.scene``)."""
+
+    def __init__(
+        self,
+        scene: viser.SceneApi,
+        ds: Dataset,
+        *,
+        on_part: Callable[[str], None],
+        on_canvas: CanvasClick,
+    ) -> None:
+        self._scene = scene
+        self._ds = ds
+        self._on_part = on_part
+        self._on_canvas = on_canvas
+        self._lock = threading.RLock()
+        self.showing_3d = False
+        self._pending_3d: (
+            tuple[tuple[InstanceAnnotation, ...], Look, np.ndarray | None, object] | None
+        )
+        self._pending_3d = None
+        self._shown_cloud: object = None
+        self._cloud: viser.PointCloudHandle | None = None
+        self._parts: dict[str, viser.BatchedMeshHandle] = {}
+        self._slots: dict[str, list[str]] = {}  # object -> instance name per slot
+        self._root: viser.FrameHandle | None = None
+        scene.on_click()(self._clicked)
+
+    def _build_3d(self) -> None:
+        """The 3D view's fixed content, sent the first time it is shown (a page that never
+        shows it never loads the meshes)."""
+        scene = self._scene
+        # Lighting for the parts' shading; the pictures need none (hence not sent before).
+        scene.configure_environment_map("warehouse")
+        self._root = scene.add_frame("/scene3d", show_axes=False, visible=False)
+        for cam in self._ds.rig.cameras:
+            scene.add_camera_frustum(
+                f"/scene3d/cameras/{cam.name}",
+                fov=float(2 * np.arctan(cam.height / 2 / cam.K[1, 1])),
+                aspect=cam.width / cam.height,
+                scale=0.04,
+                thickness=1.5,
+                thickness_units="screen",
+                color=(90, 90, 90),
+                wxyz=_wxyz(cam.rig_T_cam[:3, :3]),
+                position=tuple(cam.rig_T_cam[:3, 3] / 1000.0),
+            )
+        for name, obj in self._ds.objects.items():
+            self._add_object(name, [i.name for i in obj.instances])
+
+    def _clicked(self, event: viser.SceneClickEvent) -> None:
+        if not self.showing_3d:
+            x, y = event.screen_pos
+            self._on_canvas(float(x), float(y))
+
+    def show_3d(self, on: bool, camera: viser.CameraHandle) -> None:
+        """Show the 3D view (looking from behind the reference camera), or hide it."""
+        with self._lock:
+            if on == self.showing_3d:
+                return
+            self.showing_3d = on
+            if self._root is None:
+                self._build_3d()
+            if on:
+                self._flush_3d()
+                # From above and behind the reference camera (+y is down), towards the bin.
+                # Setting the position moves look_at with it: position first.
+                camera.up_direction = (0.0, -1.0, 0.0)
+                camera.position = (0.0, -0.25, -0.35)
+                camera.look_at = (0.0, 0.0, 0.5)
+            self._root.visible = on  # type: ignore[union-attr]
+
+    # ------------------------------------------------------------- 3D view
+    def _add_object(self, name: str, slots: list[str]) -> None:
+        obj = self._ds.objects[name]
+        n = max(len(slots), 1)
+        handle = self._scene.add_batched_meshes_simple(
+            f"/scene3d/parts/{name}",
+            obj.mesh.vertices / 1000.0,
+            obj.mesh.faces,
+            batched_wxyzs=np.tile([1.0, 0.0, 0.0, 0.0], (n, 1)),
+            batched_positions=np.zeros((n, 3)),
+            batched_scales=np.zeros(n, np.float32),
+            batched_colors=np.full((n, 3), 200, np.uint8),
+            lod="off",
+            cast_shadow=False,
+            receive_shadow=False,
+        )
+        handle.on_click(lambda event, name=name: self._clicked_part(name, event.instance_index))
+        self._parts[name] = handle
+        self._slots[name] = list(slots) or [""]
+
+    def _clicked_part(self, obj: str, index: int | None) -> None:
+        slots = self._slots.get(obj, [])
+        if index is not None and 0 <= index < len(slots) and slots[index]:
+            self._on_part(f"{obj}/{slots[index]}")
+
+    def show_3d_scene(
+        self,
+        poses: tuple[InstanceAnnotation, ...],
+        look: Look,
+        cloud: np.ndarray | None,
+        cloud_key: object,
+    ) -> None:
+        """The parts of a scene at their poses, coloured by ``look``, and its depth points
+        (reference frame, metres; None: none; sent again only when ``cloud_key`` changes).
+        Sent now if the 3D view is shown, else when it is."""
+        with self._lock:
+            self._pending_3d = (poses, look, cloud, cloud_key)
+            if self.showing_3d:
+                self._flush_3d()
+
+    def _flush_3d(self) -> None:
+        if self._pending_3d is None:
+            return
+        poses, look, cloud, cloud_key = self._pending_3d
+        self._pending_3d = None
+        self._show_parts(poses, look)
+        if cloud_key != self._shown_cloud:
+            self._show_cloud(cloud)
+            self._shown_cloud = cloud_key
+
+    def _show_parts(self, poses: tuple[InstanceAnnotation, ...], look: Look) -> None:
+        by_object: dict[str, list[InstanceAnnotation]] = {}
+        for p in poses:
+            if p.object in self._parts:
+                by_object.setdefault(p.object, []).append(p)
+        for name, posed in by_object.items():
+            unknown = [p.instance for p in posed if p.instance not in self._slots[name]]
+            if unknown:  # an instance object.yaml does not list: give it a slot
+                self._parts.pop(name).remove()
+                self._add_object(name, [s for s in self._slots[name] if s] + unknown)
+        for name, handle in self._parts.items():
+            slots = self._slots[name]
+            n = len(slots)
+            wxyzs = np.tile(np.array([1.0, 0.0, 0.0, 0.0], np.float32), (n, 1))
+            positions = np.zeros((n, 3), np.float32)
+            scales = np.zeros(n, np.float32)
+            colours = np.full((n, 3), 200, np.uint8)
+            for p in by_object.get(name, []):
+                i = slots.index(p.instance)
+                wxyzs[i] = _wxyz(p.R)
+                positions[i] = p.t / 1000.0
+                scales[i] = 1.0
+                selected = p.key == look.selected
+                colours[i] = _rgb(SELECTED_COLOUR if selected else look.colour(p.key))
+            handle.batched_wxyzs = wxyzs
+            handle.batched_positions = positions
+            handle.batched_scales = scales
+            handle.batched_colors = colours
+
+    def _show_cloud(self, points: np.ndarray | None) -> None:
+        if points is None or len(points) == 0:
+            if self._cloud is not None:
+                self._cloud.visible = False
+            return
+        if self._cloud is None:
+            self._cloud = self._scene.add_point_cloud(
+                "/scene3d/depth",
+                points,
+                colors=(150, 150, 150),
+                point_size=0.0015,
+                precision="float16",
+            )
+        else:
+            self._cloud.points = points
+            self._cloud.visible = True

@@ -1,0 +1,397 @@
+"""One browser page: its own cursor (:class:`~viewer.navigation.Navigator`), control panel,
+pictures and 3D canvas, and what its buttons, hotkeys and clicks do.
+
+Decisions go to the shared :class:`~viewer.state.ReviewState` (review.json, atomically).
+A decision that cannot be written is shown in this page at once, in red, and the page stays
+on the scene, whose status remains the one on disk. When another page (or another server)
+decides a scene this page decided, the later decision is kept and this page is told.
+
+Showing a scene is coalesced: actions only move the cursor and ask for a render; one render
+runs at a time and always shows the latest state, so a held key skips scenes instead of
+queueing them. The pictures and the panel go out first; the 3D view follows (and only
+while it is shown).
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from typing import TYPE_CHECKING
+
+import viser
+
+from annotator.dataset.review import ReviewStatus
+from viewer.mosaic import Picture, compose
+from viewer.navigation import Navigator
+from viewer.overlays import Prepared
+from viewer.panel import Panel, PanelView, instance_table, warnings_text
+from viewer.pictures import Pictures
+from viewer.scene3d import Scene3D
+from viewer.state import SaveError, SceneInfo
+from viewer.style import Look
+from viewer.zoom import Zoom, zoom
+
+if TYPE_CHECKING:
+    from viewer.app import ReviewApp
+
+DEFAULT_VIEWPORT = (1280, 960)
+_MAX_ALERTS = 3
+ALERT_SECONDS = 60.0  # how long the panel repeats another reviewer's overriding decision
+
+
+class Session:
+    """The review page of one browser client."""
+
+    def __init__(self, app: ReviewApp, client: viser.ClientHandle) -> None:
+        self.app = app
+        self.client = client
+        self.id = f"page-{app.tag}-{client.client_id}"
+        self.nav = Navigator(app.state)
+        self._lock = threading.RLock()  # the cursor and the flags below
+        self.fill = False
+        self.armed = False
+        self.unsaved: dict[str, str] = {}  # scene -> why its decision is not saved
+        self._unsaved_notes: dict[str, viser.NotificationHandle] = {}
+        self.alerts: list[tuple[float, str]] = []  # other reviewers' decisions over ours
+        self.mine: dict[str, ReviewStatus] = {}  # scenes this page decided last
+        self.viewport = self._viewport()
+        self._render_lock = threading.Lock()
+        self._dirty = False
+        self._rendering = False
+        self._closed = False
+        self._shown: tuple | None = None  # what the mosaic was made for
+        self._shown_zoom: tuple | None = None  # what the zoom was made for
+        self._on_canvas: tuple | None = None  # which picture is shown: ("mosaic" | "zoom", ...)
+        self._picture: tuple[str, Picture] | None = None
+        self._zoom: tuple[str, Zoom] | None = None
+        self._prep: Prepared | None = None
+        self.blinking = False
+        self.panel = Panel(client.gui, self)
+        self.pictures = Pictures(client.gui, client.scene)
+        self.scene = Scene3D(
+            client.scene, app.state.ds, on_part=self.select, on_canvas=self.clicked_canvas
+        )
+        client.camera.on_update(self._camera_moved)
+        self.request_render()
+
+    # --------------------------------------------------------------- viewport
+    def _viewport(self) -> tuple[int, int]:
+        try:
+            w, h = int(self.client.camera.image_width), int(self.client.camera.image_height)
+        except (AssertionError, AttributeError, TypeError, ValueError):
+            return DEFAULT_VIEWPORT
+        return (w, h) if w >= 64 and h >= 64 else DEFAULT_VIEWPORT
+
+    def _camera_moved(self, _camera: viser.CameraHandle) -> None:
+        size = self._viewport()
+        if abs(size[0] - self.viewport[0]) > 2 or abs(size[1] - self.viewport[1]) > 2:
+            self.viewport = size
+            self.request_render()
+
+    # ---------------------------------------------------------------- render
+    def request_render(self) -> None:
+        """Show the latest state (now, or right after the render under way)."""
+        with self._render_lock:
+            self._dirty = True
+            if self._rendering:
+                return
+            self._rendering = True
+        while True:
+            with self._render_lock:
+                if not self._dirty or self._closed:
+                    self._rendering = False
+                    return
+                self._dirty = False
+            try:
+                self._render()
+            except Exception:
+                with self._render_lock:
+                    self._rendering = False
+                raise
+
+    def _render(self) -> None:
+        with self._lock:
+            sid = self.nav.current
+            selected, zoom_open, fill = self.nav.selected, self.nav.zoom, self.fill
+            blinking = self.blinking
+            flt = self.nav.filter
+        if sid is None:
+            self.panel.show(PanelView("## No scene in this dataset"), [])
+            return
+        state = self.app.state
+        info = state.info(sid)
+        try:
+            prep = self.app.prepared(sid, info)
+        except Exception as exc:  # an unexpected failure must leave the page usable
+            self.panel.show(PanelView(f"## Scene {sid}", alert=f"⚠ cannot show it: {exc}"), [])
+            return
+        self._prep = prep
+        look = Look.of(info, selected)
+        self.viewport = self._viewport()  # the canvas may have changed size since
+        w, h = self.viewport
+        base = (sid, info.fingerprint, look, (w, h))
+        zkey = (*base, fill) if zoom_open and selected else None
+        if zkey is not None and zkey != self._shown_zoom:
+            z = zoom(prep, selected, look, w, h, fill=fill)
+            self._zoom = (sid, z) if z is not None else None
+            self._shown_zoom = zkey if z is not None else None
+        if zkey is None or self._zoom is None:
+            if base != self._shown:
+                self._picture = (sid, compose(prep, look, w, h))
+                self._shown = base
+            if ("mosaic", base) != self._on_canvas:
+                self.pictures.show_mosaic(self._picture[1].image)
+                self._on_canvas = ("mosaic", base)
+            with self._lock:
+                self.blinking = False  # blinking belongs to a zoom
+        elif ("zoom", zkey) != self._on_canvas:
+            z = self._zoom[1]
+            self.pictures.show_zoom(z.image, z.rendered)
+            self._on_canvas = ("zoom", zkey)
+        self.pictures.blink(blinking and self._on_canvas[0] == "zoom")
+        self.panel.show(self._panel_view(info, prep, flt, selected), [p.key for p in info.poses])
+        self.client.flush()  # the new picture is on its way before anything else is done
+        self.pictures.send_background_soon()
+        self.scene.show_3d_scene(info.poses, look, prep.cloud, (sid, info.fingerprint))
+        with self._lock:
+            upcoming = self.nav.upcoming()
+        for other in reversed(upcoming):  # the cache starts with the last asked for
+            self.app.prefetch(other)
+
+    def _panel_view(
+        self, info: SceneInfo, prep: Prepared, flt: str, selected: str | None
+    ) -> PanelView:
+        state = self.app.state
+        sid = info.id
+        status = f"**{info.status}**" + (
+            " (stale: the annotation changed since)" if info.stale else ""
+        )
+        if info.review.reason:
+            status += f" — {info.review.reason}"
+        title = f"## Scene {sid}\n{status} · {state.ids.index(sid) + 1} of {len(state.ids)} · filter: {flt}"
+        alerts = []
+        if sid in self.unsaved:
+            alerts.append(f"⛔ {self.unsaved[sid]}")
+        now = time.monotonic()
+        alerts += [f"⚠ {a}" for t, a in self.alerts if now - t < ALERT_SECONDS]
+        messages = list(prep.messages)
+        if not info.annotated:
+            messages.append(f"scene {sid} has no annotation.json: run `annotator annotate` first")
+        if info.error:
+            messages.append(info.error)
+        notice = "\n\n".join(f"⚠ {m}" for m in messages)
+        if self.armed:
+            notice = (
+                "**Click on a picture where a part without a pose lies** (M again to cancel)"
+                + (f"\n\n{notice}" if notice else "")
+            )
+        done, total = state.progress()
+        pace = state.pace()
+        eta = f", about {(total - done) / pace:.0f} min left" if pace > 0 else ""
+        return PanelView(
+            title=title,
+            alert="\n\n".join(f"<span style='color:#d00'>{a}</span>" for a in alerts),
+            notice=notice,
+            progress=100.0 * done / max(total, 1),
+            progress_text=f"reviewed {done} / {total} · {pace:.1f} scenes/min{eta}",
+            table=instance_table(info, selected),
+            warnings=warnings_text(info),
+        )
+
+    # ------------------------------------------------------------ decisions
+    def _write(self, sid: str, what: str, fn) -> bool:
+        """Run a write; on failure show it in this page and keep the scene unsaved."""
+        try:
+            review = fn()
+        except SaveError as exc:
+            msg = f"scene {sid}: your decision ({what}) is NOT saved: {exc}"
+            note = self.client.add_notification(
+                "Decision not saved", msg, color="red", with_close_button=True
+            )
+            with self._lock:
+                self.unsaved[sid] = msg
+                old = self._unsaved_notes.pop(sid, None)
+                self._unsaved_notes[sid] = note
+            if old is not None:
+                old.remove()
+            self.request_render()
+            return False
+        with self._lock:
+            self.unsaved.pop(sid, None)
+            note = self._unsaved_notes.pop(sid, None)
+            self.mine[sid] = review.status
+        if note is not None:  # saved now: the red notice would only mislead
+            note.remove()
+        self.app.changed(self, {sid})
+        return True
+
+    def _decide(self, status: ReviewStatus) -> None:
+        with self._lock:
+            sid = self.nav.current
+        if sid is None:
+            return
+        if self._write(sid, str(status), lambda: self.app.state.set_scene(sid, status, by=self.id)):
+            with self._lock:
+                if self.nav.current == sid:
+                    self.nav.after_decision()
+        self.request_render()
+
+    def accept(self) -> None:
+        self._decide(ReviewStatus.ACCEPTED)
+
+    def reject(self) -> None:
+        self._decide(ReviewStatus.REJECTED)
+
+    def set_instance(self, status: ReviewStatus) -> None:
+        with self._lock:
+            sid, key = self.nav.current, self.nav.selected
+        if sid is None or key is None:
+            return
+        self._write(
+            sid,
+            f"{key} {status}",
+            lambda: self.app.state.set_instance(sid, key, status, by=self.id),
+        )
+        self.request_render()
+
+    def toggle_instance(self) -> None:
+        with self._lock:
+            sid, key = self.nav.current, self.nav.selected
+        if sid is None or key is None:
+            return
+        new = (
+            ReviewStatus.ACCEPTED
+            if self.app.state.info(sid).instance_status(key) == ReviewStatus.REJECTED
+            else ReviewStatus.REJECTED
+        )
+        self.set_instance(new)
+
+    def arm_missing(self) -> None:
+        with self._lock:
+            self.armed = not self.armed
+        self.request_render()
+
+    def _mark_missing(self, camera: str, x: float, y: float) -> None:
+        with self._lock:
+            sid = self.nav.current
+            self.armed = False
+        if sid is None:
+            return
+        self._write(
+            sid,
+            f"no pose at {camera} ({x:.0f}, {y:.0f})",
+            lambda: self.app.state.mark_missing(sid, camera, (x, y), by=self.id),
+        )
+        self.request_render()
+
+    # ------------------------------------------------------------ navigation
+    def _move(self, fn) -> None:
+        with self._lock:
+            fn()
+        self.request_render()
+
+    def next(self) -> None:
+        self._move(lambda: self.nav.step(+1))
+
+    def previous(self) -> None:
+        self._move(lambda: self.nav.step(-1))
+
+    def next_flagged(self) -> None:
+        self._move(self.nav.next_flagged)
+
+    def set_filter(self, flt: str) -> None:
+        self._move(lambda: self.nav.set_filter(flt))
+
+    def select(self, key: str) -> None:
+        self._move(lambda: self.nav.select(key))
+
+    def select_next(self) -> None:
+        self._move(self.nav.select_next)
+
+    def toggle_zoom(self) -> None:
+        self._move(self.nav.toggle_zoom)
+
+    def toggle_fill(self) -> None:
+        def flip() -> None:
+            self.fill = not self.fill
+
+        self._move(flip)
+
+    def toggle_3d(self) -> None:
+        on = not self.scene.showing_3d
+        self.pictures.hide(on)
+        self.pictures.send_background_soon()
+        self.scene.show_3d(on, self.client.camera)
+
+    # ----------------------------------------------------------------- clicks
+    def clicked_canvas(self, x: float, y: float) -> None:
+        """A click on the canvas at (x, y) in 0-1 of its size: on the picture shown."""
+        with self._lock:
+            shown = self._on_canvas
+        picture = self._zoom if shown and shown[0] == "zoom" else self._picture
+        if picture is not None:
+            h, w = picture[1].image.shape[:2]
+            self.clicked(x * w - 0.5, y * h - 0.5)
+
+    def clicked(self, u: float, v: float) -> None:
+        """A click at (u, v) of the picture shown (the mosaic or the zoom)."""
+        with self._lock:
+            sid = self.nav.current
+            zoomed = self._on_canvas is not None and self._on_canvas[0] == "zoom"
+            shown = self._zoom if zoomed else self._picture
+            armed = self.armed
+        prep = self._prep
+        if shown is None or shown[0] != sid or prep is None or prep.scene_id != sid:
+            return
+        located = shown[1].locate(u, v)
+        if located is None:
+            return
+        tile, x, y = located
+        if armed:
+            self._mark_missing(tile.camera, x, y)
+            return
+        key = prep.instance_at(tile.camera, x, y, radius=4.0 / tile.scale)
+        if key is not None:
+            self.select(key)
+
+    # ------------------------------------------------------------------ blink
+    def toggle_blink(self) -> None:
+        """Blink the rendered part over the zoom (opening the zoom if needed), or stop. The
+        browser blinks it (a CSS animation): nothing is sent per blink."""
+        with self._lock:
+            self.blinking = not self.blinking
+            if self.blinking and not (self.nav.zoom and self.nav.selected):
+                self.nav.toggle_zoom()
+        self.request_render()
+
+    # ------------------------------------------------------ other reviewers
+    def on_changed(self, sids: set[str]) -> None:
+        """Scenes decided elsewhere (another page, another server): tell this reviewer if
+        one of them was theirs, and show the shared progress."""
+        told = []
+        for sid in sorted(sids):
+            with self._lock:
+                mine = self.mine.get(sid)
+            if mine is None:
+                continue
+            review = self.app.state.info(sid).review
+            if review.decided_by == self.id:
+                continue
+            with self._lock:
+                self.mine.pop(sid, None)
+                msg = (
+                    f"scene {sid} was decided after you by another reviewer: now "
+                    f"{review.status} (yours: {mine}); the later decision is kept"
+                )
+                self.alerts = (self.alerts + [(time.monotonic(), msg)])[-_MAX_ALERTS:]
+            told.append(msg)
+        for msg in told:
+            self.client.add_notification(
+                "Scene decided by another reviewer", msg, color="orange", auto_close_seconds=20.0
+            )
+        self.request_render()
+
+    def close(self) -> None:
+        with self._render_lock:
+            self._closed = True
+        self.pictures.close()
