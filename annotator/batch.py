@@ -14,6 +14,9 @@ does this work; with several workers on Linux it is called once in the parent an
 are forked from it, so that they start ready. (Forked workers must not call
 ``cv2.setNumThreads``: it waits forever for the parent's OpenCV threads, which a child does
 not have. The parent sets one thread before forking instead, and restores its setting after.)
+
+With ``ray_address``, the scenes go to a Ray cluster instead (:mod:`annotator.scale`): same
+report, same progress bar, same files written.
 """
 
 from __future__ import annotations
@@ -58,8 +61,27 @@ def _run_one(
     except KeyboardInterrupt:
         raise
     except Exception as exc:  # one bad scene must not stop the batch; report it in one line
-        last = traceback.extract_tb(exc.__traceback__)[-1]
-        return scene_id, None, f"{type(exc).__name__}: {exc} (at {last.filename}:{last.lineno})"
+        return scene_id, None, describe_failure(exc)
+
+
+def describe_failure(exc: BaseException) -> str:
+    """The one line a failed scene's unexpected exception is reported with: its type, message
+    and the line of code that raised it."""
+    tb = traceback.extract_tb(exc.__traceback__)
+    where = f" (at {tb[-1].filename}:{tb[-1].lineno})" if tb else ""
+    return f"{type(exc).__name__}: {exc}{where}"
+
+
+def progress_bar(total: int, desc: str, quiet: bool) -> tqdm:
+    """The batch progress bar: scenes finished (done or failed), on stderr when it is a
+    terminal."""
+    return tqdm(
+        total=total,
+        desc=desc,
+        unit="scene",
+        disable=quiet or not sys.stderr.isatty(),
+        file=sys.stderr,
+    )
 
 
 def run_batch(
@@ -69,9 +91,19 @@ def run_batch(
     workers: int = 1,
     desc: str = "scenes",
     quiet: bool = False,
+    ray_address: str | None = None,
 ) -> BatchReport:
     """Run ``job`` on every scene id, in ``workers`` processes of one thread each (OpenCV and
-    ray casting), with a progress bar on stderr."""
+    ray casting), with a progress bar on stderr.
+
+    With ``ray_address`` (``"auto"`` or a cluster's address), every scene is a task on that
+    Ray cluster instead and ``workers`` is ignored; ``job`` must then declare its files (see
+    :class:`annotator.scale.DistributableJob`).
+    """
+    if ray_address is not None:
+        from annotator.scale.ray_runner import run_on_ray
+
+        return run_on_ray(job, scene_ids, address=ray_address, desc=desc, quiet=quiet)
     report = BatchReport()
     pool = None
     if workers > 1 and len(scene_ids) > 1:
@@ -88,13 +120,7 @@ def run_batch(
             initargs=(os.getpid(), context is None),
         )
         _POOLS.add(pool)
-    bar = tqdm(
-        total=len(scene_ids),
-        desc=desc,
-        unit="scene",
-        disable=quiet or not sys.stderr.isatty(),
-        file=sys.stderr,
-    )
+    bar = progress_bar(len(scene_ids), desc, quiet)
     try:
         with _one_thread_meanwhile():
             if pool is None:

@@ -15,6 +15,7 @@ from annotator.dataset.review import now_iso
 from annotator.detection import MarkerDetector
 from annotator.errors import UserError
 from annotator.io.images import write_png
+from annotator.scale.bundle import description_files
 
 
 def description_digest(ds: Dataset) -> str:
@@ -78,6 +79,22 @@ class AnnotateJob:
             obj.mesh.moments  # noqa: B018
         for cam in ds.rig.cameras:
             cam.pixel_rays(self.settings.visibility_step)
+
+    # What a scene's work reads and writes, for runs on a cluster without the dataset's disk
+    # (annotator.scale): paths relative to ``root``.
+
+    def shared_files(self) -> list[str]:
+        """The dataset description (dataset.yaml, objects, background depth)."""
+        return description_files(cached_dataset(self.root))
+
+    def scene_files(self, scene_id: str) -> list[str]:
+        """The scene's images and depth map."""
+        names = [f"{c.name}.png" for c in cached_dataset(self.root).rig.cameras] + ["depth.png"]
+        return [f"scenes/{scene_id}/{name}" for name in names]
+
+    def output_files(self, scene_id: str) -> list[str]:
+        """The mask (or its deletion) and annotation.json, in the order they are written."""
+        return [f"scenes/{scene_id}/{UNEXPLAINED_MASK}", f"scenes/{scene_id}/annotation.json"]
 
     def __call__(self, scene_id: str) -> dict[str, Any]:
         ds, detector = _context(self.root)

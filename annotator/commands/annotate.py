@@ -11,11 +11,13 @@ from annotator.batch import run_batch
 from annotator.commands import add_workers_option
 from annotator.dataset import load_dataset, require_meshes
 from annotator.errors import UserError
+from annotator.scale import add_ray_option
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("dataset", help="dataset folder (FORMAT.md)")
     add_workers_option(parser)
+    add_ray_option(parser)
     parser.add_argument(
         "--scenes", default="*", metavar="PATTERN", help="only scenes whose id matches (fnmatch)"
     )
@@ -41,6 +43,7 @@ def run(args: argparse.Namespace) -> int:
         workers=args.workers,
         desc="annotate",
         quiet=args.quiet,
+        ray_address=args.ray,
     )
     posed = sum(r["instances"] for r in report.done.values())
     flagged = sum(r["flagged"] for r in report.done.values())

@@ -19,6 +19,8 @@ from annotator.dataset import cached_dataset, load_dataset, read_poses
 from annotator.errors import UserError
 from annotator.io.atomic import write_json
 from annotator.occlusion import scene_visibility
+from annotator.scale import add_ray_option
+from annotator.scale.bundle import description_files
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -27,6 +29,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--scenes", default="*", metavar="PATTERN")
     parser.add_argument("--depth-tolerance", type=float, default=5.0, help="mm (default 5)")
     add_workers_option(parser)
+    add_ray_option(parser)
     parser.add_argument("--force", action="store_true")
     parser.add_argument("--json", action="store_true")
     parser.add_argument("--quiet", action="store_true")
@@ -43,6 +46,21 @@ class VisibilityJob:
         ds = cached_dataset(self.root)
         for cam in ds.rig.cameras:
             cam.pixel_rays()
+
+    # What a scene's work reads and writes, relative to ``root`` (for --ray).
+
+    def shared_files(self) -> list[str]:
+        """The dataset description (dataset.yaml, objects, background depth)."""
+        return description_files(cached_dataset(self.root))
+
+    def scene_files(self, scene_id: str) -> list[str]:
+        """The poses (annotation.json or gt.json) and the depth map."""
+        src = "annotation.json" if self.poses == "annotation" else "gt.json"
+        return [f"scenes/{scene_id}/{src}", f"scenes/{scene_id}/depth.png"]
+
+    def output_files(self, scene_id: str) -> list[str]:
+        """visibility.json."""
+        return [f"scenes/{scene_id}/visibility.json"]
 
     def __call__(self, scene_id: str) -> dict[str, Any]:
         ds = cached_dataset(self.root)
@@ -103,6 +121,7 @@ def run(args: argparse.Namespace) -> int:
         workers=args.workers,
         desc="occlusion",
         quiet=args.quiet,
+        ray_address=args.ray,
     )
     summary = {
         "done": len(report.done),

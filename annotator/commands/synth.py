@@ -13,6 +13,7 @@ from annotator.errors import UserError
 from annotator.io.atomic import atomic_folder
 from annotator.io.output_folder import check_output_folder, write_manifest
 from annotator.parts import PART_NAMES, build_part
+from annotator.scale import add_ray_option
 from annotator.synthesis.generate import SceneJob, SynthConfig, _plan, write_dataset_files
 
 
@@ -33,6 +34,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--seed", type=int, default=0, help="random seed: same seed, same dataset (default 0)"
     )
     add_workers_option(parser)
+    add_ray_option(parser)
     parser.add_argument(
         "--size", default="1280x1024", metavar="WxH", help="image size (default 1280x1024)"
     )
@@ -117,11 +119,16 @@ def run(args: argparse.Namespace) -> int:
     if args.twin:
         from annotator.commands.twin import synth_twin
 
+        if args.ray is not None:
+            raise UserError("--ray does not apply to --twin (its scenes run on --workers)")
         return synth_twin(args)
     config = _config(args)
     check_output_folder(out, command="synth", overwrite=args.overwrite)
     if args.calibration:
         from annotator.commands.calibrate import synth_captures
+
+        if args.ray is not None:
+            raise UserError("--ray does not apply to --calibration (board shots are quick)")
 
         return synth_captures(args, config)
     with atomic_folder(out) as tmp:
@@ -130,7 +137,12 @@ def run(args: argparse.Namespace) -> int:
         write_dataset_files(plan, tmp)
         ids = [f"{k:06d}" for k in range(config.scenes)]
         report = run_batch(
-            SceneJob(config, str(tmp)), ids, workers=args.workers, desc="synth", quiet=args.quiet
+            SceneJob(config, str(tmp)),
+            ids,
+            workers=args.workers,
+            desc="synth",
+            quiet=args.quiet,
+            ray_address=args.ray,
         )
         for sid in report.failed:
             shutil.rmtree(tmp / "scenes" / sid, ignore_errors=True)

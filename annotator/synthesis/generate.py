@@ -281,6 +281,21 @@ class SceneJob:
         for cam in plan.setup.rig.cameras:
             cam.pixel_rays()
 
+    # What a scene's work reads and writes, relative to ``root`` (for --ray): a scene is made
+    # from the configuration alone, and everything in its folder is its output.
+
+    def shared_files(self) -> list[str]:
+        """None: the parts and the rig are planned from the configuration."""
+        return []
+
+    def scene_files(self, scene_id: str) -> list[str]:
+        """None: the scene is made from the configuration and its index."""
+        return []
+
+    def output_files(self, scene_id: str) -> list[str]:
+        """Every file of the scene's folder."""
+        return [f"scenes/{scene_id}/"]
+
     def __call__(self, scene_id: str) -> dict:
         plan = _plan(self.config)
         folder = Path(self.root) / "scenes" / scene_id

@@ -1,0 +1,65 @@
+"""Batches on a Ray cluster: ``--ray ADDRESS`` on ``synth``, ``annotate`` and ``occlusion``.
+
+Nothing here assumes a shared file system. The driver (the machine that runs the command
+and holds the dataset) reads every file a scene needs and sends it as bytes through Ray's
+object store; a task runs the unchanged per-scene job on a private replica of those files
+in a temporary folder of its node, and sends back the files the job wrote, as bytes; the
+driver writes them with the same atomic writes as a local batch. The dataset description
+(dataset.yaml, every object.yaml and mesh, the background depth map) is put into the object
+store once and unpacked once per worker process.
+
+A job that can run this way is a picklable dataclass with a ``root`` field (the dataset
+folder; a task runs a copy whose ``root`` is its replica) that declares its files, relative
+to ``root`` (see :class:`DistributableJob`). Scene folders are ``scenes/<scene_id>``
+(docs/FORMAT.md).
+
+Modules: :mod:`annotator.scale.bundle` (files as bytes), :mod:`annotator.scale.ray_runner`
+(joining the cluster, tasks, retries, cancellation), :mod:`annotator.scale.local_cluster` (a
+throwaway cluster on this machine, for the tests and the benchmark). Ray itself is imported
+only when ``--ray`` is given: it is an optional extra, ``pip install 'bin-annotator[ray]'``.
+"""
+
+from __future__ import annotations
+
+import argparse
+from typing import Any, Protocol
+
+__all__ = ["DistributableJob", "add_ray_option"]
+
+
+class DistributableJob(Protocol):
+    """A per-scene job that can run where the dataset is not (see the module docstring)."""
+
+    root: str
+
+    def shared_files(self) -> list[str]:
+        """Files every scene needs (the dataset description), read once by the driver."""
+        ...
+
+    def scene_files(self, scene_id: str) -> list[str]:
+        """The scene's input files; those that do not exist are left out (the job then
+        reports them missing, as it does locally)."""
+        ...
+
+    def output_files(self, scene_id: str) -> list[str]:
+        """What the job writes, in writing order: a file that the job did not leave behind
+        is deleted on the driver's side (after the writes); a path ending in ``/`` stands for
+        every file under that folder."""
+        ...
+
+    def __call__(self, scene_id: str) -> dict[str, Any]:
+        """Process one scene under ``root`` (reads its inputs, writes its outputs)."""
+        ...
+
+
+def add_ray_option(parser: argparse.ArgumentParser) -> None:
+    """``--ray ADDRESS``: one Ray task per scene on that cluster (``auto``: the running one)."""
+    parser.add_argument(
+        "--ray",
+        metavar="ADDRESS",
+        default=None,
+        help="run every scene as a task on the Ray cluster whose head is at ADDRESS "
+        "(host:port), or 'auto' for the one this machine belongs to (RAY_ADDRESS or the "
+        "latest `ray start`); files travel as bytes, no shared file system is needed; "
+        "--workers is then ignored (needs `pip install 'bin-annotator[ray]'`)",
+    )
