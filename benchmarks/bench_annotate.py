@@ -17,28 +17,34 @@ at most 1 complete scene in 8 warned; annotate time per scene no more than 25% a
 
 from __future__ import annotations
 
-import argparse
-import math
-import shutil
-import subprocess
-import sys
-import tempfile
-import time
-from dataclasses import replace
-from pathlib import Path
+import os
 
-import cv2
-import numpy as np
-import yaml
+# As the CLI does (annotator/cli.py): one BLAS thread, set before numpy is imported.
+for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
 
-from annotator.annotation.batch import AnnotateJob
-from annotator.annotation.record import SceneAnnotation
-from annotator.batch import run_batch
-from annotator.dataset import load_dataset, read_poses
-from annotator.markers.texture import marker_image
-from annotator.rendering.raycast import PlacedMesh, RayScene
-from annotator.symmetry import PoseSpace
-from annotator.synthesis.generate import SynthConfig, plan_dataset, write_dataset_files
+import argparse  # noqa: E402
+import math  # noqa: E402
+import shutil  # noqa: E402
+import subprocess  # noqa: E402
+import sys  # noqa: E402
+import tempfile  # noqa: E402
+import time  # noqa: E402
+from dataclasses import replace  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import cv2  # noqa: E402
+import numpy as np  # noqa: E402
+import yaml  # noqa: E402
+
+from annotator.annotation.batch import AnnotateJob  # noqa: E402
+from annotator.annotation.record import SceneAnnotation  # noqa: E402
+from annotator.batch import run_batch  # noqa: E402
+from annotator.dataset import load_dataset, read_poses  # noqa: E402
+from annotator.markers.texture import marker_image  # noqa: E402
+from annotator.rendering.raycast import PlacedMesh, RayScene  # noqa: E402
+from annotator.symmetry import PoseSpace  # noqa: E402
+from annotator.synthesis.generate import SynthConfig, plan_dataset, write_dataset_files  # noqa: E402
 
 BASELINE_S = 0.41  # annotate, warm, one worker, per scene, before issue 12
 CONFIG = SynthConfig(parts=("bracket", "brick", "cylinder"), instances=(12, 20), seed=11)

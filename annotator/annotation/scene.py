@@ -228,23 +228,26 @@ def _recover_markers(
     inst = model.instance(r.instance)
     seen = {(o.camera, o.marker_id) for o in obs}
     added = False
+    n_sites = len(inst.marker_ids)
+    X_all = model.markers.corners[:n_sites]
     for j, (cam, reading) in enumerate(zip(ds.rig.cameras, readings)):
         if len(reading.unread) == 0:
             continue
         centres = reading.unread.mean(axis=1)
         T = cam.cam_T_rig @ r.T
-        for site, mid in enumerate(inst.marker_ids):
+        C_all = X_all @ T[:3, :3].T + T[:3, 3]  # (S, 4, 3), all sites at once
+        normal = np.cross(C_all[:, 3] - C_all[:, 0], C_all[:, 1] - C_all[:, 0])
+        centre = C_all.mean(axis=1)
+        facing = (C_all[..., 2].min(axis=1) > 0) & (
+            -(normal * centre).sum(1)
+            >= RECOVER_COS * np.linalg.norm(normal, axis=1) * np.linalg.norm(centre, axis=1)
+        )  # in front of the camera, seen within 75 degrees of face-on
+        for site in np.flatnonzero(facing):
+            mid = inst.marker_ids[site]
             if (j, mid) in seen:
                 continue
-            X = model.markers.corners[site]
-            C = X @ T[:3, :3].T + T[:3, 3]
-            normal = np.cross(C[3] - C[0], C[1] - C[0])
-            centre = C.mean(axis=0)
-            if C[:, 2].min() <= 0 or -(normal @ centre) < RECOVER_COS * np.linalg.norm(
-                normal
-            ) * np.linalg.norm(centre):
-                continue  # behind the camera, facing away or seen too obliquely
-            uv = cam.project(C)
+            X = X_all[site]
+            uv = cam.project(C_all[site])
             side = float(np.linalg.norm(uv - np.roll(uv, 1, axis=0), axis=1).mean())
             near = np.flatnonzero(np.linalg.norm(centres - uv.mean(axis=0), axis=1) < 0.35 * side)
             for k in near:
@@ -319,7 +322,7 @@ def unexplained_depth(
         front = np.full(measured.shape, -1, np.int32)
     full_bg = ds.background_depth
     if full_bg is not None:
-        background = _filled(full_bg)[::step, ::step]
+        background = _filled(full_bg, step)
         source = "the dataset's background depth"
     else:
         points = rays * measured[..., None]
@@ -368,13 +371,23 @@ def unexplained_depth(
     return warning, full_mask
 
 
-def _filled(depth: np.ndarray) -> np.ndarray:
-    """A background depth map with its holes filled from the nearest measured pixel."""
-    holes = ~np.isfinite(depth)
-    if not holes.any() or holes.all():
-        return depth
-    _, (iy, ix) = ndimage.distance_transform_edt(holes, return_indices=True)
-    return depth[iy, ix]
+_FILLED: dict[int, tuple[np.ndarray, int, np.ndarray]] = {}
+
+
+def _filled(depth: np.ndarray, step: int) -> np.ndarray:
+    """The background depth on the grid of every ``step``-th pixel, its holes filled from the
+    nearest measured sample; computed once per background map (it is the same every scene)."""
+    hit = _FILLED.get(id(depth))
+    if hit is not None and hit[0] is depth and hit[1] == step:
+        return hit[2]
+    grid = depth[::step, ::step]
+    holes = ~np.isfinite(grid)
+    if holes.any() and not holes.all():
+        _, (iy, ix) = ndimage.distance_transform_edt(holes, return_indices=True)
+        grid = grid[iy, ix]
+    _FILLED.clear()
+    _FILLED[id(depth)] = (depth, step, grid)
+    return grid
 
 
 @functools.lru_cache(maxsize=64)
