@@ -72,11 +72,17 @@ class Picture:
 
     def locate(self, u: float, v: float) -> tuple[Tile, float, float] | None:
         """The tile under picture position (u, v) and the full-resolution pixel there."""
-        for t in self.tiles:
-            if t.contains(u, v):
-                x, y = t.to_full(u, v)
-                return t, x, y
-        return None
+        return locate(self.tiles, u, v)
+
+
+def locate(tiles: list[Tile], u: float, v: float) -> tuple[Tile, float, float] | None:
+    """The tile of ``tiles`` under picture position (u, v) and the full-resolution pixel
+    there, or None."""
+    for t in tiles:
+        if t.contains(u, v):
+            x, y = t.to_full(u, v)
+            return t, x, y
+    return None
 
 
 def grid(count: int, width: int, height: int, aspect: float) -> tuple[int, int]:

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from viewer.mosaic import Tile, grid
+from viewer.mosaic import Tile, grid, locate
 from viewer.overlays import Panel, Prepared
 from viewer.style import (
     UNEXPLAINED_COLOUR,
@@ -41,11 +41,8 @@ class Zoom:
     tiles: list[Tile]
 
     def locate(self, u: float, v: float) -> tuple[Tile, float, float] | None:
-        for t in self.tiles:
-            if t.contains(u, v):
-                x, y = t.to_full(u, v)
-                return t, x, y
-        return None
+        """The tile under picture position (u, v) and the full-resolution pixel there."""
+        return locate(self.tiles, u, v)
 
 
 def _crop(

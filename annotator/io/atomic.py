@@ -142,10 +142,6 @@ def _lock(folder: Path) -> int | None:
 
 def _remove_abandoned(out: Path) -> None:
     """Delete temporary siblings of ``out`` whose builder is gone (their lock is free)."""
-    try:
-        import fcntl
-    except ImportError:
-        return
     prefix = f".{out.name}."
     for cand in sorted(out.parent.iterdir()):
         if not cand.name.startswith(prefix) or not cand.is_dir() or cand.is_symlink():
@@ -156,15 +152,26 @@ def _remove_abandoned(out: Path) -> None:
             with contextlib.suppress(OSError):
                 cand.rename(out)
             continue
-        try:
-            fd = os.open(cand, os.O_RDONLY)
-        except OSError:
-            continue
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except OSError:
-            os.close(fd)  # another process is building it right now
-            continue
-        with contextlib.suppress(OSError):
-            shutil.rmtree(cand)
+        remove_if_abandoned(cand)
+
+
+def remove_if_abandoned(folder: Path) -> bool:
+    """Delete ``folder`` if no process holds its ``flock`` (whoever made it is gone); leave
+    it to a live owner otherwise. True if it was removed."""
+    try:
+        import fcntl
+    except ImportError:  # not POSIX: nobody can tell; keep it
+        return False
+    try:
+        fd = os.open(folder, os.O_RDONLY)
+    except OSError:
+        return False
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        return False  # its owner is alive
+    else:
+        shutil.rmtree(folder, ignore_errors=True)
+        return True
+    finally:
         os.close(fd)

@@ -44,6 +44,7 @@ from typing import Any
 
 from annotator.batch import BatchReport, describe_failure, progress_bar
 from annotator.errors import UserError
+from annotator.io.atomic import remove_if_abandoned
 from annotator.scale.bundle import (
     Bundle,
     Files,
@@ -404,22 +405,6 @@ def _sweep(tmp: Path) -> None:
     """Remove the private folders of worker processes that died without cleaning up (their
     lock is free); the folders of live workers, on this node or in another container sharing
     the folder, stay locked and are left alone."""
-    try:
-        import fcntl
-    except ImportError:
-        return
     for cand in tmp.glob(f"{_PREFIX}*"):
-        if not cand.is_dir() or cand.is_symlink():
-            continue
-        try:
-            fd = os.open(cand, os.O_RDONLY)
-        except OSError:
-            continue
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except OSError:
-            continue  # alive
-        else:
-            shutil.rmtree(cand, ignore_errors=True)
-        finally:
-            os.close(fd)
+        if cand.is_dir() and not cand.is_symlink():
+            remove_if_abandoned(cand)
