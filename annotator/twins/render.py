@@ -49,18 +49,25 @@ def twin_setup(ds: Dataset) -> RigSetup:
     return RigSetup(ds.rig, world_T_cams, T, K, (w, h))
 
 
-def background_mesh(ds: Dataset, measured: np.ndarray | None) -> Mesh | None:
-    """The setting as a mesh in the reference camera's frame (see the module docstring)."""
+def background_mesh(ds: Dataset, scene: Scene) -> Mesh | None:
+    """The setting of ``scene`` as a mesh in the reference camera's frame (see the module
+    docstring): the dataset's background, the same for every scene (made once), or the
+    plane fitted to the scene's own measured depth."""
     from annotator.annotation.completeness import fit_support_plane
 
     cam = ds.rig.depth_camera
     depth = ds.background_depth
     if depth is not None:
-        rays = cam.pixel_rays(MESH_STEP)
-        z = depth[::MESH_STEP, ::MESH_STEP]
-        pts = rays * z[..., None]
-        pts = pts @ cam.rig_T_cam[:3, :3].T + cam.rig_T_cam[:3, 3]
-        return _grid_mesh(pts, z)
+        hit = _BACKGROUND.get(id(depth))
+        if hit is None or hit[0] is not depth:
+            rays = cam.pixel_rays(MESH_STEP)
+            z = depth[::MESH_STEP, ::MESH_STEP]
+            pts = rays * z[..., None]
+            pts = pts @ cam.rig_T_cam[:3, :3].T + cam.rig_T_cam[:3, 3]
+            _BACKGROUND.clear()
+            hit = _BACKGROUND[id(depth)] = (depth, _grid_mesh(pts, z))
+        return hit[1]
+    measured = scene.read_depth(ds.rig)
     if measured is None:
         return None
     plane = fit_support_plane(cam.pixel_rays(2) * measured[::2, ::2, None])
@@ -77,6 +84,9 @@ def background_mesh(ds: Dataset, measured: np.ndarray | None) -> Mesh | None:
         [c + a * u + b * v for a, b in ((-1e3, -1e3), (1e3, -1e3), (1e3, 1e3), (-1e3, 1e3))]
     )
     return Mesh(corners, np.array([[0, 1, 2], [0, 2, 3]], np.int32))
+
+
+_BACKGROUND: dict[int, tuple[np.ndarray, Mesh]] = {}
 
 
 def _grid_mesh(pts: np.ndarray, z: np.ndarray) -> Mesh:
@@ -123,7 +133,7 @@ def make_twin_scene(
     setup = twin_setup(ds)
     rng = np.random.default_rng([settings.seed, int.from_bytes(scene.id.encode()[:8], "little")])
     surfaces: list[Surface] = []
-    bg = background_mesh(ds, scene.read_depth(ds.rig))
+    bg = background_mesh(ds, scene)
     if bg is not None:
         surfaces.append(Surface(bg, np.eye(4), BACKGROUND_ALBEDO))
     for p in poses:
