@@ -123,3 +123,62 @@ def test_bad_options_give_one_line_and_change_nothing(tmp_path, capsys) -> None:
     assert not (tmp_path / "x").exists()
     assert [p.name for p in existing.iterdir()] == ["keep.txt"]
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
+
+
+def test_marker_texture_matches_a_point_by_point_reference() -> None:
+    """The renderer's texturing (candidate sites per face, affine in the barycentric
+    coordinates) against the definition: a point shows site j's cell if it lies in j's printed
+    square, within 2 mm of its plane, on a face turned the same way (cosine > 0.7)."""
+    from scipy.spatial.transform import Rotation
+
+    from annotator.geometry.camera import Camera
+    from annotator.geometry.transforms import make_transform
+    from annotator.markers.texture import marker_bits
+    from annotator.synthesis.generate import DICTIONARY, SynthConfig, plan_dataset
+    from annotator.synthesis.shading import Surface, render_view
+
+    plan = plan_dataset(SynthConfig(parts=("cylinder", "brick"), instances=(2, 2), seed=4))
+    cam = Camera("c", 480, 400, np.array([[900.0, 0, 239.5], [0, 900.0, 199.5], [0, 0, 1]]))
+    rng = np.random.default_rng(0)
+    for part, layout in zip(plan.parts, plan.layouts):
+        sites = layout.corners
+        bits = np.stack([marker_bits(DICTIONARY, 10 + j) for j in range(len(sites))])
+        for _ in range(3):
+            T = make_transform(Rotation.random(random_state=rng).as_matrix(), [0, 0, 350.0])
+            surf = Surface(part.mesh, T, 0.8, sites, bits)
+            view = render_view(cam, np.eye(4), [surf])
+            p = view.hits.model_points(view.placed)[view.hits.hit]
+            normal_of_hit = part.mesh.face_normals[view.hits.triangle[view.hits.hit]]
+            expected = np.full(len(p), 0.8, np.float32)
+            for j, sq in enumerate(sites):
+                ex, ey = sq[1] - sq[0], sq[3] - sq[0]
+                n = np.cross(ey, ex) / np.linalg.norm(np.cross(ey, ex))
+                s = (p - sq[0]) @ ex / (ex @ ex)
+                t = (p - sq[0]) @ ey / (ey @ ey)
+                d = (p - sq[0]) @ n
+                on = (s >= 0) & (s < 1) & (t >= 0) & (t < 1) & (np.abs(d) < 2.0)
+                on &= normal_of_hit @ n > 0.7
+                c = bits.shape[1]
+                i, k = (
+                    np.minimum((s[on] * c).astype(int), c - 1),
+                    np.minimum((t[on] * c).astype(int), c - 1),
+                )
+                expected[on] = np.where(bits[j, k, i] > 0, 0.92, 0.04)
+            got = view.albedo[view.hits.hit]
+            assert np.mean(expected != 0.8) > 0.02  # markers are in view
+            # Points within float rounding of a cell edge may fall either side.
+            assert np.mean(got != expected) < 2e-3
+            assert np.array_equal(view.on_marker[view.hits.hit], got != 0.8)
+
+
+def test_projector_pattern_is_sampled_like_scipy() -> None:
+    from scipy.ndimage import map_coordinates
+
+    from annotator.synthesis.stereo import _bilinear, dot_pattern
+
+    pattern = dot_pattern(64, 48, seed=3)
+    rng = np.random.default_rng(1)
+    u = rng.uniform(-3, 67, 5000).astype(np.float32)
+    v = rng.uniform(-3, 51, 5000).astype(np.float32)
+    ref = map_coordinates(pattern, [v, u], order=1, mode="constant", cval=0.0)
+    assert np.allclose(_bilinear(pattern, u, v), ref, atol=1e-5)

@@ -153,7 +153,7 @@ def run(args: argparse.Namespace) -> int:
         "instances": sum(r["instances"] for r in report.done.values()),
         "seconds_per_scene": {
             k: round(sum(r[k] for r in report.done.values()) / max(len(report.done), 1), 3)
-            for k in ("physics", "rendering", "depth")
+            for k in ("physics", "rendering", "depth", "occlusion")
         },
         "failures": dict(sorted(report.failed.items())),
     }
@@ -164,6 +164,7 @@ def run(args: argparse.Namespace) -> int:
         t = summary["seconds_per_scene"]
         print(
             f"synth: {summary['scenes']} scenes ({summary['instances']} instances) written to {out}, "
-            f"{summary['failed']} failed; per scene: physics {t['physics']} s, rendering {t['rendering']} s, depth {t['depth']} s"
+            f"{summary['failed']} failed; per scene: physics {t['physics']} s, rendering "
+            f"{t['rendering']} s, depth {t['depth']} s, occlusion rates {t['occlusion']} s"
         )
     return 1 if report.failed else 0

@@ -37,7 +37,14 @@ import numpy as np
 
 from annotator.dataset.model import Rig
 from annotator.geometry.mesh import Mesh
-from annotator.rendering.raycast import NO_HIT, Hits, PlacedMesh, RayScene, projected_bbox
+from annotator.rendering.raycast import (
+    Hits,
+    PlacedMesh,
+    Rect,
+    cast_separately,
+    nearest,
+    projected_bbox,
+)
 
 Box = tuple[int, int, int, int]
 
@@ -75,22 +82,6 @@ class InstanceVisibility:
 AGREEMENT_TOLERANCE_MM = 3.0
 
 
-_MODEL_SCENES: dict[bytes, RayScene] = {}
-
-
-def _cast_alone(mesh: Mesh, cam_T_model: np.ndarray, rays: np.ndarray) -> Hits:
-    """Cast camera rays (..., 3) at one placed mesh: the rays are brought into the model
-    frame, where the mesh's cached ray-casting scene lives (keyed by content: a mesh loaded
-    again reuses it). Depths are unchanged (a rigid motion keeps ray parameters)."""
-    scene = _MODEL_SCENES.get(mesh.digest)
-    if scene is None:
-        if len(_MODEL_SCENES) >= 64:
-            _MODEL_SCENES.clear()
-        scene = _MODEL_SCENES[mesh.digest] = RayScene([PlacedMesh(mesh, np.eye(4))])
-    R, t = cam_T_model[:3, :3], cam_T_model[:3, 3]
-    return scene.cast(rays @ R, origin=-R.T @ t)
-
-
 def _on_grid(box: Box | None, step: int) -> Box | None:
     """A pixel rectangle ``(x0, y0, x1, y1)`` as the range of grid samples ``pixel / step``
     inside it; None if it holds no sample."""
@@ -125,6 +116,7 @@ def scene_visibility(
     masks: bool = False,
     step: int = 1,
     renders: dict[str, tuple[np.ndarray, np.ndarray]] | None = None,
+    casts: dict[str, Sequence[tuple[Rect, Hits] | None]] | None = None,
 ) -> list[InstanceVisibility]:
     """Silhouettes and occlusion of every posed instance (poses: ``rig_T_model`` 4x4).
 
@@ -137,6 +129,9 @@ def scene_visibility(
         renders: If given, receives per camera the scene as the poses render it: at each
             sample, the depth (mm) of the nearest instance (inf where none) and its index
             (``NO_HIT`` where none).
+        casts: Per camera, each instance cast alone over its rectangle (what
+            :func:`cast_separately` returns, with the rectangle), when it has already been
+            done at ``step=1`` (by the synthetic renderer); missing cameras are cast here.
     """
     if masks and step != 1:
         raise ValueError("masks need step=1")
@@ -148,22 +143,18 @@ def scene_visibility(
         cam = rig.camera(name)
         placed = [PlacedMesh(m, cam.cam_T_rig @ T) for m, T in zip(meshes, poses)]
         rays = cam.pixel_rays(step)
-        boxes = [_on_grid(projected_bbox(cam, pm.mesh, pm.cam_T_model), step) for pm in placed]
-        # Every instance alone over its box, then a depth buffer of all of them (on equal
-        # depths the first instance wins, so that visible parts never overlap).
-        alone: list[tuple[np.ndarray, np.ndarray] | None] = []
-        zbuf = np.full(rays.shape[:2], np.inf, np.float32)
-        front = np.full(rays.shape[:2], NO_HIT, np.int32)
-        for k, (pm, box) in enumerate(zip(placed, boxes)):
-            if box is None:
-                alone.append(None)
-                continue
-            x0, y0, x1, y1 = box
-            hits = _cast_alone(pm.mesh, pm.cam_T_model, rays[y0:y1, x0:x1])
-            alone.append((hits.hit, hits.depth))
-            closer = hits.depth < zbuf[y0:y1, x0:x1]
-            zbuf[y0:y1, x0:x1][closer] = hits.depth[closer]
-            front[y0:y1, x0:x1][closer] = k
+        done = casts.get(name) if casts is not None and step == 1 else None
+        if done is not None:
+            boxes = [None if c is None else c[0] for c in done]
+            own = [None if c is None else c[1] for c in done]
+            together = nearest(rays.shape[:2], boxes, own)
+        else:
+            boxes = [_on_grid(projected_bbox(cam, pm.mesh, pm.cam_T_model), step) for pm in placed]
+            # Every instance alone over its box, then a depth buffer of all of them (on equal
+            # depths the first instance wins, so that visible parts never overlap).
+            together, own = cast_separately(rays, placed, boxes)
+        zbuf, front = together.depth, together.instance
+        alone = [None if h is None else (h.hit, h.depth) for h in own]
         if renders is not None:
             renders[name] = (zbuf, front)
         use_depth = depth is not None and name == depth_cam

@@ -17,6 +17,7 @@ from annotator.dataset.model import Instance, Rig
 from annotator.dataset.poses import InstancePose, write_poses
 from annotator.dataset.write import write_dataset_yaml, write_object_yaml
 from annotator.errors import UserError
+from annotator.geometry.camera import Camera
 from annotator.geometry.mesh import Mesh
 from annotator.geometry.transforms import invert
 from annotator.io.images import encode_depth, write_png
@@ -24,7 +25,7 @@ from annotator.markers.layout import MarkerLayout, assign_ids, place_markers
 from annotator.markers.texture import dictionary_size, marker_bits
 from annotator.occlusion import scene_visibility
 from annotator.parts import Part, build_part
-from annotator.rendering.raycast import PlacedMesh, RayScene
+from annotator.rendering.raycast import PlacedMesh
 from annotator.synthesis.physics import Bin, drop_parts
 from annotator.synthesis.rig import RigSetup, make_rig
 from annotator.synthesis.shading import Surface, finish_image, render_intensity, render_view
@@ -66,6 +67,7 @@ class SceneTiming:
     physics: float = 0.0
     rendering: float = 0.0
     depth: float = 0.0
+    occlusion: float = 0.0
 
 
 def plan_dataset(config: SynthConfig) -> DatasetPlan:
@@ -115,13 +117,19 @@ def write_dataset_files(plan: DatasetPlan, root: Path) -> None:
     rig = plan.setup.rig
     if plan.config.depth and rig.depth is not None:
         surfaces = _setting(plan)
-        views = []
-        for cam, world_T_cam in zip(rig.cameras, plan.setup.world_T_cams):
-            cam_T_world = invert(world_T_cam)
-            scene = RayScene([PlacedMesh(s.mesh, cam_T_world @ s.world_T_model) for s in surfaces])
-            views.append(render_view(cam, cam_T_world, surfaces, scene))
+        views = [
+            render_view(cam, invert(world_T_cam), surfaces, fixed=len(surfaces))
+            for cam, world_T_cam in zip(rig.cameras, plan.setup.world_T_cams)
+        ]
         rng = np.random.default_rng([plan.config.seed, 1 << 30])
-        depth = simulate_depth(plan.setup, surfaces, views, rng, pattern_seed=plan.config.seed + 7)
+        depth = simulate_depth(
+            plan.setup,
+            surfaces,
+            views,
+            rng,
+            pattern_seed=plan.config.seed + 7,
+            fixed=len(surfaces),
+        )
         write_png(root / BACKGROUND_DEPTH, encode_depth(depth, rig.depth.scale))
         rig = replace(rig, depth=replace(rig.depth, background=BACKGROUND_DEPTH))
     write_dataset_yaml(
@@ -176,6 +184,7 @@ def make_scene(
     timing.physics = time.perf_counter() - t0
 
     surfaces = _setting(plan)
+    fixed = len(surfaces)
     poses: list[InstancePose] = []
     for k, (p, copy) in enumerate(chosen):
         if world_T[k] is None:
@@ -194,7 +203,7 @@ def make_scene(
     views = []
     for cam, world_T_cam in zip(plan.setup.rig.cameras, plan.setup.world_T_cams):
         img, view = render_intensity(
-            cam, invert(world_T_cam), surfaces, supersample=cfg.supersample
+            cam, invert(world_T_cam), surfaces, supersample=cfg.supersample, fixed=fixed
         )
         write_png(
             folder / f"{cam.name}.png", finish_image(img, blur=cfg.blur, noise=cfg.noise, rng=rng)
@@ -204,7 +213,9 @@ def make_scene(
 
     if cfg.depth:
         t0 = time.perf_counter()
-        depth = simulate_depth(plan.setup, surfaces, views, rng, pattern_seed=plan.config.seed + 7)
+        depth = simulate_depth(
+            plan.setup, surfaces, views, rng, pattern_seed=plan.config.seed + 7, fixed=fixed
+        )
         write_png(folder / "depth.png", encode_depth(depth, plan.setup.rig.depth.scale))
         # The exact depth of everything (parts, bin, clutter), for comparison with the sensor's.
         write_png(
@@ -212,19 +223,29 @@ def make_scene(
             encode_depth(views[0].hits.depth, plan.setup.rig.depth.scale),
         )
         timing.depth = time.perf_counter() - t0
+    t0 = time.perf_counter()
     meshes = [plan.parts[plan.config.parts.index(p.object)].mesh for p in poses]
-    add_true_occlusion(plan.setup.rig, poses, meshes, views[0].hits.depth)
+    # The posed parts follow the fixed surfaces: their casts serve the occlusion rates.
+    casts = {cam.name: view.own[: len(poses)] for cam, view in zip(plan.setup.rig.cameras, views)}
+    add_true_occlusion(plan.setup.rig, poses, meshes, views[0].hits.depth, casts=casts)
+    timing.occlusion = time.perf_counter() - t0
     write_poses(folder / "gt.json", poses, format=1)
     return poses, timing
 
 
 def add_true_occlusion(
-    rig: Rig, poses: list[InstancePose], meshes: list[Mesh], ideal_depth: np.ndarray
+    rig: Rig,
+    poses: list[InstancePose],
+    meshes: list[Mesh],
+    ideal_depth: np.ndarray,
+    *,
+    casts: dict[str, list] | None = None,
 ) -> None:
     """Set each pose's true ``occlusion`` (``{"rate", "per_camera"}``): the posed instances
     occlude each other, and the exact depth of everything else (bin walls, clutter) hides
-    what lies behind it."""
-    vis = scene_visibility(rig, meshes, [p.T for p in poses], depth=ideal_depth)
+    what lies behind it. ``casts``: the instances' own casts per camera, when the renderer
+    made them (see :func:`scene_visibility`)."""
+    vis = scene_visibility(rig, meshes, [p.T for p in poses], depth=ideal_depth, casts=casts)
     for p, v in zip(poses, vis):
         p.extra["occlusion"] = {
             "rate": round(v.occlusion, 4),
@@ -239,15 +260,18 @@ def simulate_depth(
     rng: np.random.Generator,
     *,
     pattern_seed: int,
+    fixed: int = 0,
 ) -> np.ndarray:
-    """Active-stereo depth on the reference camera's pixel grid (mm, NaN = hole)."""
+    """Active-stereo depth on the reference camera's pixel grid (mm, NaN = hole). ``fixed``:
+    the leading surfaces that are the same in every scene (see :func:`render_view`)."""
     w, h = setup.projector_size
     pattern = dot_pattern(w, h, seed=pattern_seed)
     projector_T_world = invert(setup.world_T_projector)
-    projector_scene = RayScene(
-        [PlacedMesh(s.mesh, projector_T_world @ s.world_T_model) for s in surfaces]
+    shadows = ShadowMap.render(
+        Camera("projector", w, h, setup.projector_K),
+        [PlacedMesh(s.mesh, projector_T_world @ s.world_T_model) for s in surfaces],
+        fixed=fixed,
     )
-    shadows = ShadowMap.cast(projector_scene, setup.projector_K, setup.projector_size)
     imgs = []
     for cam, world_T_cam, view in zip(setup.rig.cameras, setup.world_T_cams, views):
         img = pattern_image(

@@ -8,15 +8,22 @@ through the distorted image), which is what keeps the detected marker corners un
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
-from scipy.spatial import cKDTree
 
 from annotator.geometry.camera import Camera
 from annotator.geometry.mesh import Mesh
-from annotator.rendering.raycast import Hits, PlacedMesh, RayScene
+from annotator.rendering.raycast import (
+    Hits,
+    PlacedMesh,
+    RayScene,
+    Rect,
+    cast_separately,
+    projected_bbox,
+    render_once,
+)
 
 
 @dataclass(frozen=True)
@@ -47,6 +54,9 @@ class View:
     normals_cam: np.ndarray  # (H, W, 3) unit normals in the camera frame (0 on a miss)
     albedo: np.ndarray  # (H, W) diffuse albedo, markers included
     on_marker: np.ndarray  # (H, W) bool: the pixel centre is on a marker
+    #: Per surface after the fixed ones: its pixel rectangle and its own hits there, cast
+    #: alone (None when out of view); occlusion rates are computed from these.
+    own: list[tuple[Rect, Hits] | None] = field(default_factory=list)
 
 
 def _albedo(
@@ -54,136 +64,165 @@ def _albedo(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Albedo at each hit (markers textured) and whether the hit is on a marker.
 
-    Only hits on triangles that can reach a marker site are looked at (see
-    :func:`_site_faces`): on a part most of the surface carries no marker.
+    Only hits on faces that can hold a point of a marker (see :func:`_face_sites`) are
+    looked at: on a part most of the surface carries no marker. A hit's position in a
+    site's printed square is an affine function of its barycentric coordinates, so the
+    test needs no 3D point.
     """
     base = np.array([s.albedo for s in surfaces] + [0.0], np.float32)
     albedo = base[hits.instance]  # NO_HIT = -1 picks the trailing 0
     on_marker = np.zeros(hits.instance.shape, bool)
-    a_flat = albedo.reshape(-1)
-    m_flat = on_marker.reshape(-1)
-    instance = hits.instance.reshape(-1)
-    triangle = hits.triangle.reshape(-1)
-    marked = [
-        _site_faces(s.mesh, s.sites) != -1
-        if s.sites is not None and len(s.sites)
-        else np.zeros(len(s.mesh.faces), bool)
-        for s in surfaces
-    ]
-    offsets = np.cumsum([0] + [len(m) for m in marked])
-    hit = np.flatnonzero(instance >= 0)
-    near = hit[np.concatenate(marked)[offsets[instance[hit]] + triangle[hit]]]
-    if len(near) == 0:
+    textured = _textured(surfaces)
+    if textured is None:
         return albedo, on_marker
-    order = near[np.argsort(instance[near], kind="stable")]
-    bounds = np.searchsorted(instance[order], np.arange(len(surfaces) + 1))
-    for k, surf in enumerate(surfaces):
-        rows = order[bounds[k] : bounds[k + 1]]
-        if len(rows) == 0:
-            continue
-        face_site = _site_faces(surf.mesh, surf.sites)
-        tri_ids = triangle[rows]
-        uv = hits.barycentric.reshape(-1, 2)[rows]
-        tri = _triangles32(surf.mesh)[tri_ids]  # model frame
-        p = (
-            (1.0 - uv[:, :1] - uv[:, 1:]) * tri[:, 0]
-            + uv[:, :1] * tri[:, 1]
-            + uv[:, 1:] * tri[:, 2]
-        )
-        # Sites never overlap (their circumscribed circles are disjoint), so the only site that
-        # can contain a point is the one with the nearest centre: the face's own site when it
-        # meets just one, else the nearest one.
-        idx = face_site[tri_ids]
-        several = idx == MANY_SITES
-        if several.any():
-            # argmin |p - c|^2 = argmin (|c|^2 - 2 p.c): one small product, several times
-            # faster than a KD-tree query for a part's dozen sites.
-            centres = surf.sites.mean(axis=1).astype(np.float32)
-            q = p[several]  # (not a matrix product: BLAS would spread it over every core)
-            score = (centres * centres).sum(1) - 2.0 * (
-                q[:, :1] * centres[:, 0] + q[:, 1:2] * centres[:, 1] + q[:, 2:] * centres[:, 2]
-            )
-            idx[several] = score.argmin(axis=1)
-        # The point in the site's own coordinates: (s, t) across the printed square, d off it.
-        frame, origin, normal = (a.astype(np.float32) for a in _site_frames(surf.sites))
-        sd = np.einsum("nij,nj->ni", frame[idx], p - origin[idx])
-        tri_n = surf.mesh.face_normals[tri_ids]
-        inside = (
-            (sd[:, 0] >= 0)
-            & (sd[:, 0] < 1)
-            & (sd[:, 1] >= 0)
-            & (sd[:, 1] < 1)
-            & (np.abs(sd[:, 2]) < 2.0)
-            & ((tri_n * normal[idx]).sum(1) > 0.7)
-        )
-        c = surf.bits.shape[1]
-        ij = np.minimum((sd[inside, :2] * c).astype(int), c - 1)
-        target = rows[inside]
-        a_flat[target] = np.where(surf.bits[idx[inside], ij[:, 1], ij[:, 0]] > 0, 0.92, 0.04)
-        m_flat[target] = True
+    face_offset, count, first, site, affine, bits = textured
+    instance = hits.instance.reshape(-1)
+    hit = np.flatnonzero(instance >= 0)
+    face = face_offset[instance[hit]] + hits.triangle.reshape(-1)[hit]
+    n = count[face]
+    keep = n > 0
+    rows, face, n = hit[keep], face[keep], n[keep]
+    uv = hits.barycentric.reshape(-1, 2)[rows]
+    u, v = uv[:, 0], uv[:, 1]
+    pair = first[face]
+    # Sites never overlap, so at most one of a face's candidate sites holds a point: try the
+    # first candidate of every point, then the second of the points on faces with two or more.
+    todo = np.arange(len(rows))
+    found_rows, found_site, found_st = [], [], []
+    for k in range(int(n.max(initial=0))):
+        A = affine[pair[todo] + k]  # (m, 3, 3): (s, t, d) = A @ (1, u, v)
+        uk, vk = u[todo], v[todo]
+        s = A[:, 0, 0] + A[:, 0, 1] * uk + A[:, 0, 2] * vk
+        t = A[:, 1, 0] + A[:, 1, 1] * uk + A[:, 1, 2] * vk
+        d = A[:, 2, 0] + A[:, 2, 1] * uk + A[:, 2, 2] * vk
+        inside = (s >= 0) & (s < 1) & (t >= 0) & (t < 1) & (np.abs(d) < MARKER_SLAB)
+        found_rows.append(rows[todo[inside]])
+        found_site.append(site[pair[todo[inside]] + k])
+        found_st.append(np.stack([s[inside], t[inside]], axis=1))
+        todo = todo[~inside & (n[todo] > k + 1)]
+    target = np.concatenate(found_rows)
+    sites = np.concatenate(found_site)
+    c = bits.shape[1]
+    ij = np.minimum((np.concatenate(found_st) * c).astype(int), c - 1)
+    a_flat, m_flat = albedo.reshape(-1), on_marker.reshape(-1)
+    a_flat[target] = np.where(bits[sites, ij[:, 1], ij[:, 0]] > 0, 0.92, 0.04)
+    m_flat[target] = True
     return albedo, on_marker
 
 
-def _site_frames(sites: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Per site: the matrix taking ``p - TL`` to ``(s, t, d)`` (fractions along TL->TR and
-    TL->BL, distance along the outward normal), the top-left corner, and the normal."""
+#: A point is on a marker if it lies within this distance (mm) of the site's plane (a curved
+#: part's surface bends away from the flat printed square).
+MARKER_SLAB = 2.0
+#: ... and if its face is within about 45 degrees of the site's orientation (cosine).
+MARKER_FACING = 0.7
+
+
+def _textured(
+    surfaces: Sequence[Surface],
+) -> tuple[np.ndarray, ...] | None:
+    """The candidate sites of every face of every surface, as flat arrays indexed by
+    ``face_offset[surface] + triangle`` (count and first pair), by pair (site, affine map),
+    and by site (bits); None when no surface has a marker."""
+    face_offset = np.cumsum([0] + [len(s.mesh.faces) for s in surfaces])
+    counts, firsts, sites, affines, bits = [], [], [], [], []
+    pairs = site_base = 0
+    for s in surfaces:
+        if s.sites is None or not len(s.sites):
+            counts.append(np.zeros(len(s.mesh.faces), np.int32))
+            firsts.append(np.zeros(len(s.mesh.faces), np.int32))
+            continue
+        fs = _face_sites(s.mesh, s.sites)
+        counts.append(fs.count)
+        firsts.append(fs.first + pairs)
+        sites.append(fs.site + site_base)
+        affines.append(fs.affine)
+        bits.append(s.bits)
+        pairs += len(fs.site)
+        site_base += len(s.bits)
+    if not bits:
+        return None
+    return (
+        face_offset,
+        np.concatenate(counts),
+        np.concatenate(firsts),
+        np.concatenate(sites),
+        np.concatenate(affines),
+        np.concatenate(bits),
+    )
+
+
+@dataclass(frozen=True)
+class FaceSites:
+    """For each face of a mesh, the marker sites a point of the face can lie on.
+
+    Attributes:
+        count: (F,) how many candidate sites the face has (0 for most faces).
+        first: (F,) the index of the face's first (face, site) pair; a face's pairs follow
+            each other.
+        site: (P,) the site of each pair.
+        affine: (P, 3, 3) float32 per pair: ``(s, t, d) = affine @ (1, u, v)`` takes a point's
+            barycentric coordinates ``(u, v)`` on the face (``p = (1-u-v) a + u b + v c``) to
+            its position across the printed square (``s`` along TL->TR and ``t`` along TL->BL,
+            both in [0, 1) on the square) and its distance ``d`` (mm) along the site's outward
+            normal.
+    """
+
+    count: np.ndarray
+    first: np.ndarray
+    site: np.ndarray
+    affine: np.ndarray
+
+
+_FACE_SITES: dict[tuple[bytes, bytes], FaceSites] = {}
+
+
+def _face_sites(mesh: Mesh, sites: np.ndarray) -> FaceSites:
+    """The candidate sites of each face: facing the same way as the site (within
+    :data:`MARKER_FACING`) and with the triangle reaching the site's square and slab (tested on
+    its corners: (s, t, d) are affine on the triangle). Cached per mesh and layout."""
+    key = (mesh.digest, np.ascontiguousarray(sites).tobytes())
+    cached = _FACE_SITES.get(key)
+    if cached is not None:
+        return cached
     tl = sites[:, 0]
     ex, ey = sites[:, 1] - tl, sites[:, 3] - tl
-    n = np.cross(ey, ex)
-    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    normal = np.cross(ey, ex)
+    normal /= np.linalg.norm(normal, axis=1, keepdims=True)
     frame = np.stack(
-        [ex / (ex * ex).sum(1, keepdims=True), ey / (ey * ey).sum(1, keepdims=True), n], axis=1
+        [ex / (ex * ex).sum(1, keepdims=True), ey / (ey * ey).sum(1, keepdims=True), normal],
+        axis=1,
+    )  # (S, 3, 3): p - TL -> (s, t, d)
+    # (F, S, 3 corners, 3 coordinates)
+    corners = np.einsum("sij,fskj->fski", frame, mesh.triangles[:, None] - tl[None, :, None])
+    lo, hi = corners.min(axis=2), corners.max(axis=2)
+    reaches = (
+        (hi[..., 0] >= 0)
+        & (lo[..., 0] < 1)
+        & (hi[..., 1] >= 0)
+        & (lo[..., 1] < 1)
+        & (hi[..., 2] > -MARKER_SLAB)
+        & (lo[..., 2] < MARKER_SLAB)
+        & (mesh.face_normals @ normal.T > MARKER_FACING)
     )
-    return frame, tl, n
-
-
-_TRIANGLES32: dict[bytes, np.ndarray] = {}
-
-
-def _triangles32(mesh: Mesh) -> np.ndarray:
-    """The mesh's triangles in float32 (half the memory traffic per textured point)."""
-    tri = _TRIANGLES32.get(mesh.digest)
-    if tri is None:
-        if len(_TRIANGLES32) > 64:
-            _TRIANGLES32.clear()
-        tri = _TRIANGLES32[mesh.digest] = mesh.triangles.astype(np.float32)
-    return tri
-
-
-MANY_SITES = -2
-_SITE_FACES: dict[tuple[bytes, bytes], np.ndarray] = {}
-
-
-def _site_faces(mesh: Mesh, sites: np.ndarray) -> np.ndarray:
-    """For each face of ``mesh``: the one marker site whose circumscribed sphere it meets, -1
-    if none, ``MANY_SITES`` if several. Cached."""
-    key = (mesh.digest, np.ascontiguousarray(sites).tobytes())
-    hit = _SITE_FACES.get(key)
-    if hit is None:
-        centres = sites.mean(axis=1)
-        radius = np.linalg.norm(sites - centres[:, None], axis=2).max(axis=1)
-        tri = mesh.triangles
-        tc = tri.mean(axis=1)
-        tr = np.linalg.norm(tri - tc[:, None], axis=2).max(axis=1)
-        tree = cKDTree(centres)
-        face_site = np.full(len(tri), -1)
-        for f, js in enumerate(tree.query_ball_point(tc, r=tr + radius.max() + 2.0)):
-            meets = [j for j in js if np.linalg.norm(tc[f] - centres[j]) <= tr[f] + radius[j] + 2.0]
-            if meets:
-                face_site[f] = meets[0] if len(meets) == 1 else MANY_SITES
-        if len(_SITE_FACES) > 256:
-            _SITE_FACES.clear()
-        hit = _SITE_FACES[key] = face_site
-    return hit
+    face, site = np.nonzero(reaches)  # row-major: a face's pairs are consecutive
+    count = np.bincount(face, minlength=len(mesh.faces)).astype(np.int32)
+    first = (np.cumsum(count) - count).astype(np.int32)
+    a, b, c = (corners[face, site, k] for k in range(3))
+    affine = np.stack([a, b - a, c - a], axis=2).astype(np.float32)
+    if len(_FACE_SITES) > 256:
+        _FACE_SITES.clear()
+    cached = _FACE_SITES[key] = FaceSites(count, first, site.astype(np.int32), affine)
+    return cached
 
 
 def _shade(
     albedo: np.ndarray, normals: np.ndarray, rays: np.ndarray, hit: np.ndarray, ambient: float
 ) -> np.ndarray:
     """Lambert shading with a light at the camera centre (direction towards the camera = -ray)."""
-    d = rays / np.linalg.norm(rays, axis=-1, keepdims=True)
-    lambert = np.clip(-(normals * d).sum(axis=-1), 0.0, 1.0)
-    img = albedo * (ambient + (1.0 - ambient) * lambert)
+    x, y, z = (rays[..., i] for i in range(3))
+    towards = normals[..., 0] * x + normals[..., 1] * y + normals[..., 2] * z
+    lambert = np.clip(-towards / np.sqrt(x * x + y * y + z * z), 0.0, 1.0)
+    img = albedo * (np.float32(ambient) + np.float32(1.0 - ambient) * lambert)
     img[~hit] = 0.0
     return img
 
@@ -192,14 +231,30 @@ def render_view(
     camera: Camera,
     cam_T_world: np.ndarray,
     surfaces: Sequence[Surface],
-    scene: RayScene | None = None,
+    *,
+    fixed: int = 0,
 ) -> View:
-    """Cast one ray per pixel centre; albedo (markers included) and normals per pixel."""
+    """Cast one ray per pixel centre; albedo (markers included) and normals per pixel.
+
+    The first ``fixed`` surfaces are the scene's surroundings, the same in every scene (a
+    table, a bin): they are rendered once per camera and kept (:func:`render_once`). Each
+    other surface is cast alone over its projected rectangle (:func:`cast_separately`).
+    """
     placed = [PlacedMesh(s.mesh, cam_T_world @ s.world_T_model) for s in surfaces]
-    scene = scene or RayScene(placed)
-    hits = scene.cast(camera.pixel_rays())
+    behind = render_once(camera, placed[:fixed]) if fixed else None
+    rects = [projected_bbox(camera, pm.mesh, pm.cam_T_model) for pm in placed[fixed:]]
+    hits, own = cast_separately(
+        camera.pixel_rays(), placed[fixed:], rects, behind=behind, first=fixed
+    )
     albedo, on_marker = _albedo(surfaces, placed, hits)
-    return View(hits, placed, hits.normals(placed), albedo, on_marker)
+    return View(
+        hits,
+        placed,
+        hits.normals(placed),
+        albedo,
+        on_marker,
+        [None if r is None or h is None else (r, h) for r, h in zip(rects, own)],
+    )
 
 
 def render_intensity(
@@ -209,11 +264,12 @@ def render_intensity(
     *,
     supersample: int = 4,
     ambient: float = 0.25,
+    fixed: int = 0,
 ) -> tuple[np.ndarray, View]:
-    """Render a float32 intensity image in [0, 1] (no blur, no noise) and the centre-ray view."""
-    placed = [PlacedMesh(s.mesh, cam_T_world @ s.world_T_model) for s in surfaces]
-    scene = RayScene(placed)
-    view = render_view(camera, cam_T_world, surfaces, scene)
+    """Render a float32 intensity image in [0, 1] (no blur, no noise) and the centre-ray view
+    (``fixed``: see :func:`render_view`)."""
+    view = render_view(camera, cam_T_world, surfaces, fixed=fixed)
+    placed = view.placed
     rays = camera.pixel_rays()
     img = _shade(view.albedo, view.normals_cam, rays, view.hits.hit, ambient)
     if supersample > 1 and np.any(view.on_marker):
@@ -227,6 +283,7 @@ def render_intensity(
         vs, us = np.nonzero(near)
         offs = (np.arange(supersample) + 0.5) / supersample - 0.5
         acc = np.zeros(len(us), np.float64)
+        scene = RayScene(placed)
         for dy in offs:
             for dx in offs:
                 sub_rays = _interpolate_rays(rays, us + dx, vs + dy)

@@ -9,16 +9,16 @@ only, steep surfaces.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from functools import lru_cache
 
 import cv2
 import numpy as np
-from scipy.ndimage import map_coordinates
 
 from annotator.geometry.camera import Camera
 from annotator.geometry.transforms import invert
-from annotator.rendering.raycast import RayScene
+from annotator.rendering.raycast import PlacedMesh, cast_separately, projected_bbox, render_once
 from annotator.synthesis.shading import View
 
 
@@ -39,30 +39,29 @@ class ShadowMap:
     K: np.ndarray
 
     @classmethod
-    def cast(
-        cls, scene: RayScene, K: np.ndarray, size: tuple[int, int], *, scale: float = 1.0
+    def render(
+        cls, projector: Camera, placed: Sequence[PlacedMesh], *, fixed: int = 0
     ) -> ShadowMap:
-        """``scene`` in the projector's frame; ``K`` its pinhole intrinsics; the map has
-        ``scale`` times the projector's resolution (1: shadow edges within a projector
-        pixel; 0.5 casts a quarter of the rays, at the cost of blunter shadow edges)."""
-        K = K.copy()
-        K[:2] *= scale
-        K[:2, 2] += 0.5 * scale - 0.5  # pixel centres at integer coordinates at both scales
-        w, h = int(round(size[0] * scale)), int(round(size[1] * scale))
-        u, v = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
-        rays = np.stack([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1], np.ones_like(u)], -1)
-        return cls(scene.cast(rays).depth, K)
+        """``placed`` in the frame of the ``projector`` (a distortion-free camera: one ray
+        per pixel of its slide); the first ``fixed`` meshes are the scene's unchanging
+        surroundings (see :func:`annotator.synthesis.shading.render_view`)."""
+        behind = render_once(projector, placed[:fixed]) if fixed else None
+        rects = [projected_bbox(projector, pm.mesh, pm.cam_T_model) for pm in placed[fixed:]]
+        hits, _ = cast_separately(
+            projector.pixel_rays(), placed[fixed:], rects, behind=behind, first=fixed
+        )
+        return cls(hits.depth, projector.K)
 
-    def lit(self, p: np.ndarray, tolerance: float = 1.0) -> np.ndarray:
-        """True for points ``p`` (N, 3, projector frame) that no other surface hides from the
-        projector (nearest map pixel; ``tolerance`` mm plus a slope bias of two pixels'
-        footprint)."""
+    def lit(
+        self, u: np.ndarray, v: np.ndarray, z: np.ndarray, tolerance: float = 1.0
+    ) -> np.ndarray:
+        """True for points at projector pixel ``(u, v)`` and z-depth ``z`` (mm) that no other
+        surface hides from the projector (nearest map pixel; ``tolerance`` mm plus a slope
+        bias of two pixels' footprint)."""
         h, w = self.depth.shape
-        z = p[:, 2]
-        uv = p[:, :2] / z[:, None] * self.K[[0, 1], [0, 1]] + self.K[:2, 2]
-        iu = np.clip(np.rint(uv[:, 0]).astype(int), 0, w - 1)
-        iv = np.clip(np.rint(uv[:, 1]).astype(int), 0, h - 1)
-        bias = tolerance + 2.0 * z / self.K[0, 0]
+        iu = np.clip(np.rint(u), 0, w - 1).astype(np.intp)
+        iv = np.clip(np.rint(v), 0, h - 1).astype(np.intp)
+        bias = np.float32(tolerance) + z * np.float32(2.0 / self.K[0, 0])
         return z <= self.depth[iv, iu] + bias
 
 
@@ -77,27 +76,74 @@ def pattern_image(
     shadows: ShadowMap | None = None,
 ) -> np.ndarray:
     """What ``camera`` sees of the projected pattern (float32, 0..1), ambient included; with
-    ``shadows``, the points the projector cannot see stay in its shadow."""
+    ``shadows``, the points the projector cannot see stay in its shadow.
+
+    Computed on the whole pixel grid in float32, one coordinate plane at a time (a pixel the
+    camera's ray misses is set to 0 at the end).
+    """
     hit = view.hits.hit
-    rays = camera.pixel_rays()[hit]
-    p_cam = rays * view.hits.depth[hit][:, None]
-    proj_T_cam = (projector_T_world @ world_T_cam).astype(np.float32)
-    p_proj = p_cam @ proj_T_cam[:3, :3].T + proj_T_cam[:3, 3]
-    uv = p_proj[:, :2] / p_proj[:, 2:3] @ projector_K[:2, :2].T.astype(np.float32)
-    uv += projector_K[:2, 2].astype(np.float32)
-    # OpenCV's remap limits maps to 32767 rows: sample with scipy instead.
-    lit = map_coordinates(pattern, [uv[:, 1], uv[:, 0]], order=1, mode="constant", cval=0.0).astype(
-        np.float32
-    )
+    d = np.where(hit, view.hits.depth, np.float32(1.0))
+    proj_T_cam = projector_T_world @ world_T_cam
+    rays = camera.pixel_rays()
+    # The point in the projector's frame: p = d * (R ray) + t.
+    q = _rotated_rays(camera, proj_T_cam[:3, :3])
+    t = proj_T_cam[:3, 3].astype(np.float32)
+    x, y, z = (q[i] * d + t[i] for i in range(3))
+    K = projector_K.astype(np.float32)
+    u = (K[0, 0] * x + K[0, 1] * y) / z + K[0, 2]
+    v = K[1, 1] * y / z + K[1, 2]
+    lit = _bilinear(pattern, u, v)
     if shadows is not None:
-        lit[~shadows.lit(p_proj)] = 0.0
-    # Lambert towards the projector, in the projector's frame.
-    n_proj = view.normals_cam[hit] @ proj_T_cam[:3, :3].T
-    cos = np.clip(-(n_proj * p_proj).sum(axis=1) / np.linalg.norm(p_proj, axis=1), 0.0, 1.0)
-    albedo = np.maximum(view.albedo[hit], 0.25)
-    img = np.zeros(hit.shape, np.float32)
-    img[hit] = albedo * (0.08 + 0.92 * lit * cos)
-    return img
+        lit[~shadows.lit(u, v, z)] = 0.0
+    # Lambert towards the projector: the normal against the direction from the projector,
+    # n . (p_cam - c) with c the projector's centre in the camera's frame.
+    c = (-proj_T_cam[:3, :3].T @ proj_T_cam[:3, 3]).astype(np.float32)
+    n = view.normals_cam
+    towards = (
+        n[..., 0] * (rays[..., 0] * d - c[0])
+        + n[..., 1] * (rays[..., 1] * d - c[1])
+        + n[..., 2] * (d - c[2])
+    )
+    cos = np.clip(-towards / np.sqrt(x * x + y * y + z * z), 0.0, 1.0)
+    img = np.maximum(view.albedo, np.float32(0.25)) * (0.08 + 0.92 * lit * cos)
+    img[~hit] = 0.0
+    return img.astype(np.float32, copy=False)
+
+
+_ROTATED: dict[tuple, np.ndarray] = {}
+
+
+def _rotated_rays(camera: Camera, R: np.ndarray) -> np.ndarray:
+    """``R @ ray`` for every pixel ray of ``camera``, as three float32 planes (3, H, W); kept
+    per camera and rotation (a rig's cameras and projector do not move)."""
+    key = (camera.size, camera.K.tobytes(), np.asarray(camera.dist, float).tobytes())
+    key += (np.asarray(R, float).tobytes(),)
+    out = _ROTATED.get(key)
+    if out is None:
+        rays = camera.pixel_rays()
+        out = np.ascontiguousarray(np.moveaxis(rays @ R.T.astype(np.float32), -1, 0))
+        if len(_ROTATED) > 8:
+            _ROTATED.clear()
+        _ROTATED[key] = out
+    return out
+
+
+def _bilinear(image: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """``image`` (float32) sampled at ``(u, v)`` (pixel centres at integer coordinates) by
+    bilinear interpolation; 0 outside ``[0, w - 1] x [0, h - 1]`` (scipy's ``map_coordinates``
+    with ``order=1, mode="constant"``)."""
+    h, w = image.shape
+    inside = (u >= 0) & (u <= w - 1) & (v >= 0) & (v <= h - 1)
+    u0 = np.clip(np.floor(u), 0, w - 2)
+    v0 = np.clip(np.floor(v), 0, h - 2)
+    fu, fv = u - u0, v - v0
+    i = v0.astype(np.intp) * w + u0.astype(np.intp)
+    flat = image.reshape(-1)
+    top = flat[i] * (1 - fu) + flat[i + 1] * fu
+    bottom = flat[i + w] * (1 - fu) + flat[i + w + 1] * fu
+    out = top * (1 - fv) + bottom * fv
+    out[~inside] = 0.0
+    return out
 
 
 @dataclass(frozen=True)
@@ -136,11 +182,8 @@ def _rectify(cam1: Camera, cam2: Camera) -> Rectification:
     )
     m1 = cv2.initUndistortRectifyMap(cam1.K, cam1.dist, R1, P1, size, cv2.CV_32FC1)
     m2 = cv2.initUndistortRectifyMap(cam2.K, cam2.dist, R2, P2, size, cv2.CV_32FC1)
-    u, v = np.meshgrid(
-        np.arange(cam1.width, dtype=np.float64), np.arange(cam1.height, dtype=np.float64)
-    )
-    xy = cam1.undistort_pixels(np.stack([u, v], axis=-1)).reshape(-1, 2)
-    ray = np.column_stack([xy, np.ones(len(xy))]) @ R1.T
+    # The reference pixels' rays, undistorted already (float32: 1e-4 px at these focals).
+    ray = cam1.pixel_rays().reshape(-1, 3).astype(np.float64) @ R1.T
     ref_in_rect = (ray[:, :2] / ray[:, 2:3] * P1[0, 0] + P1[:2, 2]).reshape(
         cam1.height, cam1.width, 2
     )

@@ -136,6 +136,7 @@ def make_twin_scene(
     bg = background_mesh(ds, scene)
     if bg is not None:
         surfaces.append(Surface(bg, np.eye(4), BACKGROUND_ALBEDO))
+    fixed = len(surfaces)  # the background, rendered once per camera while it stays the same
     for p in poses:
         obj = ds.objects[p.object]
         ids = obj.instance(p.instance).marker_ids
@@ -145,7 +146,11 @@ def make_twin_scene(
     views = []
     for cam, world_T_cam in zip(ds.rig.cameras, setup.world_T_cams):
         img, view = render_intensity(
-            cam, np.linalg.inv(world_T_cam), surfaces, supersample=settings.supersample
+            cam,
+            np.linalg.inv(world_T_cam),
+            surfaces,
+            supersample=settings.supersample,
+            fixed=fixed,
         )
         write_png(
             out / f"{cam.name}.png",
@@ -153,7 +158,9 @@ def make_twin_scene(
         )
         views.append(view)
     if ds.rig.depth is not None:
-        depth = simulate_depth(setup, surfaces, views, rng, pattern_seed=settings.seed + 7)
+        depth = simulate_depth(
+            setup, surfaces, views, rng, pattern_seed=settings.seed + 7, fixed=fixed
+        )
         ref = [c.name for c in ds.rig.cameras].index(ds.rig.depth.camera)
         if ref != 0:
             raise ValueError("twins simulate depth on the reference camera's grid only")
@@ -161,7 +168,8 @@ def make_twin_scene(
         write_png(out / "depth_ideal.png", encode_depth(views[0].hits.depth, ds.rig.depth.scale))
     truth = [InstancePose(p.object, p.instance, p.R, p.t) for p in poses]
     meshes = [ds.objects[p.object].mesh for p in truth]
-    add_true_occlusion(ds.rig, truth, meshes, views[0].hits.depth)
+    casts = {cam.name: view.own for cam, view in zip(ds.rig.cameras, views)}
+    add_true_occlusion(ds.rig, truth, meshes, views[0].hits.depth, casts=casts)
     write_poses(out / "gt.json", truth, format=1)
 
 
