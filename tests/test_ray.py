@@ -28,6 +28,9 @@ from typing import Any
 import pytest
 
 from annotator.cli import main
+from annotator.dataset import load_dataset
+from annotator.dataset.poses import read_pose_file
+from annotator.dataset.review import Review, now_iso, poses_fingerprint, write_review
 from annotator.errors import UserError
 from annotator.scale.local_cluster import LocalCluster, _free_port
 from annotator.scale.ray_runner import run_on_ray
@@ -88,6 +91,26 @@ def test_synth_writes_the_same_bytes_as_one_local_worker(cluster, tmp_path, caps
     assert len(local) > 10 and local.keys() == remote.keys()
     assert [k for k in local if local[k] != remote[k]] == []
     assert "3 scenes" in capsys.readouterr().out.splitlines()[-1]
+
+
+def test_twins_write_the_same_bytes_as_one_local_worker(cluster, sample_copy, tmp_path) -> None:
+    """``synth --twin`` reads one dataset and writes another: the task writes into a folder
+    of its own and the driver into the output folder."""
+    ds = load_dataset(sample_copy)
+    for scene in ds.scenes()[:2]:
+        poses, _ = read_pose_file(scene.annotation_path)
+        write_review(scene.review_path, Review("accepted", {}, now_iso(), poses_fingerprint(poses)))
+    twin = ["synth", "--twin", str(sample_copy), "--seed", "3", "--quiet"]
+    assert main([*twin[:1], str(tmp_path / "local"), *twin[1:], "--workers", "1"]) == 0
+    assert main([*twin[:1], str(tmp_path / "ray"), *twin[1:], "--ray", cluster.address]) == 0
+    local, remote = _files(tmp_path / "local"), _files(tmp_path / "ray")
+    assert {k for k in local if k.startswith("scenes/")} == {
+        f"scenes/00000{i}/{name}"
+        for i in (0, 1)
+        for name in ("left.png", "right.png", "depth.png", "depth_ideal.png", "gt.json")
+    }
+    assert local.keys() == remote.keys()
+    assert [k for k in local if local[k] != remote[k] and k != ".annotator-output.json"] == []
 
 
 def test_annotate_and_occlusion_write_the_same_json(cluster, sample, tmp_path, capsys) -> None:

@@ -119,8 +119,6 @@ def run(args: argparse.Namespace) -> int:
     if args.twin:
         from annotator.commands.twin import synth_twin
 
-        if args.ray is not None:
-            raise UserError("--ray does not apply to --twin (its scenes run on --workers)")
         return synth_twin(args)
     config = _config(args)
     check_output_folder(out, command="synth", overwrite=args.overwrite)

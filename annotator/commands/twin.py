@@ -45,7 +45,14 @@ def synth_twin(args: argparse.Namespace) -> int:
         write_manifest(tmp, command="synth")
         write_twin_description(ds, tmp)
         job = TwinJob(str(ds.root), str(tmp), poses, settings)
-        report = run_batch(job, sorted(poses), workers=args.workers, desc="twin", quiet=args.quiet)
+        report = run_batch(
+            job,
+            sorted(poses),
+            workers=args.workers,
+            desc="twin",
+            quiet=args.quiet,
+            ray_address=args.ray,
+        )
     summary = {
         "out": str(out),
         "twins": len(report.done),

@@ -10,8 +10,10 @@ store once and unpacked once per worker process.
 
 A job that can run this way is a picklable dataclass with a ``root`` field (the dataset
 folder; a task runs a copy whose ``root`` is its replica) that declares its files, relative
-to ``root`` (see :class:`DistributableJob`). Scene folders are ``scenes/<scene_id>``
-(docs/FORMAT.md).
+to ``root`` (see :class:`DistributableJob`). A job that writes into another folder than it
+reads (``synth --twin``) has an ``out`` field too: its outputs are then relative to ``out``,
+and a task runs with ``out`` an empty folder of its own. Scene folders are
+``scenes/<scene_id>`` (docs/FORMAT.md).
 
 Modules: :mod:`annotator.scale.bundle` (files as bytes), :mod:`annotator.scale.ray_runner`
 (joining the cluster, tasks, retries, cancellation), :mod:`annotator.scale.local_cluster` (a
@@ -42,7 +44,8 @@ class DistributableJob(Protocol):
         ...
 
     def output_files(self, scene_id: str) -> list[str]:
-        """What the job writes, in writing order: a file that the job did not leave behind
+        """What the job writes (under ``out`` if the job has that field, else under
+        ``root``), in writing order: a file that the job did not leave behind
         is deleted on the driver's side (after the writes); a path ending in ``/`` stands for
         every file under that folder."""
         ...

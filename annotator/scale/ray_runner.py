@@ -281,7 +281,7 @@ class _Driver:
             return True
         if outcome.error is None:
             try:
-                write_outputs(self.job.root, outcome.outputs)
+                write_outputs(_output_root(self.job), outcome.outputs)
             except (UserError, ValueError) as exc:  # ValueError: a path out of the dataset
                 self.report.failed[sid] = str(exc)
             else:
@@ -319,19 +319,26 @@ def _scene_task(
 
     Errors come back as values, in the driver's terms (its dataset path, not the replica's):
     a UserError is final, anything else is worth another attempt."""
-    driver_root = str(Path(job.root))
+    separate = _writes_elsewhere(job)
     root: Path | None = None
+    out: Path | None = None
     keep: frozenset[str] = frozenset()
     try:
         root, keep = _replica(*shared)
+        out = root.parent / f"{root.name}.out" if separate else root
+        if separate:  # empty: everything in it is this scene's output
+            shutil.rmtree(out, ignore_errors=True)
         materialise(root, inputs)
         (root / "scenes" / scene_id).mkdir(parents=True, exist_ok=True)
-        result = dataclasses.replace(job, root=str(root))(scene_id)
-        outputs = collect(root, job.output_files(scene_id))
+        changes: dict[str, str] = {"root": str(root)}
+        if separate:
+            changes["out"] = str(out)
+        result = dataclasses.replace(job, **changes)(scene_id)
+        outputs = collect(out, job.output_files(scene_id))
     except UserError as exc:
-        return TaskOutcome(scene_id, None, _as_driver(str(exc), root, driver_root), False, {})
+        return TaskOutcome(scene_id, None, _as_driver(str(exc), job, root, out), False, {})
     except Exception as exc:
-        error = _as_driver(describe_failure(exc), root, driver_root)
+        error = _as_driver(describe_failure(exc), job, root, out)
         return TaskOutcome(scene_id, None, error, True, {})
     finally:
         if root is not None:  # the next scene must not see this one's files
@@ -339,11 +346,25 @@ def _scene_task(
                 if rel not in keep:
                     relative(root, rel).unlink(missing_ok=True)
             shutil.rmtree(root / "scenes", ignore_errors=True)
+            if separate and out is not None:
+                shutil.rmtree(out, ignore_errors=True)
     return TaskOutcome(scene_id, result, None, False, outputs)
 
 
-def _as_driver(message: str, root: Path | None, driver_root: str) -> str:
-    return message if root is None else message.replace(str(root), driver_root)
+def _writes_elsewhere(job: Any) -> bool:
+    """Whether the job writes into its own ``out`` folder rather than into ``root``."""
+    return any(f.name == "out" for f in dataclasses.fields(job))
+
+
+def _output_root(job: Any) -> str:
+    return str(job.out) if _writes_elsewhere(job) else str(job.root)
+
+
+def _as_driver(message: str, job: Any, root: Path | None, out: Path | None) -> str:
+    """``message`` with the task's folders named as the driver's (its dataset, its output)."""
+    if out is not None and out != root:  # first: the output folder is named after the replica
+        message = message.replace(str(out), str(Path(job.out)))
+    return message if root is None else message.replace(str(root), str(Path(job.root)))
 
 
 def _replica(digest: str, box: list[Any]) -> tuple[Path, frozenset[str]]:

@@ -193,6 +193,25 @@ class TwinJob:
             cam.pixel_rays()
             cam.pixel_rays(MESH_STEP)
 
+    # What a scene's work reads (relative to ``root``) and writes (relative to ``out``), for
+    # --ray: the poses travel with the job.
+
+    def shared_files(self) -> list[str]:
+        """The dataset description (dataset.yaml, objects, background depth)."""
+        from annotator.dataset import cached_dataset
+        from annotator.scale.bundle import description_files
+
+        return description_files(cached_dataset(self.root))
+
+    def scene_files(self, scene_id: str) -> list[str]:
+        """The scene's measured depth (the support plane is fitted to it when the dataset
+        has no background depth)."""
+        return [f"scenes/{scene_id}/depth.png"]
+
+    def output_files(self, scene_id: str) -> list[str]:
+        """Every file of the twin scene's folder."""
+        return [f"scenes/{scene_id}/"]
+
     def __call__(self, scene_id: str) -> dict:
         from annotator.dataset import cached_dataset
 
