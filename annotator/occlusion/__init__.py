@@ -147,12 +147,12 @@ def scene_visibility(
         if done is not None:
             boxes = [None if c is None else c[0] for c in done]
             own = [None if c is None else c[1] for c in done]
-            together = nearest(rays.shape[:2], boxes, own)
+            together = nearest(rays.shape[:2], boxes, own, surface=False)
         else:
             boxes = [_on_grid(projected_bbox(cam, pm.mesh, pm.cam_T_model), step) for pm in placed]
             # Every instance alone over its box, then a depth buffer of all of them (on equal
             # depths the first instance wins, so that visible parts never overlap).
-            together, own = cast_separately(rays, placed, boxes)
+            together, own = cast_separately(rays, placed, boxes, surface=False)
         zbuf, front = together.depth, together.instance
         alone = [None if h is None else (h.hit, h.depth) for h in own]
         if renders is not None:

@@ -186,6 +186,7 @@ def cast_separately(
     *,
     behind: Hits | None = None,
     first: int = 0,
+    surface: bool = True,
 ) -> tuple[Hits, list[Hits | None]]:
     """Cast a grid of rays (H, W, 3) at each placed mesh alone, over its box of the grid
     (:func:`cast_alone`), and keep the nearest hit of each ray: what one cast at a scene of
@@ -202,6 +203,8 @@ def cast_separately(
         behind: Hits of other geometry on the whole grid (what the meshes stand in front of,
             e.g. :func:`render_once` of a scene's fixed surroundings); by default nothing.
         first: ``Hits.instance`` of ``placed[0]`` in the result (the rest follow).
+        surface: False when only which mesh is nearest, and how far, is needed (see
+            :func:`nearest`).
 
     Returns:
         The nearest hits on the grid, and per mesh its own hits over its box (None where its
@@ -211,7 +214,8 @@ def cast_separately(
         None if r is None else cast_alone(pm.mesh, pm.cam_T_model, rays[r[1] : r[3], r[0] : r[2]])
         for pm, r in zip(placed, boxes)
     ]
-    return nearest(rays.shape[:2], boxes, own, behind=behind, first=first), own
+    together = nearest(rays.shape[:2], boxes, own, behind=behind, first=first, surface=surface)
+    return together, own
 
 
 def nearest(
@@ -221,16 +225,23 @@ def nearest(
     *,
     behind: Hits | None = None,
     first: int = 0,
+    surface: bool = True,
 ) -> Hits:
     """The nearest of several meshes' own hits (each over its box of a grid of ``shape``), in
-    front of ``behind``; see :func:`cast_separately`."""
+    front of ``behind``; see :func:`cast_separately`. ``surface=False``: which mesh and how
+    far only (``triangle`` -1 and ``barycentric`` 0 everywhere), at half the cost."""
     if behind is None:
         depth = np.full(shape, np.inf, np.float32)
         instance = np.full(shape, NO_HIT, np.int32)
+    else:
+        depth, instance = behind.depth.copy(), behind.instance.copy()
+    if not surface:
+        triangle = np.broadcast_to(np.int32(-1), shape)
+        bary = np.broadcast_to(np.float32(0.0), (*shape, 2))
+    elif behind is None:
         triangle = np.full(shape, -1, np.int32)
         bary = np.zeros((*shape, 2), np.float32)
     else:
-        depth, instance = behind.depth.copy(), behind.instance.copy()
         triangle, bary = behind.triangle.copy(), behind.barycentric.copy()
     for k, (box, h) in enumerate(zip(boxes, own)):
         if box is None or h is None:
@@ -239,8 +250,9 @@ def nearest(
         closer = h.depth < depth[y0:y1, x0:x1]
         np.copyto(depth[y0:y1, x0:x1], h.depth, where=closer)
         np.copyto(instance[y0:y1, x0:x1], first + k, where=closer)
-        np.copyto(triangle[y0:y1, x0:x1], h.triangle, where=closer)
-        np.copyto(bary[y0:y1, x0:x1], h.barycentric, where=closer[..., None])
+        if surface:
+            np.copyto(triangle[y0:y1, x0:x1], h.triangle, where=closer)
+            np.copyto(bary[y0:y1, x0:x1], h.barycentric, where=closer[..., None])
     return Hits(depth, instance, triangle, bary)
 
 
