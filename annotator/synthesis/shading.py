@@ -75,18 +75,24 @@ def _albedo(
     textured = _textured(surfaces)
     if textured is None:
         return albedo, on_marker
-    face_offset, count, first, site, affine, bits = textured
+    face_offset, grid, cell_offset, count, first, site, affine, bits = textured
     instance = hits.instance.reshape(-1)
     hit = np.flatnonzero(instance >= 0)
     face = face_offset[instance[hit]] + hits.triangle.reshape(-1)[hit]
-    n = count[face]
+    keep = grid[face] > 0
+    hit, face = hit[keep], face[keep]
+    uv = hits.barycentric.reshape(-1, 2)[hit]
+    g = grid[face]
+    gu = np.minimum((uv[:, 0] * g).astype(np.int32), g - 1)
+    gv = np.minimum((uv[:, 1] * g).astype(np.int32), g - 1)
+    cell = cell_offset[face] + gu * g + gv
+    n = count[cell]
     keep = n > 0
-    rows, face, n = hit[keep], face[keep], n[keep]
-    uv = hits.barycentric.reshape(-1, 2)[rows]
-    u, v = uv[:, 0], uv[:, 1]
-    pair = first[face]
-    # Sites never overlap, so at most one of a face's candidate sites holds a point: try the
-    # first candidate of every point, then the second of the points on faces with two or more.
+    rows, cell, n = hit[keep], cell[keep], n[keep]
+    u, v = uv[keep, 0], uv[keep, 1]
+    pair = first[cell]
+    # Sites never overlap, so at most one of a cell's candidate sites holds a point: try the
+    # first candidate of every point, then the second of the points in cells with two or more.
     todo = np.arange(len(rows))
     found_rows, found_site, found_st = [], [], []
     for k in range(int(n.max(initial=0))):
@@ -120,66 +126,77 @@ MARKER_FACING = 0.7
 def _textured(
     surfaces: Sequence[Surface],
 ) -> tuple[np.ndarray, ...] | None:
-    """The candidate sites of every face of every surface, as flat arrays indexed by
-    ``face_offset[surface] + triangle`` (count and first pair), by pair (site, affine map),
-    and by site (bits); None when no surface has a marker."""
+    """The :class:`FaceSites` of every surface as flat arrays: per face (indexed by
+    ``face_offset[surface] + triangle``) its grid and first cell, per cell its candidates, per
+    candidate its site and affine map, per site its bits; None when no surface has a marker."""
     face_offset = np.cumsum([0] + [len(s.mesh.faces) for s in surfaces])
-    counts, firsts, sites, affines, bits = [], [], [], [], []
-    pairs = site_base = 0
+    parts: list[list[np.ndarray]] = [[] for _ in range(7)]
+    cells = pairs = site_base = 0
     for s in surfaces:
         if s.sites is None or not len(s.sites):
-            counts.append(np.zeros(len(s.mesh.faces), np.int32))
-            firsts.append(np.zeros(len(s.mesh.faces), np.int32))
+            parts[0].append(np.zeros(len(s.mesh.faces), np.int32))  # grid 0: no candidate
+            parts[1].append(np.zeros(len(s.mesh.faces), np.int32))
             continue
         fs = _face_sites(s.mesh, s.sites)
-        counts.append(fs.count)
-        firsts.append(fs.first + pairs)
-        sites.append(fs.site + site_base)
-        affines.append(fs.affine)
-        bits.append(s.bits)
+        for k, a in enumerate(
+            (fs.grid, fs.cell_offset + cells, fs.count, fs.first + pairs, fs.site + site_base)
+        ):
+            parts[k].append(a)
+        parts[5].append(fs.affine)
+        parts[6].append(s.bits)
+        cells += len(fs.count)
         pairs += len(fs.site)
         site_base += len(s.bits)
-    if not bits:
+    if not parts[6]:
         return None
-    return (
-        face_offset,
-        np.concatenate(counts),
-        np.concatenate(firsts),
-        np.concatenate(sites),
-        np.concatenate(affines),
-        np.concatenate(bits),
-    )
+    return (face_offset, *(np.concatenate(p) for p in parts))
 
 
 @dataclass(frozen=True)
 class FaceSites:
     """For each face of a mesh, the marker sites a point of the face can lie on.
 
+    A large face can meet many sites; so a face with more than one candidate is cut into a
+    ``GRID x GRID`` grid of cells over its barycentric coordinates ``(u, v)``, and each cell
+    keeps only the sites that reach it: a point is tested against one or two sites, not a
+    dozen.
+
     Attributes:
-        count: (F,) how many candidate sites the face has (0 for most faces).
-        first: (F,) the index of the face's first (face, site) pair; a face's pairs follow
-            each other.
-        site: (P,) the site of each pair.
-        affine: (P, 3, 3) float32 per pair: ``(s, t, d) = affine @ (1, u, v)`` takes a point's
-            barycentric coordinates ``(u, v)`` on the face (``p = (1-u-v) a + u b + v c``) to
-            its position across the printed square (``s`` along TL->TR and ``t`` along TL->BL,
-            both in [0, 1) on the square) and its distance ``d`` (mm) along the site's outward
-            normal.
+        grid: (F,) the face's grid size: 0 (no candidate), 1 (one cell) or ``GRID``.
+        cell_offset: (F,) the index of the face's first cell; the point ``(u, v)`` is in cell
+            ``cell_offset + min(u * grid, grid - 1) * grid + min(v * grid, grid - 1)``
+            (integer parts).
+        count: (C,) how many candidate sites the cell has.
+        first: (C,) the index of the cell's first candidate; a cell's candidates follow each
+            other.
+        site: (P,) each candidate's site.
+        affine: (P, 3, 3) float32 per candidate: ``(s, t, d) = affine @ (1, u, v)`` takes a
+            point's barycentric coordinates ``(u, v)`` on the face (``p = (1-u-v) a + u b +
+            v c``) to its position across the printed square (``s`` along TL->TR and ``t``
+            along TL->BL, both in [0, 1) on the square) and its distance ``d`` (mm) along the
+            site's outward normal.
     """
 
+    grid: np.ndarray
+    cell_offset: np.ndarray
     count: np.ndarray
     first: np.ndarray
     site: np.ndarray
     affine: np.ndarray
 
 
+#: Cells per side of the grid of a face that meets several sites.
+GRID = 8
+
 _FACE_SITES: dict[tuple[bytes, bytes], FaceSites] = {}
 
 
 def _face_sites(mesh: Mesh, sites: np.ndarray) -> FaceSites:
-    """The candidate sites of each face: facing the same way as the site (within
-    :data:`MARKER_FACING`) and with the triangle reaching the site's square and slab (tested on
-    its corners: (s, t, d) are affine on the triangle). Cached per mesh and layout."""
+    """The candidate sites of each face (and cell): facing the same way as the site (within
+    :data:`MARKER_FACING`) and reaching the site's square and slab. (s, t, d) are affine on a
+    face, so their ranges over a triangle or a cell are those over its corners; the ranges are
+    widened by a hair, so that float rounding never drops a candidate. Cached per mesh and
+    layout."""
     key = (mesh.digest, np.ascontiguousarray(sites).tobytes())
     cached = _FACE_SITES.get(key)
     if cached is not None:
@@ -194,25 +211,65 @@ def _face_sites(mesh: Mesh, sites: np.ndarray) -> FaceSites:
     )  # (S, 3, 3): p - TL -> (s, t, d)
     # (F, S, 3 corners, 3 coordinates)
     corners = np.einsum("sij,fskj->fski", frame, mesh.triangles[:, None] - tl[None, :, None])
-    lo, hi = corners.min(axis=2), corners.max(axis=2)
-    reaches = (
-        (hi[..., 0] >= 0)
-        & (lo[..., 0] < 1)
-        & (hi[..., 1] >= 0)
-        & (lo[..., 1] < 1)
-        & (hi[..., 2] > -MARKER_SLAB)
-        & (lo[..., 2] < MARKER_SLAB)
-        & (mesh.face_normals @ normal.T > MARKER_FACING)
-    )
-    face, site = np.nonzero(reaches)  # row-major: a face's pairs are consecutive
-    count = np.bincount(face, minlength=len(mesh.faces)).astype(np.int32)
-    first = (np.cumsum(count) - count).astype(np.int32)
+    reaches = _reaches(corners.min(axis=2), corners.max(axis=2))
+    reaches &= mesh.face_normals @ normal.T > MARKER_FACING
+    face, site = np.nonzero(reaches)  # row-major: a face's candidates are consecutive
     a, b, c = (corners[face, site, k] for k in range(3))
-    affine = np.stack([a, b - a, c - a], axis=2).astype(np.float32)
+    affine = np.stack([a, b - a, c - a], axis=2)  # (P, 3, 3)
+    per_face = np.bincount(face, minlength=len(mesh.faces))
+    grid = np.where(per_face > 1, GRID, np.minimum(per_face, 1)).astype(np.int32)
+    cell_offset = (np.cumsum(grid**2) - grid**2).astype(np.int32)
+    # Each candidate's (s, t, d) range over each cell of its face's grid (one cell if alone).
+    cell_count = np.zeros(int((grid**2).sum()), np.int32)
+    rows: list[tuple[np.ndarray, np.ndarray]] = []  # (cell, candidate)
+    for g in (1, GRID):
+        cand = np.flatnonzero(grid[face] == g)
+        if not len(cand):
+            continue
+        edges = np.arange(g + 1) / g
+        iu, iv = (i.ravel() for i in np.meshgrid(np.arange(g), np.arange(g), indexing="ij"))
+        cu = np.stack([edges[iu], edges[iu + 1], edges[iu], edges[iu + 1]], axis=1)  # (g*g, 4)
+        cv = np.stack([edges[iv], edges[iv], edges[iv + 1], edges[iv + 1]], axis=1)
+        A = affine[cand]
+        vals = (
+            A[:, None, None, :, 0]
+            + A[:, None, None, :, 1] * cu[None, :, :, None]
+            + A[:, None, None, :, 2] * cv[None, :, :, None]
+        )  # (candidates, cells, 4 corners, 3)
+        meets = _reaches(vals.min(axis=2), vals.max(axis=2))
+        which, local = np.nonzero(meets)
+        rows.append((cell_offset[face[cand[which]]] + local, cand[which]))
+    cell_of = np.concatenate([r[0] for r in rows]) if rows else np.zeros(0, np.int64)
+    cand_of = np.concatenate([r[1] for r in rows]) if rows else np.zeros(0, np.int64)
+    order = np.lexsort((cand_of, cell_of))  # by cell, then the face's candidate order
+    cell_of, cand_of = cell_of[order], cand_of[order]
+    np.add.at(cell_count, cell_of, 1)
+    first = (np.cumsum(cell_count) - cell_count).astype(np.int32)
     if len(_FACE_SITES) > 256:
         _FACE_SITES.clear()
-    cached = _FACE_SITES[key] = FaceSites(count, first, site.astype(np.int32), affine)
+    cached = _FACE_SITES[key] = FaceSites(
+        grid,
+        cell_offset,
+        cell_count,
+        first,
+        site[cand_of].astype(np.int32),
+        affine[cand_of].astype(np.float32),
+    )
     return cached
+
+
+def _reaches(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """Whether the (s, t, d) box ``lo..hi`` (..., 3) meets the printed square and its slab,
+    widened by a hair (1e-4 of the square, 1e-3 mm)."""
+    e = 1e-4
+    return (
+        (hi[..., 0] >= -e)
+        & (lo[..., 0] < 1 + e)
+        & (hi[..., 1] >= -e)
+        & (lo[..., 1] < 1 + e)
+        & (hi[..., 2] > -MARKER_SLAB - 1e-3)
+        & (lo[..., 2] < MARKER_SLAB + 1e-3)
+    )
 
 
 def _shade(
@@ -286,6 +343,15 @@ def render_intensity(
         scene = RayScene(placed)
         for dy in offs:
             for dx in offs:
+                if dx == 0 and dy == 0:  # the pixel centre (odd n): already cast
+                    acc += _shade(
+                        view.albedo[vs, us],
+                        view.normals_cam[vs, us],
+                        rays[vs, us],
+                        view.hits.hit[vs, us],
+                        ambient,
+                    )
+                    continue
                 sub_rays = _interpolate_rays(rays, us + dx, vs + dy)
                 h = scene.cast(sub_rays)
                 a, _ = _albedo(surfaces, placed, h)
