@@ -78,14 +78,47 @@ class Camera:
             Kinv = np.linalg.inv(self.K)
             xy = flat.reshape(-1, 2) @ Kinv[:2, :2].T + Kinv[:2, 2]
             return xy.reshape(*shape, 2)
-        # The default 5 iterations leave errors of 0.1 px at the image corners of a strongly
-        # distorted lens; iterate to convergence instead.
-        criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-12)
-        if hasattr(cv2, "undistortPointsIter"):  # OpenCV 4.x
-            xy = cv2.undistortPointsIter(flat, self.K, self.dist, None, None, criteria)
-        else:  # OpenCV 5.x folded the criteria into undistortPoints
-            xy = cv2.undistortPoints(flat, self.K, self.dist, R=None, P=None, criteria=criteria)
+        # OpenCV's default (5 fixed-point iterations) is exact for a mild lens but leaves
+        # errors of 0.1 px at the image corners of a strongly distorted one: check every point
+        # by distorting it again, and iterate to convergence where the check fails.
+        xy = cv2.undistortPoints(flat, self.K, self.dist).reshape(-1, 2)
+        bad = np.arange(len(xy))
+        if len(self.dist) <= 8:
+            target = flat.reshape(-1, 2)
+            ok = np.empty(len(xy), bool)
+            # In chunks: the temporaries stay in cache (touching fresh memory costs more than
+            # the arithmetic).
+            for i in range(0, len(xy), 1 << 16):
+                j = slice(i, i + (1 << 16))
+                ok[j] = (np.abs(self._distort(xy[j]) - target[j]) < UNDISTORT_TOLERANCE_PX).all(1)
+            bad = np.flatnonzero(~ok)
+        if len(bad):
+            criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-12)
+            some = flat[bad]
+            if hasattr(cv2, "undistortPointsIter"):  # OpenCV 4.x
+                fine = cv2.undistortPointsIter(some, self.K, self.dist, None, None, criteria)
+            else:  # OpenCV 5.x folded the criteria into undistortPoints
+                fine = cv2.undistortPoints(
+                    some, self.K, self.dist, R=None, P=None, criteria=criteria
+                )
+            xy[bad] = fine.reshape(-1, 2)
         return xy.reshape(*shape, 2)
+
+    def _distort(self, xy: np.ndarray) -> np.ndarray:
+        """OpenCV's lens model (up to 8 coefficients: k1, k2, p1, p2, k3, k4, k5, k6) from
+        undistorted normalised coordinates (N, 2) to pixels (N, 2); ``cv2.projectPoints``
+        without its Jacobians, which make it several times slower."""
+        k = np.zeros(8)
+        k[: len(self.dist)] = np.ravel(self.dist)
+        k1, k2, p1, p2, k3, k4, k5, k6 = k
+        x, y = xy[:, 0], xy[:, 1]
+        r2 = x * x + y * y
+        r4, r6 = r2 * r2, r2 * r2 * r2
+        radial = (1 + k1 * r2 + k2 * r4 + k3 * r6) / (1 + k4 * r2 + k5 * r4 + k6 * r6)
+        xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
+        yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
+        K = self.K
+        return np.stack([K[0, 0] * xd + K[0, 1] * yd + K[0, 2], K[1, 1] * yd + K[1, 2]], axis=1)
 
     def pixel_rays(self, step: int = 1) -> np.ndarray:
         """Ray directions ``(x, y, 1)`` through every pixel centre, shape (height, width, 3);
@@ -93,7 +126,7 @@ class Camera:
         (ceil(height / step), ceil(width / step), 3) (the same as
         ``pixel_rays()[::step, ::step]``).
 
-        Computed once per camera and step, and cached (about 1 s for 1280x1024 with
+        Computed once per camera and step, and cached (about 0.4 s for 1280x1024 with
         distortion, a quarter of that with ``step=2``).
         """
         key = (
@@ -123,3 +156,7 @@ class Camera:
 
 
 _RAY_CACHE: dict[tuple, np.ndarray] = {}
+
+#: A pixel's undistorted coordinates are accepted when distorting them again lands within this
+#: distance (px) of the pixel; float32 rays are only good to about 1e-4 px anyway.
+UNDISTORT_TOLERANCE_PX = 1e-6
