@@ -42,6 +42,12 @@ class Camera:
         """(width, height) in pixels."""
         return (self.width, self.height)
 
+    @property
+    def grid_key(self) -> tuple:
+        """What fixes the camera's pixel rays (size, K, distortion): a key for caches of
+        per-pixel tables."""
+        return (self.width, self.height, self.K.tobytes(), np.asarray(self.dist, float).tobytes())
+
     @cached_property
     def cam_T_rig(self) -> np.ndarray:
         """4x4 reference-to-camera transform."""
@@ -129,12 +135,7 @@ class Camera:
         Computed once per camera and step, and cached (about 0.4 s for 1280x1024 with
         distortion, a quarter of that with ``step=2``).
         """
-        key = (
-            self.width,
-            self.height,
-            self.K.tobytes(),
-            np.asarray(self.dist, float).tobytes(),
-        )
+        key = self.grid_key
         rays = _RAY_CACHE.get((key, step))
         if rays is None:
             full = _RAY_CACHE.get((key, 1))

@@ -264,10 +264,7 @@ def render_once(camera: Camera, placed: Sequence[PlacedMesh]) -> Hits:
     a table), kept by content and made again only when the camera or the geometry changes.
     The arrays are read-only."""
     key = (
-        camera.width,
-        camera.height,
-        camera.K.tobytes(),
-        np.asarray(camera.dist, float).tobytes(),
+        camera.grid_key,
         tuple((pm.mesh.digest, np.asarray(pm.cam_T_model, float).tobytes()) for pm in placed),
     )
     hits = _ONCE.get(key)
@@ -279,6 +276,21 @@ def render_once(camera: Camera, placed: Sequence[PlacedMesh]) -> Hits:
             _ONCE.clear()
         _ONCE[key] = hits
     return hits
+
+
+def render_scene(
+    camera: Camera, placed: Sequence[PlacedMesh], *, fixed: int = 0
+) -> tuple[Hits, list[tuple[Rect, Hits] | None]]:
+    """:func:`render` of a scene whose first ``fixed`` meshes are its unchanging surroundings
+    (a table, a bin: :func:`render_once`), the others cast each alone over its projected
+    rectangle (:func:`cast_separately`). Returns the hits, and per mesh after the fixed ones
+    its rectangle and its own hits there (None when out of view)."""
+    behind = render_once(camera, placed[:fixed]) if fixed else None
+    rects = [projected_bbox(camera, pm.mesh, pm.cam_T_model) for pm in placed[fixed:]]
+    hits, own = cast_separately(
+        camera.pixel_rays(), placed[fixed:], rects, behind=behind, first=fixed
+    )
+    return hits, [None if r is None or h is None else (r, h) for r, h in zip(rects, own)]
 
 
 def render(

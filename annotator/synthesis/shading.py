@@ -15,15 +15,7 @@ import numpy as np
 
 from annotator.geometry.camera import Camera
 from annotator.geometry.mesh import Mesh
-from annotator.rendering.raycast import (
-    Hits,
-    PlacedMesh,
-    RayScene,
-    Rect,
-    cast_separately,
-    projected_bbox,
-    render_once,
-)
+from annotator.rendering.raycast import Hits, PlacedMesh, RayScene, Rect, render_scene
 
 
 @dataclass(frozen=True)
@@ -294,24 +286,13 @@ def render_view(
     """Cast one ray per pixel centre; albedo (markers included) and normals per pixel.
 
     The first ``fixed`` surfaces are the scene's surroundings, the same in every scene (a
-    table, a bin): they are rendered once per camera and kept (:func:`render_once`). Each
-    other surface is cast alone over its projected rectangle (:func:`cast_separately`).
+    table, a bin): they are rendered once per camera and kept; each other surface is cast
+    alone over its projected rectangle (:func:`render_scene`).
     """
     placed = [PlacedMesh(s.mesh, cam_T_world @ s.world_T_model) for s in surfaces]
-    behind = render_once(camera, placed[:fixed]) if fixed else None
-    rects = [projected_bbox(camera, pm.mesh, pm.cam_T_model) for pm in placed[fixed:]]
-    hits, own = cast_separately(
-        camera.pixel_rays(), placed[fixed:], rects, behind=behind, first=fixed
-    )
+    hits, own = render_scene(camera, placed, fixed=fixed)
     albedo, on_marker = _albedo(surfaces, placed, hits)
-    return View(
-        hits,
-        placed,
-        hits.normals(placed),
-        albedo,
-        on_marker,
-        [None if r is None or h is None else (r, h) for r, h in zip(rects, own)],
-    )
+    return View(hits, placed, hits.normals(placed), albedo, on_marker, own)
 
 
 def render_intensity(

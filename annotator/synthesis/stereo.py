@@ -18,7 +18,7 @@ import numpy as np
 
 from annotator.geometry.camera import Camera
 from annotator.geometry.transforms import invert
-from annotator.rendering.raycast import PlacedMesh, cast_separately, projected_bbox, render_once
+from annotator.rendering.raycast import PlacedMesh, render_scene
 from annotator.synthesis.shading import View
 
 
@@ -45,12 +45,7 @@ class ShadowMap:
         """``placed`` in the frame of the ``projector`` (a distortion-free camera: one ray
         per pixel of its slide); the first ``fixed`` meshes are the scene's unchanging
         surroundings (see :func:`annotator.synthesis.shading.render_view`)."""
-        behind = render_once(projector, placed[:fixed]) if fixed else None
-        rects = [projected_bbox(projector, pm.mesh, pm.cam_T_model) for pm in placed[fixed:]]
-        hits, _ = cast_separately(
-            projector.pixel_rays(), placed[fixed:], rects, behind=behind, first=fixed
-        )
-        return cls(hits.depth, projector.K)
+        return cls(render_scene(projector, placed, fixed=fixed)[0].depth, projector.K)
 
     def lit(
         self, u: np.ndarray, v: np.ndarray, z: np.ndarray, tolerance: float = 1.0
@@ -116,8 +111,7 @@ _ROTATED: dict[tuple, np.ndarray] = {}
 def _rotated_rays(camera: Camera, R: np.ndarray) -> np.ndarray:
     """``R @ ray`` for every pixel ray of ``camera``, as three float32 planes (3, H, W); kept
     per camera and rotation (a rig's cameras and projector do not move)."""
-    key = (camera.size, camera.K.tobytes(), np.asarray(camera.dist, float).tobytes())
-    key += (np.asarray(R, float).tobytes(),)
+    key = (camera.grid_key, np.asarray(R, float).tobytes())
     out = _ROTATED.get(key)
     if out is None:
         rays = camera.pixel_rays()
