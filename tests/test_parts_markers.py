@@ -43,9 +43,11 @@ def test_part_is_closed_centred_and_has_exactly_its_symmetry(name: str) -> None:
     tm = part.mesh.to_trimesh()
     assert tm.is_watertight and tm.volume > 0
     assert np.abs(part.mesh.moments.centroid).max() < 1e-6
-    samples = np.asarray(tm.sample(3000))
+    samples = np.asarray(tm.sample(3000, seed=0))
     for g in _group(part):
-        assert _surface_distance(part.mesh, samples @ g.T).max() < 0.05, f"{name} not invariant"
+        # 0.1 mm: open3d's float32 closest point is off by up to 0.06 mm on the brick's long
+        # sliver triangles, even for the identity (an undeclared symmetry moves points > 1 mm).
+        assert _surface_distance(part.mesh, samples @ g.T).max() < 0.1, f"{name} not invariant"
     if part.symmetry.kind in ("none", "finite"):
         # A symmetry it does not declare: the quarter turn about z (the brick, the bracket) or
         # the flip (the gear, whose hub is on one side) moves its surface.
