@@ -89,7 +89,7 @@ class Camera:
         # by distorting it again, and iterate to convergence where the check fails.
         xy = cv2.undistortPoints(flat, self.K, self.dist).reshape(-1, 2)
         bad = np.arange(len(xy))
-        if len(self.dist) <= 8:
+        if np.size(self.dist) <= 8:
             target = flat.reshape(-1, 2)
             ok = np.empty(len(xy), bool)
             # In chunks: the temporaries stay in cache (touching fresh memory costs more than
@@ -115,7 +115,7 @@ class Camera:
         undistorted normalised coordinates (N, 2) to pixels (N, 2); ``cv2.projectPoints``
         without its Jacobians, which make it several times slower."""
         k = np.zeros(8)
-        k[: len(self.dist)] = np.ravel(self.dist)
+        k[: np.size(self.dist)] = np.ravel(self.dist)
         k1, k2, p1, p2, k3, k4, k5, k6 = k
         x, y = xy[:, 0], xy[:, 1]
         r2 = x * x + y * y
