@@ -20,10 +20,10 @@ import yaml
 from annotator.calibration.baseline import opencv_stereo
 from annotator.calibration.board import BoardSpec, read_board_yaml
 from annotator.calibration.bundle import Corners, RigState, _apply, _Layout, _residuals_jacobian
-from annotator.calibration.captures import find_captures, read_images
-from annotator.calibration.detect import BoardDetector
+from annotator.calibration.captures import find_captures
+from annotator.calibration.detect import detect_captures
 from annotator.calibration.rig_yaml import updated_text
-from annotator.calibration.solve import View, calibrate_rig
+from annotator.calibration.solve import calibrate_rig
 from annotator.cli import main
 from annotator.dataset import load_dataset
 from annotator.geometry.camera import Camera
@@ -63,18 +63,13 @@ def detected(captures: Path) -> dict:
     """The detections of every image, the board and the truth."""
     board = read_board_yaml(captures / "board.yaml")
     caps = find_captures(captures)
-    detector = BoardDetector(board)
-    views, sizes = [], {}
-    for c, s, img in read_images(caps):
-        det = detector.detect(img)
-        views.append(View(c, s, det.ids, det.corners, det.markers))
-        sizes[c] = (img.shape[1], img.shape[0])
+    found = detect_captures(caps, board)
     truth = yaml.safe_load((captures / "truth.yaml").read_text())
     return {
         "board": board,
         "captures": caps,
-        "views": views,
-        "sizes": [sizes[c] for c in range(len(caps.cameras))],
+        "views": found.views,
+        "sizes": found.sizes,
         "truth": truth,
     }
 

@@ -14,19 +14,14 @@ One concept per module:
 Typical use::
 
     from annotator.calibration.board import read_board_yaml
-    from annotator.calibration.captures import find_captures, read_images
-    from annotator.calibration.detect import BoardDetector
-    from annotator.calibration.solve import View, calibrate_rig
+    from annotator.calibration.captures import find_captures
+    from annotator.calibration.detect import detect_captures
+    from annotator.calibration.solve import calibrate_rig
 
     board = read_board_yaml("captures/board.yaml")
     caps = find_captures("captures")
-    detector = BoardDetector(board)
-    views, sizes = [], {}
-    for c, s, img in read_images(caps):
-        det = detector.detect(img)
-        views.append(View(c, s, det.ids, det.corners, det.markers))
-        sizes[c] = (img.shape[1], img.shape[0])
-    cal = calibrate_rig(views, cameras=caps.cameras, sizes=[sizes[c] for c in sorted(sizes)],
+    found = detect_captures(caps, board)
+    cal = calibrate_rig(found.views, cameras=caps.cameras, sizes=found.sizes,
                         shots=caps.shots, board=board)
     cal.rig_cameras  # Camera objects: K, dist, rig_T_cam
 """

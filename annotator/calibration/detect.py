@@ -1,4 +1,5 @@
-"""Finding the chessboard corners of a ChArUco board in one image (OpenCV's detector).
+"""Finding the chessboard corners of a ChArUco board in one image (OpenCV's detector), and
+in every image of a captures folder (:func:`detect_captures`).
 
 ``cv2.aruco.CharucoDetector`` (OpenCV 4.7+ and 5.x) finds the markers, looks again for
 missed ones where the board says they must be (``tryRefineMarkers``), interpolates the
@@ -11,12 +12,16 @@ error 0.06 px without image noise, 0.14-0.16 px with a noise of 12 grey levels a
 
 from __future__ import annotations
 
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass
+from pathlib import Path
 
 import cv2
 import numpy as np
 
 from annotator.calibration.board import BoardSpec
+from annotator.calibration.captures import Captures, read_images
+from annotator.calibration.solve import View
 from annotator.io.images import to_gray8
 
 
@@ -74,3 +79,42 @@ class BoardDetector:
         return BoardDetection(
             ids[order], corners[order], int(on_board.sum()), int((~on_board).sum())
         )
+
+
+@dataclass(frozen=True)
+class CapturesDetection:
+    """The board in every image of a captures folder.
+
+    Attributes:
+        views: One per camera and shot, shot by shot (what :func:`calibrate_rig` takes).
+        sizes: Each camera's image size ``(width, height)``, in camera order.
+        foreign_markers: Markers of the dictionary seen with ids not on the board, in all.
+    """
+
+    views: list[View]
+    sizes: list[tuple[int, int]]
+    foreign_markers: int
+
+
+def detect_captures(
+    captures: Captures,
+    board: BoardSpec,
+    *,
+    expected_sizes: Mapping[str, tuple[int, int]] | None = None,
+    expected_source: Path | None = None,
+    progress: Callable[[Iterator], Iterator] | None = None,
+) -> CapturesDetection:
+    """Detect ``board`` in every image of ``captures`` (the keywords are those of
+    :func:`read_images`, whose UserErrors pass through)."""
+    detector = BoardDetector(board)
+    views: list[View] = []
+    sizes: dict[int, tuple[int, int]] = {}
+    foreign = 0
+    for c, s, img in read_images(
+        captures, expected_sizes=expected_sizes, expected_source=expected_source, progress=progress
+    ):
+        sizes[c] = (int(img.shape[1]), int(img.shape[0]))
+        det = detector.detect(img)
+        views.append(View(c, s, det.ids, det.corners, det.markers))
+        foreign += det.foreign_markers
+    return CapturesDetection(views, [sizes[c] for c in range(len(captures.cameras))], foreign)

@@ -228,14 +228,7 @@ def _detect(
     quiet: bool,
 ) -> tuple[list[View], list[tuple[int, int]]]:
     """Every camera's detection in every shot, and each camera's image size."""
-    from annotator.calibration.captures import read_images
-    from annotator.calibration.detect import BoardDetector
-    from annotator.calibration.solve import View
-
-    detector = BoardDetector(board)
-    views: list[View] = []
-    sizes: dict[int, tuple[int, int]] = {}
-    foreign = 0
+    from annotator.calibration.detect import detect_captures
 
     def bar(it: Iterator) -> Iterator:
         return tqdm(
@@ -247,16 +240,12 @@ def _detect(
             file=sys.stderr,
         )
 
-    for c, s, img in read_images(
-        captures, expected_sizes=expected_sizes, expected_source=ds_yaml, progress=bar
-    ):
-        sizes[c] = (int(img.shape[1]), int(img.shape[0]))
-        det = detector.detect(img)
-        views.append(View(c, s, det.ids, det.corners, det.markers))
-        foreign += det.foreign_markers
-    if not any(len(v.ids) for v in views):
-        raise _board_not_found(views, foreign, captures, board)
-    return views, [sizes[c] for c in range(len(captures.cameras))]
+    found = detect_captures(
+        captures, board, expected_sizes=expected_sizes, expected_source=ds_yaml, progress=bar
+    )
+    if not any(len(v.ids) for v in found.views):
+        raise _board_not_found(found.views, found.foreign_markers, captures, board)
+    return found.views, found.sizes
 
 
 def _board_not_found(
