@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import base64
 import shutil
-import socket
 import statistics
 import sys
 import tempfile
@@ -35,21 +34,12 @@ import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
 from viewer.app import ReviewApp  # noqa: E402
+from viewer.headless import free_port, launch_chromium  # noqa: E402
 
 SAMPLE = ROOT / "sample_scenes"
 SWITCHES = 20
 VIEWPORT = {"width": 1400, "height": 1000}
 FRAME_WIDTH = 350  # screencast frames, scaled down: cheap to make, still plenty to compare
-CHROMIUM_ARGS = [
-    "--headless",
-    "--no-sandbox",
-    "--disable-gpu",
-    "--disable-quic",
-    "--no-first-run",
-    "--disable-background-networking",
-    "--disable-component-update",
-    "--disable-sync",
-]
 KEY_CLOCK = """
 window.__keys = [];
 document.addEventListener("keydown", () => window.__keys.push(Date.now() / 1000), true);
@@ -102,12 +92,6 @@ def make_dataset(dst: Path, scenes: int) -> Path:
     return dst
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 def _picture_area(frame: np.ndarray) -> np.ndarray:
     """The left 60% of a frame: pictures only, whatever the panel's width."""
     return frame[:, : frame.shape[1] * 6 // 10]
@@ -136,7 +120,7 @@ def browser_switches(url: str) -> list[float]:
 
     out = []
     with sync_playwright() as pw:
-        browser = pw.chromium.launch(executable_path="/usr/bin/chromium", args=CHROMIUM_ARGS)
+        browser = launch_chromium(pw)
         try:
             page = browser.new_page(viewport=VIEWPORT)
             page.add_init_script(KEY_CLOCK)
@@ -185,7 +169,7 @@ def server_switches(app: ReviewApp) -> tuple[float, list[float]]:
 def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         root = make_dataset(Path(tmp) / "ds", SWITCHES + 4)
-        app = ReviewApp(root, host="127.0.0.1", port=_free_port())
+        app = ReviewApp(root, host="127.0.0.1", port=free_port())
         try:
             times = browser_switches(app.url)
         finally:
@@ -200,7 +184,7 @@ def main() -> None:
         print(f"  each switch, ms: {', '.join(f'{t:.0f}' for t in times)}")
         shutil.rmtree(root)
         root = make_dataset(Path(tmp) / "ds", 6)
-        app = ReviewApp(root, host="127.0.0.1", port=_free_port())
+        app = ReviewApp(root, host="127.0.0.1", port=free_port())
         try:
             cold, server = server_switches(app)
         finally:

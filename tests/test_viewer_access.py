@@ -16,12 +16,7 @@ from annotator.cli import main
 from annotator.errors import UserError
 from viewer.access import Access, is_loopback
 from viewer.app import ReviewApp
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+from viewer.headless import free_port
 
 
 def test_loopback_names() -> None:
@@ -135,7 +130,7 @@ def _handshake(port: int, path: str = "/", origin: str | None = None) -> str:
 
 
 def test_websocket_connections_are_checked_at_the_handshake(sample_copy) -> None:
-    app = ReviewApp(sample_copy, host="127.0.0.1", port=_free_port(), token="s3cret")
+    app = ReviewApp(sample_copy, host="127.0.0.1", port=free_port(), token="s3cret")
     try:
         port = app.port
         own = f"http://127.0.0.1:{port}"
@@ -150,7 +145,7 @@ def test_websocket_connections_are_checked_at_the_handshake(sample_copy) -> None
 
 def test_a_non_local_host_needs_a_token(sample_copy, monkeypatch, capsys) -> None:
     with pytest.raises(UserError, match="--host 0.0.0.0 .* give a --token"):
-        ReviewApp(sample_copy, host="0.0.0.0", port=_free_port())
+        ReviewApp(sample_copy, host="0.0.0.0", port=free_port())
     # From the command line a token is made up and printed (the test binds 127.0.0.1 only).
     from annotator.commands import review
 
@@ -161,7 +156,7 @@ def test_a_non_local_host_needs_a_token(sample_copy, monkeypatch, capsys) -> Non
         lambda host, port, **kw: real(host="127.0.0.1", port=port, **kw),
     )
     app = review.start(
-        Namespace(dataset=str(sample_copy), host="0.0.0.0", port=_free_port(), token=None)
+        Namespace(dataset=str(sample_copy), host="0.0.0.0", port=free_port(), token=None)
     )
     try:
         out = capsys.readouterr().out
@@ -170,7 +165,7 @@ def test_a_non_local_host_needs_a_token(sample_copy, monkeypatch, capsys) -> Non
     finally:
         app.stop()
     app = review.start(
-        Namespace(dataset=str(sample_copy), host="0.0.0.0", port=_free_port(), token="mine")
+        Namespace(dataset=str(sample_copy), host="0.0.0.0", port=free_port(), token="mine")
     )
     try:
         assert app.access.token == "mine" and "token%3Dmine" in capsys.readouterr().out

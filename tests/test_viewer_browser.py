@@ -21,40 +21,25 @@ playwright = pytest.importorskip("playwright.sync_api")
 
 import viewer.app  # noqa: E402
 from viewer.app import ReviewApp  # noqa: E402
+from viewer.headless import free_port, launch_chromium  # noqa: E402
 
 pytestmark = pytest.mark.browser
 
-CHROMIUM_ARGS = [
-    "--headless",
-    "--no-sandbox",
-    "--disable-gpu",
-    "--disable-quic",
-    "--no-first-run",
-    "--disable-background-networking",
-    "--disable-component-update",
-    "--disable-sync",
-]
 VIEWPORT = {"width": 1400, "height": 1000}
 PENDING_RGB = (255, 220, 0)
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 @pytest.fixture(scope="module")
 def browser():
     with playwright.sync_playwright() as pw:
-        b = pw.chromium.launch(executable_path="/usr/bin/chromium", args=CHROMIUM_ARGS)
+        b = launch_chromium(pw)
         yield b
         b.close()
 
 
 @contextlib.contextmanager
 def _serving(root: Path, **kwargs):
-    app = ReviewApp(root, host="127.0.0.1", port=_free_port(), **kwargs)
+    app = ReviewApp(root, host="127.0.0.1", port=free_port(), **kwargs)
     try:
         yield app
     finally:
@@ -307,7 +292,7 @@ def test_a_non_local_host_without_a_token_is_refused(browser, sample_copy, monke
         "ViserServer",
         lambda host, port, **kw: real(host="127.0.0.1", port=port, **kw),
     )
-    args = Namespace(dataset=str(sample_copy), host="0.0.0.0", port=_free_port(), token=None)
+    args = Namespace(dataset=str(sample_copy), host="0.0.0.0", port=free_port(), token=None)
     app = review.start(args)
     try:
         out = capsys.readouterr().out
