@@ -92,18 +92,22 @@ def run_batch(
     desc: str = "scenes",
     quiet: bool = False,
     ray_address: str | None = None,
+    ray_wait: float | None = None,
 ) -> BatchReport:
     """Run ``job`` on every scene id, in ``workers`` processes of one thread each (OpenCV and
     ray casting), with a progress bar on stderr.
 
     With ``ray_address`` (``"auto"`` or a cluster's address), every scene is a task on that
     Ray cluster instead and ``workers`` is ignored; ``job`` must then declare its files (see
-    :class:`annotator.scale.DistributableJob`).
+    :class:`annotator.scale.DistributableJob`); ``ray_wait`` bounds the wait (s) for a
+    cluster that has no CPU for the tasks (default :data:`annotator.scale.RAY_WAIT_S`).
     """
     if ray_address is not None:
         from annotator.scale.ray_runner import run_on_ray
 
-        return run_on_ray(job, scene_ids, address=ray_address, desc=desc, quiet=quiet)
+        return run_on_ray(
+            job, scene_ids, address=ray_address, desc=desc, quiet=quiet, wait_s=ray_wait
+        )
     report = BatchReport()
     pool = None
     if workers > 1 and len(scene_ids) > 1:

@@ -107,17 +107,95 @@ def test_interrupted_export_leaves_out_as_it_was(
     assert sorted(p.name for p in tmp_path.iterdir()) == ["bop", "ds"]
 
 
+def _killed_while_building(out: Path) -> None:
+    """Run atomic_folder(out) in another process and kill -9 it in the middle of the build."""
+    code = (
+        "import sys, time\n"
+        "from annotator.io.atomic import atomic_folder\n"
+        "with atomic_folder(sys.argv[1]) as tmp:\n"
+        "    (tmp / 'half.png').write_bytes(b'x')\n"
+        "    print('building', flush=True)\n"
+        "    time.sleep(60)\n"
+    )
+    proc = subprocess.Popen([sys.executable, "-c", code, str(out)], stdout=subprocess.PIPE)
+    try:
+        assert proc.stdout is not None and proc.stdout.readline() == b"building\n"
+    finally:
+        proc.kill()
+        proc.wait()
+
+
 def test_abandoned_temporary_folders_are_removed(tmp_path) -> None:
     out = tmp_path / "out"
-    stale = tmp_path / ".out.abc123"  # left by a killed run: nobody holds its lock
-    stale.mkdir()
-    (stale / "half.png").write_bytes(b"x")
+    _killed_while_building(out)
+    (stale,) = [p for p in tmp_path.iterdir() if p.name.startswith(".out.")]
     with atomic_folder(out) as tmp:
         (tmp / "f").write_text("ok")
         # A folder being built by another live process is left alone.
         with atomic_folder(tmp_path / "other") as _:
             pass
     assert not stale.exists() and (out / "f").read_text() == "ok"
+    assert not (out / ".annotator-temporary").exists()
+
+
+def test_folders_named_like_ours_are_never_removed_or_renamed(sample_copy, tmp_path) -> None:
+    """``.bop.backup`` and ``.bop.old.1`` are the user's: no export touches them."""
+    _accept_all(sample_copy, 1)
+    d = tmp_path / "d"
+    for name in (".bop.backup", ".bop.old.1", ".bop.abc123"):
+        (d / name).mkdir(parents=True)
+        (d / name / "notes.txt").write_text(name)
+    for _ in range(2):
+        assert main(["export", str(sample_copy), str(d / "bop"), "--format", "bop", "--quiet",
+                     "--overwrite"]) == 0
+        assert sorted(p.name for p in d.iterdir()) == [
+            ".bop.abc123", ".bop.backup", ".bop.old.1", "bop"
+        ]
+        for name in (".bop.backup", ".bop.old.1", ".bop.abc123"):
+            assert (d / name / "notes.txt").read_text() == name
+        assert (d / "bop" / ".annotator-output.json").exists()
+
+
+def test_a_kill_between_the_two_renames_gives_the_old_folder_back(tmp_path, monkeypatch) -> None:
+    """Killed after the old OUT was moved aside and before the new one took its name: the
+    next run puts the old one back before anything else."""
+    out = tmp_path / "out"
+    with atomic_folder(out) as tmp:
+        (tmp / "v").write_text("1")
+    real_rename = Path.rename
+
+    def dies_at_the_second_rename(self, target):
+        if Path(target) == out:
+            raise KeyboardInterrupt  # as a kill there would leave it, minus the clean-up
+        return real_rename(self, target)
+
+    monkeypatch.setattr(Path, "rename", dies_at_the_second_rename)
+    import annotator.io.atomic as atomic
+
+    monkeypatch.setattr(atomic.shutil, "rmtree", lambda *a, **k: None)  # the kill: no clean-up
+    with pytest.raises(KeyboardInterrupt), atomic_folder(out) as tmp:
+        (tmp / "v").write_text("2")
+    monkeypatch.undo()
+    assert not out.exists()
+    # The folders it left are unlocked now (the descriptors were closed, as by a kill): the
+    # next run, even one that fails, gives the old folder back first.
+    with pytest.raises(RuntimeError), atomic_folder(out):
+        raise RuntimeError("the next run fails too")
+    assert (out / "v").read_text() == "1"
+    assert [p.name for p in tmp_path.iterdir()] == ["out"]
+
+
+def test_a_symlinked_out_is_followed(sample_copy, tmp_path) -> None:
+    _accept_all(sample_copy, 1)
+    disk = tmp_path / "other_disk" / "bop"
+    disk.mkdir(parents=True)
+    link = tmp_path / "bop"
+    link.symlink_to(disk)
+    args = ["export", str(sample_copy), str(link), "--format", "bop", "--quiet"]
+    assert main(args) == 0
+    assert link.is_symlink() and (disk / "models" / "models_info.json").exists()
+    assert main([*args, "--overwrite"]) == 0
+    assert link.is_symlink() and (disk / ".annotator-output.json").exists()
 
 
 def test_unreadable_scenes_are_skipped_named_and_exit_1(sample_copy, tmp_path, capsys) -> None:

@@ -368,3 +368,29 @@ def test_refusals_are_one_line(cluster, sample_copy, tmp_path, capsys, monkeypat
         "annotator: error: --ray needs Ray, which is not installed: "
         "pip install 'bin-annotator[ray]'"
     ]
+
+
+def test_a_cluster_without_cpus_is_given_up_with_the_unfinished_scenes_listed(
+    sample, tmp_path
+) -> None:
+    """A head node with no CPU and no worker (as when the only worker node died): the run
+    says so at once, waits --ray-wait seconds, then lists every scene as not run, exit 1."""
+    root = _dataset(sample, tmp_path / "ds", scenes=5)
+    with LocalCluster(cpus=0) as empty:
+        started = time.monotonic()
+        run = subprocess.run(
+            [ANNOTATOR, "annotate", str(root), "--quiet", "--ray", empty.address, "--ray-wait", "3"],
+            env=empty.env,
+            capture_output=True,
+            text=True,
+            timeout=120,
+        )
+        took = time.monotonic() - started
+    assert run.returncode == 1, run.stderr
+    lines = run.stderr.strip().splitlines()
+    assert lines[0].startswith(f"warning: the Ray cluster at {empty.address} has 0 CPUs")
+    failed = [line for line in lines if line.startswith("failed: scene ")]
+    assert len(failed) == 5 and all("had no CPU for its tasks for 3 s" in f for f in failed)
+    assert "Traceback" not in run.stderr
+    assert took < 60
+    assert not list(root.glob("scenes/*/annotation.json"))

@@ -35,6 +35,7 @@ import yaml
 
 from annotator.errors import UserError
 from annotator.io.atomic import write_text
+from annotator.io.documents import read_yaml
 
 BOARD_FILE = "board.yaml"
 
@@ -126,13 +127,12 @@ class BoardSpec:
 def read_board_yaml(path: str | Path) -> BoardSpec:
     """Read a board description; UserError naming the file for anything wrong in it."""
     path = Path(path)
+    if not path.exists():
+        raise UserError("board file is missing", path=path)
     try:
-        doc = yaml.safe_load(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise UserError("board file is missing", path=path) from None
-    except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
-        first = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
-        raise UserError(f"not a readable YAML board description ({first})", path=path) from None
+        doc = read_yaml(path)
+    except UserError as exc:
+        raise UserError(f"not a readable YAML board description ({exc.message})", path=path) from None
     if not isinstance(doc, dict):
         raise UserError("must be a YAML mapping (squares_x, squares_y, ...)", path=path)
     known = set(BoardSpec.__dataclass_fields__)

@@ -24,6 +24,7 @@ from annotator.dataset.model import DepthSpec, Rig
 from annotator.dataset.write import rig_to_yaml
 from annotator.errors import UserError
 from annotator.geometry.camera import Camera
+from annotator.io.documents import parse_yaml, read_text
 
 #: Marker dictionary of a new dataset.yaml (the parts' markers, not the board's).
 DEFAULT_DICTIONARY = "DICT_4X4_1000"
@@ -88,12 +89,8 @@ def read_dataset_doc(path: Path) -> tuple[str | None, dict[str, Any] | None]:
     """The text and parsed content of a dataset.yaml, ``(None, None)`` if absent."""
     if not path.exists():
         return None, None
-    try:
-        text = path.read_text(encoding="utf-8")
-        doc = yaml.safe_load(text)
-    except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
-        first = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
-        raise UserError(f"not valid YAML ({first})", path=path) from None
+    text = read_text(path)
+    doc = parse_yaml(text, path)
     if doc is None:
         return text, {}
     if not isinstance(doc, dict):

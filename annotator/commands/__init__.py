@@ -7,6 +7,8 @@ calls and prints results (``--json`` where scripts consume the output).
 from __future__ import annotations
 
 import argparse
+import math
+from collections.abc import Callable
 
 from annotator.batch import available_cpus
 
@@ -16,18 +18,53 @@ def add_workers_option(parser: argparse.ArgumentParser) -> None:
     cores = available_cpus()
     parser.add_argument(
         "--workers",
-        type=_positive_int,
+        type=whole(low=1),
         default=cores,
         metavar="N",
         help=f"worker processes, one core each (default: the {cores} available cores)",
     )
 
 
-def _positive_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        value = 0
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be a whole number of at least 1, not {text!r}")
-    return value
+def whole(*, low: int = 0, high: int | None = None) -> Callable[[str], int]:
+    """An argparse type: a whole number within [``low``, ``high``] (one line otherwise)."""
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            value = None
+        if value is None or value < low or (high is not None and value > high):
+            span = f"at least {low}" if high is None else f"from {low} to {high}"
+            raise argparse.ArgumentTypeError(f"must be a whole number {span}, not {text!r}")
+        return value
+
+    return parse
+
+
+def number(
+    *, low: float | None = None, high: float | None = None, above: bool = False
+) -> Callable[[str], float]:
+    """An argparse type: a finite number within [``low``, ``high``] (``above``: strictly
+    greater than ``low``); NaN and infinities are refused in one line."""
+
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            value = math.nan
+        ok = math.isfinite(value)
+        if ok and low is not None:
+            ok = value > low if above else value >= low
+        if ok and high is not None:
+            ok = value <= high
+        if not ok:
+            bounds = []
+            if low is not None:
+                bounds.append(f"{'above' if above else 'at least'} {low:g}")
+            if high is not None:
+                bounds.append(f"at most {high:g}")
+            span = f" {' and '.join(bounds)}" if bounds else ""
+            raise argparse.ArgumentTypeError(f"must be a finite number{span}, not {text!r}")
+        return value
+
+    return parse

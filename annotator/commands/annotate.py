@@ -10,6 +10,7 @@ from annotator.annotation.batch import AnnotateJob, is_up_to_date
 from annotator.batch import run_batch
 from annotator.commands import add_workers_option
 from annotator.dataset import load_dataset, require_meshes
+from annotator.dataset.check import BROKEN_LINK
 from annotator.errors import UserError
 from annotator.scale import add_ray_option
 
@@ -44,7 +45,11 @@ def run(args: argparse.Namespace) -> int:
         desc="annotate",
         quiet=args.quiet,
         ray_address=args.ray,
+        ray_wait=args.ray_wait,
     )
+    for link in ds.broken_scene_links():
+        if fnmatch.fnmatch(link.name, args.scenes):
+            report.failed[link.name] = f"{link}: {BROKEN_LINK}"
     posed = sum(r["instances"] for r in report.done.values())
     flagged = sum(r["flagged"] for r in report.done.values())
     warned = sum(r["warned"] for r in report.done.values())

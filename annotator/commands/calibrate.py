@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING, Any
 
 from tqdm import tqdm
 
+from annotator.commands import number, whole
 from annotator.errors import UserError
 
 if TYPE_CHECKING:  # imported when the command runs, so that `annotator --help` stays fast
@@ -57,8 +58,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     board.add_argument(
         "--squares", metavar="XxY", help="squares along the board's x and y, e.g. 7x5"
     )
-    board.add_argument("--square-mm", type=float, help="square side as printed, mm")
-    board.add_argument("--marker-mm", type=float, help="marker side as printed, mm")
+    board.add_argument("--square-mm", type=number(low=0, above=True), help="square side as printed, mm")
+    board.add_argument("--marker-mm", type=number(low=0, above=True), help="marker side as printed, mm")
     board.add_argument("--dictionary", help="ArUco dictionary (default DICT_4X4_50)")
     board.add_argument(
         "--legacy-pattern",
@@ -78,7 +79,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--depth-scale",
-        type=float,
+        type=number(low=0, above=True),
         metavar="MM",
         help="mm per depth unit (default: kept from the dataset; without either, no depth section)",
     )
@@ -90,7 +91,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="distortion model: k1 k2 (2), + p1 p2 (4), + k3 (5, default)",
     )
     parser.add_argument(
-        "--min-shots", type=int, default=6, help="usable shots each camera needs (default 6)"
+        "--min-shots", type=whole(low=1), default=6, help="usable shots each camera needs (default 6)"
     )
     parser.add_argument(
         "--report",

@@ -12,6 +12,7 @@ import argparse
 import sys
 from pathlib import Path
 
+from annotator.commands import number, whole
 from annotator.errors import UserError
 
 
@@ -27,23 +28,23 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--max-occlusion",
-        type=float,
+        type=number(low=0, high=1),
         default=0.5,
         help="instances to find have at most this occlusion rate (default 0.5, inclusive)",
     )
     parser.add_argument(
         "-n",
         "--max-results",
-        type=int,
+        type=whole(low=1),
         nargs="*",
         default=[1, 3],
         help="AP_n for each n: at most n results per scene (default 1 3)",
     )
     g = parser.add_mutually_exclusive_group()
-    g.add_argument("--threshold", type=float, help="match threshold in mm (inclusive)")
+    g.add_argument("--threshold", type=number(low=0, above=True), help="match threshold in mm (inclusive)")
     g.add_argument(
         "--threshold-fraction",
-        type=float,
+        type=number(low=0, above=True),
         help="threshold as a fraction of the diameter (default: the dataset's own threshold "
         "if it has one, as the paper's poseutils.json, else 0.1)",
     )

@@ -13,6 +13,7 @@ from pathlib import Path
 
 import trimesh
 
+from annotator.commands import number, whole
 from annotator.dataset.model import Instance, Symmetry
 from annotator.dataset.write import write_object_yaml
 from annotator.errors import UserError
@@ -32,7 +33,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("out", help="output folder (an object folder of a dataset)")
     parser.add_argument(
-        "--size", type=float, help="printed marker side in mm (default: the part's, or 10)"
+        "--size", type=number(low=0, above=True), help="printed marker side in mm (default: the part's, or 10)"
     )
     parser.add_argument(
         "--dictionary",
@@ -40,13 +41,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="OpenCV ArUco dictionary (default DICT_4X4_1000)",
     )
     parser.add_argument(
-        "--instances", type=int, default=1, help="physical copies to make (default 1)"
+        "--instances", type=whole(low=1), default=1, help="physical copies to make (default 1)"
     )
-    parser.add_argument("--first-id", type=int, default=0, help="first marker id (default 0)")
-    parser.add_argument("--max-sites", type=int, help="at most this many sites per part")
+    parser.add_argument("--first-id", type=whole(low=0), default=0, help="first marker id (default 0)")
+    parser.add_argument("--max-sites", type=whole(low=1), help="at most this many sites per part")
     parser.add_argument(
         "--flatness",
-        type=float,
+        type=number(low=0, above=True),
         default=0.35,
         help="max gap between square and surface, mm (default 0.35)",
     )
@@ -54,9 +55,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--symmetry", default=None, help="symmetry class for a mesh file (default none)"
     )
     parser.add_argument(
-        "--dpi", type=int, default=300, help="resolution of the PNG sheets (default 300)"
+        "--dpi", type=whole(low=1, high=2400), default=300, help="resolution of the PNG sheets (default 300)"
     )
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--seed", type=whole(low=0), default=0, help="random seed (default 0)")
     parser.add_argument(
         "--overwrite", action="store_true", help="replace OUT if an earlier `markers` wrote it"
     )

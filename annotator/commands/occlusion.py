@@ -14,7 +14,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from annotator.batch import run_batch
-from annotator.commands import add_workers_option
+from annotator.commands import add_workers_option, number
 from annotator.dataset import cached_dataset, load_dataset, read_poses
 from annotator.errors import UserError
 from annotator.io.atomic import write_json
@@ -27,7 +27,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("dataset", help="dataset folder (FORMAT.md)")
     parser.add_argument("--poses", choices=("annotation", "gt"), default="annotation")
     parser.add_argument("--scenes", default="*", metavar="PATTERN")
-    parser.add_argument("--depth-tolerance", type=float, default=5.0, help="mm (default 5)")
+    parser.add_argument("--depth-tolerance", type=number(low=0), default=5.0, help="mm (default 5)")
     add_workers_option(parser)
     add_ray_option(parser)
     parser.add_argument("--force", action="store_true")
@@ -122,6 +122,7 @@ def run(args: argparse.Namespace) -> int:
         desc="occlusion",
         quiet=args.quiet,
         ray_address=args.ray,
+        ray_wait=args.ray_wait,
     )
     summary = {
         "done": len(report.done),

@@ -8,7 +8,7 @@ import shutil
 from pathlib import Path
 
 from annotator.batch import run_batch
-from annotator.commands import add_workers_option
+from annotator.commands import add_workers_option, number, whole
 from annotator.errors import UserError
 from annotator.io.atomic import atomic_folder
 from annotator.io.output_folder import check_output_folder, write_manifest
@@ -26,12 +26,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default="bracket,cylinder",
         help=f"comma-separated built-in parts ({', '.join(PART_NAMES)})",
     )
-    parser.add_argument("--scenes", type=int, default=10, help="number of scenes (default 10)")
+    parser.add_argument("--scenes", type=whole(low=1), default=10, help="number of scenes (default 10)")
     parser.add_argument(
         "--instances", default="8-20", metavar="MIN-MAX", help="instances per scene (default 8-20)"
     )
     parser.add_argument(
-        "--seed", type=int, default=0, help="random seed: same seed, same dataset (default 0)"
+        "--seed", type=whole(low=0), default=0, help="random seed: same seed, same dataset (default 0)"
     )
     add_workers_option(parser)
     add_ray_option(parser)
@@ -39,13 +39,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--size", default="1280x1024", metavar="WxH", help="image size (default 1280x1024)"
     )
     parser.add_argument(
-        "--clutter", type=int, default=0, help="parts without markers per scene (default 0)"
+        "--clutter", type=whole(low=0), default=0, help="parts without markers per scene (default 0)"
     )
     parser.add_argument(
-        "--noise", type=float, default=2.0, help="image noise sigma, grey levels (default 2)"
+        "--noise", type=number(low=0), default=2.0, help="image noise sigma, grey levels (default 2)"
     )
     parser.add_argument(
-        "--blur", type=float, default=0.6, help="image blur sigma, px (default 0.6)"
+        "--blur", type=number(low=0), default=0.6, help="image blur sigma, px (default 0.6)"
     )
     parser.add_argument("--no-depth", action="store_true", help="skip the active-stereo depth maps")
     parser.add_argument(
@@ -141,6 +141,7 @@ def run(args: argparse.Namespace) -> int:
             desc="synth",
             quiet=args.quiet,
             ray_address=args.ray,
+            ray_wait=args.ray_wait,
         )
         for sid in report.failed:
             shutil.rmtree(tmp / "scenes" / sid, ignore_errors=True)

@@ -52,6 +52,7 @@ def synth_twin(args: argparse.Namespace) -> int:
             desc="twin",
             quiet=args.quiet,
             ray_address=args.ray,
+            ray_wait=args.ray_wait,
         )
     summary = {
         "out": str(out),

@@ -13,6 +13,7 @@ import json
 import sys
 from pathlib import Path
 
+from annotator.commands import number
 from annotator.errors import UserError
 
 
@@ -20,11 +21,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("dataset", help="the real dataset (FORMAT.md)")
     parser.add_argument("twin", help="its twin, made by `annotator synth --twin DATASET TWIN`")
     parser.add_argument(
-        "--tolerance", type=float, default=1.5, help="mm of depth difference that count (1.5)"
+        "--tolerance", type=number(low=0), default=1.5, help="mm of depth difference that count (1.5)"
     )
     parser.add_argument(
         "--max-disagreement",
-        type=float,
+        type=number(low=0, high=1),
         default=0.3,
         help="an instance disagrees above this fraction of its pixels (0.3)",
     )

@@ -19,6 +19,7 @@ from annotator.errors import UserError
 
 SITE_TOLERANCE_MM = 0.5
 SIZE_TOLERANCE = 0.02  # relative
+BROKEN_LINK = "a symbolic link that leads nowhere (dangling or a loop): not a scene"
 
 
 def check_dataset(root: str | Path, *, annotations: bool = False) -> tuple[list[Problem], int]:
@@ -32,6 +33,8 @@ def check_dataset(root: str | Path, *, annotations: bool = False) -> tuple[list[
         ds.background_depth  # noqa: B018  (cached property: reads and checks the file)
     except UserError as exc:
         problems.append(Problem(exc.path or ds.root / "dataset.yaml", exc.message))
+    for link in ds.broken_scene_links():
+        problems.append(Problem(link, BROKEN_LINK))
     n = 0
     for scene in ds.scenes():
         n += 1
@@ -83,6 +86,14 @@ def _check_objects(ds: Dataset) -> list[Problem]:
                     "mesh is not watertight (open edges): occlusion rates and surface moments "
                     "assume a closed surface",
                     warning=True,
+                )
+            )
+        elif mesh.signed_volume < 0:
+            out.append(
+                Problem(
+                    obj.mesh_path,
+                    f"mesh is inside out (signed volume {mesh.signed_volume:.0f} mm^3): its "
+                    "faces must be counter-clockwise seen from outside; flip them",
                 )
             )
         if obj.markers is None:

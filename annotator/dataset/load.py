@@ -7,12 +7,12 @@ use: it raises a one-line :class:`~annotator.errors.UserError` if anything is wr
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 
 from annotator.dataset.model import (
     Dataset,
@@ -26,6 +26,7 @@ from annotator.dataset.model import (
 from annotator.errors import UserError
 from annotator.geometry.camera import Camera
 from annotator.geometry.transforms import is_rotation
+from annotator.io.documents import read_yaml
 from annotator.symmetry.classes import symmetry_from_yaml
 
 
@@ -109,6 +110,9 @@ def read_dataset(root: str | Path) -> tuple[Dataset | None, list[Problem]]:
         if obj is not None:
             objects[obj.name] = obj
     _check_marker_ids(objects, problems)
+    scenes = root / "scenes"
+    if (scenes.exists() or scenes.is_symlink()) and not scenes.is_dir():
+        problems.append(Problem(scenes, "is not a folder (scenes/<scene_id>/ hold the scenes)"))
     if rig is None:
         return None, problems
     ds = Dataset(
@@ -165,22 +169,22 @@ def _read_yaml(path: Path, problems: list[Problem]) -> dict[str, Any] | None:
         problems.append(Problem(path, "file is missing"))
         return None
     try:
-        doc = yaml.safe_load(path.read_text(encoding="utf-8"))
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None) or getattr(exc, "context_mark", None)
-        where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""
-        what = "; ".join(
-            str(x) for x in (getattr(exc, "context", None), getattr(exc, "problem", None)) if x
-        )
-        problems.append(Problem(path, f"not valid YAML{where} ({what or type(exc).__name__})"))
-        return None
-    except UnicodeDecodeError as exc:
-        problems.append(Problem(path, f"not UTF-8 text ({exc.reason} at byte {exc.start})"))
+        doc = read_yaml(path)
+    except UserError as exc:
+        problems.append(Problem(path, exc.message))
         return None
     if not isinstance(doc, dict):
         problems.append(Problem(path, "must be a YAML mapping"))
         return None
     return doc
+
+
+def outside(root: Path, path: Path) -> bool:
+    """True if ``path`` leads out of the folder ``root`` (an absolute path elsewhere, ``..``,
+    or a symbolic link on the way whose target is elsewhere)."""
+    real_root = os.path.realpath(root)
+    real = os.path.realpath(path)
+    return os.path.commonpath([real_root, real]) != real_root
 
 
 def _known_dictionary(name: str) -> bool:
@@ -262,6 +266,9 @@ def _parse_rig(p: _Parser, rig: dict[str, Any] | None) -> Rig | None:
                 if bg is not None and not isinstance(bg, str):
                     p.problem("rig.depth.background must be a file name (the empty bin's depth)")
                     bg = None
+                elif bg is not None and outside(p.path.parent, p.path.parent / bg):
+                    p.problem(f"rig.depth.background {bg!r} lies outside the dataset")
+                    bg = None
                 depth = DepthSpec(camera=cam, scale=float(scale), background=bg)
     if not cameras:
         return None
@@ -271,6 +278,11 @@ def _parse_rig(p: _Parser, rig: dict[str, Any] | None) -> Rig | None:
 def _parse_object(root: Path, name: str, problems: list[Problem]) -> ObjectModel | None:
     folder = root / "objects" / name
     path = folder / "object.yaml"
+    if outside(root / "objects", folder) or folder == root / "objects":
+        problems.append(
+            Problem(root / "dataset.yaml", f"object {name!r} is not a folder under objects/")
+        )
+        return None
     doc = _read_yaml(path, problems)
     if doc is None:
         return None
@@ -279,6 +291,12 @@ def _parse_object(root: Path, name: str, problems: list[Problem]) -> ObjectModel
     if mesh_name is None:
         return None
     mesh_path = folder / mesh_name
+    if outside(root, mesh_path):
+        p.problem(
+            f"mesh {mesh_name!r} lies outside the dataset; give a path relative to the "
+            "object's folder that stays inside the dataset"
+        )
+        return None
     if not mesh_path.is_file():
         p.problem(f"mesh file {mesh_name!r} is missing")
     symmetry = _parse_symmetry(p, doc.get("symmetry", {"class": "none"}))

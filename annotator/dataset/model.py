@@ -178,6 +178,18 @@ class Dataset:
             if p.is_dir() and not p.name.startswith(".")
         ]
 
+    def broken_scene_links(self) -> list[Path]:
+        """Entries of ``scenes/`` that are symbolic links leading nowhere (dangling, or a
+        loop): not scenes, but not to be passed over in silence either."""
+        folder = self.root / "scenes"
+        if not folder.is_dir():
+            return []
+        return [
+            p
+            for p in sorted(folder.iterdir())
+            if p.is_symlink() and not p.exists() and not p.name.startswith(".")
+        ]
+
     def scene(self, scene_id: str) -> Scene:
         """The scene called ``scene_id`` (KeyError if absent)."""
         path = self.root / "scenes" / scene_id

@@ -7,7 +7,6 @@ fields in the ``extra`` dict returned by :func:`read_pose_file`).
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -17,6 +16,7 @@ import numpy as np
 from annotator.errors import UserError
 from annotator.geometry.transforms import is_rotation, make_transform
 from annotator.io.atomic import write_json
+from annotator.io.documents import finite_number, read_json
 
 
 @dataclass
@@ -50,35 +50,58 @@ class InstancePose:
         return out
 
 
+#: Numeric fields of an instance that readers use, with their bounds: ``None`` or a finite
+#: number within them, else the file is refused naming the field.
+_NUMBERS: tuple[tuple[str, float | None, float | None], ...] = (
+    ("occlusion.rate", 0.0, 1.0),
+    ("occlusion_rate", 0.0, 1.0),
+    ("uncertainty_mm", 0.0, None),
+    ("reprojection_px.rms", 0.0, None),
+    ("reprojection_px.max", 0.0, None),
+    ("depth.agreement", 0.0, 1.0),
+    ("depth.median_abs_mm", 0.0, None),
+)
+
+
 def read_pose_file(path: str | Path) -> tuple[list[InstancePose], dict[str, Any]]:
     """Read gt.json / annotation.json: the poses and the other top-level fields.
 
     Raises:
-        UserError: naming the file, if it is not valid JSON or a pose is malformed.
+        UserError: naming the file, the entry and the field, if it is not valid JSON, a pose
+            is malformed or not finite, a figure is not a finite number within its bounds,
+            or an instance is listed twice.
     """
     path = Path(path)
-    try:
-        doc = json.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise UserError("file is missing", path=path) from None
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise UserError(f"not valid JSON ({exc})", path=path) from None
+    doc = read_json(path)
     if not isinstance(doc, dict) or not isinstance(doc.get("instances"), list):
         raise UserError("expected an object with an 'instances' list", path=path)
     poses = []
+    seen: set[str] = set()
     for i, rec in enumerate(doc["instances"]):
         try:
             R = np.asarray(rec["cam_R_m2c"], dtype=np.float64).reshape(3, 3)
             t = np.asarray(rec["cam_t_m2c"], dtype=np.float64).reshape(3)
-            obj, inst = str(rec["object"]), str(rec["instance"])
+            obj, inst = rec["object"], rec["instance"]
+            if not isinstance(obj, (str, int)) or not isinstance(inst, (str, int)):
+                raise TypeError
+            obj, inst = str(obj), str(inst)
         except (KeyError, TypeError, ValueError):
             raise UserError(
                 f"instances[{i}] needs object, instance, cam_R_m2c (9) and cam_t_m2c (3)", path=path
             ) from None
+        where = f"instances[{i}] ({obj}/{inst})"
+        for name, value in (("cam_R_m2c", R), ("cam_t_m2c", t)):
+            if not np.all(np.isfinite(value)):
+                raise UserError(f"{where}: {name} has a NaN or infinite value", path=path)
         if not is_rotation(R, tol=1e-3):
-            raise UserError(
-                f"instances[{i}] ({obj}/{inst}): cam_R_m2c is not a rotation", path=path
-            )
+            raise UserError(f"{where}: cam_R_m2c is not a rotation", path=path)
+        if f"{obj}/{inst}" in seen:
+            raise UserError(f"{where}: the instance is listed twice", path=path)
+        seen.add(f"{obj}/{inst}")
+        for field_name, low, high in _NUMBERS:
+            value = _dotted(rec, field_name)
+            if value is not None:
+                finite_number(value, f"{where}: {field_name}", path, low=low, high=high)
         extra = {
             k: v
             for k, v in rec.items()
@@ -87,6 +110,16 @@ def read_pose_file(path: str | Path) -> tuple[list[InstancePose], dict[str, Any]
         poses.append(InstancePose(obj, inst, R, t, extra))
     rest = {k: v for k, v in doc.items() if k != "instances"}
     return poses, rest
+
+
+def _dotted(rec: dict[str, Any], name: str) -> Any:
+    """``rec["a"]["b"]`` for ``"a.b"``; None where a level is missing or not a mapping."""
+    node: Any = rec
+    for part in name.split("."):
+        if not isinstance(node, dict):
+            return None
+        node = node.get(part)
+    return node
 
 
 def read_poses(path: str | Path) -> list[InstancePose]:

@@ -40,6 +40,7 @@ import numpy as np
 from annotator.dataset.poses import InstancePose
 from annotator.errors import UserError
 from annotator.io.atomic import write_json
+from annotator.io.documents import read_json
 
 #: The ``reason`` of a scene rejected because a part in it has no pose.
 NO_POSE_REASON = "a part has no pose"
@@ -175,11 +176,9 @@ def read_review(path: str | Path) -> Review | None:
     if not path.exists():
         return None
     try:
-        doc = json.loads(path.read_text(encoding="utf-8"))
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise UserError(f"corrupt review file ({exc})", path=path) from None
-    except OSError as exc:
-        raise UserError(f"cannot read review file ({exc.strerror or exc})", path=path) from None
+        doc = read_json(path)
+    except UserError as exc:
+        raise UserError(f"corrupt review file ({exc.message})", path=path) from None
     if not isinstance(doc, dict):
         raise UserError("corrupt review file (expected a JSON object)", path=path)
     status = doc.get("status", "pending")
@@ -193,6 +192,9 @@ def read_review(path: str | Path) -> Review | None:
     reason = doc.get("reason")
     if reason is not None and not isinstance(reason, str):
         raise UserError("'reason' must be a string", path=path)
+    for name in ("decided_at", "annotation_fingerprint", "decided_by"):
+        if doc.get(name) is not None and not isinstance(doc[name], str):
+            raise UserError(f"'{name}' must be a string", path=path)
     decided_by = doc.get("decided_by")
     known = {
         "status",

@@ -35,8 +35,9 @@ Curves and scores:
 
 Everything is computed per scene with prefix arrays: for results sorted by decreasing score,
 the nearest kept result of every true pose for every prefix comes from one running minimum,
-so a scene costs O(|P| (|P| + |T|)) operations instead of one nearest-neighbour search per
-threshold.
+so a scene costs O(|P| |T|) operations and memory instead of one nearest-neighbour search
+per threshold. The mean curve adds each scene's steps where they happen, so it is linear in
+the number of results too.
 """
 
 from __future__ import annotations
@@ -127,15 +128,20 @@ def scene_curve(
     better = np.zeros_like(D, dtype=bool)
     better[0] = True
     better[1:] = D[1:] < running[:-1]
-    nearest = np.maximum.accumulate(np.where(better, np.arange(n_p)[:, None], 0), axis=0)
-    # own[k - 1, p]: result p is n_P(n_T(p)) when the first k are kept.
-    own = nearest[:, nearest_t] == np.arange(n_p)[None, :]
-    kept = np.arange(n_p)[None, :] < np.arange(1, n_p + 1)[:, None]
-    good = kept & own & matched[None, :]
-    tp[1:] = (good & to_find[nearest_t][None, :]).sum(axis=1)
-    fp[1:] = (kept & ~good).sum(axis=1)
+    del running
+    index_type = np.int32 if n_p < 2**31 else np.int64
+    rows = np.arange(n_p, dtype=index_type)[:, None]
+    nearest = np.maximum.accumulate(np.where(better, rows, 0), axis=0)
+    del better
+    # back[k - 1, t]: n_P(t) matches t back (t is its nearest true pose, within the
+    # threshold). Such t and the results that are n_P(n_T(p)) and match are one to one, so
+    # counting over the true poses gives TP and the good results without any |P| x |P| table.
     back = (nearest_t[nearest] == np.arange(n_t)[None, :]) & matched[nearest]
-    fn[1:] = (to_find[None, :] & ~back).sum(axis=1)
+    del nearest
+    good = back.sum(axis=1)
+    tp[1:] = back[:, to_find].sum(axis=1)
+    fp[1:] = np.arange(1, n_p + 1) - good
+    fn[1:] = n_find - tp[1:]
     return SceneCurve(sorted_scores, tp, fp, fn, n_find)
 
 
@@ -179,13 +185,18 @@ def mean_curve(
         return np.ones(1), np.ones(1)
     all_scores = np.concatenate([c.scores for c in curves])
     thresholds = np.concatenate([[np.inf], np.unique(all_scores)[::-1]])
+    # A scene's point changes only at its own thresholds (a subset of all of them): add its
+    # steps there and sum them up, instead of evaluating every scene at every threshold.
+    ascending = -thresholds
     precision = np.zeros(len(thresholds))
     recall = np.zeros(len(thresholds))
     for c in curves:
-        p, r = c.points(c.kept(thresholds), max_results)
-        precision += p
-        recall += r
-    return precision / len(curves), recall / len(curves)
+        own = c.thresholds()
+        at = np.searchsorted(ascending, -own)
+        p, r = c.points(c.kept(own), max_results)
+        precision[at] += np.diff(p, prepend=0.0)
+        recall[at] += np.diff(r, prepend=0.0)
+    return np.cumsum(precision) / len(curves), np.cumsum(recall) / len(curves)
 
 
 def summarise(curves: Sequence[SceneCurve], *, max_results: Sequence[int] = ()) -> Summary:

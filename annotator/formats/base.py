@@ -6,7 +6,6 @@ paper's format stores metres); the reader converts.
 
 from __future__ import annotations
 
-import json
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -17,6 +16,7 @@ import numpy as np
 
 from annotator.errors import UserError
 from annotator.geometry.transforms import is_rotation
+from annotator.io.documents import read_json
 from annotator.symmetry.space import PoseSpace
 
 
@@ -28,6 +28,11 @@ class PoseSet:
     R: list[np.ndarray] = field(default_factory=list)
     t: list[np.ndarray] = field(default_factory=list)
     values: list[float] = field(default_factory=list)
+
+    @classmethod
+    def of(cls, R: np.ndarray, t: np.ndarray, values: np.ndarray) -> PoseSet:
+        """Poses given as (N, 3, 3), (N, 3) and (N,) arrays."""
+        return cls(list(R), list(t), [float(v) for v in values])
 
     def add(self, R: np.ndarray, t: np.ndarray, value: float) -> None:
         self.R.append(R)
@@ -85,18 +90,6 @@ class Results:
         self.scenes |= {scene for scene, _ in self.poses}
 
 
-def load_json(path: Path) -> Any:
-    """A JSON file, or a one-line UserError naming it."""
-    try:
-        return json.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise UserError("file is missing", path=path) from None
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise UserError(f"not valid JSON ({exc})", path=path) from None
-    except OSError as exc:
-        raise UserError(f"cannot read ({exc.strerror})", path=path) from None
-
-
 def checked_pose(
     R: Any, t: Any, where: str, path: Path, *, scale: float = 1.0
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -128,11 +121,12 @@ def checked_poses(
     try:
         R = np.asarray(Rs, float).reshape(n, 3, 3)
         t = np.asarray(ts, float).reshape(n, 3) * scale
+        finite = np.isfinite(R).all(axis=(1, 2)) & np.isfinite(t).all(axis=1)
+        R_ok = np.where(finite[:, None, None], R, np.eye(3))  # NaN would warn in det
         ok = (
-            np.isfinite(R).all(axis=(1, 2))
-            & np.isfinite(t).all(axis=1)
-            & (np.abs(R @ np.swapaxes(R, 1, 2) - np.eye(3)).max(axis=(1, 2)) < 1e-3)
-            & (np.abs(np.linalg.det(R) - 1.0) < 1e-3)
+            finite
+            & (np.abs(R_ok @ np.swapaxes(R_ok, 1, 2) - np.eye(3)).max(axis=(1, 2)) < 1e-3)
+            & (np.abs(np.linalg.det(R_ok) - 1.0) < 1e-3)
         )
     except (TypeError, ValueError):
         ok = np.zeros(n, bool)
@@ -183,7 +177,7 @@ def read_json_lists(
     known = set(gt.scenes)
     single = next(iter(gt.spaces)) if len(gt.spaces) == 1 else None
     for f in sorted(folder.glob("*.json")):
-        doc = load_json(f)
+        doc = read_json(f)
         if not isinstance(doc, list):
             raise UserError("expected a JSON list of {R, t, score}", path=f)
         key = scene_key(f.stem)

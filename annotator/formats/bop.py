@@ -29,7 +29,10 @@ Results: BOP's CSV ``scene_id,im_id,obj_id,score,R,t,time`` (R row-major, t in m
 from __future__ import annotations
 
 import csv
+import io
+import warnings
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -41,10 +44,10 @@ from annotator.formats.base import (
     PoseSet,
     Results,
     Table,
-    checked_pose,
+    checked_poses,
     checked_score,
-    load_json,
 )
+from annotator.io.documents import read_json
 
 NAME = "bop"
 
@@ -206,7 +209,7 @@ def read_ground_truth(path: Path, *, symmetry: str | None = None) -> GroundTruth
     from annotator.symmetry.classes import symmetry_from_bop
 
     info_path = path / "models" / "models_info.json"
-    info = load_json(info_path)
+    info = read_json(info_path)
     if not isinstance(info, dict):
         raise UserError("expected an object {obj_id: {...}}", path=info_path)
     spaces, names = {}, {}
@@ -229,9 +232,9 @@ def read_ground_truth(path: Path, *, symmetry: str | None = None) -> GroundTruth
             if not p.name.startswith("scene_gt_info")
         )
         sfx = "" if "" in sensors else sensors[0]
-        gt = load_json(scene_dir / f"scene_gt{sfx}.json")
+        gt = read_json(scene_dir / f"scene_gt{sfx}.json")
         gi_path = scene_dir / f"scene_gt_info{sfx}.json"
-        gi = load_json(gi_path) if gi_path.exists() else {}
+        gi = read_json(gi_path) if gi_path.exists() else {}
         for im_id, insts in gt.items():
             key = f"{int(scene_dir.name)}/{int(im_id)}"
             scenes.append(key)
@@ -256,48 +259,224 @@ def read_results(path: Path, gt: GroundTruth) -> Results:
     return read_csv_results(path, gt, scene_key=lambda sid, im: f"{int(sid)}/{im}")
 
 
+#: BOP's result columns, in their order when the file has no header.
+CSV_COLUMNS = ("scene_id", "im_id", "obj_id", "score", "R", "t", "time")
+
+
 def read_csv_results(
     path: Path, gt: GroundTruth, *, scene_key: Callable[[str, int], str]
 ) -> Results:
     """BOP's CSV: one result per line, ``scene_id,im_id,obj_id,score,R,t,time``; the
-    header line is optional; ``obj_id`` is a number (or, for our datasets, a name)."""
+    header line is optional and may put the columns in any order (``time`` may be left
+    out); a UTF-8 byte-order mark is allowed; ``obj_id`` is a number (or, for our datasets,
+    a name).
+
+    A file of numbers only is parsed in one go by numpy, so that a million lines take
+    seconds; any other file, or one that numpy cannot take, is read cell by cell, which
+    names the first bad line as :func:`checked_pose` and :func:`checked_score` do.
+    """
     if not path.is_file():
         raise UserError("results file or folder is missing", path=path)
     try:
-        with path.open(newline="", encoding="utf-8") as fh:
-            rows = list(csv.reader(fh))
+        text = path.read_text(encoding="utf-8-sig")
     except (OSError, UnicodeDecodeError) as exc:
         raise UserError(f"cannot read ({exc})", path=path) from None
-    table: Table = {}
+    lines = text.splitlines()
+    numbers = [n for n, line in enumerate(lines, 1) if line.strip()]
+    index = dict(zip(CSV_COLUMNS[:6], range(6)))
+    header: list[str] | None = None
+    if numbers:
+        first = next(csv.reader([lines[numbers[0] - 1]]))
+        if any(c.strip().lower() == "scene_id" for c in first):
+            header = [c.strip() for c in first]
+            index = _header(header, path)
+            numbers = numbers[1:]
+    rows = _numeric_rows(lines, numbers, header)
+    try:
+        if rows is None:
+            rows = _cell_rows(lines, numbers, index, path)
+        objects, R, t = _checked(rows, numbers, gt, path)
+    except UserError:
+        if rows is None or rows.score_cells is not None:
+            raise
+        # Read in one go, a line's numbers may have shifted from R into t: cell by cell, the
+        # line is named with what is really wrong with it.
+        rows = _cell_rows(lines, numbers, index, path)
+        objects, R, t = _checked(rows, numbers, gt, path)
+    keys: dict[tuple[str, int], str] = {}
+    groups: dict[tuple[str, str], list[int]] = {}
     known = set(gt.scenes)
     unknown: list[str] = []
-    start = 1 if rows and rows[0] and rows[0][0].strip() == "scene_id" else 0
-    for n, row in enumerate(rows[start:], start=start + 1):
-        if not row or not "".join(row).strip():
-            continue
-        where = f"line {n}"
-        if len(row) < 6:
-            raise UserError(f"{where}: expected scene_id,im_id,obj_id,score,R,t,time", path=path)
-        try:
-            scene_id, im_id = row[0].strip(), int(row[1])
-            R = [float(v) for v in row[4].split()]
-            t = [float(v) for v in row[5].split()]
-        except ValueError:
-            raise UserError(f"{where}: malformed number", path=path) from None
-        score = checked_score(row[3].strip(), where, path)
-        obj = row[2].strip()
-        if obj.isdigit():
-            obj = gt.object_ids.get(int(obj), f"obj_{int(obj):06d}")
-        if obj not in gt.spaces:
-            raise UserError(f"{where}: result for unknown object {row[2].strip()!r}", path=path)
-        Rm, tv = checked_pose(R, t, where, path)
-        try:
-            key = scene_key(scene_id, im_id)
-        except ValueError:
-            raise UserError(f"{where}: malformed scene_id {scene_id!r}", path=path) from None
-        if key not in known:
-            if key not in unknown:
+    for i, (sid, im, obj) in enumerate(zip(rows.scene_ids, rows.im_ids.tolist(), objects)):
+        key = keys.get((sid, im))
+        if key is None:
+            try:
+                key = keys[(sid, im)] = scene_key(sid, im)
+            except ValueError:
+                raise UserError(f"line {numbers[i]}: malformed scene_id {sid!r}", path=path) from None
+            if key not in known and key not in unknown:
                 unknown.append(key)
-            continue
-        table.setdefault((key, obj), PoseSet()).add(Rm, tv, score)
+        if key in known:
+            groups.setdefault((key, obj), []).append(i)
+    table: Table = {g: PoseSet.of(R[i], t[i], rows.scores[i]) for g, i in groups.items()}
     return Results(table, unknown)
+
+
+def _checked(
+    rows: _Rows, numbers: list[int], gt: GroundTruth, path: Path
+) -> tuple[list[str], np.ndarray, np.ndarray]:
+    """The rows' object names and poses, checked (the first bad line is named)."""
+    objects = _object_names(rows.objects, numbers, gt, path)
+    bad = np.flatnonzero(~np.isfinite(rows.scores))
+    if bad.size and rows.score_cells is not None:
+        checked_score(rows.score_cells[bad[0]], f"line {numbers[bad[0]]}", path)
+    R, t = checked_poses(rows.R, rows.t, lambda i: f"line {numbers[i]}", path)
+    return objects, R, t
+
+
+@dataclass
+class _Rows:
+    """The columns of a results CSV, one entry per data line."""
+
+    scene_ids: Sequence[str]
+    im_ids: np.ndarray
+    objects: Sequence[str]
+    scores: np.ndarray
+    R: Any  # (N, 9) numbers, or one list per line (its length checked with the pose)
+    t: Any
+    score_cells: Sequence[str] | None = None  # as written, to name a bad one
+
+
+#: How many numbers each column holds.
+_WIDTHS = {"R": 9, "t": 3}
+
+
+def _numeric_rows(lines: list[str], numbers: list[int], header: list[str] | None) -> _Rows | None:
+    """The rows of a file made of numbers only, parsed by numpy; None if it is not one (the
+    cell-by-cell reader then reads it and names what is wrong)."""
+    names = header or list(CSV_COLUMNS)
+    if any(n not in CSV_COLUMNS for n in names) or not numbers:
+        return None
+    offsets, width = {}, 0
+    for name in names:
+        offsets[name] = width
+        width += _WIDTHS.get(name, 1)
+    body = "\n".join(lines[n - 1] for n in numbers).replace(",", " ")
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            table = np.loadtxt(io.StringIO(body), dtype=np.float64, ndmin=2)
+    except (ValueError, Warning):
+        return None
+    # Every line must also have its commas where the header says (R and t of 9 and 3 numbers).
+    if table.shape != (len(numbers), width) or any(
+        lines[n - 1].count(",") != len(names) - 1 for n in numbers
+    ):
+        return None
+
+    def col(name: str, k: int = 1) -> np.ndarray:
+        return table[:, offsets[name] : offsets[name] + k]
+
+    ids = np.concatenate([col("scene_id"), col("im_id"), col("obj_id")], axis=1)
+    if not np.all(np.isfinite(ids) & (ids == np.round(ids)) & (ids >= 0)):
+        return None
+    if not np.all(np.isfinite(col("score"))):
+        return None  # named with the cell's own text
+    ids = ids.astype(np.int64)
+    return _Rows(
+        scene_ids=_as_text(ids[:, 0]),
+        im_ids=ids[:, 1],
+        objects=_as_text(ids[:, 2]),
+        scores=col("score")[:, 0].copy(),
+        R=col("R", 9),
+        t=col("t", 3),
+    )
+
+
+def _as_text(values: np.ndarray) -> Sequence[str]:
+    """Integers as their decimal text (each distinct value converted once)."""
+    unique, inverse = np.unique(values, return_inverse=True)
+    return np.array([str(v) for v in unique], dtype=object)[inverse.reshape(-1)].tolist()
+
+
+def _cell_rows(lines: list[str], numbers: list[int], index: dict[str, int], path: Path) -> _Rows:
+    """The rows read cell by cell; the first bad line is named."""
+    table = list(csv.reader(lines[n - 1] for n in numbers))
+    width = max(index.values()) + 1
+    for n, row in zip(numbers, table):
+        if len(row) < width:
+            raise UserError(f"line {n}: expected {','.join(CSV_COLUMNS)}", path=path)
+
+    def column(name: str) -> list[str]:
+        i = index[name]
+        return [row[i].strip() for row in table]
+
+    scores = column("score")
+    return _Rows(
+        scene_ids=column("scene_id"),
+        im_ids=_parsed(column("im_id"), numbers, path, int, "malformed number"),
+        objects=column("obj_id"),
+        scores=_parsed(scores, numbers, path, float, None),
+        R=_vectors(column("R"), numbers, path),
+        t=_vectors(column("t"), numbers, path),
+        score_cells=scores,
+    )
+
+
+def _header(names: list[str], path: Path) -> dict[str, int]:
+    """Column name -> position, from a header line in any order."""
+    missing = [c for c in CSV_COLUMNS[:6] if c not in names]
+    if missing:
+        raise UserError(
+            f"line 1: the header lacks {', '.join(missing)} (columns: {','.join(CSV_COLUMNS)})",
+            path=path,
+        )
+    return {c: names.index(c) for c in CSV_COLUMNS[:6]}
+
+
+def _parsed(
+    cells: list[str], numbers: list[int], path: Path, kind: type, message: str | None
+) -> np.ndarray:
+    """``cells`` as an int or float array; the first cell that is not one is named (with
+    ``message``, or as :func:`checked_score` names a score)."""
+    try:
+        return np.array([kind(c) for c in cells], dtype=np.int64 if kind is int else np.float64)
+    except (ValueError, OverflowError):
+        for n, c in zip(numbers, cells):
+            try:
+                kind(c)
+            except (ValueError, OverflowError):
+                if message is None:
+                    checked_score(c, f"line {n}", path)
+                raise UserError(f"line {n}: {message}", path=path) from None
+        raise
+
+
+def _vectors(cells: list[str], numbers: list[int], path: Path) -> list[list[float]]:
+    """Space-separated numbers per cell (their count is checked with the pose)."""
+    try:
+        return [[float(v) for v in c.split()] for c in cells]
+    except ValueError:
+        for n, c in zip(numbers, cells):
+            try:
+                [float(v) for v in c.split()]
+            except ValueError:
+                raise UserError(f"line {n}: malformed number", path=path) from None
+        raise
+
+
+def _object_names(cells: list[str], numbers: list[int], gt: GroundTruth, path: Path) -> list[str]:
+    """Object names for ``obj_id`` cells (numbers through ``gt.object_ids``, or names)."""
+    names: dict[str, str] = {}
+    out = []
+    for n, cell in zip(numbers, cells):
+        name = names.get(cell)
+        if name is None:
+            name = cell
+            if cell.isdigit():
+                name = gt.object_ids.get(int(cell), f"obj_{int(cell):06d}")
+            if name not in gt.spaces:
+                raise UserError(f"line {n}: result for unknown object {cell!r}", path=path)
+            names[cell] = name
+        out.append(name)
+    return out

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from annotator.errors import UserError
 from annotator.formats.base import GroundTruth, PoseSet, Results, Table, read_json_lists
 
 NAME = "ours"
@@ -46,7 +47,12 @@ def read_ground_truth(path: Path, *, symmetry: str | None = None) -> GroundTruth
         if not src.exists():
             continue
         scenes.append(sc.id)
-        for p in read_poses(src):
+        for i, p in enumerate(read_poses(src)):
+            if p.object not in spaces:
+                raise UserError(
+                    f"instances[{i}]: unknown object {p.object!r} (objects: {', '.join(spaces)})",
+                    path=src,
+                )
             table.setdefault((sc.id, p.object), PoseSet()).add(p.R, p.t, _occlusion(p.extra))
     ids = {k + 1: n for k, n in enumerate(ds.objects)}
     return GroundTruth(spaces, table, scenes, NAME, "mm", ids)

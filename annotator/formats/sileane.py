@@ -50,9 +50,9 @@ from annotator.formats.base import (
     Results,
     Table,
     checked_entries,
-    load_json,
     read_json_lists,
 )
+from annotator.io.documents import read_json, read_yaml
 from annotator.symmetry.space import PoseSpace
 
 NAME = "sileane"
@@ -244,7 +244,7 @@ def read_ground_truth(path: Path, *, symmetry: str | None = None) -> GroundTruth
     thresholds = {}
     if (path / "poseutils.json").is_file():
         space, thr = poseutils_from_json(
-            load_json(path / "poseutils.json"), path / "poseutils.json"
+            read_json(path / "poseutils.json"), path / "poseutils.json"
         )
         if thr is not None:
             thresholds[name] = thr
@@ -253,7 +253,7 @@ def read_ground_truth(path: Path, *, symmetry: str | None = None) -> GroundTruth
     table: Table = {}
     scenes = []
     for f in sorted((path / "gt").glob("*.json")):
-        doc = load_json(f)
+        doc = read_json(f)
         if not isinstance(doc, list):
             raise UserError("expected a JSON list of {R, t, occlusion_rate}", path=f)
         scenes.append(f.stem)
@@ -269,7 +269,6 @@ def read_ground_truth(path: Path, *, symmetry: str | None = None) -> GroundTruth
 
 
 def _space_from_mesh(path: Path, symmetry: str | None) -> PoseSpace:
-    import yaml
 
     from annotator.geometry.mesh import Mesh, load_mesh
     from annotator.symmetry.classes import Symmetry, symmetry_from_yaml
@@ -290,8 +289,8 @@ def _space_from_mesh(path: Path, symmetry: str | None) -> PoseSpace:
     sym = Symmetry()
     if (path / "symmetry.yaml").exists():
         try:
-            sym = symmetry_from_yaml(yaml.safe_load((path / "symmetry.yaml").read_text()))
-        except (ValueError, yaml.YAMLError) as exc:
+            sym = symmetry_from_yaml(read_yaml(path / "symmetry.yaml"))
+        except ValueError as exc:
             raise UserError(str(exc).splitlines()[0], path=path / "symmetry.yaml") from None
     elif symmetry:
         try:

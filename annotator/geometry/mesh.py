@@ -63,6 +63,14 @@ class Mesh:
         return surface_moments(self.vertices, self.faces)
 
     @cached_property
+    def signed_volume(self) -> float:
+        """Enclosed volume (mm^3) by the divergence theorem: positive when the faces are
+        counter-clockwise seen from outside, negative for a mesh wound inside out (only
+        meaningful for a closed surface)."""
+        tri = self.triangles
+        return float(np.einsum("ij,ij->i", tri[:, 0], np.cross(tri[:, 1], tri[:, 2])).sum() / 6)
+
+    @cached_property
     def is_watertight(self) -> bool:
         """True if every edge is shared by exactly two triangles once coincident vertices
         are merged (a closed surface)."""
@@ -140,6 +148,10 @@ def surface_moments(vertices: np.ndarray, faces: np.ndarray) -> SurfaceMoments:
     )
 
 
+#: The mesh files :func:`load_mesh` reads, by name ending.
+MESH_SUFFIXES = (".ply", ".obj", ".stl", ".off", ".glb")
+
+
 def load_mesh(path: str | Path) -> Mesh:
     """Load a triangle mesh (PLY, OBJ, STL, OFF, GLB) in millimetres.
 
@@ -151,6 +163,10 @@ def load_mesh(path: str | Path) -> Mesh:
     path = Path(path)
     if not path.is_file():
         raise UserError("mesh file is missing", path=path)
+    if path.suffix.lower() not in MESH_SUFFIXES:
+        raise UserError(
+            f"not a mesh file type this tool reads ({', '.join(MESH_SUFFIXES)})", path=path
+        )
     try:
         loaded = trimesh.load(path, force="mesh", process=False)
     except Exception as exc:  # trimesh raises many types for corrupt files

@@ -87,40 +87,67 @@ def _to_builtin(obj: Any) -> Any:
     raise TypeError(f"cannot serialise {type(obj).__name__} to JSON")
 
 
+#: The file that marks a folder as one of the project's temporary folders. Abandoned
+#: temporary folders are recognised by it (and by their free lock), never by name alone: a
+#: folder of the user's whose name happens to look like ours is never removed or renamed.
+TEMPORARY_MARK = ".annotator-temporary"
+
+
+def temporary_folder(parent: Path, prefix: str) -> tuple[Path, int | None]:
+    """Create a folder in ``parent`` named ``prefix<random>``, locked and marked as ours.
+
+    Returns the folder and the descriptor holding its ``flock`` (None where there is no
+    ``flock``); close the descriptor when the folder is finished with. The lock is taken
+    before the mark is written, so a sweeping neighbour never sees a marked, unlocked folder
+    that is still in use.
+    """
+    tmp = Path(tempfile.mkdtemp(prefix=prefix, dir=parent))
+    os.chmod(tmp, 0o777 & ~_umask())
+    lock = _lock(tmp)
+    (tmp / TEMPORARY_MARK).write_text("made by annotator; removed when its lock is free\n")
+    return tmp, lock
+
+
 @contextmanager
 def atomic_folder(out: str | Path) -> Iterator[Path]:
     """Build a folder in a temporary sibling and put it in place of ``out`` only on success.
 
     Whatever goes wrong inside the ``with`` block (an error, Ctrl-C), ``out`` is left as it was
     and the temporary folder is removed: never half a dataset or half an export. The old
-    ``out`` is moved aside before the new one takes its name and deleted only after, so a
-    crash at any moment leaves one of the two complete.
+    ``out`` is moved aside (into a second temporary folder) before the new one takes its name
+    and deleted only after, so a crash at any moment leaves one of the two complete.
 
-    The temporary folder ``.<out>.<random>`` is locked (``flock``) while it is being built; one
-    left behind by a killed process is no longer locked and is removed by the next call for
-    the same ``out``, while one that another running process is building is left alone.
+    A symbolic link ``out`` is followed: its target is replaced and the link stays.
+
+    The temporary folders (:func:`temporary_folder`) are locked while in use; one left
+    behind by a killed process is no longer locked and is removed by the next call for the
+    same ``out`` (after putting an old ``out`` it holds back in place if ``out`` is gone),
+    while one that another running process is building is left alone.
     """
     out = Path(out)
+    if out.is_symlink():
+        out = Path(os.path.realpath(out))
+    prefix = f".{out.name}."
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
         _remove_abandoned(out)
-        tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
-        os.chmod(tmp, 0o777 & ~_umask())
+        tmp, lock = temporary_folder(out.parent, prefix)
     except OSError as exc:
         raise WriteError(f"cannot create the folder ({exc.strerror or exc})", path=out) from None
-    lock = _lock(tmp)
     try:
         yield tmp
-        old = None
         if out.exists() or out.is_symlink():
-            old = out.parent / f".{out.name}.old.{os.getpid()}"
-            out.rename(old)
-        tmp.rename(out)
-        if old is not None:
-            if old.is_dir() and not old.is_symlink():
-                shutil.rmtree(old, ignore_errors=True)
-            else:
-                old.unlink(missing_ok=True)
+            trash, trash_lock = temporary_folder(out.parent, prefix)
+            try:
+                out.rename(trash / "old")
+                tmp.rename(out)
+                shutil.rmtree(trash, ignore_errors=True)
+            finally:
+                if trash_lock is not None:
+                    os.close(trash_lock)
+        else:
+            tmp.rename(out)
+        (out / TEMPORARY_MARK).unlink(missing_ok=True)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
@@ -141,27 +168,28 @@ def _lock(folder: Path) -> int | None:
 
 
 def _remove_abandoned(out: Path) -> None:
-    """Delete temporary siblings of ``out`` whose builder is gone (their lock is free)."""
+    """Delete the temporary siblings of ``out`` whose builder is gone (marked, lock free)."""
     prefix = f".{out.name}."
     for cand in sorted(out.parent.iterdir()):
-        if not cand.name.startswith(prefix) or not cand.is_dir() or cand.is_symlink():
-            continue
-        if cand.name.startswith(prefix + "old.") and not out.exists():
-            # Killed between moving the old folder aside and putting the new one in place:
-            # the old one is still whole, so it goes back.
-            with contextlib.suppress(OSError):
-                cand.rename(out)
-            continue
-        remove_if_abandoned(cand)
+        if cand.name.startswith(prefix) and cand.is_dir() and not cand.is_symlink():
+            remove_if_abandoned(cand, restore=out)
 
 
-def remove_if_abandoned(folder: Path) -> bool:
-    """Delete ``folder`` if no process holds its ``flock`` (whoever made it is gone); leave
-    it to a live owner otherwise. True if it was removed."""
+def remove_if_abandoned(folder: Path, *, restore: Path | None = None) -> bool:
+    """Delete ``folder`` if it is one of the project's temporary folders (it carries
+    :data:`TEMPORARY_MARK`) and no process holds its ``flock`` (whoever made it is gone);
+    leave it otherwise. True if it was removed.
+
+    With ``restore``: a folder killed while holding the old ``restore`` (moved aside by
+    :func:`atomic_folder` before the new one took its name) gives it back first, if
+    ``restore`` is gone.
+    """
     try:
         import fcntl
     except ImportError:  # not POSIX: nobody can tell; keep it
         return False
+    if not (folder / TEMPORARY_MARK).is_file():
+        return False  # not ours
     try:
         fd = os.open(folder, os.O_RDONLY)
     except OSError:
@@ -171,6 +199,10 @@ def remove_if_abandoned(folder: Path) -> bool:
     except OSError:
         return False  # its owner is alive
     else:
+        old = folder / "old"
+        if restore is not None and old.is_dir() and not (restore.exists() or restore.is_symlink()):
+            with contextlib.suppress(OSError):
+                old.rename(restore)
         shutil.rmtree(folder, ignore_errors=True)
         return True
     finally:

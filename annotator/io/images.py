@@ -25,13 +25,25 @@ def read_image(path: str | Path) -> np.ndarray:
     """Read an image file as stored (8/16-bit, grey or colour). Raises UserError if unreadable."""
     path = Path(path)
     if not path.is_file():
-        raise UserError("image file is missing", path=path)
-    data = np.fromfile(path, dtype=np.uint8)
+        raise UserError(_not_a_file(path, "image"), path=path)
+    try:
+        data = np.fromfile(path, dtype=np.uint8)
+    except OSError as exc:
+        raise UserError(f"cannot read ({exc.strerror or exc})", path=path) from None
     with _native_stderr_hidden():
         img = cv2.imdecode(data, cv2.IMREAD_UNCHANGED) if data.size else None
     if img is None:
         raise UserError("unreadable or corrupt image", path=path)
     return img
+
+
+def _not_a_file(path: Path, what: str) -> str:
+    """Why ``path`` is not a readable file: missing, a folder, or a link leading nowhere."""
+    if path.is_dir():
+        return f"is a folder, not an {what} file"
+    if path.is_symlink():
+        return f"is a symbolic link that leads nowhere (dangling or a loop), not an {what} file"
+    return f"{what} file is missing"
 
 
 _STDERR = threading.Lock()

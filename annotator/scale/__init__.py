@@ -26,7 +26,11 @@ from __future__ import annotations
 import argparse
 from typing import Any, Protocol
 
-__all__ = ["DistributableJob", "add_ray_option"]
+__all__ = ["RAY_WAIT_S", "DistributableJob", "add_ray_option"]
+
+#: How long (s) a run waits by default for a cluster that has no CPU for its tasks (its
+#: only worker node died, or none joined) before it stops and lists the unfinished scenes.
+RAY_WAIT_S = 60.0
 
 
 class DistributableJob(Protocol):
@@ -66,3 +70,22 @@ def add_ray_option(parser: argparse.ArgumentParser) -> None:
         "latest `ray start`); files travel as bytes, no shared file system is needed; "
         "--workers is then ignored (needs `pip install 'bin-annotator[ray]'`)",
     )
+    parser.add_argument(
+        "--ray-wait",
+        metavar="SECONDS",
+        type=_seconds,
+        default=RAY_WAIT_S,
+        help="with --ray: how long to wait for a CPU when the cluster has none for its tasks "
+        "(its worker nodes died or none joined) before stopping with the unfinished scenes "
+        f"listed (default {RAY_WAIT_S:g})",
+    )
+
+
+def _seconds(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number of seconds: {text!r}") from None
+    if not (value >= 0 and value < float("inf")):
+        raise argparse.ArgumentTypeError(f"must be a finite number of seconds >= 0: {text!r}")
+    return value

@@ -30,10 +30,10 @@ import atexit
 import contextlib
 import dataclasses
 import logging
-import os
 import shutil
 import signal
 import socket
+import sys
 import tempfile
 import threading
 import time
@@ -44,7 +44,8 @@ from typing import Any
 
 from annotator.batch import BatchReport, describe_failure, progress_bar
 from annotator.errors import UserError
-from annotator.io.atomic import remove_if_abandoned
+from annotator.io.atomic import remove_if_abandoned, temporary_folder
+from annotator.scale import RAY_WAIT_S
 from annotator.scale.bundle import (
     Bundle,
     Files,
@@ -91,10 +92,15 @@ def run_on_ray(
     desc: str = "scenes",
     quiet: bool = False,
     retries: int = RETRIES,
+    wait_s: float | None = None,
 ) -> BatchReport:
     """Run ``job`` (a :class:`~annotator.scale.DistributableJob`) on every scene id as tasks
     of the Ray cluster at ``address`` (``"auto"``: the running one); the same report as
     :func:`annotator.batch.run_batch`, with failures after ``retries`` further attempts.
+
+    A cluster that has no CPU for the tasks (its worker nodes died, or none joined) is
+    waited for ``wait_s`` seconds (default :data:`annotator.scale.RAY_WAIT_S`), with one
+    line on stderr; then the run stops and every unfinished scene is reported failed.
 
     Joins the cluster unless this process already has (then it stays joined, as it was), and
     not at all when there is no scene to do. Raises UserError when Ray is not installed or
@@ -116,7 +122,8 @@ def run_on_ray(
     shared = Bundle.read(job.root, job.shared_files())
     joined = connect(address)
     try:
-        return _Driver(ray, job, shared, retries).run(scene_ids, desc, quiet)
+        wait = RAY_WAIT_S if wait_s is None else wait_s
+        return _Driver(ray, job, shared, retries, address, wait).run(scene_ids, desc, quiet)
     finally:
         if joined:
             ray.shutdown()
@@ -199,13 +206,21 @@ class _Attempt:
     number: int = 1
 
 
+class _Starved(Exception):
+    """The cluster had no CPU for the tasks for longer than the run waits."""
+
+
 class _Driver:
     """The driver's side of one batch."""
 
-    def __init__(self, ray: Any, job: Any, shared: Bundle, retries: int) -> None:
+    def __init__(
+        self, ray: Any, job: Any, shared: Bundle, retries: int, address: str, wait_s: float
+    ) -> None:
         self.ray = ray
         self.job = job
         self.retries = retries
+        self.address = address
+        self.wait_s = wait_s
         self.report = BatchReport()
         self.task = ray.remote(_scene_task).options(
             num_cpus=1, max_retries=retries, retry_exceptions=False
@@ -216,6 +231,8 @@ class _Driver:
         self.shared = (shared.digest, [ray.put(shared.files)])
         self.pending: dict[Any, _Attempt] = {}
         self._window = (0.0, 0)
+        self._cpus = (float("-inf"), 0.0)
+        self._starved_since: float | None = None
 
     def run(self, scene_ids: Sequence[str], desc: str, quiet: bool) -> BatchReport:
         todo = iter(scene_ids)
@@ -235,6 +252,13 @@ class _Driver:
                 for ref in done:
                     if self.settle(ref):
                         bar.update()
+                if not done:
+                    self.watch_cpus()
+        except _Starved as why:
+            unfinished = [a.scene_id for a in self.pending.values()] + list(todo)
+            self.cancel()
+            for sid in unfinished:
+                self.report.failed[sid] = f"not run: {why}"
         except BaseException:
             self.cancel()
             raise
@@ -242,13 +266,41 @@ class _Driver:
             bar.close()
         return self.report
 
+    def cluster_cpus(self) -> float:
+        """CPUs of the cluster (looked up again at most every POLL_S)."""
+        now = time.monotonic()
+        if now - self._cpus[0] >= POLL_S:
+            self._cpus = (now, float(self.ray.cluster_resources().get("CPU", 0.0)))
+        return self._cpus[1]
+
+    def watch_cpus(self) -> None:
+        """While no task finishes: a cluster with no CPU for a task (each needs 1) is told
+        once, then given up after ``wait_s`` seconds (raises :class:`_Starved`)."""
+        cpus = self.cluster_cpus()
+        if cpus >= 1:
+            self._starved_since = None
+            return
+        now = time.monotonic()
+        if self._starved_since is None:
+            self._starved_since = now
+            print(
+                f"warning: the Ray cluster at {self.address} has {cpus:g} CPUs and each task "
+                f"needs 1; waiting up to {self.wait_s:g} s for a node to join (--ray-wait)",
+                file=sys.stderr,
+            )
+        elif now - self._starved_since >= self.wait_s:
+            raise _Starved(
+                f"the Ray cluster at {self.address} had no CPU for its tasks for "
+                f"{self.wait_s:g} s (each needs 1 CPU; the cluster has {cpus:g}: start a "
+                "worker node with `ray start --address HEAD:PORT`)"
+            )
+
     def window(self) -> int:
         """Tasks to keep in flight: TASKS_PER_CPU per CPU of the cluster (looked up again
         every few seconds: nodes may join or leave during a run)."""
         now = time.monotonic()
         if now - self._window[0] > 5.0:
-            cpus = self.ray.cluster_resources().get("CPU", 1)
-            self._window = (now, max(2, int(TASKS_PER_CPU * cpus)))
+            self._window = (now, max(2, int(TASKS_PER_CPU * self.cluster_cpus())))
         return self._window[1]
 
     def submit(self, scene_id: str) -> bool:
@@ -393,8 +445,9 @@ def _base() -> Path:
         _sweep(tmp)
         # Made under another name and locked before it takes its final name, so that a
         # sweeping neighbour never sees it unlocked.
-        folder = Path(tempfile.mkdtemp(prefix=f".{_PREFIX}", dir=tmp))
-        _lock(folder)
+        folder, lock = temporary_folder(tmp, f".{_PREFIX}")
+        if lock is not None:
+            _LOCKS.append(lock)
         final = tmp / folder.name[1:]
         folder.rename(final)
         atexit.register(shutil.rmtree, final, True)
@@ -403,23 +456,6 @@ def _base() -> Path:
 
 
 _LOCKS: list[int] = []  # descriptors kept open for the life of the process
-
-
-def _lock(folder: Path) -> bool:
-    """Take an exclusive flock on ``folder`` without waiting; False if another process
-    holds it."""
-    try:
-        import fcntl
-    except ImportError:  # not POSIX: nothing is swept either
-        return True
-    fd = os.open(folder, os.O_RDONLY)
-    try:
-        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-    except OSError:
-        os.close(fd)
-        return False
-    _LOCKS.append(fd)
-    return True
 
 
 def _sweep(tmp: Path) -> None:
