@@ -7,6 +7,7 @@ use: it raises a one-line :class:`~annotator.errors.UserError` if anything is wr
 
 from __future__ import annotations
 
+import math
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -255,7 +256,11 @@ def _parse_rig(p: _Parser, rig: dict[str, Any] | None) -> Rig | None:
         else:
             cam = str(d.get("camera", cameras[0].name if cameras else ""))
             scale = d.get("scale")
-            if not isinstance(scale, (int, float)) or isinstance(scale, bool) or not scale > 0:
+            if (
+                not isinstance(scale, (int, float))
+                or isinstance(scale, bool)
+                or not 0 < scale < math.inf
+            ):
                 p.problem("rig.depth.scale is missing or not a positive number (mm per depth unit)")
             elif cam in broken:
                 pass  # that camera's own problem is already reported: no knock-on line
@@ -304,13 +309,13 @@ def _parse_object(root: Path, name: str, problems: list[Problem]) -> ObjectModel
     if "markers" in doc and doc["markers"] is not None:
         m = doc["markers"]
         size = m.get("size") if isinstance(m, dict) else None
-        if not isinstance(size, (int, float)) or not size > 0:
+        if not isinstance(size, (int, float)) or not 0 < size < math.inf:
             p.problem("markers.size must be a positive number (mm)")
         sites = m.get("sites", []) if isinstance(m, dict) else []
         corners = p.floats(
             sites, len(sites) * 12 if isinstance(sites, list) and sites else 12, "markers.sites"
         )
-        if corners is not None and isinstance(size, (int, float)) and size > 0:
+        if corners is not None and isinstance(size, (int, float)) and 0 < size < math.inf:
             markers = MarkerSites(size=float(size), corners=corners.reshape(-1, 4, 3))
     instances: list[Instance] = []
     n_sites = 0 if markers is None else markers.corners.shape[0]

@@ -102,6 +102,7 @@ def read_pose_file(path: str | Path) -> tuple[list[InstancePose], dict[str, Any]
             value = _dotted(rec, field_name)
             if value is not None:
                 finite_number(value, f"{where}: {field_name}", path, low=low, high=high)
+        _check_lists(rec, where, path)
         extra = {
             k: v
             for k, v in rec.items()
@@ -110,6 +111,36 @@ def read_pose_file(path: str | Path) -> tuple[list[InstancePose], dict[str, Any]
         poses.append(InstancePose(obj, inst, R, t, extra))
     rest = {k: v for k, v in doc.items() if k != "instances"}
     return poses, rest
+
+
+def _check_lists(rec: dict[str, Any], where: str, path: Path) -> None:
+    """``flags``: a list of strings; ``markers``: ``{camera: {use: [ids]}}``; ``views`` a
+    count; the mappings a reader walks (``occlusion``, ``depth``, ``reprojection_px``)."""
+    flags = rec.get("flags")
+    if flags is not None and (
+        not isinstance(flags, list) or not all(isinstance(f, str) for f in flags)
+    ):
+        raise UserError(f"{where}: flags must be a list of strings", path=path)
+    markers = rec.get("markers")
+    if markers is not None and not (
+        isinstance(markers, dict)
+        and all(
+            isinstance(uses, dict)
+            and all(
+                isinstance(ids, list)
+                and all(isinstance(i, int) and not isinstance(i, bool) for i in ids)
+                for ids in uses.values()
+            )
+            for uses in markers.values()
+        )
+    ):
+        raise UserError(f"{where}: markers must map camera -> {{used: [ids], ...}}", path=path)
+    views = rec.get("views")
+    if views is not None:
+        finite_number(views, f"{where}: views", path, low=0)
+    for name in ("occlusion", "depth", "reprojection_px"):
+        if rec.get(name) is not None and not isinstance(rec[name], dict):
+            raise UserError(f"{where}: {name} must be a mapping or null", path=path)
 
 
 def _dotted(rec: dict[str, Any], name: str) -> Any:
