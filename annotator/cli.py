@@ -19,6 +19,7 @@ import sys
 import threading
 import time
 from collections.abc import Sequence
+from typing import NoReturn
 
 from annotator.errors import Terminated, UserError
 
@@ -54,6 +55,11 @@ COMMANDS: tuple[tuple[str, str, str], ...] = (
     ),
     ("review", "annotator.commands.review", "accept or reject annotated scenes in the browser"),
     ("occlusion", "annotator.commands.occlusion", "compute per-instance masks and occlusion rates"),
+    (
+        "estimate",
+        "annotator.commands.estimate",
+        "a baseline pose estimator (PPF) on the depth maps, results as BOP CSV",
+    ),
     ("export", "annotator.commands.export", "export accepted scenes to BOP or the Sileane format"),
     (
         "evaluate",
@@ -68,8 +74,20 @@ COMMANDS: tuple[tuple[str, str, str], ...] = (
 )
 
 
+class _UsageError(Exception):
+    """A mistake on the command line (the message names the option)."""
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse, with its errors as one line (no usage block) and exit status 2 returned by
+    :func:`main` rather than raised as SystemExit."""
+
+    def error(self, message: str) -> NoReturn:
+        raise _UsageError(f"{self.prog}: error: {message} (see `{self.prog} --help`)")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="annotator",
         description="Ground-truth 6D poses for bin-picking scenes, and symmetry-aware evaluation.",
     )
@@ -99,7 +117,11 @@ def main(argv: Sequence[str] | None = None) -> int:
             mod = importlib.import_module(module)
             mod.add_arguments(sub)
             break
-    args = parser.parse_args(argv)
+    try:
+        args = parser.parse_args(argv)
+    except _UsageError as exc:
+        print(exc, file=sys.stderr)
+        return 2
     if not getattr(args, "command", None):
         parser.print_help()
         return 2

@@ -10,7 +10,7 @@ from annotator.dataset.model import Symmetry
 from annotator.geometry.mesh import Mesh
 from annotator.geometry.transforms import axis_angle, random_rotations
 from annotator.parts import build_part
-from annotator.symmetry import PoseSpace, finite_group
+from annotator.symmetry import PoseSpace, filter_duplicates, finite_group
 
 Z = np.array([0.0, 0.0, 1.0])
 
@@ -102,7 +102,9 @@ def test_nearest_duplicates_and_average() -> None:
     half = axis_angle(Z, np.pi)
     Rd = np.concatenate([R, (R[0] @ half)[None]])
     td = np.concatenate([t, (t[0] + [0.2, 0, 0])[None]])
-    kept = space.remove_duplicates(Rd, td, np.array([6, 5, 4, 3, 2, 1, 7.0]), radius=5.0)
+    poses = np.tile(np.eye(4), (7, 1, 1))
+    poses[:, :3, :3], poses[:, :3, 3] = Rd, td
+    kept = filter_duplicates(poses, np.array([6, 5, 4, 3, 2, 1, 7.0]), space, radius=5.0)
     assert sorted(kept.tolist()) == [1, 2, 3, 4, 5, 6]
     Ra, ta = space.average(np.stack([R[0], R[0] @ half]), np.stack([t[0] + 1, t[0] - 1]))
     assert space.distance(Ra[None], ta[None], R[0][None], t[0][None])[0] < 1e-6

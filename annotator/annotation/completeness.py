@@ -162,6 +162,16 @@ def plane_depth(plane: tuple[np.ndarray, float], rays: np.ndarray) -> np.ndarray
     return z
 
 
+def support_depth(measured: np.ndarray, rays: np.ndarray) -> np.ndarray:
+    """The setting's depth (mm) where no background capture exists: the support plane found
+    in ``measured`` (inf where there is none), with the bin's rim and walls, which are
+    setting and not parts, at their measured depth. ``rays``: the pixels' ``(x, y, 1)``."""
+    points = rays * measured[..., None]
+    plane = fit_support_plane(points)
+    background = plane_depth(plane, rays) if plane is not None else np.full(measured.shape, np.inf)
+    return np.where(support_pixels(points, plane), measured, background)
+
+
 # ------------------------------------------------------------------- unexplained depth
 
 

@@ -32,11 +32,9 @@ from annotator.annotation.completeness import (
     CompletenessSettings,
     exposure,
     find_regions,
-    fit_support_plane,
     mean_silhouette_mm2,
-    plane_depth,
     quality_warnings,
-    support_pixels,
+    support_depth,
     unexplained_mask,
 )
 from annotator.annotation.record import InstanceAnnotation, SceneAnnotation, SceneWarning
@@ -325,13 +323,7 @@ def unexplained_depth(
         background = _filled(full_bg, step)
         source = "the dataset's background depth"
     else:
-        points = rays * measured[..., None]
-        plane = fit_support_plane(points)
-        background = (
-            plane_depth(plane, rays) if plane is not None else np.full(measured.shape, np.inf)
-        )
-        # A bin's rim and walls are setting, not parts: they count as background.
-        background = np.where(support_pixels(points, plane), measured, background)
+        background = support_depth(measured, rays)
         source = "the support plane found in the depth"
     mask = unexplained_mask(measured, background, rendered, cs)
     z = float(np.nanmedian(measured)) if np.isfinite(measured).any() else 1000.0

@@ -161,24 +161,6 @@ class PoseSpace:
         d, i = tree.query(self.representatives(R_query, t_query)[:, 0])
         return owner[i], d
 
-    def remove_duplicates(
-        self, R: np.ndarray, t: np.ndarray, scores: np.ndarray, radius: float
-    ) -> np.ndarray:
-        """Indices of the poses kept when, in decreasing score order, every pose closer than
-        ``radius`` to an already kept one is dropped (section 4.2's early duplicate removal)."""
-        order = np.argsort(-np.asarray(scores), kind="stable")
-        reps = self.representatives(np.asarray(R)[order], np.asarray(t)[order])
-        kept: list[int] = []
-        kept_reps: list[np.ndarray] = []
-        for k in range(len(order)):
-            if kept_reps:
-                d = np.linalg.norm(np.concatenate(kept_reps) - reps[k, 0], axis=1).min()
-                if d < radius:
-                    continue
-            kept.append(int(order[k]))
-            kept_reps.append(reps[k])
-        return np.array(kept, dtype=int)
-
     def average(self, R: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Average of nearby poses of a (possibly symmetric) part.
 
