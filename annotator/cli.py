@@ -53,6 +53,11 @@ COMMANDS: tuple[tuple[str, str, str], ...] = (
         "annotator.commands.annotate",
         "propose a pose for every instance from its markers",
     ),
+    (
+        "sites",
+        "annotator.commands.sites",
+        "measure where each instance's markers really are (glued by hand) into object.yaml",
+    ),
     ("review", "annotator.commands.review", "accept or reject annotated scenes in the browser"),
     ("occlusion", "annotator.commands.occlusion", "compute per-instance masks and occlusion rates"),
     (

@@ -394,3 +394,17 @@ def test_a_cluster_without_cpus_is_given_up_with_the_unfinished_scenes_listed(
     assert "Traceback" not in run.stderr
     assert took < 60
     assert not list(root.glob("scenes/*/annotation.json"))
+
+
+def test_estimate_gives_the_same_results_on_the_cluster(cluster, sample, tmp_path, capsys) -> None:
+    """The results travel back as the task's value: the CSV is the one a local run writes
+    (the time column aside)."""
+
+    def rows(path: Path) -> list[list[str]]:
+        return [line.split(",")[:-1] for line in path.read_text().splitlines()]
+
+    local, remote = tmp_path / "local.csv", tmp_path / "remote.csv"
+    base = ["estimate", str(sample), "--scenes", "00000[01]", "--quiet"]
+    assert main([*base, str(local), "--workers", "1"]) == 0
+    assert main([*base, str(remote), "--ray", cluster.address]) == 0, capsys.readouterr().err
+    assert len(rows(local)) > 1 and rows(local) == rows(remote)

@@ -23,7 +23,9 @@ import viewer.app  # noqa: E402
 from viewer.app import ReviewApp  # noqa: E402
 from viewer.headless import free_port, launch_chromium  # noqa: E402
 
-pytestmark = pytest.mark.browser
+# A page closed while its scene is being sent: viser warns of what it can no longer deliver
+# (the server ignores that warning; pytest records it anyway).
+pytestmark = [pytest.mark.browser, pytest.mark.filterwarnings("ignore:Queued a:UserWarning")]
 
 VIEWPORT = {"width": 1400, "height": 1000}
 PENDING_RGB = (255, 220, 0)

@@ -13,5 +13,12 @@
 - :mod:`viewer.scene_warnings`: annotation.json's warnings (unexplained depth regions);
 - :mod:`viewer.panel`: the control panel and hotkeys;
 - :mod:`viewer.scene3d`: the 3D canvas (clicks on the pictures, the 3D view) and its handles;
-- :mod:`viewer.access`: who may connect (Origin, token).
+- :mod:`viewer.access`: who may connect (Origin, token);
+- :mod:`viewer.frames`: what a connection may send (malformed frames dropped, one log line);
+- :mod:`viewer.memory`: what bounds the server's memory (canvas sizes, cache bytes, closed
+  pages' memory given back);
+- :mod:`viewer.startup`: starting viser's server without waiting forever (the port checked);
+- :mod:`viewer.headless`, :mod:`viewer.wire`, :mod:`viewer.served`: for the tests and
+  benchmarks: headless Chromium, a bare client of viser's protocol, a server in a child
+  process.
 """

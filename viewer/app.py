@@ -7,7 +7,12 @@ files (every :data:`POLL_SECONDS`) brings those of other servers on the same dat
 progress bar is the same everywhere.
 
 Connections are checked (:mod:`viewer.access`): only pages of this server, and with a token
-when one is required. A server listening beyond this machine requires a token.
+when one is required. A server listening beyond this machine requires a token. Frames a
+connection sends that are not viser's messages are dropped (:mod:`viewer.frames`).
+
+Memory (:mod:`viewer.memory`): prepared scenes are kept within :data:`CACHE_BYTES`, the
+pictures drawn from them for a page are dropped when the page closes, and the freed memory is
+given back to the operating system then.
 """
 
 from __future__ import annotations
@@ -15,20 +20,38 @@ from __future__ import annotations
 import secrets
 import socket
 import threading
+import warnings
 from pathlib import Path
 
 import viser
 
 from annotator.errors import UserError
+from viewer import frames
 from viewer.access import Access, Guard, install, is_loopback
 from viewer.cache import PrefetchCache
-from viewer.mosaic import compose
+from viewer.memory import bound_allocator, give_back
+from viewer.mosaic import compose, forget
 from viewer.overlays import Prepared, prepare
 from viewer.session import Session
+from viewer.startup import check_port, start_viser
 from viewer.state import ReviewState, SceneInfo
 from viewer.style import Look
 
+# A page that closes while its scene is being sent: the rest of the scene goes nowhere, as
+# it should; viser warns of each such message, which says nothing to the reviewer.
+warnings.filterwarnings(
+    "ignore", message=r"Queued a \w+ on a closed connection", category=UserWarning
+)
+
 POLL_SECONDS = 0.5
+#: A closed page's last objects are freed by viser's teardown after the page's disconnect
+#: callback: the memory is given back then, and once more this long after.
+GIVE_BACK_AGAIN_SECONDS = 2.0
+#: Prepared scenes kept (the next ones, prepared ahead): at most this many ...
+CACHE_SCENES = 6
+#: ... and within these bytes, pictures drawn for the pages included (a scene of the sample
+#: dataset is 20 MB, plus about 8 MB per 1400 x 1000 page and up to 250 MB per 8K page).
+CACHE_BYTES = 1024 * 2**20
 
 
 def _check_listenable(host: str) -> None:
@@ -70,15 +93,24 @@ class ReviewApp:
                 f"--host {host} makes the page reachable from other machines, and the page "
                 "writes files: give a --token"
             )
+        check_port(port)
         _check_listenable(host)
+        bound_allocator()
         self.state = ReviewState(root)
-        self.cache: PrefetchCache[Prepared] = PrefetchCache(size=6)
+        self.cache: PrefetchCache[Prepared] = PrefetchCache(
+            size=CACHE_SCENES, max_bytes=CACHE_BYTES, weigh=lambda prep: prep.nbytes
+        )
         self.tag = secrets.token_hex(3)  # tells this server's pages from another server's
-        self.server = viser.ViserServer(host=host, port=port, verbose=False)
+        try:
+            self.server = start_viser(host, port, verbose=False)
+        except BaseException:
+            self.cache.stop()
+            raise
         self.port = self.server.get_port()
         self.access = Access(host, self.port, token or None)
         try:
             self.guard: Guard = install(self.server, self.access)
+            self.frames: frames.FrameFilter = frames.install(self.server)
         except BaseException:  # also Ctrl-C meanwhile: never leave a server running
             self.server.stop()
             self.cache.stop()
@@ -91,6 +123,8 @@ class ReviewApp:
         self.server.scene.configure_default_lights(enabled=True, cast_shadow=False)
         self._lock = threading.Lock()
         self.sessions: dict[int, Session] = {}
+        self._give_back_later: threading.Timer | None = None
+        self._left_early: set[int] = set()  # pages that left before their session was listed
         self._stop = threading.Event()
         self.server.on_client_connect(self._connect)
         self.server.on_client_disconnect(self._disconnect)
@@ -110,13 +144,44 @@ class ReviewApp:
             return
         session = Session(self, client)
         with self._lock:
-            self.sessions[client.client_id] = session
+            left = client.client_id in self._left_early
+            self._left_early.discard(client.client_id)
+            if not left:
+                self.sessions[client.client_id] = session
+        if left:  # the page went while its session was being made: nobody to show it to
+            session.close()
+            return
+        # Shown once it is listed: pictures are drawn ahead of time, and kept, for the canvas
+        # sizes of the pages listed only.
+        session.request_render()
 
     def _disconnect(self, client: viser.ClientHandle) -> None:
         with self._lock:
             session = self.sessions.pop(client.client_id, None)
-        if session is not None:
-            session.close()
+            if session is None and self.guard.is_admitted(client.client_id):
+                self._left_early.add(client.client_id)  # _connect is still making it
+        if session is None:
+            return
+        session.close()  # waits for its render under way: nothing is drawn for it after this
+        self.forget_closed_pages()
+
+    def viewports(self) -> set[tuple[int, int]]:
+        """The canvas sizes of the open pages."""
+        with self._lock:
+            return {s.viewport for s in self.sessions.values()}
+
+    def forget_closed_pages(self) -> None:
+        """Drop the pictures drawn for canvas sizes no open page has, and give the memory
+        back to the operating system."""
+        keep = self.viewports()
+        for prep in self.cache.values():
+            forget(prep, keep)
+        give_back()
+        with self._lock:
+            if self._give_back_later is None or not self._give_back_later.is_alive():
+                self._give_back_later = threading.Timer(GIVE_BACK_AGAIN_SECONDS, give_back)
+                self._give_back_later.daemon = True
+                self._give_back_later.start()
 
     def changed(self, origin: Session | None, sids: set[str]) -> None:
         """Scenes ``sids`` were decided (by ``origin``, or on disk by other hands): every
@@ -138,12 +203,12 @@ class ReviewApp:
         ds = self.state.ds
 
         def make() -> Prepared:
-            prep = prepare(ds, ds.scene(sid), list(info.poses))
-            with self._lock:
-                sizes = {s.viewport for s in self.sessions.values()}
+            prep = prepare(ds, self.state.scene(sid), list(info.poses))
             look = Look.of(self.state.info(sid))
-            for w, h in sizes:  # the mosaic for the pages' canvases, ahead of time
+            for w, h in self.viewports():  # the mosaic for the pages' canvases, ahead of time
                 compose(prep, look, w, h)
+            # A page that closed meanwhile: what was drawn for it only would stay.
+            forget(prep, self.viewports())
             return prep
 
         return make
@@ -152,10 +217,15 @@ class ReviewApp:
         """The overlays and point cloud of a scene (waits if they are being prepared)."""
         return self.cache.get((sid, info.fingerprint), self._make(sid, info))
 
+    def drew(self) -> None:
+        """A page drew pictures in a prepared scene: keep the cache within its bytes."""
+        self.cache.trim()
+
     def prefetch(self, sid: str) -> None:
-        """Prepare a scene in the background."""
+        """Prepare a scene in the background (not one whose folder has gone)."""
         info = self.state.info(sid)
-        self.cache.prefetch((sid, info.fingerprint), self._make(sid, info))
+        if not info.gone:
+            self.cache.prefetch((sid, info.fingerprint), self._make(sid, info))
 
     def stop(self) -> None:
         """Stop serving (decisions are all on disk already)."""
@@ -168,3 +238,7 @@ class ReviewApp:
         self.server.stop()
         self.cache.stop()
         self._poller.join(timeout=2.0)
+        with self._lock:
+            later = self._give_back_later
+        if later is not None:
+            later.cancel()

@@ -8,7 +8,10 @@ one being prepared, or prepares it in the calling thread if nobody has started i
 never queues behind prefetching it did not ask for.
 
 Keys are ``(scene id, version)``: a new version of a scene (its poses changed) is prepared
-anew, and the least recently used entries are dropped beyond ``size``.
+anew, and the least recently used entries are dropped beyond ``size`` entries or beyond
+``max_bytes`` (as ``weigh`` says, weighed again whenever the cache is used: a prepared scene
+grows with the pictures drawn from it for the pages' canvases). The entry used last is kept
+even alone over the bound.
 """
 
 from __future__ import annotations
@@ -27,11 +30,24 @@ _MAX_QUEUED = 6
 QUIET_SECONDS = 0.25
 
 
-class PrefetchCache(Generic[T]):
-    """Values made by ``make`` callables, kept for the ``size`` most recently used keys."""
+def _no_weight(_value: object) -> int:
+    return 0
 
-    def __init__(self, *, size: int = 8) -> None:
+
+class PrefetchCache(Generic[T]):
+    """Values made by ``make`` callables, kept for the ``size`` most recently used keys and
+    within ``max_bytes`` of them (``weigh``: the bytes a value holds)."""
+
+    def __init__(
+        self,
+        *,
+        size: int = 8,
+        max_bytes: int | None = None,
+        weigh: Callable[[T], int] = _no_weight,
+    ) -> None:
         self._size = size
+        self._max_bytes = max_bytes
+        self._weigh = weigh
         self._cond = threading.Condition()
         self._done: OrderedDict[Hashable, T] = OrderedDict()
         self._failed: dict[Hashable, BaseException] = {}
@@ -48,11 +64,36 @@ class PrefetchCache(Generic[T]):
             if error is None:
                 self._done[key] = value  # type: ignore[assignment]
                 self._done.move_to_end(key)
-                while len(self._done) > self._size:
-                    self._done.popitem(last=False)
+                self._trim()
             else:
                 self._failed[key] = error
             self._cond.notify_all()
+
+    def _trim(self) -> None:
+        while len(self._done) > self._size:
+            self._done.popitem(last=False)
+        if self._max_bytes is None:
+            return
+        weights = [self._weigh(v) for v in self._done.values()]
+        total = sum(weights)
+        while total > self._max_bytes and len(self._done) > 1:
+            self._done.popitem(last=False)
+            total -= weights.pop(0)
+
+    def trim(self) -> None:
+        """Drop entries until the values fit ``max_bytes`` again (they may have grown)."""
+        with self._cond:
+            self._trim()
+
+    def values(self) -> list[T]:
+        """The values held now, least recently used first."""
+        with self._cond:
+            return list(self._done.values())
+
+    def nbytes(self) -> int:
+        """The bytes of the values held, as ``weigh`` says now."""
+        with self._cond:
+            return sum(self._weigh(v) for v in self._done.values())
 
     def _run(self, key: Hashable, make: Callable[[], T]) -> tuple[T | None, Exception | None]:
         try:
@@ -103,6 +144,7 @@ class PrefetchCache(Generic[T]):
                 self._cond.wait()
             if key in self._done:
                 self._done.move_to_end(key)
+                self._trim()
                 return self._done[key]
             if key in self._failed:
                 raise self._failed.pop(key)

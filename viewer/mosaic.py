@@ -70,6 +70,10 @@ class Picture:
     image: np.ndarray
     tiles: list[Tile]
 
+    @property
+    def nbytes(self) -> int:
+        return int(self.image.nbytes)
+
     def locate(self, u: float, v: float) -> tuple[Tile, float, float] | None:
         """The tile under picture position (u, v) and the full-resolution pixel there."""
         return locate(self.tiles, u, v)
@@ -150,8 +154,7 @@ def draw_panel(img: np.ndarray, panel: Panel, tile: Tile, prep: Prepared, look: 
 
 
 def layout(prep: Prepared, width: int, height: int) -> list[tuple[Panel, Tile]]:
-    """Where each panel of ``prep`` goes in a ``width`` x ``height`` picture (the panels are
-    resized for it once and kept: :meth:`Prepared.scaled`)."""
+    """Where each panel of ``prep`` goes in a ``width`` x ``height`` picture."""
     panels = prep.panels
     if not panels:
         return []
@@ -165,22 +168,28 @@ def layout(prep: Prepared, width: int, height: int) -> list[tuple[Panel, Tile]]:
         tw, th = max(1, int(w * s)), max(1, int(h * s))
         x0 = (i % cols) * cell_w + (cell_w - tw) // 2
         y0 = (i // cols) * cell_h + (cell_h - th) // 2
-        prep.scaled(panel, tw, th)
         out.append((panel, Tile(panel.name, panel.camera, x0, y0, tw, th, tw / w)))
     return out
 
 
 def compose(prep: Prepared, look: Look, width: int, height: int) -> Picture:
     """All panels of ``prep`` in one ``width`` x ``height`` RGB picture (kept in ``prep``
-    for the last few looks and sizes: made ahead of time, a switch only looks it up)."""
+    for the last looks and sizes, within its bytes: made ahead of time, a switch only looks
+    it up)."""
     key = (width, height, look)
     picture = prep.pictures.get(key)
     if picture is None:
         picture = _compose(prep, look, width, height)
-        if len(prep.pictures) >= 4:
-            prep.pictures.clear()  # old looks and sizes: rarely shown again
-        prep.pictures[key] = picture
+        prep.pictures.put(key, picture)
     return picture
+
+
+def forget(prep: Prepared, keep: set[tuple[int, int]]) -> None:
+    """Drop what was drawn in ``prep`` for canvases of sizes other than ``keep`` (pages that
+    have closed): their mosaics and their resized panels."""
+    prep.pictures.drop(lambda key: (key[0], key[1]) not in keep)
+    needed = {(p.name, t.width, t.height) for w, h in keep for p, t in layout(prep, w, h)}
+    prep.resized.drop(lambda key: key not in needed)
 
 
 def _compose(prep: Prepared, look: Look, width: int, height: int) -> Picture:

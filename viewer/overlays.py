@@ -12,7 +12,9 @@ mosaic can be scaled to any browser viewport and the zoom can crop at full resol
 - the depth point cloud for the 3D view, downsampled once here.
 
 Drawing is done elsewhere (:mod:`viewer.mosaic`, :mod:`viewer.zoom`): a decision only
-re-colours what was prepared.
+re-colours what was prepared. What is drawn from a prepared scene for the pages (panels
+resized to a page's canvas, mosaics) is kept with it, within :data:`SCALED_BYTES` and
+:data:`PICTURE_BYTES` (:mod:`viewer.memory`): the sizes are the pages' to choose.
 """
 
 from __future__ import annotations
@@ -27,11 +29,16 @@ from annotator.annotation.record import InstanceAnnotation
 from annotator.dataset import Dataset, Scene
 from annotator.io.images import read_image, to_gray8
 from annotator.rendering.raycast import PlacedMesh, RayScene, projected_bbox
+from viewer.memory import BytesLRU
 
 DISAGREEMENT_RANGE_MM = 10.0
 #: Every CLOUD_STEP-th pixel of every CLOUD_STEP-th row of the depth map goes to the 3D view.
 CLOUD_STEP = 8
 CONTOUR_TOLERANCE_PX = 0.7
+#: Per scene: the panels resized for the pages' canvases (an 8K page's are about 70 MB) ...
+SCALED_BYTES = 96 * 2**20
+#: ... and the mosaics made of them (an 8K mosaic is 100 MB; a 1400 x 1000 one 4 MB).
+PICTURE_BYTES = 160 * 2**20
 DEPTH_PANEL = "depth"
 DISAGREEMENT_PANEL = "disagreement"
 
@@ -81,8 +88,23 @@ class Prepared:
     unexplained: np.ndarray | None = None  # bool mask on the depth grid
     cloud: np.ndarray | None = None  # (N, 3) float32 points in the reference frame, metres
     messages: list[str] = field(default_factory=list)
-    _scaled: dict[tuple[str, int, int], np.ndarray] = field(default_factory=dict, repr=False)
-    pictures: dict[tuple, Any] = field(default_factory=dict, repr=False)  # viewer.mosaic
+    #: ``(panel name, width, height)`` -> the panel resized, BGR (:meth:`scaled`)
+    resized: BytesLRU[tuple[str, int, int], np.ndarray] = field(
+        default_factory=lambda: BytesLRU(SCALED_BYTES, _nbytes), repr=False
+    )
+    #: ``(width, height, look)`` -> a :class:`viewer.mosaic.Picture` (kept by viewer.mosaic)
+    pictures: BytesLRU[tuple, Any] = field(
+        default_factory=lambda: BytesLRU(PICTURE_BYTES, _nbytes), repr=False
+    )
+
+    @property
+    def nbytes(self) -> int:
+        """The memory held: the full-resolution arrays and what was drawn from them."""
+        arrays = [self.depth, self.disagreement, self.unexplained, self.cloud]
+        for layer in self.layers:
+            arrays += [layer.image, layer.instance, layer.shade]
+        own = sum(a.nbytes for a in arrays if a is not None)
+        return own + self.resized.nbytes + self.pictures.nbytes
 
     @property
     def panels(self) -> list[Panel]:
@@ -98,15 +120,13 @@ class Prepared:
         """``panel``'s picture resized to ``width`` x ``height`` as BGR (memoised: several
         pages and several re-colourings use the same sizes)."""
         key = (panel.name, width, height)
-        out = self._scaled.get(key)
+        out = self.resized.get(key)
         if out is None:
             img = panel.image
             if (img.shape[1], img.shape[0]) != (width, height):
                 img = cv2.resize(img, (width, height), interpolation=cv2.INTER_AREA)
             out = cv2.cvtColor(img, cv2.COLOR_GRAY2BGR) if img.ndim == 2 else img
-            if len(self._scaled) > 32:
-                self._scaled.clear()
-            self._scaled[key] = out
+            self.resized.put(key, out)
         return out
 
     def instance_at(self, camera: str, x: float, y: float, radius: float = 0.0) -> str | None:
@@ -131,6 +151,10 @@ class Prepared:
         if near.size == 0:
             return None
         return self.keys[int(np.bincount(near).argmax())]
+
+
+def _nbytes(value: Any) -> int:
+    return int(value.nbytes)
 
 
 def _read_unexplained(scene: Scene, shape: tuple[int, int], prep: Prepared) -> np.ndarray | None:

@@ -107,6 +107,17 @@ class Pictures:
             self._current, self._background_due = image, True
             self._apply()
 
+    def clear(self) -> None:
+        """Take every picture off the page (a scene that cannot be shown is named in the
+        panel; the pictures of the one before must not stand for it)."""
+        with self._lock:
+            self._mosaic.content = ""
+            self._zoom.content = ""
+            self._rendered.content = ""
+            self._zoom_open = False
+            self._current, self._background_due = None, True
+            self._apply()
+
     def blink(self, on: bool) -> None:
         """Blink the rendered part over the zoom (if it is open), or stop."""
         with self._lock:
@@ -151,9 +162,12 @@ class Pictures:
                 pass
 
     def close(self) -> None:
+        """The page has gone: send nothing more, and let go of the picture."""
         with self._lock:
             if self._timer is not None:
                 self._timer.cancel()
+            self._current = None
+            self._background_due = False
 
     def _apply(self) -> None:
         shown = not self._hidden

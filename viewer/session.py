@@ -10,10 +10,21 @@ Showing a scene is coalesced: actions only move the cursor and ask for a render;
 runs at a time and always shows the latest state, so a held key skips scenes instead of
 queueing them. The pictures and the panel go out first; the 3D view follows (and only
 while it is shown).
+
+A decision is for the scene the page shows (:attr:`Session.displayed`: the last one whose
+panel and pictures were sent), never merely the one the cursor is on: a key pressed while
+the page is still switching (the cursor has moved, the new scene is not sent yet) is refused
+and said so in red, as is a decision for a scene whose folder has gone. A scene that cannot
+be shown (its folder gone, an unexpected failure) is named in the page, without the
+pictures of the scene shown before it, and its failure is one line in the server's log.
+
+The pictures are made for the page's canvas, within an 8K screen
+(:func:`viewer.memory.clamp_viewport`); when the page closes, what it held is dropped.
 """
 
 from __future__ import annotations
 
+import sys
 import threading
 import time
 from typing import TYPE_CHECKING
@@ -21,13 +32,14 @@ from typing import TYPE_CHECKING
 import viser
 
 from annotator.dataset.review import ReviewStatus
+from viewer.memory import clamp_viewport
 from viewer.mosaic import Picture, compose
 from viewer.navigation import Navigator
 from viewer.overlays import Prepared
 from viewer.panel import Panel, PanelView, instance_table, warnings_text
 from viewer.pictures import Pictures
 from viewer.scene3d import Scene3D
-from viewer.state import SaveError, SceneInfo
+from viewer.state import FILTERS, SaveError, SceneInfo
 from viewer.style import Look
 from viewer.zoom import Zoom, zoom
 
@@ -35,6 +47,8 @@ if TYPE_CHECKING:
     from viewer.app import ReviewApp
 
 DEFAULT_VIEWPORT = (1280, 960)
+#: How long a page's closing waits for its render under way (it is dropped after it).
+CLOSE_WAIT_SECONDS = 10.0
 _MAX_ALERTS = 3
 ALERT_SECONDS = 60.0  # how long the panel repeats another reviewer's overriding decision
 
@@ -55,7 +69,8 @@ class Session:
         self.alerts: list[tuple[float, str]] = []  # other reviewers' decisions over ours
         self.mine: dict[str, ReviewStatus] = {}  # scenes this page decided last
         self.viewport = self._viewport()
-        self._render_lock = threading.Lock()
+        self.displayed: str | None = None  # the scene whose panel and pictures were sent last
+        self._render_lock = threading.Condition()
         self._dirty = False
         self._rendering = False
         self._closed = False
@@ -72,15 +87,16 @@ class Session:
             client.scene, app.state.ds, on_part=self.select, on_canvas=self.clicked_canvas
         )
         client.camera.on_update(self._camera_moved)
-        self.request_render()
+        # The first render is the app's to ask for, once this page is listed among its pages.
 
     # --------------------------------------------------------------- viewport
     def _viewport(self) -> tuple[int, int]:
+        """The size to make the pictures: the page's canvas, as it says, within 8K."""
         try:
             w, h = int(self.client.camera.image_width), int(self.client.camera.image_height)
-        except (AssertionError, AttributeError, TypeError, ValueError):
+        except (AssertionError, AttributeError, TypeError, ValueError, OverflowError):
             return DEFAULT_VIEWPORT
-        return (w, h) if w >= 64 and h >= 64 else DEFAULT_VIEWPORT
+        return clamp_viewport(w, h) if w >= 64 and h >= 64 else DEFAULT_VIEWPORT
 
     def _camera_moved(self, _camera: viser.CameraHandle) -> None:
         size = self._viewport()
@@ -93,21 +109,57 @@ class Session:
         """Show the latest state (now, or right after the render under way)."""
         with self._render_lock:
             self._dirty = True
-            if self._rendering:
+            if self._rendering or self._closed:
                 return
             self._rendering = True
-        while True:
-            with self._render_lock:
-                if not self._dirty or self._closed:
-                    self._rendering = False
-                    return
-                self._dirty = False
-            try:
-                self._render()
-            except Exception:
+        try:
+            while True:
                 with self._render_lock:
-                    self._rendering = False
-                raise
+                    if not self._dirty or self._closed:
+                        return
+                    self._dirty = False
+                try:
+                    self._render()
+                except Exception as exc:  # the page stays usable; the log gets one line
+                    self._failed(exc)
+        finally:
+            with self._render_lock:
+                self._rendering = False
+                self._render_lock.notify_all()
+
+    def _failed(self, exc: Exception) -> None:
+        if self._closed:  # the page went during the render: nobody to show it to
+            return
+        with self._lock:
+            sid = self.nav.current
+        why = f"{type(exc).__name__}: {exc}".splitlines()[0]
+        print(f"review: {self.id}: cannot show scene {sid}: {why}", file=sys.stderr)
+        if sid is None:
+            return
+        try:
+            self._show_without_pictures(sid, self.app.state.info(sid), f"cannot show it: {why}")
+        except Exception:  # the page is gone meanwhile: nothing to tell it
+            pass
+
+    def _show_without_pictures(self, sid: str, info: SceneInfo, why: str) -> None:
+        """Name scene ``sid`` in the page with ``why`` it is not shown; the pictures of the
+        scene shown before are taken off the page, so that none is mistaken for it."""
+        with self._lock:
+            flt, selected = self.nav.filter, self.nav.selected
+            self._picture = self._zoom = self._prep = None
+            self._shown = self._shown_zoom = None
+            self._on_canvas = ("none", sid)
+            self.blinking = False
+        self.pictures.clear()
+        view = self._panel_view(info, None, flt, selected)
+        red = f"<span style='color:#d00'>⛔ {why}</span>"
+        view.alert = f"{red}\n\n{view.alert}" if view.alert else red
+        self.panel.show(view, [])
+        with self._lock:
+            self.displayed = sid
+        self.client.flush()
+        self.pictures.send_background_soon()
+        self.scene.show_3d_scene((), Look(), None, (sid, "none"))
 
     def _render(self) -> None:
         with self._lock:
@@ -120,11 +172,10 @@ class Session:
             return
         state = self.app.state
         info = state.info(sid)
-        try:
-            prep = self.app.prepared(sid, info)
-        except Exception as exc:  # an unexpected failure must leave the page usable
-            self.panel.show(PanelView(f"## Scene {sid}", alert=f"⚠ cannot show it: {exc}"), [])
+        if info.gone:
+            self._show_without_pictures(sid, info, f"{info.error}: nothing to decide")
             return
+        prep = self.app.prepared(sid, info)  # a failure is shown by request_render
         self._prep = prep
         look = Look.of(info, selected)
         self.viewport = self._viewport()  # the canvas may have changed size since
@@ -139,6 +190,7 @@ class Session:
             if base != self._shown:
                 self._picture = (sid, compose(prep, look, w, h))
                 self._shown = base
+                self.app.drew()
             if ("mosaic", base) != self._on_canvas:
                 self.pictures.show_mosaic(self._picture[1].image)
                 self._on_canvas = ("mosaic", base)
@@ -150,6 +202,8 @@ class Session:
             self._on_canvas = ("zoom", zkey)
         self.pictures.blink(blinking and self._on_canvas[0] == "zoom")
         self.panel.show(self._panel_view(info, prep, flt, selected), [p.key for p in info.poses])
+        with self._lock:
+            self.displayed = sid
         self.client.flush()  # the new picture is on its way before anything else is done
         self.pictures.send_background_soon()
         self.scene.show_3d_scene(info.poses, look, prep.cloud, (sid, info.fingerprint))
@@ -159,13 +213,12 @@ class Session:
             self.app.prefetch(other)
 
     def _panel_view(
-        self, info: SceneInfo, prep: Prepared, flt: str, selected: str | None
+        self, info: SceneInfo, prep: Prepared | None, flt: str, selected: str | None
     ) -> PanelView:
         state = self.app.state
         sid = info.id
-        status = f"**{info.status}**" + (
-            " (stale: the annotation changed since)" if info.stale else ""
-        )
+        status = "**gone**" if info.gone else f"**{info.status}**"
+        status += " (stale: the annotation changed since)" if info.stale else ""
         if info.review.reason:
             status += f" — {info.review.reason}"
         title = f"## Scene {sid}\n{status} · {state.ids.index(sid) + 1} of {len(state.ids)} · filter: {flt}"
@@ -174,10 +227,10 @@ class Session:
             alerts.append(f"⛔ {self.unsaved[sid]}")
         now = time.monotonic()
         alerts += [f"⚠ {a}" for t, a in self.alerts if now - t < ALERT_SECONDS]
-        messages = list(prep.messages)
-        if not info.annotated:
+        messages = list(prep.messages) if prep is not None else []
+        if not info.annotated and not info.gone:
             messages.append(f"scene {sid} has no annotation.json: run `annotator annotate` first")
-        if info.error:
+        if info.error and not info.gone:  # a gone scene's is the page's alert
             messages.append(info.error)
         notice = "\n\n".join(f"⚠ {m}" for m in messages)
         if self.armed:
@@ -199,22 +252,43 @@ class Session:
         )
 
     # ------------------------------------------------------------ decisions
+    def _not_saved(self, sid: str, what: str, why: str) -> None:
+        """Tell this reviewer, in red, that their decision about ``sid`` is not saved."""
+        msg = f"scene {sid}: your decision ({what}) is NOT saved: {why}"
+        note = self.client.add_notification(
+            "Decision not saved", msg, color="red", with_close_button=True
+        )
+        with self._lock:
+            self.unsaved[sid] = msg
+            old = self._unsaved_notes.pop(sid, None)
+            self._unsaved_notes[sid] = note
+        if old is not None:
+            old.remove()
+        self.request_render()
+
+    def _shown_scene(self, what: str) -> str | None:
+        """The scene a decision ``what`` is for: the one the page shows, if the cursor is
+        on it. Else None, and the reviewer is told: the page was still switching, and the
+        decision was made looking at another scene."""
+        with self._lock:
+            sid, shown = self.nav.current, self.displayed
+        if sid is None or sid == shown:
+            return sid
+        showing = "no scene yet" if shown is None else f"scene {shown}"
+        self._not_saved(
+            sid,
+            what,
+            f"the page was still showing {showing} when you decided; "
+            "look at this one, then decide again",
+        )
+        return None
+
     def _write(self, sid: str, what: str, fn) -> bool:
         """Run a write; on failure show it in this page and keep the scene unsaved."""
         try:
             review = fn()
         except SaveError as exc:
-            msg = f"scene {sid}: your decision ({what}) is NOT saved: {exc}"
-            note = self.client.add_notification(
-                "Decision not saved", msg, color="red", with_close_button=True
-            )
-            with self._lock:
-                self.unsaved[sid] = msg
-                old = self._unsaved_notes.pop(sid, None)
-                self._unsaved_notes[sid] = note
-            if old is not None:
-                old.remove()
-            self.request_render()
+            self._not_saved(sid, what, str(exc))
             return False
         with self._lock:
             self.unsaved.pop(sid, None)
@@ -226,8 +300,7 @@ class Session:
         return True
 
     def _decide(self, status: ReviewStatus) -> None:
-        with self._lock:
-            sid = self.nav.current
+        sid = self._shown_scene(str(status))
         if sid is None:
             return
         if self._write(sid, str(status), lambda: self.app.state.set_scene(sid, status, by=self.id)):
@@ -244,8 +317,11 @@ class Session:
 
     def set_instance(self, status: ReviewStatus) -> None:
         with self._lock:
-            sid, key = self.nav.current, self.nav.selected
-        if sid is None or key is None:
+            key = self.nav.selected
+        if key is None:
+            return
+        sid = self._shown_scene(f"{key} {status}")
+        if sid is None:
             return
         self._write(
             sid,
@@ -273,8 +349,8 @@ class Session:
 
     def _mark_missing(self, camera: str, x: float, y: float) -> None:
         with self._lock:
-            sid = self.nav.current
             self.armed = False
+        sid = self._shown_scene(f"no pose at {camera} ({x:.0f}, {y:.0f})")
         if sid is None:
             return
         self._write(
@@ -300,6 +376,11 @@ class Session:
         self._move(self.nav.next_flagged)
 
     def set_filter(self, flt: str) -> None:
+        if flt not in FILTERS:  # only a page that is not viser's own sends another
+            print(
+                f"review: {self.id}: ignored an unknown filter {str(flt)[:40]!r}", file=sys.stderr
+            )
+            return
         self._move(lambda: self.nav.set_filter(flt))
 
     def select(self, key: str) -> None:
@@ -392,6 +473,13 @@ class Session:
         self.request_render()
 
     def close(self) -> None:
+        """The page has gone: stop rendering (waiting for the render under way, within
+        :data:`CLOSE_WAIT_SECONDS`) and drop what it held."""
         with self._render_lock:
             self._closed = True
+            self._dirty = False
+            self._render_lock.wait_for(lambda: not self._rendering, CLOSE_WAIT_SECONDS)
         self.pictures.close()
+        with self._lock:
+            self._picture = self._zoom = self._prep = None
+            self._shown = self._shown_zoom = self._on_canvas = None

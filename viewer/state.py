@@ -7,6 +7,10 @@ tells which scenes changed on disk by other hands since it was last asked.
 
 A decision that cannot be written (read-only folder, full disk) raises :class:`SaveError`
 with one line for the person who made it; nothing is changed then.
+
+A scene whose folder disappears while the server runs (deleted, moved, the whole dataset
+gone) is known as :attr:`SceneInfo.gone`: it is shown as gone, and a decision for it is a
+:class:`SaveError` (writing it would make the folder again, holding only a review.json).
 """
 
 from __future__ import annotations
@@ -18,7 +22,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 from annotator.annotation.record import InstanceAnnotation, SceneAnnotation
-from annotator.dataset import load_dataset
+from annotator.dataset import Scene, load_dataset
 from annotator.dataset.review import (
     NO_POSE_REASON,
     MissingPart,
@@ -65,6 +69,7 @@ class SceneInfo:
     error: str | None  # a problem to show (unreadable annotation, corrupt review.json)
     warnings: tuple[SceneWarning, ...] = ()
     fingerprint: str = ""  # of the poses (annotator.dataset.review.poses_fingerprint)
+    gone: bool = False  # the scene's folder is no longer there (error says where)
 
     @property
     def status(self) -> ReviewStatus:
@@ -95,6 +100,7 @@ class ReviewState:
         self.ds = load_dataset(root)
         scenes = self.ds.scenes()
         self.ids = [s.id for s in scenes]
+        self._scenes = {s.id: s for s in scenes}
         # Paths as strings once: stat-ing every scene is what polling and progress cost.
         self._paths = {s.id: (str(s.annotation_path), str(s.review_path)) for s in scenes}
         self._lock = threading.RLock()
@@ -107,13 +113,38 @@ class ReviewState:
         annotation, review = self._paths[sid]
         return (_stamp(annotation), _stamp(review))
 
+    def scene(self, sid: str) -> Scene:
+        """The scene's folder (which may have gone since: :attr:`SceneInfo.gone`)."""
+        return self._scenes[sid]
+
+    def is_gone(self, sid: str) -> bool:
+        """True if the scene's folder is no longer there."""
+        return not os.path.isdir(self._scenes[sid].path)
+
     def info(self, sid: str) -> SceneInfo:
         """The scene as the files say now (re-read only when a file changed)."""
         key = self._stamps(sid)
+        # Neither file: a scene not yet annotated, or one whose folder has gone.
+        gone = key == (None, None) and self.is_gone(sid)
         hit = self._cache.get(sid)
-        if hit and hit[0] == key:
+        if hit and hit[0] == key and hit[1].gone == gone:
             return hit[1]
-        sc = self.ds.scene(sid)
+        sc = self._scenes[sid]
+        if gone:
+            info = SceneInfo(
+                id=sid,
+                annotated=False,
+                poses=(),
+                review=Review(),
+                stale=False,
+                flagged=False,
+                error=f"{sc.path}: the scene's folder is gone (deleted or moved since the "
+                "viewer started)",
+                fingerprint=poses_fingerprint([]),
+                gone=True,
+            )
+            self._cache[sid] = (key, info)
+            return info
         error = None
         poses: list[InstanceAnnotation] = []
         warnings: tuple[SceneWarning, ...] = ()
@@ -123,11 +154,11 @@ class ReviewState:
                 ann = SceneAnnotation.read(sc.annotation_path)
                 poses = ann.instances
                 warnings = parse_warnings([w.to_json() for w in ann.warnings])
-            except UserError as exc:
+            except (UserError, OSError) as exc:  # OSError: it went between stat and read
                 error = str(exc)
         try:
             review = read_review(sc.review_path) or Review()
-        except UserError as exc:
+        except (UserError, OSError) as exc:
             review, error = Review(), f"{exc} (it will be replaced by the next decision)"
         fingerprint = poses_fingerprint(poses)
         info = SceneInfo(
@@ -158,10 +189,15 @@ class ReviewState:
 
     # ------------------------------------------------------------ decisions
     def _write(self, sid: str, review: Review, by: str | None) -> Review:
-        review.annotation_fingerprint = self.info(sid).fingerprint
+        info = self.info(sid)
+        path = self._scenes[sid].review_path
+        # The atomic write makes missing folders: it would bring a deleted scene back as a
+        # folder holding only this review.json.
+        if info.gone or self.is_gone(sid):
+            raise SaveError(f"{path.parent}: the scene's folder is gone (deleted or moved)")
+        review.annotation_fingerprint = info.fingerprint
         review.decided_at = now_iso()
         review.decided_by = by
-        path = self.ds.scene(sid).review_path
         try:
             write_review(path, review)
         except OSError as exc:

@@ -114,7 +114,7 @@ def annotate_scene(
                 continue
             if counts[d.id] > 1 and d.id not in duplicates.get(cams[j].name, []):
                 duplicates.setdefault(cams[j].name, []).append(d.id)
-            X = ds.objects[ref.object].markers.corners[ref.site]
+            X = ds.objects[ref.object].site_corners(ref.instance)[ref.site]
             per_instance[(ref.object, ref.instance)].append(
                 Observation(j, d.id, X, d.corners, soft=d.soft)
             )
@@ -227,7 +227,7 @@ def _recover_markers(
     seen = {(o.camera, o.marker_id) for o in obs}
     added = False
     n_sites = len(inst.marker_ids)
-    X_all = model.markers.corners[:n_sites]
+    X_all = model.site_corners(inst.name)[:n_sites]
     for j, (cam, reading) in enumerate(zip(ds.rig.cameras, readings)):
         if len(reading.unread) == 0:
             continue

@@ -12,7 +12,6 @@ not produce are carried over (:func:`keep_other_fields`).
 
 from __future__ import annotations
 
-import difflib
 import re
 from collections.abc import Sequence
 from pathlib import Path
@@ -170,15 +169,3 @@ def _spliced_correctly(old: str, new: str, rig: dict[str, Any]) -> bool:
     return {k: v for k, v in before.items() if k != "rig"} == {
         k: v for k, v in after.items() if k != "rig"
     }
-
-
-def unified_diff(old: str | None, new: str, path: Path) -> str:
-    """A unified diff from ``old`` (None: no file) to ``new``, labelled with ``path``."""
-    return "".join(
-        difflib.unified_diff(
-            (old or "").splitlines(keepends=True),
-            new.splitlines(keepends=True),
-            fromfile="/dev/null" if old is None else f"{path} (before)",
-            tofile=f"{path} (calibrated)",
-        )
-    )

@@ -7,10 +7,13 @@ calls and prints results (``--json`` where scripts consume the output).
 from __future__ import annotations
 
 import argparse
+import json
 import math
+import sys
 from collections.abc import Callable
+from pathlib import Path
 
-from annotator.batch import available_cpus
+from annotator.batch import BatchReport, available_cpus
 
 
 def add_workers_option(parser: argparse.ArgumentParser) -> None:
@@ -68,3 +71,24 @@ def number(
         return value
 
     return parse
+
+
+def confirm(path: Path) -> bool:
+    """Ask on the terminal whether to write ``path``; anything but y/yes is no."""
+    print(f"write {path}? [y/N] ", end="", file=sys.stderr, flush=True)
+    try:
+        answer = sys.stdin.readline().strip().lower()
+    except (EOFError, KeyboardInterrupt):
+        return False
+    return answer in ("y", "yes")
+
+
+def finish_batch(report: BatchReport, summary: dict, line: str, *, as_json: bool) -> int:
+    """End a batch command: the summary as JSON (``--json``), or each failed scene and then
+    ``line``; the exit status, 1 if a scene failed."""
+    if as_json:
+        print(json.dumps(summary, indent=1))
+    else:
+        report.print_failures()
+        print(line)
+    return 1 if report.failed else 0

@@ -4,11 +4,10 @@ from __future__ import annotations
 
 import argparse
 import fnmatch
-import json
 
 from annotator.annotation.batch import AnnotateJob, is_up_to_date
 from annotator.batch import run_batch
-from annotator.commands import add_workers_option
+from annotator.commands import add_workers_option, finish_batch
 from annotator.dataset import load_dataset, require_meshes
 from annotator.dataset.check import BROKEN_LINK
 from annotator.errors import UserError
@@ -63,13 +62,12 @@ def run(args: argparse.Namespace) -> int:
         "scenes_warned": warned,
         "failures": dict(sorted(report.failed.items())),
     }
-    if args.json:
-        print(json.dumps(summary, indent=1))
-    else:
-        report.print_failures()
-        print(
-            f"annotate: {len(report.done)} scenes done, {skipped} up to date (skipped), {len(report.failed)} failed; "
-            f"{posed} instances posed, {flagged} flagged; {warned} scenes with warnings "
-            "(parts without a pose, blur, exposure: `annotator check --annotations`)"
-        )
-    return 1 if report.failed else 0
+    return finish_batch(
+        report,
+        summary,
+        f"annotate: {len(report.done)} scenes done, {skipped} up to date (skipped), "
+        f"{len(report.failed)} failed; {posed} instances posed, {flagged} flagged; {warned} "
+        "scenes with warnings (parts without a pose, blur, exposure: `annotator check "
+        "--annotations`)",
+        as_json=args.json,
+    )

@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING, Any
 
 from tqdm import tqdm
 
-from annotator.commands import number, whole
+from annotator.commands import confirm, number, whole
 from annotator.errors import UserError
 
 if TYPE_CHECKING:  # imported when the command runs, so that `annotator --help` stays fast
@@ -291,10 +291,10 @@ def _output(
         keep_other_fields,
         rig_mapping,
         rig_yaml_text,
-        unified_diff,
         updated_text,
     )
     from annotator.io.atomic import write_text
+    from annotator.io.documents import unified_diff
 
     rig = keep_other_fields(rig_mapping(cal.rig_cameras, depth), old_doc)
     write_report(report_dir, cal, board, captures=root)
@@ -306,7 +306,7 @@ def _output(
     written = False
     if ds_yaml is not None:
         new_text = updated_text(old_text, rig, name=ds_yaml.parent.resolve().name)
-        diff = unified_diff(old_text, new_text, ds_yaml)
+        diff = unified_diff(old_text, new_text, ds_yaml, label="calibrated")
         if not args.json:
             for line in summary_lines(cal):
                 print(line)
@@ -314,7 +314,7 @@ def _output(
             if diff and not diff.endswith("\n"):
                 print()
         if diff and not args.dry_run:
-            if args.yes or not sys.stdin.isatty() or _confirm(ds_yaml):
+            if args.yes or not sys.stdin.isatty() or confirm(ds_yaml):
                 write_text(ds_yaml, new_text)
                 written = True
             else:
@@ -337,16 +337,6 @@ def _output(
         )
         print(f"calibrate: RMS {cal.rms_px:.3f} px; report in {report_dir}; {what}")
     return status
-
-
-def _confirm(path: Path) -> bool:
-    """Ask on the terminal; anything but y/yes is no."""
-    print(f"write {path}? [y/N] ", end="", file=sys.stderr, flush=True)
-    try:
-        answer = sys.stdin.readline().strip().lower()
-    except (EOFError, KeyboardInterrupt):
-        return False
-    return answer in ("y", "yes")
 
 
 def synth_captures(args: argparse.Namespace, config: Any) -> int:

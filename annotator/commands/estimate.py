@@ -11,11 +11,10 @@ from __future__ import annotations
 
 import argparse
 import fnmatch
-import json
 from pathlib import Path
 
 from annotator.batch import run_batch
-from annotator.commands import add_workers_option, whole
+from annotator.commands import add_workers_option, finish_batch, whole
 from annotator.dataset import load_dataset, require_meshes
 from annotator.errors import UserError
 from annotator.scale import add_ray_option
@@ -106,13 +105,11 @@ def run(args: argparse.Namespace) -> int:
         "seconds_per_scene": round(sum(seconds) / max(len(seconds), 1), 3),
         "failures": dict(sorted(report.failed.items())),
     }
-    if args.json:
-        print(json.dumps(summary, indent=1))
-    else:
-        report.print_failures()
-        print(
-            f"estimate ({settings.label}): {summary['results']} results for {len(report.done)} "
-            f"scenes written to {out}, {len(report.failed)} failed; "
-            f"{summary['seconds_per_scene']} s per scene (one worker)"
-        )
-    return 1 if report.failed else 0
+    return finish_batch(
+        report,
+        summary,
+        f"estimate ({settings.label}): {summary['results']} results for {len(report.done)} "
+        f"scenes written to {out}, {len(report.failed)} failed; "
+        f"{summary['seconds_per_scene']} s per scene (one worker)",
+        as_json=args.json,
+    )

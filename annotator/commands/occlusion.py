@@ -9,12 +9,11 @@ from __future__ import annotations
 
 import argparse
 import fnmatch
-import json
 from dataclasses import dataclass
 from typing import Any
 
 from annotator.batch import run_batch
-from annotator.commands import add_workers_option, number
+from annotator.commands import add_workers_option, finish_batch, number
 from annotator.dataset import cached_dataset, load_dataset, read_poses
 from annotator.errors import UserError
 from annotator.io.atomic import write_json
@@ -130,11 +129,10 @@ def run(args: argparse.Namespace) -> int:
         "failed": len(report.failed),
         "failures": report.failed,
     }
-    if args.json:
-        print(json.dumps(summary, indent=1))
-    else:
-        report.print_failures()
-        print(
-            f"occlusion: {summary['done']} scenes done, {summary['skipped']} up to date, {summary['failed']} failed"
-        )
-    return 1 if report.failed else 0
+    return finish_batch(
+        report,
+        summary,
+        f"occlusion: {summary['done']} scenes done, {summary['skipped']} up to date, "
+        f"{summary['failed']} failed",
+        as_json=args.json,
+    )

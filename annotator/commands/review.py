@@ -21,7 +21,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="address to serve on (default 127.0.0.1: this machine only); any other address "
         "requires a token",
     )
-    parser.add_argument("--port", type=int, default=8080, help="port (default 8080)")
+    parser.add_argument(
+        "--port",
+        type=int,
+        default=8080,
+        help="port, 1 to 65535 (default 8080; the next free one if it is taken)",
+    )
     parser.add_argument(
         "--token",
         default=None,
@@ -32,6 +37,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def start(args: argparse.Namespace):
     """Start the server and print where to open it; returns the running ``ReviewApp``."""
+    from viewer.startup import check_port
+
+    check_port(args.port)  # at once: before the seconds of importing viser and open3d
     from viewer.access import is_loopback, new_token
     from viewer.app import ReviewApp
 

@@ -3,18 +3,23 @@
 from __future__ import annotations
 
 import argparse
-import json
 import shutil
 from pathlib import Path
 
 from annotator.batch import run_batch
-from annotator.commands import add_workers_option, number, whole
+from annotator.commands import add_workers_option, finish_batch, number, whole
 from annotator.errors import UserError
 from annotator.io.atomic import atomic_folder
 from annotator.io.output_folder import check_output_folder, write_manifest
 from annotator.parts import PART_NAMES, build_part
 from annotator.scale import add_ray_option
-from annotator.synthesis.generate import SceneJob, SynthConfig, _plan, write_dataset_files
+from annotator.synthesis.generate import (
+    GLUED_SITES,
+    SceneJob,
+    SynthConfig,
+    _plan,
+    write_dataset_files,
+)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -47,6 +52,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--blur", type=number(low=0), default=0.6, help="image blur sigma, px (default 0.6)"
     )
+    parser.add_argument(
+        "--glue",
+        type=_glue,
+        default=(0.0, 0.0),
+        metavar="MM,DEG",
+        help="markers glued by hand: each marker of each instance moved in its own plane by "
+        "N(0, MM) along both axes and turned by N(0, DEG) about its normal, the same in every "
+        f"scene; the true sites go to OUT/{GLUED_SITES} (default 0,0: exactly on the layout)",
+    )
     parser.add_argument("--no-depth", action="store_true", help="skip the active-stereo depth maps")
     parser.add_argument(
         "--calibration",
@@ -78,6 +92,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
+def _glue(text: str) -> tuple[float, float]:
+    """``MM,DEG`` for --glue: two finite numbers, at least 0."""
+    parts = text.split(",")
+    finite = number(low=0)
+    if len(parts) != 2:
+        raise argparse.ArgumentTypeError(f"must be MM,DEG (e.g. 0.7,2), not {text!r}")
+    return finite(parts[0]), finite(parts[1])
+
+
 def _config(args: argparse.Namespace) -> SynthConfig:
     parts = tuple(p.strip() for p in args.parts.split(",") if p.strip())
     if not parts:
@@ -97,10 +120,6 @@ def _config(args: argparse.Namespace) -> SynthConfig:
         raise UserError(f"--size must be WxH, got {args.size!r}") from None
     if w < 160 or h < 120 or w > 8192 or h > 8192:
         raise UserError(f"--size {w}x{h} is out of range (160x120 to 8192x8192)")
-    if args.scenes < 1 or args.clutter < 0:
-        raise UserError("--scenes must be at least 1, --clutter at least 0")
-    if args.noise < 0 or args.blur < 0:
-        raise UserError("--noise and --blur must not be negative")
     return SynthConfig(
         parts=parts,
         scenes=args.scenes,
@@ -111,6 +130,7 @@ def _config(args: argparse.Namespace) -> SynthConfig:
         noise=args.noise,
         blur=args.blur,
         depth=not args.no_depth,
+        glue=args.glue,
     )
 
 
@@ -156,14 +176,12 @@ def run(args: argparse.Namespace) -> int:
         },
         "failures": dict(sorted(report.failed.items())),
     }
-    if args.json:
-        print(json.dumps(summary, indent=1))
-    else:
-        report.print_failures()
-        t = summary["seconds_per_scene"]
-        print(
-            f"synth: {summary['scenes']} scenes ({summary['instances']} instances) written to {out}, "
-            f"{summary['failed']} failed; per scene: physics {t['physics']} s, rendering "
-            f"{t['rendering']} s, depth {t['depth']} s, occlusion rates {t['occlusion']} s"
-        )
-    return 1 if report.failed else 0
+    t = summary["seconds_per_scene"]
+    return finish_batch(
+        report,
+        summary,
+        f"synth: {summary['scenes']} scenes ({summary['instances']} instances) written to {out}, "
+        f"{summary['failed']} failed; per scene: physics {t['physics']} s, rendering "
+        f"{t['rendering']} s, depth {t['depth']} s, occlusion rates {t['occlusion']} s",
+        as_json=args.json,
+    )

@@ -6,7 +6,6 @@ Called by :mod:`annotator.commands.synth`; see :mod:`annotator.twins.render`.
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 from annotator.errors import UserError
@@ -14,6 +13,7 @@ from annotator.errors import UserError
 
 def synth_twin(args: argparse.Namespace) -> int:
     from annotator.batch import run_batch
+    from annotator.commands import finish_batch
     from annotator.dataset import load_dataset, require_meshes
     from annotator.export.selection import select_scenes
     from annotator.io.atomic import atomic_folder
@@ -61,14 +61,12 @@ def synth_twin(args: argparse.Namespace) -> int:
         "left_out": sel.reasons(),
         "failures": dict(sorted(report.failed.items())),
     }
-    if args.json:
-        print(json.dumps(summary, indent=1))
-    else:
-        report.print_failures()
-        why = "; ".join(f"{n} {r}" for r, n in sorted(sel.reasons().items()))
-        print(
-            f"synth --twin: {len(report.done)} twin scenes of {ds.root} written to {out}"
-            + (f"; left out: {why}" if why else "")
-            + f"; compare them: annotator twin-report {ds.root} {out}"
-        )
-    return 1 if report.failed else 0
+    why = "; ".join(f"{n} {r}" for r, n in sorted(sel.reasons().items()))
+    return finish_batch(
+        report,
+        summary,
+        f"synth --twin: {len(report.done)} twin scenes of {ds.root} written to {out}"
+        + (f"; left out: {why}" if why else "")
+        + f"; compare them: annotator twin-report {ds.root} {out}",
+        as_json=args.json,
+    )

@@ -104,7 +104,11 @@ def _check_objects(ds: Dataset) -> list[Problem]:
             o3d.core.Tensor(mesh.faces.astype(np.uint32)),
         )
         size = obj.markers.size
-        for k, c in enumerate(obj.markers.corners):
+        sites = [(f"markers.sites[{k}]", c) for k, c in enumerate(obj.markers.corners)]
+        for inst in obj.instances:
+            if inst.sites is not None:
+                sites += [(f"instance {inst.name!r}: sites[{k}]", c) for k, c in enumerate(inst.sites)]
+        for where, c in sites:
             sides = np.linalg.norm(np.roll(c, -1, axis=0) - c, axis=1)
             diag = np.linalg.norm(c[2] - c[0]), np.linalg.norm(c[3] - c[1])
             if (
@@ -114,7 +118,7 @@ def _check_objects(ds: Dataset) -> list[Problem]:
                 out.append(
                     Problem(
                         yaml_path,
-                        f"markers.sites[{k}] is not a square of side {size:g} mm (sides {np.round(sides, 2).tolist()})",
+                        f"{where} is not a square of side {size:g} mm (sides {np.round(sides, 2).tolist()})",
                     )
                 )
                 continue
@@ -124,7 +128,7 @@ def _check_objects(ds: Dataset) -> list[Problem]:
                 out.append(
                     Problem(
                         yaml_path,
-                        f"markers.sites[{k}] is {dist.max():.2f} mm off the mesh surface (tolerance {SITE_TOLERANCE_MM} mm)",
+                        f"{where} is {dist.max():.2f} mm off the mesh surface (tolerance {SITE_TOLERANCE_MM} mm)",
                     )
                 )
     return out

@@ -331,7 +331,12 @@ def _parse_object(root: Path, name: str, problems: list[Problem]) -> ObjectModel
             p.problem(f"instance {inst['name']!r} has {len(ids)} marker ids for {n_sites} sites")
         if len(set(ids)) != len(ids):
             p.problem(f"instance {inst['name']!r} repeats a marker id")
-        instances.append(Instance(name=str(inst["name"]), marker_ids=tuple(ids)))
+        own = None
+        if inst.get("sites") is not None:
+            own = p.floats(inst["sites"], max(n_sites, 1) * 12, f"instances[{i}].sites")
+            if own is not None:
+                own = own.reshape(-1, 4, 3)
+        instances.append(Instance(name=str(inst["name"]), marker_ids=tuple(ids), sites=own))
     if len({i.name for i in instances}) != len(instances):
         p.problem("duplicate instance names")
     return ObjectModel(

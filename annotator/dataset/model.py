@@ -57,10 +57,16 @@ class MarkerSites:
 
 @dataclass(frozen=True)
 class Instance:
-    """A physical copy of an object: ``marker_ids[k]`` is glued on site ``k``."""
+    """A physical copy of an object: ``marker_ids[k]`` is glued on site ``k``.
+
+    ``sites``: where this copy's markers really are, (S, 4, 3) in the model frame (mm), in
+    the order and shape of the object's ``markers.sites``, when they were measured
+    (``annotator sites``: markers glued by hand land beside the layout); None: the layout.
+    """
 
     name: str
     marker_ids: tuple[int, ...]
+    sites: np.ndarray | None = field(default=None, compare=False, hash=False)
 
 
 @dataclass(frozen=True)
@@ -88,6 +94,16 @@ class ObjectModel:
     def mesh(self) -> Mesh:
         """The part's mesh (loaded on first use; raises UserError if unreadable)."""
         return load_mesh(self.mesh_path)
+
+    def site_corners(self, instance: str) -> np.ndarray:
+        """(S, 4, 3) corners of every marker site of ``instance``: its measured sites if it
+        has them, else the object's layout (KeyError for an unknown instance)."""
+        sites = self.instance(instance).sites
+        if sites is not None:
+            return sites
+        if self.markers is None:
+            return np.zeros((0, 4, 3))
+        return self.markers.corners
 
     def instance(self, name: str) -> Instance:
         """The instance called ``name`` (KeyError if none)."""

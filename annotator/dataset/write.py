@@ -57,6 +57,19 @@ def write_dataset_yaml(
     write_text(Path(root) / "dataset.yaml", yaml.safe_dump(doc, sort_keys=False, width=120))
 
 
+def instance_to_yaml(instance: Instance) -> dict[str, Any]:
+    """An ``instances`` entry of object.yaml (with its measured ``sites`` if it has them)."""
+    out: dict[str, Any] = {"name": instance.name, "marker_ids": [int(m) for m in instance.marker_ids]}
+    if instance.sites is not None:
+        out["sites"] = sites_to_yaml(instance.sites)
+    return out
+
+
+def sites_to_yaml(corners: np.ndarray) -> list[list[list[float]]]:
+    """Marker sites (S, 4, 3) as object.yaml lists (mm, micrometre resolution)."""
+    return [[_floats(c, 6) for c in site] for site in np.asarray(corners, float)]
+
+
 def write_object_yaml(
     folder: str | Path,
     *,
@@ -71,11 +84,9 @@ def write_object_yaml(
     if markers is not None:
         doc["markers"] = {
             "size": float(markers.size),
-            "sites": [[_floats(c, 6) for c in site] for site in markers.corners],
+            "sites": sites_to_yaml(markers.corners),
         }
-    doc["instances"] = [
-        {"name": i.name, "marker_ids": [int(m) for m in i.marker_ids]} for i in instances
-    ]
+    doc["instances"] = [instance_to_yaml(i) for i in instances]
     doc.update(extra)
     write_text(
         Path(folder) / "object.yaml",

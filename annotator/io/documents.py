@@ -17,6 +17,7 @@ entry and field of a value that is not a finite number.
 
 from __future__ import annotations
 
+import difflib
 import json
 import math
 from pathlib import Path
@@ -149,3 +150,16 @@ def finite_number(
 def _shown(value: Any) -> str:
     text = json.dumps(value) if not isinstance(value, str) else repr(value)
     return text if len(text) <= 40 else text[:37] + "..."
+
+
+def unified_diff(old: str | None, new: str, path: str | Path, *, label: str) -> str:
+    """A unified diff from ``old`` (None: no file) to ``new``, labelled with ``path`` and,
+    for the new text, ``label`` (what made it: ``calibrated``, ``measured``...)."""
+    return "".join(
+        difflib.unified_diff(
+            (old or "").splitlines(keepends=True),
+            new.splitlines(keepends=True),
+            fromfile="/dev/null" if old is None else f"{path} (before)",
+            tofile=f"{path} ({label})",
+        )
+    )

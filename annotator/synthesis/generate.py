@@ -15,12 +15,14 @@ import trimesh
 
 from annotator.dataset.model import Instance, Rig
 from annotator.dataset.poses import InstancePose, write_poses
-from annotator.dataset.write import write_dataset_yaml, write_object_yaml
+from annotator.dataset.write import sites_to_yaml, write_dataset_yaml, write_object_yaml
 from annotator.errors import UserError
 from annotator.geometry.camera import Camera
 from annotator.geometry.mesh import Mesh
 from annotator.geometry.transforms import invert
+from annotator.io.atomic import write_json
 from annotator.io.images import encode_depth, write_png
+from annotator.markers.glue import random_glue
 from annotator.markers.layout import MarkerLayout, assign_ids, place_markers
 from annotator.markers.texture import dictionary_size, marker_bits
 from annotator.occlusion import scene_visibility
@@ -48,6 +50,10 @@ class SynthConfig:
     blur: float = 0.6
     depth: bool = True
     supersample: int = 3
+    #: Markers glued by hand (mm, degrees): every marker of every instance moved in its own
+    #: plane by N(0, glue[0]) along both axes and turned by N(0, glue[1]) about its normal,
+    #: once per instance (the same in every scene). (0, 0): exactly on their sites.
+    glue: tuple[float, float] = (0.0, 0.0)
 
 
 @dataclass
@@ -60,6 +66,9 @@ class DatasetPlan:
     instances: list[list[Instance]]
     setup: RigSetup
     bin: Bin = field(default_factory=Bin)
+    #: Where each instance's markers really are, per part and instance: (S, 4, 3), the
+    #: layout itself unless the markers are glued (``SynthConfig.glue``).
+    glued: list[list[np.ndarray]] = field(default_factory=list)
 
 
 @dataclass
@@ -91,7 +100,25 @@ def plan_dataset(config: SynthConfig) -> DatasetPlan:
         next_id += len(layout.corners) * pool
         instances.append([Instance(f"{k + 1:02d}", tuple(i)) for k, i in enumerate(ids)])
     setup = make_rig(*config.size, rng=np.random.default_rng(config.seed))
-    return DatasetPlan(config, parts, layouts, instances, setup)
+    glued = [
+        [_glued(layout.corners, config, p, k) for k in range(len(insts))]
+        for p, (layout, insts) in enumerate(zip(layouts, instances))
+    ]
+    return DatasetPlan(config, parts, layouts, instances, setup, glued=glued)
+
+
+def _glued(corners: np.ndarray, config: SynthConfig, part: int, instance: int) -> np.ndarray:
+    """Instance ``instance`` of part ``part``'s real sites (see ``SynthConfig.glue``)."""
+    sigma_mm, sigma_deg = config.glue
+    if sigma_mm == 0 and sigma_deg == 0:
+        return corners
+    rng = np.random.default_rng([config.seed, 1 << 20, part, instance])
+    return random_glue(corners, sigma_mm=sigma_mm, sigma_deg=sigma_deg, rng=rng)[0]
+
+
+#: Written by ``synth --glue``: the true sites of every instance (the truth the tests and
+#: benchmarks measure ``annotator sites`` against).
+GLUED_SITES = "glued_sites.json"
 
 
 #: The empty bin's depth, as the sensor sees it (``rig.depth.background`` in dataset.yaml).
@@ -113,6 +140,14 @@ def write_dataset_files(plan: DatasetPlan, root: Path) -> None:
             symmetry=part.symmetry,
             markers=layout.sites,
             instances=insts,
+        )
+    if plan.config.glue != (0.0, 0.0):
+        write_json(
+            root / GLUED_SITES,
+            {
+                part.name: {i.name: sites_to_yaml(g) for i, g in zip(insts, glued)}
+                for part, insts, glued in zip(plan.parts, plan.instances, plan.glued)
+            },
         )
     rig = plan.setup.rig
     if plan.config.depth and rig.depth is not None:
@@ -139,7 +174,9 @@ def write_dataset_files(plan: DatasetPlan, root: Path) -> None:
         rig=rig,
         objects=[p.name for p in plan.parts],
         synth={
-            k: v if not isinstance(v, tuple) else list(v) for k, v in plan.config.__dict__.items()
+            k: v if not isinstance(v, tuple) else list(v)
+            for k, v in plan.config.__dict__.items()
+            if not (k == "glue" and v == (0.0, 0.0))  # recorded only when used
         },
     )
 
@@ -191,7 +228,7 @@ def make_scene(
             continue
         inst = plan.instances[p][copy]
         bits = np.stack([marker_bits(DICTIONARY, m) for m in inst.marker_ids])
-        corners = plan.layouts[p].corners[: len(inst.marker_ids)]
+        corners = plan.glued[p][copy][: len(inst.marker_ids)]
         surfaces.append(Surface(plan.parts[p].mesh, world_T[k], 0.8, corners, bits))
         cam_T = plan.setup.ref_T_world @ world_T[k]
         poses.append(InstancePose(plan.parts[p].name, inst.name, cam_T[:3, :3], cam_T[:3, 3]))

@@ -140,7 +140,7 @@ def make_twin_scene(
     for p in poses:
         obj = ds.objects[p.object]
         ids = obj.instance(p.instance).marker_ids
-        sites = obj.markers.corners[: len(ids)] if obj.markers is not None else None
+        sites = obj.site_corners(p.instance)[: len(ids)] if obj.markers is not None else None
         bits = np.stack([marker_bits(ds.dictionary, m) for m in ids]) if ids else None
         surfaces.append(Surface(obj.mesh, p.T, PART_ALBEDO, sites, bits))
     views = []
