@@ -22,3 +22,15 @@ def sample_copy(tmp_path: Path) -> Path:
 def sample() -> Path:
     """The committed sample dataset, read-only."""
     return SAMPLE
+
+
+@pytest.fixture(scope="module")
+def browser():
+    """Debian's Chromium, headless, driven by Playwright (the browser tests' one browser)."""
+    playwright = pytest.importorskip("playwright.sync_api")
+    from viewer.headless import launch_chromium
+
+    with playwright.sync_playwright() as pw:
+        b = launch_chromium(pw)
+        yield b
+        b.close()

@@ -21,7 +21,7 @@ playwright = pytest.importorskip("playwright.sync_api")
 
 import viewer.app  # noqa: E402
 from viewer.app import ReviewApp  # noqa: E402
-from viewer.headless import free_port, launch_chromium  # noqa: E402
+from viewer.headless import free_port  # noqa: E402
 
 # A page closed while its scene is being sent: viser warns of what it can no longer deliver
 # (the server ignores that warning; pytest records it anyway).
@@ -29,14 +29,6 @@ pytestmark = [pytest.mark.browser, pytest.mark.filterwarnings("ignore:Queued a:U
 
 VIEWPORT = {"width": 1400, "height": 1000}
 PENDING_RGB = (255, 220, 0)
-
-
-@pytest.fixture(scope="module")
-def browser():
-    with playwright.sync_playwright() as pw:
-        b = launch_chromium(pw)
-        yield b
-        b.close()
 
 
 @contextlib.contextmanager

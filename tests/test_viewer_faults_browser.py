@@ -16,9 +16,10 @@ import pytest
 
 playwright = pytest.importorskip("playwright.sync_api")
 
+
 import viewer.session  # noqa: E402
 from viewer.app import ReviewApp  # noqa: E402
-from viewer.headless import free_port, launch_chromium  # noqa: E402
+from viewer.headless import free_port  # noqa: E402
 from viewer.panel import Panel  # noqa: E402
 
 pytestmark = [pytest.mark.browser, pytest.mark.filterwarnings("ignore:Queued a:UserWarning")]
@@ -26,14 +27,6 @@ pytestmark = [pytest.mark.browser, pytest.mark.filterwarnings("ignore:Queued a:U
 VIEWPORT = {"width": 1400, "height": 1000}
 GONE = "the scene's folder is gone"
 NOT_SAVED = "is NOT saved"
-
-
-@pytest.fixture(scope="module")
-def browser():
-    with playwright.sync_playwright() as pw:
-        b = launch_chromium(pw)
-        yield b
-        b.close()
 
 
 @pytest.fixture()

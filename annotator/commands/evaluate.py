@@ -41,7 +41,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="AP_n for each n: at most n results per scene (default 1 3)",
     )
     g = parser.add_mutually_exclusive_group()
-    g.add_argument("--threshold", type=number(low=0, above=True), help="match threshold in mm (inclusive)")
+    g.add_argument(
+        "--threshold", type=number(low=0, above=True), help="match threshold in mm (inclusive)"
+    )
     g.add_argument(
         "--threshold-fraction",
         type=number(low=0, above=True),
@@ -76,14 +78,6 @@ def run(args: argparse.Namespace) -> int:
     from annotator.evaluation.evaluate import Options, evaluate, format_table
     from annotator.formats import detect_format
 
-    if not 0 <= args.max_occlusion <= 1:
-        raise UserError("--max-occlusion must be in [0, 1]")
-    if any(n < 1 for n in args.max_results):
-        raise UserError("--max-results values must be at least 1")
-    if (args.threshold is not None and not args.threshold > 0) or (
-        args.threshold_fraction is not None and not args.threshold_fraction > 0
-    ):
-        raise UserError("the threshold must be positive")
     for out in (args.json, args.plot):
         if out and Path(out).is_dir():
             raise UserError("is a folder; give a file name", path=out)
@@ -130,6 +124,8 @@ def run(args: argparse.Namespace) -> int:
         f"evaluating {source} against {args.gt} ({fmt.NAME}); threshold: {thr}; "
         f"instances to find: occlusion <= {args.max_occlusion:g}; the authors' definitions"
     )
+    for note in gt.notes + results.notes:
+        print(f"note: {note}")
     if report.unscored_scenes:
         print(
             f"note: {len(report.unscored_scenes)} ground-truth scenes have no results and are "

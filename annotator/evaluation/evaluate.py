@@ -93,6 +93,8 @@ def evaluate(gt: GroundTruth, results: Results, options: Options = Options()) ->
     curves: dict[str, list[SceneCurve]] = {name: [] for name in gt.spaces}
     for scene in scenes:
         for name, space in gt.spaces.items():
+            if gt.targets is not None and (scene, name) not in gt.targets:
+                continue  # not a target of the dataset: neither to find nor scored
             g = gt.poses.get((scene, name))
             r = results.poses.get((scene, name))
             if g is None and r is None:

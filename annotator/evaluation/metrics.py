@@ -210,7 +210,9 @@ def summarise(curves: Sequence[SceneCurve], *, max_results: Sequence[int] = ()) 
     return Summary(
         ap=average_precision(precision, recall),
         ap_n=ap_n,
-        mean_scene_ap=float(np.mean(scene_aps)) if scene_aps else 0.0,
+        # No scene (an object neither in the ground truth nor in the results): nothing to
+        # find and nothing found, which the authors' conventions score 1, as the mean curve.
+        mean_scene_ap=float(np.mean(scene_aps)) if scene_aps else 1.0,
         best_f1=float(f1.max()),
         precision=precision,
         recall=recall,

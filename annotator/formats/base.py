@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from annotator.errors import UserError
-from annotator.geometry.transforms import is_rotation
+from annotator.geometry.transforms import is_rotation, nearest_rotation
 from annotator.io.documents import read_json
 from annotator.symmetry.space import PoseSpace
 
@@ -74,6 +74,12 @@ class GroundTruth:
     unit: str = "mm"
     object_ids: dict[int, str] = field(default_factory=dict)
     thresholds: dict[str, float] = field(default_factory=dict)
+    #: What the reader took as other than written (symmetries snapped, rotations
+    #: projected), one line each, for the evaluation's header.
+    notes: list[str] = field(default_factory=list)
+    #: The (scene, object) pairs to score when the dataset lists its targets (BOP's
+    #: test_targets files); None: every pair.
+    targets: set[tuple[str, str]] | None = None
 
 
 @dataclass
@@ -85,6 +91,7 @@ class Results:
     poses: Table
     unknown_scenes: list[str] = field(default_factory=list)
     scenes: set[str] = field(default_factory=set)  # scenes mentioned, with results or not
+    notes: list[str] = field(default_factory=list)  # as GroundTruth.notes
 
     def __post_init__(self) -> None:
         self.scenes |= {scene for scene, _ in self.poses}
@@ -107,16 +114,57 @@ def checked_pose(
         raise UserError(f"{where}: R has a NaN or infinite value", path=path)
     if not np.all(np.isfinite(tv)):
         raise UserError(f"{where}: t has a NaN or infinite value", path=path)
-    if not is_rotation(Rm, tol=1e-3):
-        raise UserError(f"{where}: R is not a rotation matrix", path=path)
-    return Rm, tv
+    if not near_rotation(Rm):
+        raise UserError(
+            f"{where}: R is not a rotation matrix (R R^T differs from I by more than "
+            f"{ROTATION_BOUND:g}, or det R < 0)",
+            path=path,
+        )
+    return (Rm if is_rotation(Rm, tol=1e-3) else nearest_rotation(Rm)), tv
+
+
+#: How far from orthonormal a rotation in a file may be (max |R R^T - I|) and still be
+#: taken, projected to the nearest rotation: BOP's own scene_gt.json reaches 0.0096, and
+#: bop_toolkit takes whatever it is given. A reflection (det < 0) is never taken.
+ROTATION_BOUND = 0.05
+
+
+def near_rotation(R: np.ndarray) -> bool:
+    """True if ``R`` (3, 3) is within :data:`ROTATION_BOUND` of a rotation, not a reflection."""
+    return bool(np.abs(R @ R.T - np.eye(3)).max() <= ROTATION_BOUND and np.linalg.det(R) > 0)
+
+
+def projected_rotations(R: np.ndarray) -> tuple[np.ndarray, int]:
+    """(N, 3, 3) near-rotations with those not orthonormal to 1e-3 projected to the nearest
+    rotation (SVD), and how many were."""
+    off = (np.abs(R @ np.swapaxes(R, 1, 2) - np.eye(3)).max(axis=(1, 2)) >= 1e-3) | (
+        np.abs(np.linalg.det(R) - 1.0) >= 1e-3
+    )
+    if off.any():
+        U, _, Vt = np.linalg.svd(R[off])
+        d = np.sign(np.linalg.det(U @ Vt))
+        U[:, :, 2] *= d[:, None]
+        R = R.copy()
+        R[off] = U @ Vt
+    return R, int(off.sum())
+
+
+def projected_note(count: int, total: int, what: str) -> list[str]:
+    """The header line for ``count`` projected rotations among ``total`` (none if 0)."""
+    if not count:
+        return []
+    return [
+        f"{count} of {total} rotations in {what} were not orthonormal to 1e-3 and were taken "
+        "as the nearest rotation (SVD)"
+    ]
 
 
 def checked_poses(
     Rs: list[Any], ts: list[Any], where: Callable[[int], str], path: Path, *, scale: float = 1.0
-) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`checked_pose` for many poses at once: (N, 3, 3) and (N, 3) arrays. The first
-    bad pose is reported as :func:`checked_pose` would (``where(i)`` names entry i)."""
+) -> tuple[np.ndarray, np.ndarray, int]:
+    """:func:`checked_pose` for many poses at once: (N, 3, 3) and (N, 3) arrays, and how many
+    rotations were projected to the nearest rotation. The first bad pose is reported as
+    :func:`checked_pose` would (``where(i)`` names entry i)."""
     n = len(Rs)
     try:
         R = np.asarray(Rs, float).reshape(n, 3, 3)
@@ -125,8 +173,11 @@ def checked_poses(
         R_ok = np.where(finite[:, None, None], R, np.eye(3))  # NaN would warn in det
         ok = (
             finite
-            & (np.abs(R_ok @ np.swapaxes(R_ok, 1, 2) - np.eye(3)).max(axis=(1, 2)) < 1e-3)
-            & (np.abs(np.linalg.det(R_ok) - 1.0) < 1e-3)
+            & (
+                np.abs(R_ok @ np.swapaxes(R_ok, 1, 2) - np.eye(3)).max(axis=(1, 2))
+                <= ROTATION_BOUND
+            )
+            & (np.linalg.det(R_ok) > 0)
         )
     except (TypeError, ValueError):
         ok = np.zeros(n, bool)
@@ -134,12 +185,13 @@ def checked_poses(
         for i in np.flatnonzero(~ok):
             checked_pose(Rs[i], ts[i], where(i), path, scale=scale)  # raises for the culprit
         raise AssertionError("unreachable: a pose failed the batch check but not its own")
-    return R, t
+    R, projected = projected_rotations(R)
+    return R, t, projected
 
 
 def checked_entries(
     entries: list[dict[str, Any]], path: Path, *, scale: float = 1.0
-) -> tuple[np.ndarray, np.ndarray]:
+) -> tuple[np.ndarray, np.ndarray, int]:
     """The ``R`` and ``t`` of a JSON list's entries, checked (see :func:`checked_poses`)."""
     return checked_poses(
         [e.get("R") for e in entries],
@@ -176,6 +228,7 @@ def read_json_lists(
     mentioned = set()
     known = set(gt.scenes)
     single = next(iter(gt.spaces)) if len(gt.spaces) == 1 else None
+    projected = total = 0
     for f in sorted(folder.glob("*.json")):
         doc = read_json(f)
         if not isinstance(doc, list):
@@ -198,7 +251,9 @@ def read_json_lists(
                 raise UserError(f"{where}: 'score' is missing", path=f)
             objects.append(obj)
             scores.append(checked_score(r["score"], where, f))
-        R, t = checked_entries(doc, f, scale=scale)
+        R, t, n = checked_entries(doc, f, scale=scale)
+        projected += n
+        total += len(R)
         for i, obj in enumerate(objects):
             table.setdefault((key, obj), PoseSet()).add(R[i], t[i], scores[i])
-    return Results(table, unknown, mentioned)
+    return Results(table, unknown, mentioned, projected_note(projected, total, "the results"))

@@ -44,9 +44,12 @@ from annotator.formats.base import (
     PoseSet,
     Results,
     Table,
+    checked_pose,
     checked_poses,
     checked_score,
+    projected_note,
 )
+from annotator.geometry.transforms import is_rotation
 from annotator.io.documents import read_json
 
 NAME = "bop"
@@ -213,18 +216,22 @@ def read_ground_truth(path: Path, *, symmetry: str | None = None) -> GroundTruth
     if not isinstance(info, dict):
         raise UserError("expected an object {obj_id: {...}}", path=info_path)
     spaces, names = {}, {}
+    notes: list[str] = []
     for key, entry in info.items():
         oid = int(key)
         name = f"obj_{oid:06d}"
         names[oid] = name
+        snapped: list[str] = []
         try:
-            sym = symmetry_from_bop(entry)
+            sym = symmetry_from_bop(entry, snapped=snapped)
         except ValueError as exc:
             raise UserError(f"object {key}: {exc}", path=info_path) from None
+        notes += [f"{info_path}: object {key}: {line}" for line in snapped]
         mesh = load_mesh(path / "models" / f"{name}.ply")
         spaces[name] = PoseSpace.from_moments(mesh.moments, sym)
     table: Table = {}
     scenes = []
+    projected = total = 0
     for scene_dir in sorted({p.parent for p in path.glob("*/*/scene_gt*.json")}):
         sensors = sorted(
             p.name[len("scene_gt") : -len(".json")]
@@ -235,6 +242,7 @@ def read_ground_truth(path: Path, *, symmetry: str | None = None) -> GroundTruth
         gt = read_json(scene_dir / f"scene_gt{sfx}.json")
         gi_path = scene_dir / f"scene_gt_info{sfx}.json"
         gi = read_json(gi_path) if gi_path.exists() else {}
+        gt_path = scene_dir / f"scene_gt{sfx}.json"
         for im_id, insts in gt.items():
             key = f"{int(scene_dir.name)}/{int(im_id)}"
             scenes.append(key)
@@ -242,12 +250,65 @@ def read_ground_truth(path: Path, *, symmetry: str | None = None) -> GroundTruth
             for k, inst in enumerate(insts):
                 name = names.get(int(inst["obj_id"]), f"obj_{int(inst['obj_id']):06d}")
                 vf = infos[k].get("visib_fract") if k < len(infos) else None
-                table.setdefault((key, name), PoseSet()).add(
-                    np.asarray(inst["cam_R_m2c"], float).reshape(3, 3),
-                    np.asarray(inst["cam_t_m2c"], float).reshape(3),
-                    1.0 - float(vf) if vf is not None else float("nan"),
+                R, t = checked_pose(
+                    inst.get("cam_R_m2c"),
+                    inst.get("cam_t_m2c"),
+                    f"image {im_id}, entry {k}",
+                    gt_path,
                 )
-    return GroundTruth(spaces, table, scenes, NAME, "mm", names)
+                total += 1
+                projected += not is_rotation(
+                    np.asarray(inst["cam_R_m2c"], float).reshape(3, 3), tol=1e-3
+                )
+                table.setdefault((key, name), PoseSet()).add(
+                    R, t, 1.0 - float(vf) if vf is not None else float("nan")
+                )
+    notes += projected_note(projected, total, "the ground truth")
+    targets = read_targets(path, names)
+    if targets is not None:
+        source, pairs = targets
+        images = {scene for scene, _ in pairs}
+        scenes = [s for s in scenes if s in images]
+        notes.append(
+            f"targets from {source}: {len(images)} images, {len(pairs)} (image, object) pairs "
+            "to score; the dataset's other poses and any results for them are not scored"
+        )
+        return GroundTruth(spaces, table, scenes, NAME, "mm", names, notes=notes, targets=pairs)
+    return GroundTruth(spaces, table, scenes, NAME, "mm", names, notes=notes)
+
+
+#: BOP's lists of what is to be found, in the order they are looked for at the dataset's
+#: root: the localisation task's (``{scene_id, im_id, obj_id, inst_count}``) and the
+#: detection task's (``{scene_id, im_id}``: every object of the image).
+TARGET_FILES = ("test_targets_bop19.json", "test_targets_bop24.json")
+
+
+def read_targets(path: Path, names: dict[int, str]) -> tuple[str, set[tuple[str, str]]] | None:
+    """The (scene key, object name) pairs a BOP dataset's targets file lists, with the
+    file's name; None without one. Object ids it names that the models do not have are a
+    one-line error."""
+    for name in TARGET_FILES:
+        file = path / name
+        if not file.is_file():
+            continue
+        doc = read_json(file)
+        if not isinstance(doc, list):
+            raise UserError("expected a list of {scene_id, im_id[, obj_id, inst_count]}", path=file)
+        pairs: set[tuple[str, str]] = set()
+        for i, entry in enumerate(doc):
+            try:
+                key = f"{int(entry['scene_id'])}/{int(entry['im_id'])}"
+                oid = None if entry.get("obj_id") is None else int(entry["obj_id"])
+            except (KeyError, TypeError, ValueError):
+                raise UserError(f"entry {i}: needs integer scene_id and im_id", path=file) from None
+            if oid is None:
+                pairs |= {(key, n) for n in names.values()}
+            elif oid in names:
+                pairs.add((key, names[oid]))
+            else:
+                raise UserError(f"entry {i}: object {oid} is not in models_info.json", path=file)
+        return name, pairs
+    return None
 
 
 # ------------------------------------------------------------------------------ results
@@ -295,14 +356,14 @@ def read_csv_results(
     try:
         if rows is None:
             rows = _cell_rows(lines, numbers, index, path)
-        objects, R, t = _checked(rows, numbers, gt, path)
+        objects, R, t, projected = _checked(rows, numbers, gt, path)
     except UserError:
         if rows is None or rows.score_cells is not None:
             raise
         # Read in one go, a line's numbers may have shifted from R into t: cell by cell, the
         # line is named with what is really wrong with it.
         rows = _cell_rows(lines, numbers, index, path)
-        objects, R, t = _checked(rows, numbers, gt, path)
+        objects, R, t, projected = _checked(rows, numbers, gt, path)
     keys: dict[tuple[str, int], str] = {}
     groups: dict[tuple[str, str], list[int]] = {}
     known = set(gt.scenes)
@@ -313,25 +374,28 @@ def read_csv_results(
             try:
                 key = keys[(sid, im)] = scene_key(sid, im)
             except ValueError:
-                raise UserError(f"line {numbers[i]}: malformed scene_id {sid!r}", path=path) from None
+                raise UserError(
+                    f"line {numbers[i]}: malformed scene_id {sid!r}", path=path
+                ) from None
             if key not in known and key not in unknown:
                 unknown.append(key)
         if key in known:
             groups.setdefault((key, obj), []).append(i)
     table: Table = {g: PoseSet.of(R[i], t[i], rows.scores[i]) for g, i in groups.items()}
-    return Results(table, unknown)
+    return Results(table, unknown, notes=projected_note(projected, len(R), path.name))
 
 
 def _checked(
     rows: _Rows, numbers: list[int], gt: GroundTruth, path: Path
-) -> tuple[list[str], np.ndarray, np.ndarray]:
-    """The rows' object names and poses, checked (the first bad line is named)."""
+) -> tuple[list[str], np.ndarray, np.ndarray, int]:
+    """The rows' object names and poses, checked (the first bad line is named), and how
+    many rotations were projected."""
     objects = _object_names(rows.objects, numbers, gt, path)
     bad = np.flatnonzero(~np.isfinite(rows.scores))
     if bad.size and rows.score_cells is not None:
         checked_score(rows.score_cells[bad[0]], f"line {numbers[bad[0]]}", path)
-    R, t = checked_poses(rows.R, rows.t, lambda i: f"line {numbers[i]}", path)
-    return objects, R, t
+    R, t, projected = checked_poses(rows.R, rows.t, lambda i: f"line {numbers[i]}", path)
+    return objects, R, t, projected
 
 
 @dataclass

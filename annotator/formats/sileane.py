@@ -261,7 +261,7 @@ def read_ground_truth(path: Path, *, symmetry: str | None = None) -> GroundTruth
         for i, inst in enumerate(doc):
             if not isinstance(inst, dict):
                 raise UserError(f"entry {i}: expected an object {{R, t, occlusion_rate}}", path=f)
-        R, t = checked_entries(doc, f, scale=M)
+        R, t, _ = checked_entries(doc, f, scale=M)
         for i, inst in enumerate(doc):
             occ = inst.get("occlusion_rate")
             ps.add(R[i], t[i], float(occ) if isinstance(occ, (int, float)) else float("nan"))

@@ -154,13 +154,26 @@ def symmetry_to_bop(sym: Symmetry, centroid: np.ndarray) -> dict[str, Any]:
     return {}
 
 
-def symmetry_from_bop(entry: dict[str, Any], *, tol: float = 1e-3) -> Symmetry:
+#: A listed discrete symmetry within this angle (degrees) of a turn of finite order (up to
+#: :data:`MAX_SNAP_ORDER`) is taken as that turn: BOP's symmetries are measured, not exact
+#: (LM-O's eggbox lists 179.8 degrees, its glue 178.5).
+SNAP_DEG = 2.0
+MAX_SNAP_ORDER = 36
+#: Turns of higher order (to 120) are taken only when they are exact to this (rad).
+EXACT_RAD = 1e-4
+
+
+def symmetry_from_bop(
+    entry: dict[str, Any], *, tol: float = 1e-3, snapped: list[str] | None = None
+) -> Symmetry:
     """Our symmetry from a models_info.json entry. Raises ValueError if it is malformed, or
     if the listed discrete elements do not form a group.
 
     A finite group is rebuilt from its listed elements themselves, each taken as the
     generator of its own cyclic subgroup (a turn of 135 degrees has order 8, not 3), and the
-    group they generate must be exactly the listed elements plus the identity.
+    group they generate must be exactly the listed elements plus the identity. An element
+    that is not of finite order but within :data:`SNAP_DEG` of a turn that is, is taken as
+    that turn about its own axis; a line saying so is added to ``snapped``.
     """
     cont = entry.get("symmetries_continuous") or []
     disc = entry.get("symmetries_discrete") or []
@@ -190,12 +203,25 @@ def symmetry_from_bop(entry: dict[str, Any], *, tol: float = 1e-3) -> Symmetry:
         flip = any(float(axis @ R @ axis) < 0 for R in rotations)
         return Symmetry("revolution_flip" if flip else "revolution", axis=axis)
     gens: list[tuple[np.ndarray, int]] = []
-    for R in rotations:
+    for k, R in enumerate(rotations):
         rv = matrix_to_rotvec(R)
         angle = float(np.linalg.norm(rv))
         if angle < 1e-6:
             continue  # an identity listed among the elements
-        axis, order = rv / angle, _order(R, tol)
+        axis = rv / angle
+        order, exact = _snap(angle, f"symmetries_discrete[{k}]", axis)
+        if abs(exact - angle) > EXACT_RAD:
+            rotations[k] = axis_angle(axis, exact)
+            if snapped is not None:
+                named = (
+                    "the half turn"
+                    if order == 2
+                    else f"a turn of {np.degrees(exact):g} deg (order {order})"
+                )
+                snapped.append(
+                    f"symmetry {np.degrees(angle):.1f} deg about "
+                    f"({', '.join(f'{v:.3f}' for v in axis)}) taken as {named}"
+                )
         # Elements about one axis generate one cyclic group, of the lcm of their orders: one
         # exact generator for it keeps the closure free of rounding noise.
         for k, (a, o) in enumerate(gens):
@@ -226,11 +252,19 @@ def symmetry_from_bop(entry: dict[str, Any], *, tol: float = 1e-3) -> Symmetry:
     return sym
 
 
-def _order(R: np.ndarray, tol: float, max_order: int = 120) -> int:
-    """Smallest k >= 1 with R^k = I (ValueError if none up to ``max_order``)."""
-    P = R.copy()
-    for k in range(1, max_order + 1):
-        if np.abs(P - np.eye(3)).max() < tol:
-            return k
-        P = P @ R
-    raise ValueError("a discrete symmetry is not of finite order")
+def _snap(angle: float, what: str, axis: np.ndarray) -> tuple[int, float]:
+    """The order and angle (rad) of the turn of finite order within :data:`SNAP_DEG` (and a
+    tenth of that order's spacing) of ``angle`` (orders up to :data:`MAX_SNAP_ORDER`, the
+    smallest first; higher ones, to 120, only exact to :data:`EXACT_RAD`); ValueError naming
+    ``what`` otherwise."""
+    for n in range(2, 121):
+        k = round(angle * n / (2 * np.pi))
+        # Within a tenth of the spacing of the order's turns too, so that it is unambiguous.
+        spacing = 2 * np.pi / n
+        bound = min(np.radians(SNAP_DEG), spacing / 10) if n <= MAX_SNAP_ORDER else EXACT_RAD
+        if k and math.gcd(k, n) == 1 and abs(angle - 2 * np.pi * k / n) <= bound:
+            return n, 2 * np.pi * k / n
+    raise ValueError(
+        f"{what}: a turn of {np.degrees(angle):.2f} deg about ({', '.join(f'{v:.3f}' for v in axis)}) "
+        f"is not within {SNAP_DEG:g} deg of a rotation of finite order (at most {MAX_SNAP_ORDER})"
+    )

@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from annotator.symmetry.embedding import as_space, split_poses
+from annotator.symmetry.embedding import poses_and_values
 
 
 def filter_duplicates(poses: Any, scores: Any, part: Any, radius: float) -> np.ndarray:
@@ -68,12 +68,8 @@ def filter_duplicates(poses: Any, scores: Any, part: Any, radius: float) -> np.n
     """
     from scipy.spatial import cKDTree
 
-    space = as_space(part)
-    R, t = split_poses(poses)
-    scores = np.asarray(scores, float).reshape(-1)
+    space, R, t, scores = poses_and_values(poses, scores, part, "scores")
     n = len(R)
-    if len(scores) != n:
-        raise ValueError(f"{n} poses but {len(scores)} scores")
     if not radius >= 0:
         raise ValueError(f"radius must be a non-negative distance, got {radius!r}")
     if n == 0:

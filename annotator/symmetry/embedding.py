@@ -104,3 +104,16 @@ def frames_with_z(z: np.ndarray) -> np.ndarray:
     x = np.cross(ref, z)
     x /= np.linalg.norm(x, axis=1, keepdims=True)
     return np.stack([x, np.cross(z, x), z], axis=2)
+
+
+def poses_and_values(
+    poses: Any, values: Any, part: Any, name: str
+) -> tuple[PoseSpace, np.ndarray, np.ndarray, np.ndarray]:
+    """The pose space of ``part``, ``R`` and ``t`` of ``poses`` and one value per pose
+    (``name``: what the values are, for the error), checked to match in number."""
+    space = as_space(part)
+    R, t = split_poses(poses)
+    v = np.asarray(values, float).reshape(-1)
+    if len(v) != len(R):
+        raise ValueError(f"{len(R)} poses but {len(v)} {name}")
+    return space, R, t, v

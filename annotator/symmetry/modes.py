@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 
 from annotator.symmetry.duplicates import filter_duplicates
-from annotator.symmetry.embedding import as_space, nearest_poses, split_poses, stack_poses
+from annotator.symmetry.embedding import nearest_poses, poses_and_values, stack_poses
 
 
 @dataclass(frozen=True)
@@ -114,12 +114,8 @@ def find_modes(
     """
     from scipy.spatial import cKDTree
 
-    space = as_space(part)
-    R, t = split_poses(poses)
-    w = np.asarray(weights, float).reshape(-1)
+    space, R, t, w = poses_and_values(poses, weights, part, "weights")
     n = len(R)
-    if len(w) != n:
-        raise ValueError(f"{n} votes but {len(w)} weights")
     if not bandwidth > 0:
         raise ValueError(f"bandwidth must be a positive distance, got {bandwidth!r}")
     if np.any(w < 0) or not np.all(np.isfinite(w)):
