@@ -162,9 +162,7 @@ def solve_sites(
         x[problem.first_site :] = (np.asarray(start, float)[sites].ravel()) / problem.scale[
             problem.first_site :
         ]
-    # First the markers alone. Depth comes in only for what they leave open (the gauge
-    # directions their planes allow): a sensor's depth carries biases of its own (an offset,
-    # smearing at edges) that would otherwise pull every pose, and every site with it.
+    # With depth, its point pairs are found again between rounds, as in ICP.
     has_depth = mesh_closest is not None and any(len(p) for p in data.depth_points)
     for _ in range(settings.rounds if has_depth else 1):
         result = _least_squares(problem, x, data if has_depth else None, mesh_closest)
@@ -174,8 +172,8 @@ def solve_sites(
     corrections = np.zeros((len(layout), 3))
     std = np.full((len(layout), 3), np.nan)
     seen = np.zeros(len(layout), int)
-    for m in {(m.view, m.site) for m in marks}:
-        seen[m[1]] += 1
+    for _, site in {(m.view, m.site) for m in marks}:
+        seen[site] += 1
     # The corners' real noise, from the residuals (robustly), rather than the assumed one:
     # the uncertainties reported are then those the data support.
     noise = 1.4826 * float(np.median(np.abs(problem.projections(x) - problem.detected)))
