@@ -16,6 +16,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from polling import wait_until
 
 playwright = pytest.importorskip("playwright.sync_api")
 
@@ -48,15 +49,6 @@ def served(sample_copy):
         yield app, sample_copy
 
 
-def _wait(predicate, timeout=15.0):
-    end = time.time() + timeout
-    while time.time() < end:
-        if predicate():
-            return True
-        time.sleep(0.05)
-    return False
-
-
 def _review(root, sid):
     p = root / "scenes" / sid / "review.json"
     return json.loads(p.read_text()) if p.exists() else None
@@ -76,7 +68,7 @@ def _open(browser, url: str, first: str = "Scene 000000"):
 
 
 def _session(app: ReviewApp, count: int = 1):
-    assert _wait(lambda: len(app.sessions) >= count), "no page connected"
+    assert wait_until(lambda: len(app.sessions) >= count), "no page connected"
     return list(app.sessions.values())[count - 1]
 
 
@@ -104,7 +96,7 @@ def _shows(page, picture, timeout: float = 10.0) -> bool:
             return False
         return float((np.abs(img - expected.astype(int)).max(axis=-1) <= 8).mean()) > 0.9
 
-    return _wait(close, timeout)
+    return wait_until(close, timeout)
 
 
 def _interior_pixel(mask: np.ndarray) -> tuple[int, int]:
@@ -128,20 +120,20 @@ def test_review_page_end_to_end(browser, served) -> None:
 
         # Click "Accept scene": scene 000000 accepted, the page moves to 000001.
         page.get_by_role("button", name="Accept scene (Y)").click()
-        assert _wait(lambda: _status(root, "000000") == "accepted")
+        assert wait_until(lambda: _status(root, "000000") == "accepted")
         page.get_by_text("Scene 000001").first.wait_for(timeout=15000)
 
         # Hotkeys: N rejects 000001 (and moves on), K goes back, J forward.
         page.get_by_text("Scene 000001").first.click()
         page.keyboard.press("n")
-        assert _wait(lambda: _status(root, "000001") == "rejected")
+        assert wait_until(lambda: _status(root, "000001") == "rejected")
         page.get_by_text("Scene 000002").first.wait_for(timeout=15000)
         page.keyboard.press("k")
         page.get_by_text("Scene 000001").first.wait_for(timeout=15000)
         page.keyboard.press("j")
         page.get_by_text("Scene 000002").first.wait_for(timeout=15000)
         page.keyboard.press("y")
-        assert _wait(lambda: _status(root, "000002") == "accepted")
+        assert wait_until(lambda: _status(root, "000002") == "accepted")
         page.get_by_text("reviewed 3 / 4").first.wait_for(timeout=15000)
     finally:
         page.close()
@@ -162,7 +154,7 @@ def test_two_pages_have_their_own_cursor_and_share_decisions(browser, served) ->
 
         # a accepts 000001: b's shared progress shows it within a second or two.
         a.keyboard.press("y")
-        assert _wait(lambda: _status(root, "000001") == "accepted")
+        assert wait_until(lambda: _status(root, "000001") == "accepted")
         b.get_by_text("reviewed 1 / 4").first.wait_for(timeout=3000)
 
         # b goes there, sees the decision, and rejects the scene: the later decision wins and
@@ -172,7 +164,7 @@ def test_two_pages_have_their_own_cursor_and_share_decisions(browser, served) ->
         b.get_by_text("Scene 000001").first.wait_for(timeout=15000)
         assert b.get_by_text("accepted").first.is_visible()
         b.keyboard.press("n")
-        assert _wait(lambda: _status(root, "000001") == "rejected")
+        assert wait_until(lambda: _status(root, "000001") == "rejected")
         a.get_by_text("decided after you by another reviewer").first.wait_for(timeout=5000)
     finally:
         a.close()
@@ -191,8 +183,8 @@ def test_zoom_on_a_clicked_instance_then_no_pose_here(browser, served) -> None:
         u, v = tile.to_picture(*_interior_pixel(prep.layers[0].instance == k))
         _, box = _canvas_rgb(page)
         page.mouse.click(box["x"] + u + 0.5, box["y"] + v + 0.5)
-        assert _wait(lambda: session.nav.zoom and session.nav.selected == prep.keys[k])
-        assert _wait(lambda: session._zoom is not None and session._on_canvas[0] == "zoom")
+        assert wait_until(lambda: session.nav.zoom and session.nav.selected == prep.keys[k])
+        assert wait_until(lambda: session._zoom is not None and session._on_canvas[0] == "zoom")
         z = session._zoom[1]
         assert _shows(page, lambda: z.image), "the zoom is not on the canvas"
         img, _ = _canvas_rgb(page)
@@ -205,7 +197,7 @@ def test_zoom_on_a_clicked_instance_then_no_pose_here(browser, served) -> None:
         assert thick.sum() < 0.02 * drawn.sum(), "the outline is more than one pixel wide"
         assert f"| ▶ | {prep.keys[k]} |" in session.panel.table.content
         page.keyboard.press("o")  # fill instead of outline
-        assert _wait(lambda: session._on_canvas[1][-1] is True)
+        assert wait_until(lambda: session._on_canvas[1][-1] is True)
 
         # "A part has no pose here": M, then a click on the zoom; the pixel is recorded.
         zt = z.tiles[1]  # the second camera's crop, magnified
@@ -216,7 +208,7 @@ def test_zoom_on_a_clicked_instance_then_no_pose_here(browser, served) -> None:
             timeout=5000
         )
         page.mouse.click(box["x"] + round(u) + 0.5, box["y"] + round(v) + 0.5)
-        assert _wait(lambda: _status(root, "000000") == "rejected")
+        assert wait_until(lambda: _status(root, "000000") == "rejected")
         doc = _review(root, "000000")
         assert doc["reason"] == "a part has no pose"
         (mark,) = doc["missing"]
@@ -226,7 +218,7 @@ def test_zoom_on_a_clicked_instance_then_no_pose_here(browser, served) -> None:
         assert abs(mark["pixel"][1] - y) <= 1.0 / zt.scale
         page.get_by_text(f"no pose here: {zt.camera}").first.wait_for(timeout=5000)
         page.keyboard.press("z")  # back to the mosaic
-        assert _wait(lambda: session._on_canvas[0] == "mosaic")
+        assert wait_until(lambda: session._on_canvas[0] == "mosaic")
     finally:
         page.close()
 
@@ -268,7 +260,7 @@ def test_a_failed_write_is_shown_in_the_page(browser, served, monkeypatch) -> No
             assert page.get_by_text("Scene 000000").first.is_visible()  # it stayed
             assert _status(root, "000000") is None
         page.keyboard.press("y")  # writable again: saved, the warning goes
-        assert _wait(lambda: _status(root, "000000") == "accepted")
+        assert wait_until(lambda: _status(root, "000000") == "accepted")
         page.get_by_text("Scene 000001").first.wait_for(timeout=15000)
         page.get_by_text("is NOT saved").first.wait_for(state="hidden", timeout=5000)
     finally:
@@ -295,7 +287,7 @@ def test_a_non_local_host_without_a_token_is_refused(browser, sample_copy, monke
         base = f"http://127.0.0.1:{app.port}"
         page = browser.new_page(viewport=VIEWPORT)
         page.goto(base)  # no token
-        assert _wait(lambda: app.guard.refused)
+        assert wait_until(lambda: app.guard.refused)
         time.sleep(0.5)
         assert not page.get_by_text("Scene 000000").first.is_visible()
         assert not app.sessions
@@ -303,7 +295,7 @@ def test_a_non_local_host_without_a_token_is_refused(browser, sample_copy, monke
         url = f"{base}/?websocket=ws://127.0.0.1:{app.port}/%3Ftoken%3D{token}"
         page = browser.new_page(viewport=VIEWPORT)
         page.goto(url)
-        assert _wait(lambda: len(app.sessions) == 1), "the page with the token was refused"
+        assert wait_until(lambda: len(app.sessions) == 1), "the page with the token was refused"
         page.close()
     finally:
         app.stop()

@@ -17,6 +17,7 @@ import weakref
 import msgspec
 import numpy as np
 import pytest
+from polling import wait_until
 
 from annotator.cli import main
 from annotator.dataset.review import ReviewStatus
@@ -38,15 +39,6 @@ GB = 1e9
 pytestmark = pytest.mark.filterwarnings("ignore:Queued a:UserWarning")
 
 
-def _wait(predicate, timeout: float = 15.0) -> bool:
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        if predicate():
-            return True
-        time.sleep(0.02)
-    return predicate()
-
-
 @contextlib.contextmanager
 def _serving(root):
     app = ReviewApp(root, host="127.0.0.1", port=free_port())
@@ -62,7 +54,7 @@ def _drawn(app: ReviewApp) -> int:
 
 
 def _session(app: ReviewApp) -> Session:
-    assert _wait(lambda: len(app.sessions) == 1), "the page did not connect"
+    assert wait_until(lambda: len(app.sessions) == 1), "the page did not connect"
     return next(iter(app.sessions.values()))
 
 
@@ -176,34 +168,34 @@ def test_a_hostile_canvas_is_drawn_within_8k_and_forgotten_when_the_page_leaves(
         try:
             page = weakref.ref(_session(app))  # the test must not keep the page alive
             assert page().viewport == (4320, 4320)
-            assert _wait(lambda: page()._picture is not None)
+            assert wait_until(lambda: page()._picture is not None)
             assert page()._picture[1].image.shape == (4320, 4320, 3)
             # Drawn ahead for this canvas too, within the cache's bytes.
-            assert _wait(lambda: len(app.cache.values()) >= 2)
+            assert wait_until(lambda: len(app.cache.values()) >= 2)
             assert app.cache.nbytes() <= CACHE_BYTES
         finally:
             drop(ws)
         # Once the page is closed (its disconnect handled), nothing drawn for it is left.
-        assert _wait(lambda: not app.sessions and page()._closed)
-        assert _wait(lambda: _drawn(app) == 0)
+        assert wait_until(lambda: not app.sessions and page()._closed)
+        assert wait_until(lambda: _drawn(app) == 0)
         assert all(prep.nbytes < 40e6 for prep in app.cache.values())  # full resolution only
         assert page()._picture is None and page()._prep is None
         # viser lets go of its client after the page's disconnect callback.
-        assert _wait(lambda: gc.collect() >= 0 and page() is None), "the closed page is kept"
+        assert wait_until(lambda: gc.collect() >= 0 and page() is None), "the closed page is kept"
 
 
 def test_pages_that_never_read_are_let_go_when_they_leave(sample_copy) -> None:
     with _serving(sample_copy) as app:
         pages = [open_page(app.port, width=30000, height=30000) for _ in range(5)]
         try:
-            assert _wait(lambda: len(app.sessions) == 5)
-            assert _wait(lambda: all(s._picture is not None for s in app.sessions.values()))
+            assert wait_until(lambda: len(app.sessions) == 5)
+            assert wait_until(lambda: all(s._picture is not None for s in app.sessions.values()))
         finally:
             for ws in pages:
                 drop(ws)
-        assert _wait(lambda: not app.sessions)
+        assert wait_until(lambda: not app.sessions)
         assert app.viewports() == set()
-        assert _wait(lambda: _drawn(app) == 0)
+        assert wait_until(lambda: _drawn(app) == 0)
 
 
 def test_a_real_server_gives_the_memory_back_when_a_hostile_page_leaves(sample_copy) -> None:
@@ -214,12 +206,12 @@ def test_a_real_server_gives_the_memory_back_when_a_hostile_page_leaves(sample_c
         ws = open_page(server.port, width=30000, height=30000)
         try:
             # It draws for the page: 8K-clamped mosaics of the next scenes, about 0.4 GB.
-            assert _wait(lambda: server.rss_bytes() > before + 0.2 * GB, 20.0)
+            assert wait_until(lambda: server.rss_bytes() > before + 0.2 * GB, 20.0)
             time.sleep(1.0)
             assert server.rss_bytes() < before + 2.0 * GB
         finally:
             drop(ws)
-        assert _wait(lambda: server.rss_bytes() < before + 0.5 * GB, 15.0), (
+        assert wait_until(lambda: server.rss_bytes() < before + 0.5 * GB, 15.0), (
             f"{server.rss_bytes() / GB:.2f} GB after the page left, {before / GB:.2f} GB before"
         )
         assert server.proc is not None and server.proc.poll() is None
@@ -298,8 +290,8 @@ def test_malformed_frames_are_dropped_with_one_line_each(sample_copy, capfd) -> 
                 ws.send(frame)
             # The connection is still served: a camera message after them reaches the page.
             ws.send(camera_message(1000, 700))
-            assert _wait(lambda: session.viewport == (1000, 700)), "the connection was dropped"
-            assert _wait(lambda: app.frames.dropped == len(MALFORMED))
+            assert wait_until(lambda: session.viewport == (1000, 700)), "the connection was dropped"
+            assert wait_until(lambda: app.frames.dropped == len(MALFORMED))
             assert len(app.sessions) == 1
         finally:
             ws.close()

@@ -13,6 +13,7 @@ import time
 from pathlib import Path
 
 import pytest
+from polling import wait_until
 
 playwright = pytest.importorskip("playwright.sync_api")
 
@@ -54,15 +55,6 @@ def _serving(root: Path):
         app.stop()
 
 
-def _wait(predicate, timeout: float = 15.0) -> bool:
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        if predicate():
-            return True
-        time.sleep(0.05)
-    return predicate()
-
-
 def _decisions(root: Path) -> dict[str, str]:
     return {
         p.parent.name: json.loads(p.read_text())["status"]
@@ -75,7 +67,7 @@ def _open(browser, app: ReviewApp):
     page.goto(app.url)
     _title(page, "000000").wait_for(timeout=30000)
     page.wait_for_selector("canvas", timeout=30000)
-    assert _wait(lambda: len(app.sessions) == 1)
+    assert wait_until(lambda: len(app.sessions) == 1)
     _title(page, "000000").click()  # the page has the keyboard
     return page, next(iter(app.sessions.values()))
 
@@ -94,20 +86,20 @@ def test_a_deleted_scene_is_reported_and_never_decided(browser, sample_copy, sho
     with _serving(sample_copy) as app:
         page, session = _open(browser, app)
         try:
-            assert _wait(lambda: _pictures_on_page(page) >= 1)
+            assert wait_until(lambda: _pictures_on_page(page) >= 1)
             shutil.rmtree(sample_copy / "scenes" / "000001")
             # J Y J Y K K, each key once the page shows what the last one did.
             page.keyboard.press("j")
             page.get_by_text(GONE).first.wait_for(timeout=10000)
             assert _title(page, "000001").is_visible()
-            assert _wait(lambda: _pictures_on_page(page) == 0), "000000's pictures stayed"
+            assert wait_until(lambda: _pictures_on_page(page) == 0), "000000's pictures stayed"
             page.keyboard.press("y")
             page.get_by_text(NOT_SAVED).first.wait_for(timeout=10000)
             assert not (sample_copy / "scenes" / "000001").exists()  # not made again
             page.keyboard.press("j")
             _title(page, "000002").wait_for(timeout=10000)
             page.keyboard.press("y")  # 000002 is shown: it is decided
-            assert _wait(lambda: _decisions(sample_copy) == {"000002": "accepted"})
+            assert wait_until(lambda: _decisions(sample_copy) == {"000002": "accepted"})
             _title(page, "000003").wait_for(timeout=10000)
             page.keyboard.press("k")
             _title(page, "000002").wait_for(timeout=10000)
@@ -148,7 +140,7 @@ def test_a_key_pressed_while_the_page_switches_decides_nothing(
         try:
             monkeypatch.setattr(viewer.session, "compose", slow)
             page.keyboard.press("j")
-            assert _wait(lambda: session.nav.current == "000001", 5.0)
+            assert wait_until(lambda: session.nav.current == "000001", 5.0)
             page.keyboard.press("y")  # the page still shows 000000
             page.get_by_text(NOT_SAVED).first.wait_for(timeout=10000)
             page.get_by_text("still showing scene 000000").first.wait_for(timeout=5000)
@@ -156,7 +148,7 @@ def test_a_key_pressed_while_the_page_switches_decides_nothing(
             assert _decisions(sample_copy) == {}
             assert session.displayed == "000001"
             page.keyboard.press("y")  # now it is shown: saved, and the red notice goes
-            assert _wait(lambda: _decisions(sample_copy) == {"000001": "accepted"})
+            assert wait_until(lambda: _decisions(sample_copy) == {"000001": "accepted"})
             page.get_by_text(NOT_SAVED).first.wait_for(state="hidden", timeout=10000)
         finally:
             page.close()
