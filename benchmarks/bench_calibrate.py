@@ -6,6 +6,12 @@ intrinsics fixed) and OpenCV's joint stereoCalibrate, on the same detections, ov
 seeds. Targets: focal lengths within 0.2 %, principal points within 5 px, rig_T_cam within
 0.3 mm and 0.2 degrees.
 
+Also the held-out error (annotator.calibration.heldout: 5-fold over shots, each left-out
+shot's board pose from one camera, its corners predicted in the other, px RMS) of each
+pipeline fitted on the same folds: ours with OpenCV's five coefficients, ours with the model
+chosen by the held-out error (``annotator calibrate``'s default), and OpenCV's pipeline
+(per-camera calibrateCamera, then stereoCalibrate with the intrinsics fixed; and joint).
+
     .venv/bin/python benchmarks/bench_calibrate.py [--seeds 3]
 
 Seed 0 is the captures of tests/test_calibrate.py (``annotator synth --calibration OUT
@@ -21,7 +27,10 @@ import numpy as np
 
 from annotator.calibration.baseline import opencv_stereo
 from annotator.calibration.detect import BoardDetector
-from annotator.calibration.solve import View, calibrate_rig
+from annotator.calibration.heldout import held_out_error
+from annotator.calibration.model_choice import calibrate_and_assess
+from annotator.calibration.solve import CalibrationOptions, View, calibrate_rig
+from annotator.geometry.camera import Camera
 from annotator.geometry.transforms import invert
 from annotator.synthesis.board import CaptureConfig, plan_captures, true_corners
 
@@ -42,12 +51,48 @@ def errors(Ks, rig_T_cam1, rig) -> dict[str, float]:  # noqa: ANN001
     }
 
 
+def opencv_fit(sizes, board, *, joint: bool):  # noqa: ANN001, ANN201
+    """OpenCV's pipeline as a fit for the held-out error: its two cameras."""
+
+    def fit(views):  # noqa: ANN001, ANN202
+        r = opencv_stereo(views, board, sizes, joint=joint)
+        return [
+            Camera("left", *sizes[0], r.K[0], r.dist[0]),
+            Camera("right", *sizes[1], r.K[1], r.dist[1], r.rig_T_cam1),
+        ]
+
+    return fit
+
+
+def held_out_table(views, plan, cfg) -> dict[str, float]:  # noqa: ANN001
+    """Held-out RMS (px) of each pipeline on the same folds."""
+    names = [c.name for c in plan.rig.cameras]
+    sizes = [c.size for c in plan.rig.cameras]
+    common = {"cameras": names, "sizes": sizes, "shots": plan.shot_names, "board": cfg.board}
+
+    def ours(views):  # noqa: ANN001, ANN202
+        return calibrate_rig(views, **common, options=CalibrationOptions(min_shots=3)).rig_cameras
+
+    chosen = calibrate_and_assess(views, **common)
+    return {
+        "ours, 5 coefficients": held_out_error(views, ours, cfg.board, names).rms_px,
+        f"ours, chosen ({chosen.model_choice.dist_coeffs})": chosen.held_out.rms_px,
+        "OpenCV two-step": held_out_error(
+            views, opencv_fit(sizes, cfg.board, joint=False), cfg.board, names
+        ).rms_px,
+        "OpenCV joint": held_out_error(
+            views, opencv_fit(sizes, cfg.board, joint=True), cfg.board, names
+        ).rms_px,
+    }
+
+
 def main() -> None:
     parser = argparse.ArgumentParser()
     parser.add_argument("--seeds", type=int, default=3, help="sets of captures (default 3)")
     n_seeds = parser.parse_args().seeds
     table: dict[str, list[dict[str, float]]] = {"ours": [], "two-step": [], "joint": []}
     solve_s, noise = [], []
+    held: list[dict[str, float]] = []
     for seed in range(n_seeds):
         cfg = CaptureConfig(shots=30, seed=seed, noise=12.0, blur=1.0)
         plan = plan_captures(cfg)
@@ -75,6 +120,11 @@ def main() -> None:
         for name, joint in (("two-step", False), ("joint", True)):
             r = opencv_stereo(views, cfg.board, sizes, joint=joint)
             table[name].append(errors(r.K, r.rig_T_cam1, plan.rig))
+        held.append(held_out_table(views, plan, cfg))
+        print(
+            f"seed {seed}: held-out error (px) "
+            + "; ".join(f"{k} {v:.4f}" for k, v in held[-1].items())
+        )
         print(
             f"seed {seed}: corner noise {noise[-1]:.3f} px; "
             + "; ".join(
@@ -97,6 +147,16 @@ def main() -> None:
             vals = [row[k] for row in table[name]]
             cells.append(f"{np.median(vals):.3f} ({max(vals):.3f})")
         print(f"{label:28s}" + "".join(f"{c:>18s}" for c in cells))
+    print(
+        "\nheld-out error, 5-fold over shots, left->right and right->left (px RMS), median (max):"
+    )
+    for k in held[0]:
+        label = k if not k.startswith("ours, chosen") else "ours, chosen model"
+        vals = [
+            next(v for kk, v in row.items() if kk.split(" (")[0] == k.split(" (")[0])
+            for row in held
+        ]
+        print(f"  {label:28s} {np.median(vals):.4f} ({max(vals):.4f})")
     worst = {k: max(row[k] for row in table["ours"]) for k in TARGET}
     print(
         "ours, worst / target: " + ", ".join(f"{k} {worst[k] / t:.2f}" for k, t in TARGET.items())

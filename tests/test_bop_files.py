@@ -164,3 +164,26 @@ def test_targets_files_decide_what_is_scored(tmp_path, capsys, name) -> None:
     (root / name).write_text(json.dumps([{"scene_id": 1, "im_id": 0, "obj_id": 9}]))
     assert main(args) == 2
     assert "entry 0: object 9 is not in models_info.json" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("offset, said", [([0.0, 0.0, 7.0], False), ([4.0, 0.0, 0.0], True)])
+def test_a_continuous_axis_given_by_its_offset(tmp_path, capsys, offset, said) -> None:
+    """An offset is any point on the axis: one along the axis through the centroid changes
+    nothing; one off it is said (a rigid part's axes pass through its centroid)."""
+    root = _bop(tmp_path)
+    info = root / "models" / "models_info.json"
+    doc = json.loads(info.read_text())
+    doc["1"] = {"diameter": 45.0, "symmetries_continuous": [{"axis": [0, 0, 1], "offset": offset}]}
+    info.write_text(json.dumps(doc))
+    csv = tmp_path / "r.csv"
+    # a result turned 1 radian about the axis: the same pose for a part of revolution
+    R = axis_angle(Z, 1.0)
+    csv.write_text(f"1,0,1,0.9,{' '.join(map(str, R.ravel()))},0 0 500,-1\n")
+    assert (
+        main(["evaluate", str(root), "--results", str(csv), "--json", str(tmp_path / "r.json")])
+        == 0
+    )
+    out = capsys.readouterr().out
+    assert ("passes 4.00 mm from the surface centroid" in out) == said
+    report = json.loads((tmp_path / "r.json").read_text())
+    assert report["per_object"]["obj_000001"]["TP"] == 1

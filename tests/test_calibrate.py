@@ -16,6 +16,7 @@ import cv2
 import numpy as np
 import pytest
 import yaml
+from cli_calls import one_error_line, run_cli
 
 from annotator.calibration.baseline import opencv_stereo
 from annotator.calibration.board import BoardSpec, read_board_yaml
@@ -158,10 +159,12 @@ def test_recovers_the_rig_at_least_as_well_as_opencv_joint_stereo(detected: dict
     assert ours["rotation_deg"] < 3 * std["rotation_deg"] + 0.005
 
 
-def test_joint_refinement_jacobian_matches_finite_differences() -> None:
+@pytest.mark.parametrize("rational", [False, True])
+def test_joint_refinement_jacobian_matches_finite_differences(rational: bool) -> None:
     rng = np.random.default_rng(3)
     C, S, n = 3, 4, 40
-    intrinsics = np.tile([1000.0, 1010, 320, 240, -0.1, 0.05, 0.001, -0.001, 0.01], (C, 1))
+    coeffs = [1000.0, 1010, 320, 240, -0.1, 0.05, 0.001, -0.001, 0.01]
+    intrinsics = np.tile(coeffs + ([0.02, -0.01, 0.005] if rational else []), (C, 1))
     cam_T_rig = np.stack(
         [np.eye(4)]
         + [
@@ -175,7 +178,7 @@ def test_joint_refinement_jacobian_matches_finite_differences() -> None:
             for _ in range(S)
         ]
     )
-    free = np.array([1, 1, 1, 1, 1, 1, 1, 1, 0], bool)
+    free = np.array([1, 1, 1, 1, 1, 1, 1, 1, 0] + ([1, 1, 1] if rational else []), bool)
     state = RigState(intrinsics, cam_T_rig, rig_T_board, free)
     obs = Corners(
         rng.integers(0, C, n),
@@ -195,17 +198,11 @@ def test_joint_refinement_jacobian_matches_finite_differences() -> None:
     assert np.abs(J.toarray() - numeric).max() < 1e-5 * np.abs(numeric).max()
 
 
-def _run(args: list[str], capsys: pytest.CaptureFixture) -> tuple[int, str, str]:
-    code = main(args)
-    out, err = capsys.readouterr()
-    return code, out, err
-
-
 def test_calibrate_writes_a_dataset_that_check_accepts(
     captures: Path, detected: dict, tmp_path: Path, capsys: pytest.CaptureFixture
 ) -> None:
     ds, report = tmp_path / "ds", tmp_path / "report"
-    code, out, _ = _run(
+    code, out, _ = run_cli(
         ["calibrate", str(captures), "--dataset", str(ds), "--report", str(report), "--yes"],
         capsys,
     )
@@ -239,10 +236,10 @@ def test_calibrate_replaces_only_the_rig_of_an_existing_dataset(
     )
     original = path.read_text()
     args = ["calibrate", str(caps), "--dataset", str(sample_copy)]
-    code, out, _ = _run([*args, "--dry-run"], capsys)
+    code, out, _ = run_cli([*args, "--dry-run"], capsys)
     assert code == 0 and "-    - 1382.72684428" in out and "dataset.yaml not written" in out
     assert path.read_text() == original
-    code, out, _ = _run([*args, "--yes", "--depth-camera", "right"], capsys)
+    code, out, _ = run_cli([*args, "--yes", "--depth-camera", "right"], capsys)
     assert code == 0
     new = path.read_text()
     old_doc, new_doc = yaml.safe_load(original), yaml.safe_load(new)
@@ -264,7 +261,7 @@ def test_calibrate_replaces_only_the_rig_of_an_existing_dataset(
     assert main(["check", str(sample_copy)]) == 0
     # Once more: the same rig, nothing to write.
     before = path.stat().st_mtime_ns
-    code, out, _ = _run([*args, "--depth-camera", "right", "--json"], capsys)
+    code, out, _ = run_cli([*args, "--depth-camera", "right", "--json"], capsys)
     assert code == 0 and '"diff": ""' in out and '"written": false' in out
     assert path.stat().st_mtime_ns == before
 
@@ -322,28 +319,20 @@ def _subset(captures: Path, dst: Path, shots: int) -> Path:
     return dst
 
 
-def _error(args: list[str], capsys: pytest.CaptureFixture) -> str:
-    code, _, err = _run(args, capsys)
-    assert code == 2, err
-    lines = err.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith("annotator: error: "), err
-    return lines[0]
-
-
 def test_too_few_shots(captures: Path, tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
     caps = _subset(captures, tmp_path / "few", 4)
-    line = _error(["calibrate", str(caps)], capsys)
+    line = one_error_line(["calibrate", str(caps)], capsys)
     assert "too few shots" in line and "needs at least 6" in line and str(caps / "left") in line
 
 
 def test_board_not_found(captures: Path, tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
     caps = _subset(captures, tmp_path / "caps", 3)
-    line = _error(["calibrate", str(caps), "--dictionary", "DICT_5X5_100"], capsys)
+    line = one_error_line(["calibrate", str(caps), "--dictionary", "DICT_5X5_100"], capsys)
     assert "board not found" in line and "check --dictionary" in line and str(caps) in line
-    line = _error(["calibrate", str(caps), "--squares", "5x7"], capsys)
+    line = one_error_line(["calibrate", str(caps), "--squares", "5x7"], capsys)
     assert "board not found" in line and "check --squares" in line
     (caps / "board.yaml").unlink()
-    line = _error(["calibrate", str(caps)], capsys)
+    line = one_error_line(["calibrate", str(caps)], capsys)
     assert "no board description" in line and "board.yaml" in line
 
 
@@ -353,7 +342,7 @@ def test_inconsistent_image_sizes(
     caps = _subset(captures, tmp_path / "caps", 3)
     bad = caps / "right" / "001.png"
     cv2.imwrite(str(bad), cv2.resize(cv2.imread(str(bad)), (640, 512)))
-    line = _error(["calibrate", str(caps)], capsys)
+    line = one_error_line(["calibrate", str(caps)], capsys)
     assert f"{bad}: inconsistent image sizes" in line and "640x512" in line
     # Images of the wrong size for the dataset's rig.
     ds = tmp_path / "ds"
@@ -367,7 +356,7 @@ def test_inconsistent_image_sizes(
     (ds / "dataset.yaml").write_text(yaml.safe_dump({"format": 1, "rig": rig, "objects": []}))
     bad.unlink()
     shutil.copy(caps / "left" / "001.png", bad)
-    line = _error(["calibrate", str(caps), "--dataset", str(ds)], capsys)
+    line = one_error_line(["calibrate", str(caps), "--dataset", str(ds)], capsys)
     assert "000.png: image is 1280x1024 but camera left" in line and "640x512" in line
 
 
@@ -376,14 +365,14 @@ def test_mixed_cameras_and_missing_images(
 ) -> None:
     caps = _subset(captures, tmp_path / "caps", 3)
     (caps / "right" / "002.png").unlink()
-    line = _error(["calibrate", str(caps)], capsys)
+    line = one_error_line(["calibrate", str(caps)], capsys)
     assert f"{caps / 'right' / '002.png'}: missing" in line and "camera left" in line
     # Images of all cameras thrown in one folder.
     flat = tmp_path / "flat"
     flat.mkdir()
     for p in (caps / "left").glob("*.png"):
         shutil.copy(p, flat / f"left_{p.name}")
-    line = _error(
+    line = one_error_line(
         ["calibrate", str(flat), "--squares", "7x5", "--square-mm", "30", "--marker-mm", "22"],
         capsys,
     )
@@ -399,7 +388,7 @@ def test_mixed_cameras_and_missing_images(
         ]
     }
     (ds / "dataset.yaml").write_text(yaml.safe_dump({"format": 1, "rig": rig, "objects": []}))
-    line = _error(["calibrate", str(caps), "--dataset", str(ds)], capsys)
+    line = one_error_line(["calibrate", str(caps), "--dataset", str(ds)], capsys)
     assert f"{ds / 'dataset.yaml'}: its rig has cameras cam0, cam1" in line
-    line = _error(["calibrate", str(caps), "--cameras", "left,middle"], capsys)
+    line = one_error_line(["calibrate", str(caps), "--cameras", "left,middle"], capsys)
     assert "no folder for camera 'middle'" in line

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import functools
 import hashlib
+import os
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -15,18 +16,18 @@ from annotator.dataset.review import now_iso
 from annotator.detection import MarkerDetector
 from annotator.errors import UserError
 from annotator.io.images import write_png
-from annotator.scale.bundle import description_files
+from annotator.scale.bundle import description_files, dictionary_files
 
 
 def description_digest(ds: Dataset) -> str:
     """SHA-256 of what every annotation of the dataset depends on besides its scene's images:
-    dataset.yaml, each object.yaml and each mesh file, by content."""
+    dataset.yaml, a custom dictionary file, each object.yaml and each mesh file, by content."""
     h = hashlib.sha256()
-    files = [ds.root / "dataset.yaml"]
+    files = [ds.root / "dataset.yaml", *dictionary_files(ds)]
     for name in sorted(ds.objects):
         files += [ds.objects[name].folder / "object.yaml", ds.objects[name].mesh_path]
     for path in files:
-        h.update(str(path.relative_to(ds.root)).encode() + b"\0")
+        h.update(os.path.relpath(path, ds.root).encode() + b"\0")
         h.update(hashlib.sha256(path.read_bytes()).digest())
     return h.hexdigest()
 

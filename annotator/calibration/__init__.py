@@ -1,12 +1,18 @@
-"""Rig calibration from synchronised shots of a ChArUco board (``annotator calibrate``).
+"""Rig calibration from synchronised shots of a ChArUco board or a plain chessboard
+(``annotator calibrate``).
 
 One concept per module:
 
 - :mod:`.board`: the board (``board.yaml``, OpenCV's ``CharucoBoard``, its corners);
-- :mod:`.captures`: the captures folder, ``CAPTURES/<camera>/<shot>.png``, and its checks;
-- :mod:`.detect`: the board's chessboard corners in one image (OpenCV's ChArUco detector);
+- :mod:`.captures`: the captures folder, ``CAPTURES/<camera>/<shot>.png`` or one video per
+  camera, and its checks;
+- :mod:`.detect`: the board's chessboard corners in one image (inverted, mirrored), and in
+  every image of the captures;
 - :mod:`.solve`: screening, per-camera ``calibrateCamera``, initial extrinsics, outliers;
 - :mod:`.bundle`: the joint Levenberg-Marquardt refinement of every camera and shot;
+- :mod:`.heldout`: the held-out error, k-fold over shots, predicted across cameras;
+- :mod:`.extrapolation`: where a distortion model is extrapolated, and by how much;
+- :mod:`.model_choice`: the distortion model chosen by the held-out error;
 - :mod:`.report`: RMS per camera and shot, rejections, coverage pictures, ``report.json``;
 - :mod:`.rig_yaml`: the ``rig:`` block of ``dataset.yaml``, spliced in, and its diff;
 - :mod:`.baseline`: OpenCV's own stereo pipelines, the reference in tests and benchmarks.
@@ -16,12 +22,13 @@ Typical use::
     from annotator.calibration.board import read_board_yaml
     from annotator.calibration.captures import find_captures
     from annotator.calibration.detect import detect_captures
-    from annotator.calibration.solve import calibrate_rig
+    from annotator.calibration.model_choice import calibrate_and_assess
 
     board = read_board_yaml("captures/board.yaml")
     caps = find_captures("captures")
     found = detect_captures(caps, board)
-    cal = calibrate_rig(found.views, cameras=caps.cameras, sizes=found.sizes,
-                        shots=caps.shots, board=board)
+    cal = calibrate_and_assess(found.views, cameras=caps.cameras, sizes=found.sizes,
+                               shots=caps.shots, board=board)
     cal.rig_cameras  # Camera objects: K, dist, rig_T_cam
+    cal.held_out     # the error on shots it did not fit, per camera pair
 """

@@ -4,7 +4,8 @@ every shot's board pose at once (a bundle adjustment over the board's corners).
 Unknowns:
 
 - per camera ``c``: ``fx, fy, cx, cy, k1, k2, p1, p2, k3`` (OpenCV's model; any of them can be
-  held fixed, e.g. ``k3`` with a four-coefficient model);
+  held fixed, e.g. ``k3`` with a four-coefficient model), and ``k4, k5, k6`` for OpenCV's
+  rational model when the state has those columns;
 - per camera ``c > 0``: ``cam_T_rig`` (camera 0 *is* the rig frame, which fixes the gauge);
 - per shot ``s``: ``rig_T_board``.
 
@@ -34,8 +35,9 @@ from scipy.sparse.linalg import splu
 
 from annotator.geometry.transforms import rotvec_to_matrix
 
-#: Names of the intrinsic parameters of a camera, in their order in the parameter vector.
-INTRINSICS = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3")
+#: Names of the intrinsic parameters of a camera, in their order in the parameter vector
+#: (the last three only with the rational model).
+INTRINSICS = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6")
 
 
 @dataclass(frozen=True)
@@ -64,10 +66,12 @@ class RigState:
     """The unknowns of the refinement.
 
     Attributes:
-        intrinsics: (C, 9) ``fx, fy, cx, cy, k1, k2, p1, p2, k3`` per camera.
+        intrinsics: (C, 9) ``fx, fy, cx, cy, k1, k2, p1, p2, k3`` per camera, or (C, 12) with
+            ``k4, k5, k6`` (OpenCV's rational model).
         cam_T_rig: (C, 4, 4) rig-to-camera transforms; ``cam_T_rig[0]`` is the identity.
         rig_T_board: (S, 4, 4) board pose of every shot in the rig frame.
-        free_intrinsics: (9,) bool, which intrinsics are estimated (the others stay put).
+        free_intrinsics: (9,) or (12,) bool, which intrinsics are estimated (the others stay
+            put).
     """
 
     intrinsics: np.ndarray
@@ -89,8 +93,8 @@ class RigState:
         return np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
 
     def dist(self, c: int) -> np.ndarray:
-        """Distortion coefficients ``k1, k2, p1, p2, k3`` of camera ``c``."""
-        return self.intrinsics[c, 4:9].copy()
+        """Distortion coefficients ``k1, k2, p1, p2, k3[, k4, k5, k6]`` of camera ``c``."""
+        return self.intrinsics[c, 4:].copy()
 
 
 @dataclass(frozen=True)
@@ -191,7 +195,8 @@ def _residuals_jacobian(
         uv, jac, y, _ = _project_camera(state, c, shot, obs.board[idx])
         r[idx] = uv - obs.pixel[idx]
         G = jac[:, :, 3:6]  # d pixel / d point in the camera frame
-        vals[idx, :, :ni] = jac[:, :, 6:15][:, :, free]
+        # OpenCV's columns: rotation, translation, focal lengths, principal point, distortion.
+        vals[idx, :, :ni] = jac[:, :, 6 : 6 + state.intrinsics.shape[1]][:, :, free]
         cols[idx, :ni] = layout.intr(c) + np.arange(ni)
         Rc = state.cam_T_rig[c, :3, :3]
         if c > 0:

@@ -1,4 +1,5 @@
-"""The captures folder: one sub-folder of images per camera, one image per camera per shot.
+"""The captures folder: one sub-folder of images per camera, one image per camera per shot;
+or one video per camera.
 
 Layout::
 
@@ -11,12 +12,23 @@ The shots of all cameras are taken together (synchronised) and share their names
 ``left/017.png`` and ``right/017.png`` are the same board pose. Every camera must have an
 image of every shot, all images of a camera the same size. Problems are reported as one
 :class:`~annotator.errors.UserError` naming the offending file or folder.
+
+Videos instead (no camera folders)::
+
+    CAPTURES/
+      cam_0.mp4, cam_1.mp4 ...   # .mp4 .avi .mkv .mov: one video per camera, named as the camera
+      cam_0.timestamps.txt ...   # optional, for every camera or none: one time (s) per frame
+
+Every ``stride``-th frame of the first camera is a shot (named ``f<frame>``). Without
+timestamps, the other cameras' frames of the same index are its partners (videos started
+together); with them, each camera's frame nearest in time, if within half that camera's
+median frame interval (else the shot is left out and reported as unpaired).
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable, Iterator, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -25,6 +37,10 @@ from annotator.errors import UserError
 from annotator.io.images import read_image
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp")
+VIDEO_SUFFIXES = (".mp4", ".avi", ".mkv", ".mov")
+TIMESTAMPS_SUFFIX = ".timestamps.txt"
+#: Default stride between the frames of a video that become shots.
+DEFAULT_STRIDE = 10
 REPORT_FOLDER = "calibration_report"
 
 
@@ -36,17 +52,25 @@ class Captures:
         root: The folder.
         cameras: Camera names (sub-folder names), in rig order.
         shots: Shot names (file stems), sorted.
-        files: ``(camera, shot) -> image path``.
+        files: ``(camera, shot) -> image path`` (image captures).
+        videos: ``camera -> video path`` (video captures).
+        frames: ``(camera, shot) -> frame index`` in its video (video captures).
+        pairing: How the videos' frames were paired (``frame index`` or ``timestamps``).
+        unpaired: Frames of the first camera left out: no partner in some other video.
     """
 
     root: Path
     cameras: tuple[str, ...]
     shots: tuple[str, ...]
     files: Mapping[tuple[str, str], Path]
+    videos: Mapping[str, Path] = field(default_factory=dict)
+    frames: Mapping[tuple[str, str], int] = field(default_factory=dict)
+    pairing: str = ""
+    unpaired: tuple[int, ...] = ()
 
     def folder(self, camera: str) -> Path:
-        """The folder of a camera's images."""
-        return self.root / camera
+        """The folder of a camera's images (its video, for video captures)."""
+        return self.videos.get(camera, self.root / camera)
 
 
 def find_captures(
@@ -54,6 +78,7 @@ def find_captures(
     *,
     cameras: Sequence[str] | None = None,
     ignore: Sequence[Path] = (),
+    stride: int = DEFAULT_STRIDE,
 ) -> Captures:
     """List and check a captures folder.
 
@@ -62,6 +87,7 @@ def find_captures(
         cameras: Camera folders to use, in rig order; default: every sub-folder, sorted.
         ignore: Sub-folders that are not cameras (a report folder inside ``root``), besides
             ``calibration_report`` and hidden folders.
+        stride: For video captures: every ``stride``-th frame is a shot.
 
     Raises:
         UserError: a missing folder, no camera folders, images outside camera folders, a
@@ -83,6 +109,11 @@ def find_captures(
     loose = [
         p for p in sorted(root.iterdir()) if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES
     ]
+    videos = [
+        p for p in sorted(root.iterdir()) if p.is_file() and p.suffix.lower() in VIDEO_SUFFIXES
+    ]
+    if videos and not folders:
+        return find_video_captures(root, videos, cameras=cameras, stride=stride)
     if loose and not folders:
         raise UserError(
             f"{len(loose)} images lie directly in the captures folder: put each camera's images "
@@ -137,6 +168,114 @@ def find_captures(
     return Captures(root, tuple(names), tuple(every), files)
 
 
+def find_video_captures(
+    root: Path, videos: Sequence[Path], *, cameras: Sequence[str] | None, stride: int
+) -> Captures:
+    """Video captures (see the module docstring): the shots and each camera's frame of each."""
+    if stride < 1:
+        raise UserError(f"the frame stride must be at least 1, not {stride}")
+    by_name: dict[str, Path] = {}
+    for p in videos:
+        if p.stem in by_name:
+            raise UserError(f"two videos of camera {p.stem!r} ({by_name[p.stem].name})", path=p)
+        by_name[p.stem] = p
+    names = list(cameras) if cameras is not None else sorted(by_name)
+    for name in names:
+        if name not in by_name:
+            raise UserError(
+                f"no video for camera {name!r} ({', '.join(VIDEO_SUFFIXES)})", path=root / name
+            )
+    counts = {name: _frame_count(by_name[name]) for name in names}
+    stamps = {name: _timestamps(by_name[name], counts[name]) for name in names}
+    have = [n for n in names if stamps[n] is not None]
+    if have and len(have) != len(names):
+        lacking = next(n for n in names if stamps[n] is None)
+        raise UserError(
+            f"timestamps are given for camera {have[0]} but not for camera {lacking}: give a "
+            f"{TIMESTAMPS_SUFFIX} file for every video or for none",
+            path=by_name[lacking].with_name(lacking + TIMESTAMPS_SUFFIX),
+        )
+    ref = names[0]
+    frames: dict[tuple[str, str], int] = {}
+    shots: list[str] = []
+    unpaired: list[int] = []
+    digits = max(4, len(str(counts[ref])))
+    for f in range(0, counts[ref], stride):
+        partner = {ref: f}
+        for name in names[1:]:
+            g = _partner(f, stamps[ref], stamps[name], counts[name])
+            if g is None:
+                break
+            partner[name] = g
+        if len(partner) < len(names):
+            unpaired.append(f)
+            continue
+        shot = f"f{f:0{digits}d}"
+        shots.append(shot)
+        frames.update({(name, shot): g for name, g in partner.items()})
+    if not shots:
+        raise UserError(
+            f"no frame of camera {ref} has a partner in every other video "
+            f"({'timestamps' if have else 'frame index'}; frames: "
+            + ", ".join(f"{n} {counts[n]}" for n in names)
+            + ")",
+            path=root,
+        )
+    return Captures(
+        root,
+        tuple(names),
+        tuple(shots),
+        {},
+        videos={n: by_name[n] for n in names},
+        frames=frames,
+        pairing="timestamps" if have else "frame index",
+        unpaired=tuple(unpaired),
+    )
+
+
+def _frame_count(path: Path) -> int:
+    """Frames in a video, counted by reading it (the container's count can be wrong)."""
+    import cv2
+
+    cap = cv2.VideoCapture(str(path))
+    if not cap.isOpened():
+        raise UserError("not a readable video", path=path)
+    n = 0
+    while cap.grab():
+        n += 1
+    cap.release()
+    if n == 0:
+        raise UserError("the video has no readable frame", path=path)
+    return n
+
+
+def _timestamps(video: Path, count: int) -> np.ndarray | None:
+    """The frame times of a video's timestamps file (s), or None without one."""
+    path = video.with_name(video.stem + TIMESTAMPS_SUFFIX)
+    if not path.is_file():
+        return None
+    from annotator.io.documents import read_text
+
+    try:
+        t = np.array([float(x) for x in read_text(path).split()], np.float64)
+    except ValueError:
+        raise UserError("timestamps must be numbers (seconds), one per frame", path=path) from None
+    if len(t) < count:
+        raise UserError(f"{len(t)} timestamps for the video's {count} frames", path=path)
+    if np.any(np.diff(t[:count]) <= 0) or not np.all(np.isfinite(t)):
+        raise UserError("timestamps must increase from frame to frame", path=path)
+    return t[:count]
+
+
+def _partner(f: int, ref: np.ndarray | None, other: np.ndarray | None, count: int) -> int | None:
+    """The frame of another video taken with frame ``f`` of the first one."""
+    if ref is None or other is None:
+        return f if f < count else None
+    g = int(np.argmin(np.abs(other - ref[f])))
+    period = float(np.median(np.diff(other))) if len(other) > 1 else np.inf
+    return g if abs(other[g] - ref[f]) <= 0.5 * period else None
+
+
 def read_images(
     captures: Captures,
     *,
@@ -161,10 +300,15 @@ def read_images(
     it: Iterator = iter(pairs)
     if progress is not None:
         it = progress(it)
+    frames = _VideoFrames(captures) if captures.videos else None
     for c, s in it:
         cam = captures.cameras[c]
-        path = captures.files[(cam, captures.shots[s])]
-        img = read_image(path)
+        if frames is not None:
+            path = captures.videos[cam]
+            img = frames.read(cam, captures.frames[(cam, captures.shots[s])])
+        else:
+            path = captures.files[(cam, captures.shots[s])]
+            img = read_image(path)
         size = (int(img.shape[1]), int(img.shape[0]))
         if cam not in sizes:
             want = (expected_sizes or {}).get(cam)
@@ -184,3 +328,32 @@ def read_images(
                 path=path,
             )
         yield c, s, img
+
+
+class _VideoFrames:
+    """Reads frames of the capture videos in increasing order, one decoder per video."""
+
+    def __init__(self, captures: Captures) -> None:
+        import cv2
+
+        self._caps = {n: cv2.VideoCapture(str(p)) for n, p in captures.videos.items()}
+        self._next = dict.fromkeys(captures.videos, 0)
+        self._last: dict[str, tuple[int, np.ndarray]] = {}
+        self._paths = captures.videos
+
+    def read(self, camera: str, frame: int) -> np.ndarray:
+        # Two shots may pair with one frame of a slower camera: the last frame is kept.
+        last = self._last.get(camera)
+        if last is not None and last[0] == frame:
+            return last[1]
+        cap = self._caps[camera]
+        while self._next[camera] < frame:
+            if not cap.grab():
+                break
+            self._next[camera] += 1
+        ok, img = cap.read()
+        if not ok or img is None or self._next[camera] != frame:
+            raise UserError(f"cannot read frame {frame} of the video", path=self._paths[camera])
+        self._next[camera] += 1
+        self._last[camera] = (frame, img)
+        return img

@@ -7,11 +7,15 @@ corners were seen, so uncovered cells (typically the image corners) are where th
 extrapolated. The picture (``coverage_<camera>.png``) shades each cell by its number of
 corners, draws every used corner (green) and every outlier (red) with its residual
 magnified (by the factor printed at the top, the median residual drawn 8 px long), and
-prints the figures at the top.
+prints the figures at the top. Where the distortion model is extrapolated
+(:mod:`.extrapolation`) is drawn too: the convex hull of the corners used (yellow), and the
+cells outside it where the distortion moves pixels further than anywhere inside (orange,
+with the displacement in px).
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -19,6 +23,8 @@ import cv2
 import numpy as np
 
 from annotator.calibration.board import BoardSpec
+from annotator.calibration.captures import Captures
+from annotator.calibration.extrapolation import Extrapolation, displacement
 from annotator.calibration.solve import Calibration
 from annotator.io.atomic import write_json
 from annotator.io.images import write_png
@@ -49,7 +55,7 @@ def coverage_picture(cal: Calibration, camera: int) -> np.ndarray:
     w, h = cal.sizes[camera]
     s = min(1.0, PICTURE_WIDTH / w)
     W, H = round(w * s), round(h * s)
-    banner = 44
+    banner = 62
     img = np.full((H + banner, W, 3), 24, np.uint8)
     frac, counts = coverage(cal, camera)
     rows, cols = counts.shape
@@ -64,6 +70,9 @@ def coverage_picture(cal: Calibration, camera: int) -> np.ndarray:
             else:
                 img[y0:y1, x0:x1] = (40, 40, 90)  # dull red: never seen
             cv2.rectangle(img, (x0, y0), (x1 - 1, y1 - 1), (70, 70, 70), 1)
+    ex = cal.extrapolation[camera] if len(cal.extrapolation) > camera else None
+    if ex is not None:
+        _draw_extrapolation(img, cal, camera, ex, s, banner)
     sel = cal.corners.camera == camera
     norms = np.linalg.norm(cal.residuals[sel & cal.used], axis=1)
     median = float(np.median(norms)) if len(norms) else 0.0
@@ -85,6 +94,12 @@ def coverage_picture(cal: Calibration, camera: int) -> np.ndarray:
         f"green: corners used, red: outliers; residuals x{magnify:g}; "
         "dull red cells: no corner, the distortion there is extrapolated",
     ]
+    if ex is not None:
+        lines.append(
+            f"yellow: covered region ({100 * ex.coverage:.0f}% of the image); distortion "
+            f"{ex.corner_px:.1f} px at the image corners, at most {ex.covered_px:.1f} px inside"
+            + ("; orange: extrapolated" if ex.extrapolated else "")
+        )
     for k, text in enumerate(lines):
         cv2.putText(
             img,
@@ -99,12 +114,65 @@ def coverage_picture(cal: Calibration, camera: int) -> np.ndarray:
     return img
 
 
-def report_dict(cal: Calibration, board: BoardSpec, *, captures: Path) -> dict[str, Any]:
+def _draw_extrapolation(
+    img: np.ndarray, cal: Calibration, camera: int, ex: Extrapolation, s: float, banner: int
+) -> None:
+    """The covered region's outline, and the cells beyond it where the model extrapolates."""
+    w, h = cal.sizes[camera]
+    H, W = img.shape[0] - banner, img.shape[1]
+    cols, rows = COVERAGE_GRID
+    cam = cal.cameras[camera].camera
+    if ex.extrapolated:
+        for r in range(rows):
+            for c in range(cols):
+                centre = ((c + 0.5) * w / cols - 0.5, (r + 0.5) * h / rows - 0.5)
+                if (
+                    len(ex.hull) >= 3
+                    and cv2.pointPolygonTest(ex.hull.astype(np.float32), centre, False) >= 0
+                ):
+                    continue
+                d = float(displacement(cam, np.array([centre]))[0])
+                if d <= ex.covered_px:
+                    continue
+                x0, x1 = round(c * W / cols), round((c + 1) * W / cols)
+                y0, y1 = banner + round(r * H / rows), banner + round((r + 1) * H / rows)
+                tint = (
+                    img[y0:y1, x0:x1].astype(np.float32) * 0.4
+                    + np.array((0, 110, 230), np.float32) * 0.6
+                )
+                img[y0:y1, x0:x1] = tint.astype(np.uint8)
+                cv2.putText(
+                    img,
+                    f"{d:.0f}px",
+                    (x0 + 4, y1 - 6),
+                    cv2.FONT_HERSHEY_SIMPLEX,
+                    0.4,
+                    (255, 255, 255),
+                    1,
+                    cv2.LINE_AA,
+                )
+    if len(ex.hull) >= 3:
+        pts = np.round(ex.hull * s + [0, banner]).astype(np.int32).reshape(-1, 1, 2)
+        cv2.polylines(img, [pts], True, (0, 230, 255), 2, cv2.LINE_AA)
+
+
+def report_dict(
+    cal: Calibration, board: BoardSpec, *, captures: Captures, flipped: Sequence[str] = ()
+) -> dict[str, Any]:
     """Everything about a calibration, for ``report.json`` and ``--json``."""
     cams = []
     for k, rep in enumerate(cal.cameras):
         cam = rep.camera
         frac, _ = coverage(cal, k)
+        ex = cal.extrapolation[k] if len(cal.extrapolation) > k else None
+        extra: dict[str, Any] = {"flip": "horizontal" if cam.name in flipped else None}
+        if ex is not None:
+            extra["extrapolation"] = {
+                "covered_fraction": round(ex.coverage, 3),
+                "corner_displacement_px": round(ex.corner_px, 2),
+                "covered_displacement_px": round(ex.covered_px, 2),
+                "extrapolated": ex.extrapolated,
+            }
         cams.append(
             {
                 "name": cam.name,
@@ -119,6 +187,7 @@ def report_dict(cal: Calibration, board: BoardSpec, *, captures: Path) -> dict[s
                 "outlier_corners": rep.outlier_corners,
                 "coverage": round(frac, 3),
                 "std": {k: float(f"{v:.3g}") for k, v in rep.std.items()},
+                **extra,
             }
         )
     shots = [
@@ -130,8 +199,8 @@ def report_dict(cal: Calibration, board: BoardSpec, *, captures: Path) -> dict[s
         }
         for s in cal.shots
     ]
-    return {
-        "captures": str(captures),
+    out: dict[str, Any] = {
+        "captures": str(captures.root),
         "board": board.to_yaml(),
         "rms_px": round(cal.rms_px, 4),
         "iterations": cal.iterations,
@@ -142,13 +211,41 @@ def report_dict(cal: Calibration, board: BoardSpec, *, captures: Path) -> dict[s
         ],
         "warnings": list(cal.warnings),
     }
+    if cal.held_out is not None:
+        out["held_out"] = cal.held_out.to_dict()
+    if cal.model_choice is not None:
+        out["distortion_model"] = {
+            "coefficients": cal.model_choice.dist_coeffs,
+            "reason": cal.model_choice.reason,
+            "held_out_rms_px": {
+                str(m): round(h.rms_px, 4) for m, h in cal.model_choice.held_out.items()
+            },
+        }
+    if captures.videos:
+        out["videos"] = {
+            "files": {c: str(p) for c, p in captures.videos.items()},
+            "pairing": captures.pairing,
+            "frames": {
+                shot: {c: captures.frames[(c, shot)] for c in captures.cameras}
+                for shot in captures.shots
+            },
+            "unpaired": list(captures.unpaired),
+        }
+    return out
 
 
-def write_report(folder: Path, cal: Calibration, board: BoardSpec, *, captures: Path) -> list[Path]:
+def write_report(
+    folder: Path,
+    cal: Calibration,
+    board: BoardSpec,
+    *,
+    captures: Captures,
+    flipped: Sequence[str] = (),
+) -> list[Path]:
     """Write ``report.json`` and ``coverage_<camera>.png`` into ``folder``; return the paths."""
     folder.mkdir(parents=True, exist_ok=True)
     paths = [folder / "report.json"]
-    write_json(paths[0], report_dict(cal, board, captures=captures))
+    write_json(paths[0], report_dict(cal, board, captures=captures, flipped=flipped))
     for k, rep in enumerate(cal.cameras):
         path = folder / f"coverage_{rep.camera.name}.png"
         write_png(path, coverage_picture(cal, k))
@@ -193,6 +290,14 @@ def summary_lines(cal: Calibration) -> list[str]:
             line = " "
         line += f" {cell},"
     out.append(line.rstrip(","))
+    if cal.held_out is not None:
+        pairs = ", ".join(f"{p.source}->{p.target} {p.rms_px:.3f}" for p in cal.held_out.pairs)
+        out.append(
+            f"held-out error: RMS {cal.held_out.rms_px:.3f} px over {cal.held_out.corners} corners "
+            f"of left-out shots ({cal.held_out.folds}-fold; {pairs or 'no pair'})"
+        )
+    if cal.model_choice is not None:
+        out.append(f"distortion model: {cal.model_choice.reason}")
     for r in cal.rejections:
         out.append(f"rejected: {r}")
     for w in cal.warnings:

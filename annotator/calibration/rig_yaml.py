@@ -31,13 +31,17 @@ DEFAULT_DICTIONARY = "DICT_4X4_1000"
 _TOP_LEVEL = re.compile(r"^[^\s#]")
 
 
-def rig_mapping(cameras: Sequence[Camera], depth: DepthSpec | None) -> dict[str, Any]:
-    """The ``rig`` mapping of dataset.yaml (FORMAT.md)."""
-    return rig_to_yaml(Rig(tuple(cameras), depth))
+def rig_mapping(
+    cameras: Sequence[Camera], depth: DepthSpec | None, flipped: Sequence[str] = ()
+) -> dict[str, Any]:
+    """The ``rig`` mapping of dataset.yaml (FORMAT.md); ``flipped`` names the mirrored
+    cameras (``flip: horizontal``)."""
+    return rig_to_yaml(Rig(tuple(cameras), depth, frozenset(flipped)))
 
 
-#: The fields of the rig that a calibration writes; any other is carried over.
-_CAMERA_FIELDS = ("name", "size", "K", "dist", "rig_T_cam")
+#: The fields of the rig that a calibration writes; any other is carried over. ``flip`` is
+#: the calibration's to decide: the captures show whether a camera is mirrored.
+_CAMERA_FIELDS = ("name", "size", "K", "dist", "rig_T_cam", "flip")
 
 
 def keep_other_fields(rig: dict[str, Any], old_doc: dict[str, Any] | None) -> dict[str, Any]:

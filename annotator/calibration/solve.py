@@ -30,6 +30,7 @@ from collections.abc import Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
@@ -48,11 +49,13 @@ from annotator.errors import UserError
 from annotator.geometry.camera import Camera
 from annotator.geometry.transforms import invert, make_transform
 
-#: The distortion models offered: number of coefficients -> coefficients estimated.
+#: The distortion models offered: number of coefficients -> coefficients estimated (8:
+#: OpenCV's rational model).
 DISTORTION_MODELS = {
     2: ("k1", "k2"),
     4: ("k1", "k2", "p1", "p2"),
     5: ("k1", "k2", "p1", "p2", "k3"),
+    8: ("k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6"),
 }
 
 
@@ -66,6 +69,7 @@ class View:
         ids: (n,) chessboard corner ids.
         corners: (n, 2) their pixel positions.
         markers: Markers of the board identified (0: the board was not found at all).
+        mirrored: The board read only in the mirrored image (``corners`` are in it).
     """
 
     camera: int
@@ -73,6 +77,7 @@ class View:
     ids: np.ndarray
     corners: np.ndarray
     markers: int = 0
+    mirrored: bool = False
 
 
 @dataclass(frozen=True)
@@ -82,7 +87,8 @@ class CalibrationOptions:
     Attributes:
         min_shots: Usable shots each camera needs.
         min_corners: Corners a view needs to be used.
-        dist_coeffs: Distortion model: 2 (k1 k2), 4 (+ p1 p2) or 5 (+ k3, OpenCV's default).
+        dist_coeffs: Distortion model: 2 (k1 k2), 4 (+ p1 p2), 5 (+ k3, OpenCV's default) or
+            8 (+ k4 k5 k6, OpenCV's rational model).
         outlier_sigmas: A corner is an outlier beyond this many robust standard deviations.
         min_outlier_px: ... and never below this residual (px).
     """
@@ -96,7 +102,7 @@ class CalibrationOptions:
     def __post_init__(self) -> None:
         if self.dist_coeffs not in DISTORTION_MODELS:
             raise UserError(
-                f"the distortion model must have 2, 4 or 5 coefficients, not {self.dist_coeffs}"
+                f"the distortion model must have 2, 4, 5 or 8 coefficients, not {self.dist_coeffs}"
             )
         if self.min_shots < 3:
             raise UserError(f"at least 3 shots are needed per camera, not {self.min_shots}")
@@ -171,6 +177,9 @@ class Calibration:
         used: (N,) bool, which of ``corners`` the refinement used.
         sizes: Image size (width, height) per camera.
         warnings: Things worth knowing that did not stop the calibration.
+        held_out: The held-out error (:mod:`.heldout`), when measured.
+        model_choice: How the distortion model was chosen (:mod:`.model_choice`), if it was.
+        extrapolation: Per camera, where its distortion is extrapolated (:mod:`.extrapolation`).
     """
 
     cameras: tuple[CameraReport, ...]
@@ -183,6 +192,9 @@ class Calibration:
     used: np.ndarray
     sizes: tuple[tuple[int, int], ...]
     warnings: tuple[str, ...] = field(default=())
+    held_out: Any = None
+    model_choice: Any = None
+    extrapolation: tuple[Any, ...] = ()
 
     @property
     def rig_cameras(self) -> tuple[Camera, ...]:
@@ -225,12 +237,20 @@ def calibrate_rig(
 
     # 2. Each camera alone.
     flags = _flags(opts.dist_coeffs)
-    intrinsics = np.zeros((len(cameras), 9))
+    n_dist = 8 if opts.dist_coeffs == 8 else 5
+    intrinsics = np.zeros((len(cameras), 4 + n_dist))
     poses: dict[tuple[int, int], np.ndarray] = {}
     initial_rms = []
     for c, name in enumerate(cameras):
         K, dist, cam_poses, rms = _calibrate_camera(
-            [v for v in usable if v.camera == c], board, sizes[c], flags, rejections, name, shots
+            [v for v in usable if v.camera == c],
+            board,
+            sizes[c],
+            flags,
+            rejections,
+            name,
+            shots,
+            n_dist,
         )
         usable = [v for v in usable if v.camera != c or (c, v.shot) in cam_poses]
         _require_shots(usable, c, name, views, opts, where)
@@ -249,8 +269,8 @@ def calibrate_rig(
         rig_T_board[s] = invert(cam_T_rig[c]) @ poses[(c, s)]
 
     # 4-5. Joint refinement, outliers out, again.
-    free = np.ones(9, bool)
-    free[4:] = [k in DISTORTION_MODELS[opts.dist_coeffs] for k in INTRINSICS[4:]]
+    free = np.ones(4 + n_dist, bool)
+    free[4:] = [k in DISTORTION_MODELS[opts.dist_coeffs] for k in INTRINSICS[4 : 4 + n_dist]]
     state = RigState(intrinsics, cam_T_rig, rig_T_board, free)
     view_of = {(v.camera, v.shot): v for v in usable}
     keys = sorted(view_of)
@@ -291,7 +311,7 @@ def calibrate_rig(
 
 
 def _flags(dist_coeffs: int) -> int:
-    flags = 0
+    flags = cv2.CALIB_RATIONAL_MODEL if dist_coeffs == 8 else 0
     if dist_coeffs < 5:
         flags |= cv2.CALIB_FIX_K3
     if dist_coeffs < 4:
@@ -377,10 +397,12 @@ def _calibrate_camera(
     rejections: list[Rejection],
     name: str,
     shots: Sequence[str],
+    n_dist: int = 5,
 ) -> tuple[np.ndarray, np.ndarray, dict[tuple[int, int], np.ndarray], float]:
     """OpenCV's calibrateCamera on one camera's views; views it cannot fit are rejected.
 
-    Returns K, dist (5), ``{(camera, shot): cam_T_board}`` and the RMS (px)."""
+    Returns K, dist (``n_dist``: 5, or 8 for the rational model), ``{(camera, shot):
+    cam_T_board}`` and the RMS (px)."""
     criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-12)
     while True:
         obj = [board.corners[v.ids].astype(np.float32).reshape(-1, 1, 3) for v in views]
@@ -395,8 +417,8 @@ def _calibrate_camera(
             raise UserError(
                 f"OpenCV could not calibrate camera {name} from its {len(views)} views ({first})"
             ) from None
-        dist = np.asarray(dist, float).reshape(-1)[:5]
-        dist = np.pad(dist, (0, 5 - len(dist)))
+        dist = np.asarray(dist, float).reshape(-1)[:n_dist]
+        dist = np.pad(dist, (0, n_dist - len(dist)))
         per_view = []
         for v, rv, tv in zip(views, rvecs, tvecs):
             uv, _ = cv2.projectPoints(board.corners[v.ids], rv, tv, K, dist)

@@ -21,18 +21,24 @@ from annotator.errors import UserError
 if TYPE_CHECKING:  # imported when the command runs, so that `annotator --help` stays fast
     from annotator.calibration.board import BoardSpec
     from annotator.calibration.captures import Captures
+    from annotator.calibration.detect import CapturesDetection
     from annotator.calibration.solve import Calibration, View
     from annotator.dataset.model import DepthSpec
 
 DESCRIPTION = """\
-Calibrate the rig from synchronised shots of a ChArUco board: OpenCV's ChArUco detector,
-OpenCV's calibrateCamera per camera, then one joint refinement of every camera's intrinsics
-(fx fy cx cy k1 k2 p1 p2 k3) and pose in the rig and of every shot's board pose; outlier
-corners and views are left out and reported.
+Calibrate the rig from synchronised shots of a ChArUco board or a plain chessboard: OpenCV's
+detector, OpenCV's calibrateCamera per camera, then one joint refinement of every camera's
+intrinsics (fx fy cx cy and the distortion) and pose in the rig and of every shot's board
+pose; outlier corners and views are left out and reported. The distortion model (k1 k2 p1 p2,
+or + k3) is chosen by the held-out error: k-fold over shots, the corners of each left-out
+shot predicted from one camera into the others through the rig (px, per camera pair).
 
 Captures layout: CAPTURES/<camera>/<shot>.png (or .jpg, .tif, .bmp), one folder per camera,
 the same shot names in every folder (left/017.png and right/017.png are one board pose);
-the board from CAPTURES/board.yaml, --board FILE or the board options.
+or one video per camera, CAPTURES/<camera>.mp4 (.avi .mkv .mov), every --stride-th frame a
+shot, paired by frame index or by CAPTURES/<camera>.timestamps.txt. The board from
+CAPTURES/board.yaml, --board FILE or the board options. Colour-inverted boards are found
+(inverted: auto), and a camera whose images read mirrored gets flip: horizontal in the rig.
 
 Writes the report (report.json, coverage_<camera>.png, rig.yaml) into
 CAPTURES/calibration_report/ or --report DIR and, with --dataset DS, the rig section of
@@ -52,15 +58,30 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="write the rig into DS/dataset.yaml (created if missing); without it, only the report",
     )
     board = parser.add_argument_group(
-        "board", "the ChArUco board (default: CAPTURES/board.yaml; options override its fields)"
+        "board", "the board (default: CAPTURES/board.yaml; options override its fields)"
     )
     board.add_argument("--board", metavar="FILE", help="board description (YAML)")
     board.add_argument(
+        "--kind", choices=("charuco", "chessboard"), help="board kind (default charuco)"
+    )
+    board.add_argument(
+        "--inverted",
+        choices=("auto", "true", "false"),
+        help="board printed colour-inverted (white markers on black); auto (default) tries both",
+    )
+    board.add_argument(
         "--squares", metavar="XxY", help="squares along the board's x and y, e.g. 7x5"
     )
-    board.add_argument("--square-mm", type=number(low=0, above=True), help="square side as printed, mm")
-    board.add_argument("--marker-mm", type=number(low=0, above=True), help="marker side as printed, mm")
-    board.add_argument("--dictionary", help="ArUco dictionary (default DICT_4X4_50)")
+    board.add_argument(
+        "--square-mm", type=number(low=0, above=True), help="square side as printed, mm"
+    )
+    board.add_argument(
+        "--marker-mm", type=number(low=0, above=True), help="marker side as printed, mm"
+    )
+    board.add_argument(
+        "--dictionary",
+        help="ArUco dictionary: a predefined name or a dictionary file (default DICT_4X4_50)",
+    )
     board.add_argument(
         "--legacy-pattern",
         action="store_true",
@@ -85,13 +106,26 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--dist-coeffs",
-        type=int,
-        choices=(2, 4, 5),
-        default=5,
-        help="distortion model: k1 k2 (2), + p1 p2 (4), + k3 (5, default)",
+        choices=("auto", "2", "4", "5", "8"),
+        default="auto",
+        help="distortion model: k1 k2 (2), + p1 p2 (4), + k3 (5), + k4 k5 k6 (8, OpenCV's "
+        "rational model, for wide-angle lenses); auto (default): 4 or 5, whichever the "
+        "held-out error supports",
     )
     parser.add_argument(
-        "--min-shots", type=whole(low=1), default=6, help="usable shots each camera needs (default 6)"
+        "--folds", type=whole(low=2), default=5, help="folds of the held-out error (default 5)"
+    )
+    parser.add_argument(
+        "--stride",
+        type=whole(low=1),
+        default=10,
+        help="video captures: every N-th frame is a shot (default 10)",
+    )
+    parser.add_argument(
+        "--min-shots",
+        type=whole(low=1),
+        default=6,
+        help="usable shots each camera needs (default 6)",
     )
     parser.add_argument(
         "--report",
@@ -122,7 +156,7 @@ def run(args: argparse.Namespace) -> int:
     cameras = None
     if args.cameras:
         cameras = [c.strip() for c in args.cameras.split(",") if c.strip()]
-    captures = find_captures(root, cameras=cameras, ignore=[report_dir])
+    captures = find_captures(root, cameras=cameras, ignore=[report_dir], stride=args.stride)
     if old_rig["cameras"]:
         if sorted(old_rig["cameras"]) != sorted(captures.cameras):
             raise UserError(
@@ -132,7 +166,9 @@ def run(args: argparse.Namespace) -> int:
                 path=ds_yaml,
             )
         if cameras is None:
-            captures = find_captures(root, cameras=old_rig["cameras"], ignore=[report_dir])
+            captures = find_captures(
+                root, cameras=old_rig["cameras"], ignore=[report_dir], stride=args.stride
+            )
         elif captures.cameras[0] != old_rig["cameras"][0]:
             print(
                 f"warning: the rig frame changes from camera {old_rig['cameras'][0]} to "
@@ -142,49 +178,114 @@ def run(args: argparse.Namespace) -> int:
             )
     depth = _depth(args, captures.cameras, old_rig, ds_yaml)
 
-    views, sizes = _detect(captures, board, old_rig["sizes"], ds_yaml, quiet=args.quiet)
+    found = _detect(captures, board, old_rig["sizes"], ds_yaml, quiet=args.quiet)
+    flipped = [c for c, m in zip(captures.cameras, found.mirrored) if m]
+    if not args.json:
+        for line in _capture_lines(captures, found):
+            print(line)
 
-    from annotator.calibration.solve import CalibrationOptions, calibrate_rig
+    from annotator.calibration.model_choice import CANDIDATES, calibrate_and_assess
+    from annotator.calibration.solve import CalibrationOptions
 
-    cal = calibrate_rig(
-        views,
+    auto = args.dist_coeffs == "auto"
+    cal = calibrate_and_assess(
+        found.views,
         cameras=captures.cameras,
-        sizes=sizes,
+        sizes=found.sizes,
         shots=captures.shots,
         board=board,
-        options=CalibrationOptions(min_shots=args.min_shots, dist_coeffs=args.dist_coeffs),
+        options=CalibrationOptions(
+            min_shots=args.min_shots, dist_coeffs=5 if auto else int(args.dist_coeffs)
+        ),
+        candidates=CANDIDATES if auto else (int(args.dist_coeffs),),
+        folds=args.folds,
         where={c: captures.folder(c) for c in captures.cameras},
     )
-    return _output(args, cal, board, captures.root, report_dir, ds_yaml, old_text, old_doc, depth)
+    return _output(
+        args, cal, board, captures, report_dir, ds_yaml, old_text, old_doc, depth, flipped
+    )
+
+
+def _capture_lines(captures: Captures, found: CapturesDetection) -> list[str]:
+    """What the detection found worth saying: videos' pairing, inverted boards, mirrored
+    cameras (one line each)."""
+    lines = []
+    if captures.videos:
+        lines.append(_pairing_line(captures))
+    for c, name in enumerate(captures.cameras):
+        n = sum(1 for v in found.views if v.camera == c and len(v.ids))
+        if found.inverted[c]:
+            lines.append(
+                f"camera {name}: the board reads colour-inverted in {found.inverted[c]} of its "
+                f"{n} shots with the board"
+            )
+        if found.mirrored[c]:
+            lines.append(
+                f"camera {name}: its images are mirrored (the board reads only in the flipped "
+                f"image, {n} shots): its rig entry gets flip: horizontal, and its images are "
+                "flipped wherever they are read"
+            )
+    return lines
+
+
+def _pairing_line(captures: Captures) -> str:
+    """Which frames of the videos became shots."""
+    ref = captures.cameras[0]
+    first, last = (captures.frames[(ref, s)] for s in (captures.shots[0], captures.shots[-1]))
+    text = (
+        f"videos: {len(captures.shots)} shots, frames {first}..{last} of {ref}, paired by "
+        f"{captures.pairing}"
+    )
+    if captures.pairing == "timestamps":
+        offsets = [
+            captures.frames[(c, s)] - captures.frames[(ref, s)]
+            for s in captures.shots
+            for c in captures.cameras[1:]
+        ]
+        text += f" (frame offsets {min(offsets)}..{max(offsets)})" if offsets else ""
+    if captures.unpaired:
+        shown = ", ".join(str(f) for f in captures.unpaired[:6])
+        text += (
+            f"; {len(captures.unpaired)} frames of {ref} had no partner in every video and were "
+            f"left out ({shown}{', ...' if len(captures.unpaired) > 6 else ''})"
+        )
+    return text + " (report.json lists each shot's frames)"
 
 
 def _board(args: argparse.Namespace, root: Path) -> BoardSpec:
     """The board from --board, CAPTURES/board.yaml and the board options (which win)."""
-    from annotator.calibration.board import BOARD_FILE, BoardSpec, read_board_yaml
+    from annotator.calibration.board import BOARD_FILE, BoardSpec, inverted_field, read_board_yaml
+    from annotator.markers.dictionary import resolve_dictionary
 
     fields: dict[str, Any] = {}
     path = Path(args.board) if args.board else root / BOARD_FILE
     if args.board or path.is_file():
-        fields = read_board_yaml(path).to_yaml()
+        spec = read_board_yaml(path)
+        fields = {k: getattr(spec, k) for k in BoardSpec.__dataclass_fields__}
+        if not spec.has_markers:
+            fields.pop("marker_mm")
     if args.squares:
         try:
             x, y = (int(v) for v in args.squares.lower().split("x"))
         except ValueError:
             raise UserError(f"--squares must be XxY (e.g. 7x5), got {args.squares!r}") from None
         fields.update(squares_x=x, squares_y=y)
-    for option, key in (
-        ("square_mm", "square_mm"),
-        ("marker_mm", "marker_mm"),
-        ("dictionary", "dictionary"),
-        ("legacy_pattern", "legacy_pattern"),
-    ):
-        if getattr(args, option) is not None:
-            fields[key] = getattr(args, option)
-    missing = [k for k in ("squares_x", "square_mm", "marker_mm") if k not in fields]
+    for key in ("square_mm", "marker_mm", "legacy_pattern", "kind"):
+        if getattr(args, key) is not None:
+            fields[key] = getattr(args, key)
+    if args.dictionary is not None:
+        fields["dictionary"] = resolve_dictionary(args.dictionary, Path.cwd())
+    if args.inverted is not None:
+        fields["inverted"] = inverted_field(args.inverted)
+    needed = ("squares_x", "square_mm") + (
+        ("marker_mm",) if fields.get("kind", "charuco") == "charuco" else ()
+    )
+    missing = [k for k in needed if k not in fields]
     if missing:
         raise UserError(
             "no board description: give --board FILE, put a board.yaml in the captures folder, "
-            "or give --squares, --square-mm and --marker-mm (and --dictionary)",
+            "or give --squares, --square-mm and --marker-mm (and --dictionary), or --kind "
+            "chessboard --squares and --square-mm",
             path=path,
         )
     return BoardSpec(**fields)
@@ -227,7 +328,7 @@ def _detect(
     ds_yaml: Path | None,
     *,
     quiet: bool,
-) -> tuple[list[View], list[tuple[int, int]]]:
+) -> CapturesDetection:
     """Every camera's detection in every shot, and each camera's image size."""
     from annotator.calibration.detect import detect_captures
 
@@ -246,7 +347,7 @@ def _detect(
     )
     if not any(len(v.ids) for v in found.views):
         raise _board_not_found(found.views, found.foreign_markers, captures, board)
-    return found.views, found.sizes
+    return found
 
 
 def _board_not_found(
@@ -255,7 +356,12 @@ def _board_not_found(
     """One clear line when the board is in no image at all (usually a wrong board
     description), rather than a complaint per camera."""
     markers = sum(v.markers for v in views)
-    if markers:
+    if not board.has_markers:
+        hint = (
+            f"the whole {board.squares_x}x{board.squares_y}-square chessboard must be in view: "
+            "check --squares (squares, not inner corners)"
+        )
+    elif markers:
         hint = (
             f"{markers} of its markers were seen, but never two around a chessboard corner: "
             "check --squares (columns x rows) and --legacy-pattern"
@@ -278,12 +384,13 @@ def _output(
     args: argparse.Namespace,
     cal: Calibration,
     board: BoardSpec,
-    root: Path,
+    captures: Captures,
     report_dir: Path,
     ds_yaml: Path | None,
     old_text: str | None,
     old_doc: dict[str, Any] | None,
     depth: DepthSpec | None,
+    flipped: list[str],
 ) -> int:
     """Write the report, show the diff, write dataset.yaml, print the summary."""
     from annotator.calibration.report import report_dict, summary_lines, write_report
@@ -296,10 +403,10 @@ def _output(
     from annotator.io.atomic import write_text
     from annotator.io.documents import unified_diff
 
-    rig = keep_other_fields(rig_mapping(cal.rig_cameras, depth), old_doc)
-    write_report(report_dir, cal, board, captures=root)
+    rig = keep_other_fields(rig_mapping(cal.rig_cameras, depth, flipped), old_doc)
+    write_report(report_dir, cal, board, captures=captures, flipped=flipped)
     write_text(report_dir / "rig.yaml", rig_yaml_text(rig))
-    result: dict[str, Any] = report_dict(cal, board, captures=root)
+    result: dict[str, Any] = report_dict(cal, board, captures=captures, flipped=flipped)
     result["report"] = str(report_dir)
     status = 0
     diff = ""
@@ -344,16 +451,43 @@ def synth_captures(args: argparse.Namespace, config: Any) -> int:
     the synthetic rig of ``--seed`` (``--size``, ``--noise``, ``--blur`` apply), into
     OUT/<camera>/<shot>.png with OUT/board.yaml and OUT/truth.yaml."""
     from annotator.batch import run_batch
+    from annotator.calibration.board import BoardSpec
     from annotator.io.atomic import atomic_folder
     from annotator.io.output_folder import write_manifest
-    from annotator.synthesis.board import CaptureConfig, ShotJob, plan_captures, write_truth
+    from annotator.markers.dictionary import resolve_dictionary
+    from annotator.synthesis.board import (
+        CaptureConfig,
+        ShotJob,
+        plan_captures,
+        write_truth,
+        write_videos,
+    )
 
+    if args.board_kind == "chessboard":
+        board = BoardSpec(9, 6, 30.0, kind="chessboard")
+    else:
+        name = args.board_dictionary or BoardSpec.dictionary
+        board = BoardSpec(dictionary=resolve_dictionary(name, Path.cwd()))
+    try:
+        lo, _, hi = args.distance.partition("-")
+        distance = (float(lo), float(hi))
+    except ValueError:
+        raise UserError(f"--distance must be MIN-MAX in mm, got {args.distance!r}") from None
+    if not 0 < distance[0] <= distance[1]:
+        raise UserError(f"--distance must satisfy 0 < MIN <= MAX, got {args.distance!r}")
     cfg = CaptureConfig(
         shots=config.scenes,
+        distance=distance,
         seed=config.seed,
         size=config.size,
+        board=board,
+        # A plain chessboard is only found whole.
+        min_visible=1.0 if not board.has_markers else CaptureConfig.min_visible,
         noise=config.noise,
         blur=config.blur,
+        inverted=args.inverted,
+        mirrored=tuple(args.mirror),
+        centre=args.centre,
     )
     out = Path(args.out)
     with atomic_folder(out) as tmp:
@@ -370,6 +504,8 @@ def synth_captures(args: argparse.Namespace, config: Any) -> int:
         if report.failed:
             report.print_failures()
             raise UserError(f"{len(report.failed)} shots failed to render; nothing written")
+        if args.video:
+            write_videos(tmp, [c.name for c in plan.rig.cameras])
     summary = {
         "out": str(out),
         "shots": len(report.done),

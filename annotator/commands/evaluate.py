@@ -11,9 +11,17 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from annotator.commands import number, whole
 from annotator.errors import UserError
+
+if TYPE_CHECKING:
+    from types import ModuleType
+
+    from annotator.evaluation.bop19 import Bop19Scores
+    from annotator.evaluation.evaluate import Options, Report
+    from annotator.formats.base import GroundTruth, Results
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -70,23 +78,94 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "simulated data",
     )
     parser.add_argument("--twin-results", metavar="RESULTS", help="results on the twin's scenes")
+    parser.add_argument(
+        "--bop19",
+        action="store_true",
+        help="also BOP's average recall (VSD when the depth images are there, MSSD, MSPD), "
+        "as bop_toolkit's eval_bop19_pose.py computes it; BOP ground truth and a result CSV",
+    )
     parser.add_argument("--json", metavar="OUT", help="write the full report as JSON")
     parser.add_argument("--plot", metavar="OUT.png", help="draw the mean precision/recall curves")
 
 
 def run(args: argparse.Namespace) -> int:
     from annotator.evaluation.evaluate import Options, evaluate, format_table
-    from annotator.formats import detect_format
 
+    _check_options(args)
+    gt_path = Path(args.gt)
+    fmt, gt, results, source = _inputs(args)
+    opts = Options(
+        max_occlusion=args.max_occlusion,
+        max_results=tuple(args.max_results),
+        threshold_mm=args.threshold,
+        threshold_fraction=args.threshold_fraction,
+        only_scenes_with_results=args.only_scenes_with_results,
+    )
+    report = evaluate(gt, results, opts)
+    _print_header(args, fmt.NAME, source, gt, results, report)
+    per_object = args.per_object or len(report.per_object) > 1
+    bop = _bop19(args, gt_path, gt) if args.bop19 else None
+    twin_report = _twin(args, opts) if args.twin else None
+    if twin_report is not None:
+        others = {"real": report, "twin": twin_report}
+        print(format_table(report, per_object=per_object, others=others))
+    else:
+        print(format_table(report, per_object=per_object))
+    if bop is not None:
+        _print_bop19(bop, report, gt)
+    if not args.results and fmt.NAME == "ours":
+        _print_annotation_errors(gt_path)
+    if args.json:
+        from annotator.io.atomic import write_json
+
+        doc = report.to_json()
+        if twin_report is not None:
+            doc = {"real": doc, "twin": twin_report.to_json()}
+        if bop is not None:
+            doc["bop19"] = bop.to_json()
+        write_json(args.json, doc)
+    if args.plot:
+        from annotator.evaluation.evaluate import plot_curves
+
+        plot_curves(report, args.plot)
+        print(f"precision/recall curves: {args.plot}")
+    return 0
+
+
+def _check_options(args: argparse.Namespace) -> None:
+    """Combinations that cannot work, refused before anything is read."""
     for out in (args.json, args.plot):
         if out and Path(out).is_dir():
             raise UserError("is a folder; give a file name", path=out)
+    if (args.twin or args.twin_results) and not (args.twin and args.twin_results and args.results):
+        raise UserError("--twin needs --twin-results, and --results for GT")
+    if args.bop19 and not args.results:
+        raise UserError(
+            "--bop19 scores a BOP dataset against a result CSV (--results); export ours "
+            "first with `annotator export DATASET OUT --format bop`"
+        )
+    if args.bop19 and args.twin:
+        raise UserError("--bop19 and --twin cannot be combined")
+
+
+def _inputs(args: argparse.Namespace) -> tuple[ModuleType, GroundTruth, Results, str]:
+    """The ground truth's format, the ground truth, the results and a line saying where
+    the results come from."""
+    from annotator.formats import detect_format
+
     gt_path = Path(args.gt)
     fmt = detect_format(gt_path)
+    if args.bop19 and fmt.NAME != "bop":
+        raise UserError(
+            "--bop19 scores a BOP dataset; export ours first with "
+            "`annotator export DATASET OUT --format bop`",
+            path=gt_path,
+        )
     gt = fmt.read_ground_truth(gt_path, symmetry=args.symmetry)
     if args.results:
         results = fmt.read_results(Path(args.results), gt)
-        source = f"{args.results} (lengths in {'metres' if gt.unit == 'm' else 'mm'}, as the ground truth)"
+        unit = "metres" if gt.unit == "m" else "mm"
+        source = f"{args.results} (lengths in {unit}, as the ground truth)"
     elif fmt.NAME == "ours":
         from annotator.formats.ours import annotations_as_results
 
@@ -96,6 +175,19 @@ def run(args: argparse.Namespace) -> int:
         source = "annotation.json (auto-annotation vs gt.json)"
     else:
         raise UserError("--results is required for BOP and Siléane ground truth")
+    return fmt, gt, results, source
+
+
+def _print_header(
+    args: argparse.Namespace,
+    format_name: str,
+    source: str,
+    gt: GroundTruth,
+    results: Results,
+    report: Report,
+) -> None:
+    from annotator.evaluation.evaluate import DEFAULT_THRESHOLD_FRACTION
+
     if results.unknown_scenes:
         first = ", ".join(results.unknown_scenes[:5])
         more = ", ..." if len(results.unknown_scenes) > 5 else ""
@@ -104,24 +196,15 @@ def run(args: argparse.Namespace) -> int:
             f"not scored: {first}{more}",
             file=sys.stderr,
         )
-    opts = Options(
-        max_occlusion=args.max_occlusion,
-        max_results=tuple(args.max_results),
-        threshold_mm=args.threshold,
-        threshold_fraction=0.1 if args.threshold_fraction is None else args.threshold_fraction,
-        only_scenes_with_results=args.only_scenes_with_results,
-    )
-    if args.threshold_fraction is not None:
-        gt.thresholds.clear()  # an explicit fraction overrides the dataset's own threshold
-    report = evaluate(gt, results, opts)
     if args.threshold is not None:
         thr = f"{args.threshold:g} mm"
-    elif gt.thresholds:
+    elif args.threshold_fraction is None and gt.thresholds:
         thr = "the dataset's own (poseutils.json distance_threshold)"
     else:
-        thr = f"{opts.threshold_fraction:g} x diameter of the enclosing sphere centred on the surface centroid"
+        fraction = args.threshold_fraction or DEFAULT_THRESHOLD_FRACTION
+        thr = f"{fraction:g} x diameter of the enclosing sphere centred on the surface centroid"
     print(
-        f"evaluating {source} against {args.gt} ({fmt.NAME}); threshold: {thr}; "
+        f"evaluating {source} against {args.gt} ({format_name}); threshold: {thr}; "
         f"instances to find: occlusion <= {args.max_occlusion:g}; the authors' definitions"
     )
     for note in gt.notes + results.notes:
@@ -134,34 +217,77 @@ def run(args: argparse.Namespace) -> int:
     elif not results.scenes >= set(gt.scenes) and results.scenes:
         missing = len(set(gt.scenes) - results.scenes)
         print(f"note: {missing} ground-truth scenes have no results: counted as nothing found")
-    per_object = args.per_object or len(report.per_object) > 1
-    twin_report = None
-    if args.twin or args.twin_results:
-        if not (args.twin and args.twin_results and args.results):
-            raise UserError("--twin needs --twin-results, and --results for GT")
-        twin_fmt = detect_format(Path(args.twin))
-        twin_gt = twin_fmt.read_ground_truth(Path(args.twin), symmetry=args.symmetry)
-        twin_results = twin_fmt.read_results(Path(args.twin_results), twin_gt)
-        twin_report = evaluate(twin_gt, twin_results, opts)
-        others = {"real": report, "twin": twin_report}
-        print(format_table(report, per_object=per_object, others=others))
-    else:
-        print(format_table(report, per_object=per_object))
-    if not args.results and fmt.NAME == "ours":
-        _print_annotation_errors(gt_path)
-    if args.json:
-        from annotator.io.atomic import write_json
 
-        doc = report.to_json()
-        if twin_report is not None:
-            doc = {"real": doc, "twin": twin_report.to_json()}
-        write_json(args.json, doc)
-    if args.plot:
-        from annotator.evaluation.evaluate import plot_curves
 
-        plot_curves(report, args.plot)
-        print(f"precision/recall curves: {args.plot}")
-    return 0
+def _twin(args: argparse.Namespace, opts: Options) -> Report:
+    from annotator.evaluation.evaluate import evaluate
+    from annotator.formats import detect_format
+
+    twin_fmt = detect_format(Path(args.twin))
+    twin_gt = twin_fmt.read_ground_truth(Path(args.twin), symmetry=args.symmetry)
+    return evaluate(twin_gt, twin_fmt.read_results(Path(args.twin_results), twin_gt), opts)
+
+
+def _bop19(args: argparse.Namespace, gt_path: Path, gt: GroundTruth) -> Bop19Scores:
+    from tqdm import tqdm
+
+    from annotator.evaluation.bop19 import bop19_scores
+    from annotator.formats.bop_images import read_bop_split
+    from annotator.rendering.raycast import render_depth
+
+    split = read_bop_split(gt_path, Path(args.results), gt)
+    with tqdm(
+        total=len(split.images),
+        desc="BOP scores",
+        unit="image",
+        disable=not sys.stderr.isatty(),
+        file=sys.stderr,
+    ) as bar:
+        scores = bop19_scores(
+            split.images,
+            split.estimates,
+            split.objects,
+            render=render_depth,
+            delta=split.delta,
+            progress=bar.update,
+        )
+    scores.notes[:0] = split.notes
+    return scores
+
+
+def _print_bop19(bop: Bop19Scores, report: Report, gt: GroundTruth) -> None:
+    def f(v: float | None) -> str:
+        return "   -  " if v is None else f"{v:.4f}"
+
+    print(
+        f"BOP's scores (bop_toolkit's eval_bop19_pose.py: {bop.targets} instances to find, "
+        f"{bop.estimates} estimates scored):"
+    )
+    print(f"  {'object':<14} {'AR':>6} {'AR_VSD':>6} {'AR_MSSD':>7} {'AR_MSPD':>7}   paper AP")
+    for oid, row in sorted(bop.per_object.items()):
+        name = gt.object_ids.get(oid, f"obj_{oid:06d}")
+        ap = report.per_object.get(name)
+        print(
+            f"  {name:<14} {f(row['AR'])} {f(row['vsd'])}  {f(row['mssd'])}  {f(row['mspd'])}"
+            f"   {f(ap.ap if ap else None)}"
+        )
+    print(
+        f"  {'all':<14} {f(bop.ar)} {f(bop.metrics['vsd'])}  {f(bop.metrics['mssd'])}  "
+        f"{f(bop.metrics['mspd'])}   {f(report.overall.ap)}"
+    )
+    for note in bop.notes:
+        print(f"note: {note}")
+    for oid, row in sorted(bop.per_object.items()):
+        name = gt.object_ids.get(oid, f"obj_{oid:06d}")
+        ap = report.per_object.get(name)
+        if ap is None or row["mssd"] is None or abs(ap.ap - row["mssd"]) < 0.2:
+            continue
+        print(
+            f"note: {name}: the paper's AP {ap.ap:.4f} and BOP's AR_MSSD {row['mssd']:.4f} "
+            "disagree: AR counts only the instances BOP lists as targets and the best "
+            "estimates per target, with thresholds from 5 to 50 % of the diameter; AP "
+            "counts every result, false ones too, at one threshold"
+        )
 
 
 def _print_annotation_errors(root: Path) -> None:

@@ -44,6 +44,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--cameras", help="comma-separated rig cameras to export (BOP; default all)"
     )
     parser.add_argument(
+        "--layout",
+        choices=("scenewise", "imagewise", "webdataset"),
+        default="scenewise",
+        help="BOP: scene folders (default), bop_toolkit's image-wise files, or its webdataset "
+        "tar shards",
+    )
+    parser.add_argument(
         "--overwrite", action="store_true", help="replace OUT if an earlier export wrote it"
     )
     parser.add_argument("--json", action="store_true", help="print the summary as JSON")
@@ -54,6 +61,9 @@ def run(args: argparse.Namespace) -> int:
     if args.format not in EXPORTS:
         raise UserError(f"unknown format {args.format!r} (expected one of {', '.join(EXPORTS)})")
     fmt = get_format(args.format)
+    if args.layout != "scenewise" and args.format != "bop":
+        raise UserError("--layout is for --format bop")
+    layout = {"layout": args.layout} if args.format == "bop" else {}
     ds = load_dataset(args.dataset)
     names = [c.name for c in ds.rig.cameras]
     cameras = (
@@ -92,7 +102,7 @@ def run(args: argparse.Namespace) -> int:
     )
     with bar, atomic_folder(out) as tmp:
         write_manifest(tmp, command="export")
-        unreadable = fmt.export(ds, sel.scenes, tmp, cameras=cameras, progress=bar.update)
+        unreadable = fmt.export(ds, sel.scenes, tmp, cameras=cameras, progress=bar.update, **layout)
     # Scenes that could not be read (corrupt annotation, review, image or depth) are named
     # and make the exit status 1; the rest of the export is complete.
     errors = {sid: r[len("error: ") :] for sid, r in sel.skipped.items() if r.startswith("error: ")}

@@ -2,7 +2,12 @@
 
 PART is a built-in part name or a mesh file (mm). OUT receives ``object.yaml`` (markers and
 instances with disjoint ids), the mesh, ``sheets/`` (true-scale PNG pages and a PDF) and
-``textured/`` (an OBJ per instance showing its markers).
+``textured/`` (an OBJ per instance showing its markers). ``--dictionary`` is a predefined
+name or a dictionary file (:mod:`annotator.markers.dictionary`).
+
+``annotator markers --write-dictionary FILE --count N --bits B --min-distance D`` writes a
+custom dictionary instead: N markers of B x B bits, any two at least D bits apart in any of
+their turns (OpenCV's format, usable wherever a dictionary is named).
 """
 
 from __future__ import annotations
@@ -20,30 +25,58 @@ from annotator.errors import UserError
 from annotator.geometry.mesh import load_mesh
 from annotator.io.atomic import atomic_folder
 from annotator.io.output_folder import check_output_folder, write_manifest
+from annotator.markers.dictionary import (
+    custom_dictionary,
+    dictionary,
+    dictionary_size,
+    min_distance,
+    resolve_dictionary,
+    write_dictionary,
+)
 from annotator.markers.layout import assign_ids, place_markers
 from annotator.markers.sheets import SheetMarker, render_pages, write_sheets
-from annotator.markers.texture import dictionary_size
 from annotator.markers.textured import write_textured_obj
 from annotator.parts import PART_NAMES, build_part
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
-        "part", help=f"a built-in part ({', '.join(PART_NAMES)}) or a mesh file in mm"
+        "part", nargs="?", help=f"a built-in part ({', '.join(PART_NAMES)}) or a mesh file in mm"
     )
-    parser.add_argument("out", help="output folder (an object folder of a dataset)")
+    parser.add_argument("out", nargs="?", help="output folder (an object folder of a dataset)")
     parser.add_argument(
-        "--size", type=number(low=0, above=True), help="printed marker side in mm (default: the part's, or 10)"
+        "--size",
+        type=number(low=0, above=True),
+        help="printed marker side in mm (default: the part's, or 10)",
     )
     parser.add_argument(
         "--dictionary",
         default="DICT_4X4_1000",
-        help="OpenCV ArUco dictionary (default DICT_4X4_1000)",
+        help="ArUco dictionary: an OpenCV predefined name or a dictionary file (default "
+        "DICT_4X4_1000)",
+    )
+    custom = parser.add_argument_group(
+        "custom dictionary", "--write-dictionary FILE: write a dictionary instead (no PART, OUT)"
+    )
+    custom.add_argument("--write-dictionary", metavar="FILE", help="the dictionary file to write")
+    custom.add_argument(
+        "--count", type=whole(low=1), default=100, help="markers in it (default 100)"
+    )
+    custom.add_argument(
+        "--bits", type=whole(low=3, high=8), default=6, help="bits per marker side (default 6)"
+    )
+    custom.add_argument(
+        "--min-distance",
+        type=whole(low=1),
+        default=8,
+        help="smallest distance between two markers, in bits, any turn (default 8)",
     )
     parser.add_argument(
         "--instances", type=whole(low=1), default=1, help="physical copies to make (default 1)"
     )
-    parser.add_argument("--first-id", type=whole(low=0), default=0, help="first marker id (default 0)")
+    parser.add_argument(
+        "--first-id", type=whole(low=0), default=0, help="first marker id (default 0)"
+    )
     parser.add_argument("--max-sites", type=whole(low=1), help="at most this many sites per part")
     parser.add_argument(
         "--flatness",
@@ -55,7 +88,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--symmetry", default=None, help="symmetry class for a mesh file (default none)"
     )
     parser.add_argument(
-        "--dpi", type=whole(low=1, high=2400), default=300, help="resolution of the PNG sheets (default 300)"
+        "--dpi",
+        type=whole(low=1, high=2400),
+        default=300,
+        help="resolution of the PNG sheets (default 300)",
     )
     parser.add_argument("--seed", type=whole(low=0), default=0, help="random seed (default 0)")
     parser.add_argument(
@@ -65,6 +101,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.write_dictionary:
+        return _write_dictionary(args)
+    if args.part is None or args.out is None:
+        raise UserError("give PART and OUT (or --write-dictionary FILE)")
+    args.dictionary = resolve_dictionary(args.dictionary, Path.cwd())
     out = Path(args.out)
     if args.size is not None and args.size <= 0:
         raise UserError(f"--size must be positive, got {args.size}")
@@ -140,5 +181,33 @@ def run(args: argparse.Namespace) -> int:
             f"markers: {summary['sites']} sites of {size:g} mm on {name}; from any direction at least "
             f"{layout.min_facing} face the viewer (within 60 degrees); {args.instances} instances, ids "
             f"{ids[0][0]}..{ids[-1][-1]}; written to {out} (object.yaml, sheets/, textured/)"
+        )
+    return 0
+
+
+def _write_dictionary(args: argparse.Namespace) -> int:
+    """``--write-dictionary FILE``: a custom dictionary, checked by reading it back."""
+    if args.part is not None:
+        raise UserError("--write-dictionary writes a dictionary only: give no PART or OUT")
+    path = Path(args.write_dictionary)
+    d = custom_dictionary(args.count, args.bits, min_bits=args.min_distance, seed=args.seed)
+    write_dictionary(path, d)
+    back = dictionary(str(path.resolve()))
+    reached = min_distance(back)
+    summary = {
+        "dictionary": str(path),
+        "markers": int(back.bytesList.shape[0]),
+        "bits": int(back.markerSize),
+        "min_distance": reached,
+        "max_correction_bits": int(back.maxCorrectionBits),
+    }
+    if args.json:
+        print(json.dumps(summary))
+    else:
+        print(
+            f"markers: wrote {path}: {summary['markers']} markers of {args.bits}x{args.bits} "
+            f"bits, any two at least {reached} bits apart (up to "
+            f"{summary['max_correction_bits']} wrong bits corrected); name it as the "
+            "dictionary in dataset.yaml, board.yaml or --dictionary"
         )
     return 0

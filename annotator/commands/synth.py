@@ -31,12 +31,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default="bracket,cylinder",
         help=f"comma-separated built-in parts ({', '.join(PART_NAMES)})",
     )
-    parser.add_argument("--scenes", type=whole(low=1), default=10, help="number of scenes (default 10)")
+    parser.add_argument(
+        "--scenes", type=whole(low=1), default=10, help="number of scenes (default 10)"
+    )
     parser.add_argument(
         "--instances", default="8-20", metavar="MIN-MAX", help="instances per scene (default 8-20)"
     )
     parser.add_argument(
-        "--seed", type=whole(low=0), default=0, help="random seed: same seed, same dataset (default 0)"
+        "--seed",
+        type=whole(low=0),
+        default=0,
+        help="random seed: same seed, same dataset (default 0)",
     )
     add_workers_option(parser)
     add_ray_option(parser)
@@ -44,10 +49,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--size", default="1280x1024", metavar="WxH", help="image size (default 1280x1024)"
     )
     parser.add_argument(
-        "--clutter", type=whole(low=0), default=0, help="parts without markers per scene (default 0)"
+        "--clutter",
+        type=whole(low=0),
+        default=0,
+        help="parts without markers per scene (default 0)",
     )
     parser.add_argument(
-        "--noise", type=number(low=0), default=2.0, help="image noise sigma, grey levels (default 2)"
+        "--noise",
+        type=number(low=0),
+        default=2.0,
+        help="image noise sigma, grey levels (default 2)",
     )
     parser.add_argument(
         "--blur", type=number(low=0), default=0.6, help="image blur sigma, px (default 0.6)"
@@ -68,6 +79,46 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="instead of scenes, render a ChArUco board in --scenes random poses (use 30) seen "
         "by the rig, into OUT/<camera>/<shot>.png with board.yaml and truth.yaml "
         "(for `annotator calibrate`)",
+    )
+    calib = parser.add_argument_group("--calibration", "the board shots")
+    calib.add_argument(
+        "--board-kind",
+        choices=("charuco", "chessboard"),
+        default="charuco",
+        help="a 7x5 ChArUco board (default) or a 9x6 plain chessboard, 30 mm squares",
+    )
+    calib.add_argument(
+        "--board-dictionary",
+        metavar="NAME|FILE",
+        help="the ChArUco board's dictionary: a predefined name or a dictionary file, copied "
+        "beside board.yaml (default DICT_4X4_50)",
+    )
+    calib.add_argument("--inverted", action="store_true", help="the board printed colour-inverted")
+    calib.add_argument(
+        "--mirror",
+        metavar="CAMERA",
+        action="append",
+        default=[],
+        help="store this camera's images mirrored (a webcam in selfie mode); repeatable",
+    )
+    calib.add_argument(
+        "--centre",
+        type=number(low=0.1, high=1.0),
+        default=1.0,
+        metavar="F",
+        help="keep the board within the central fraction F of every image (default 1: anywhere)",
+    )
+    calib.add_argument(
+        "--distance",
+        metavar="MIN-MAX",
+        default="520-760",
+        help="range of the board centre's depth in the first camera, mm (default 520-760)",
+    )
+    calib.add_argument(
+        "--video",
+        action="store_true",
+        help="one video per camera (OUT/<camera>.mkv, lossless) with timestamps files, "
+        "instead of image folders",
     )
     parser.add_argument(
         "--twin",

@@ -21,7 +21,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("dataset", help="the real dataset (FORMAT.md)")
     parser.add_argument("twin", help="its twin, made by `annotator synth --twin DATASET TWIN`")
     parser.add_argument(
-        "--tolerance", type=number(low=0), default=1.5, help="mm of depth difference that count (1.5)"
+        "--tolerance",
+        type=number(low=0),
+        default=1.5,
+        help="mm of depth difference that count (1.5)",
     )
     parser.add_argument(
         "--max-disagreement",

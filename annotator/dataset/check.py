@@ -55,12 +55,13 @@ def _annotation_warnings(path: Path) -> list[Problem]:
 
 
 def _check_objects(ds: Dataset) -> list[Problem]:
-    import open3d as o3d
-
     from annotator.markers.texture import dictionary_size
 
     out: list[Problem] = []
-    n_dict = dictionary_size(ds.dictionary) if ds.dictionary.startswith("DICT_") else None
+    try:
+        n_dict: int | None = dictionary_size(ds.dictionary)
+    except UserError:  # already reported by the reader of dataset.yaml
+        n_dict = None
     for obj in ds.objects.values():
         yaml_path = obj.folder / "object.yaml"
         for inst in obj.instances:
@@ -98,16 +99,13 @@ def _check_objects(ds: Dataset) -> list[Problem]:
             )
         if obj.markers is None:
             continue
-        scene = o3d.t.geometry.RaycastingScene()
-        scene.add_triangles(
-            o3d.core.Tensor(mesh.vertices.astype(np.float32)),
-            o3d.core.Tensor(mesh.faces.astype(np.uint32)),
-        )
         size = obj.markers.size
         sites = [(f"markers.sites[{k}]", c) for k, c in enumerate(obj.markers.corners)]
         for inst in obj.instances:
             if inst.sites is not None:
-                sites += [(f"instance {inst.name!r}: sites[{k}]", c) for k, c in enumerate(inst.sites)]
+                sites += [
+                    (f"instance {inst.name!r}: sites[{k}]", c) for k, c in enumerate(inst.sites)
+                ]
         for where, c in sites:
             sides = np.linalg.norm(np.roll(c, -1, axis=0) - c, axis=1)
             diag = np.linalg.norm(c[2] - c[0]), np.linalg.norm(c[3] - c[1])
@@ -122,8 +120,7 @@ def _check_objects(ds: Dataset) -> list[Problem]:
                     )
                 )
                 continue
-            pts = np.concatenate([c, c.mean(axis=0, keepdims=True)]).astype(np.float32)
-            dist = np.abs(scene.compute_signed_distance(o3d.core.Tensor(pts)).numpy())
+            dist = mesh.distance_to_surface(np.concatenate([c, c.mean(axis=0, keepdims=True)]))
             if dist.max() > SITE_TOLERANCE_MM:
                 out.append(
                     Problem(

@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 
 from annotator.dataset.model import (
+    FLIP_HORIZONTAL,
     Dataset,
     DepthSpec,
     Instance,
@@ -100,9 +101,9 @@ def read_dataset(root: str | Path) -> tuple[Dataset | None, list[Problem]]:
     p = _Parser(yaml_path, problems)
     if doc.get("format", 1) != 1:
         p.problem(f"unsupported format {doc.get('format')!r} (this tool reads format 1)")
-    dictionary = str(p.get(doc, "markers", dict, {}).get("dictionary", "DICT_4X4_1000"))
-    if not _known_dictionary(dictionary):
-        p.problem(f"unknown ArUco dictionary {dictionary!r}")
+    dictionary = _parse_dictionary(
+        p, str(p.get(doc, "markers", dict, {}).get("dictionary", "DICT_4X4_1000")), root
+    )
     rig = _parse_rig(p, p.get(doc, "rig", dict, None))
     objects: dict[str, ObjectModel] = {}
     names = p.get(doc, "objects", list, [])
@@ -188,10 +189,18 @@ def outside(root: Path, path: Path) -> bool:
     return os.path.commonpath([real_root, real]) != real_root
 
 
-def _known_dictionary(name: str) -> bool:
-    import cv2
+def _parse_dictionary(p: _Parser, name: str, root: Path) -> str:
+    """The markers' dictionary: a predefined name, or a dictionary file (relative to the
+    dataset folder) made absolute so that every reader opens the same file."""
+    from annotator.markers.dictionary import dictionary, resolve_dictionary
 
-    return name.startswith("DICT_") and isinstance(getattr(cv2.aruco, name, None), int)
+    resolved = resolve_dictionary(name, root)
+    try:
+        dictionary(resolved)
+    except UserError as exc:
+        where = f" ({exc.path})" if exc.path is not None else ""
+        p.problem(f"markers.dictionary: {exc.message}{where}")
+    return resolved
 
 
 def _parse_rig(p: _Parser, rig: dict[str, Any] | None) -> Rig | None:
@@ -203,6 +212,7 @@ def _parse_rig(p: _Parser, rig: dict[str, Any] | None) -> Rig | None:
             p.problem("rig.cameras is empty")
         return None
     cameras: list[Camera] = []
+    flipped: set[str] = set()
     broken: list[str] = []  # names of cameras with a problem, reported once each
     for i, c in enumerate(cams_doc):
         where = f"rig.cameras[{i}]"
@@ -245,6 +255,14 @@ def _parse_rig(p: _Parser, rig: dict[str, Any] | None) -> Rig | None:
         if any(cam.name == name for cam in cameras):
             p.problem(f"{where}: duplicate camera name {name!r}")
             continue
+        flip = c.get("flip")
+        if flip not in (None, "none", FLIP_HORIZONTAL):
+            p.problem(
+                f"{where}.flip must be {FLIP_HORIZONTAL!r} (a mirrored camera) or absent, got "
+                f"{flip!r}"
+            )
+        elif flip == FLIP_HORIZONTAL:
+            flipped.add(name)
         cameras.append(
             Camera(name=name, width=int(size[0]), height=int(size[1]), K=K, dist=dist, rig_T_cam=T)
         )
@@ -277,7 +295,7 @@ def _parse_rig(p: _Parser, rig: dict[str, Any] | None) -> Rig | None:
                 depth = DepthSpec(camera=cam, scale=float(scale), background=bg)
     if not cameras:
         return None
-    return Rig(cameras=tuple(cameras), depth=depth)
+    return Rig(cameras=tuple(cameras), depth=depth, flipped=frozenset(flipped))
 
 
 def _parse_object(root: Path, name: str, problems: list[Problem]) -> ObjectModel | None:

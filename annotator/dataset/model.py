@@ -27,12 +27,29 @@ class DepthSpec:
     background: str | None = None
 
 
+#: The one image flip a rig camera can declare (``flip: horizontal``): a mirrored camera.
+FLIP_HORIZONTAL = "horizontal"
+
+
+def orient_image(image: np.ndarray, flipped: bool) -> np.ndarray:
+    """A camera's image as stored turned into the image its calibration describes, or back
+    (the mirror is its own inverse): flipped left to right for a camera with ``flip:
+    horizontal`` (a webcam in "selfie" mode), unchanged otherwise."""
+    return np.ascontiguousarray(image[:, ::-1]) if flipped else image
+
+
 @dataclass(frozen=True)
 class Rig:
-    """The calibrated cameras; ``cameras[0]`` is the reference frame of every pose."""
+    """The calibrated cameras; ``cameras[0]`` is the reference frame of every pose.
+
+    ``flipped``: names of the cameras whose stored images are mirrored (``flip: horizontal``
+    in dataset.yaml); their calibration describes the images flipped back, which is what
+    :meth:`Scene.read_image` returns.
+    """
 
     cameras: tuple[Camera, ...]
     depth: DepthSpec | None = None
+    flipped: frozenset[str] = frozenset()
 
     def camera(self, name: str) -> Camera:
         """The camera called ``name`` (KeyError if none)."""
@@ -115,10 +132,15 @@ class ObjectModel:
 
 @dataclass(frozen=True)
 class Scene:
-    """A scene folder; the files in it are found by name (FORMAT.md layout)."""
+    """A scene folder; the files in it are found by name (FORMAT.md layout).
+
+    ``flipped``: the rig's mirrored cameras (:attr:`Rig.flipped`), whose images
+    :meth:`read_image` flips, so that every reader of images gets them as calibrated.
+    """
 
     id: str
     path: Path
+    flipped: frozenset[str] = field(default=frozenset(), compare=False)
 
     def image_path(self, camera: Camera | str) -> Path:
         """Path of the intensity image of ``camera``."""
@@ -142,7 +164,8 @@ class Scene:
         return self.path / "review.json"
 
     def read_image(self, camera: Camera) -> np.ndarray:
-        """The camera's intensity image, as stored; UserError if missing, corrupt or mis-sized."""
+        """The camera's intensity image, as stored but flipped back for a mirrored camera
+        (``flip: horizontal``); UserError if missing, corrupt or mis-sized."""
         from annotator.errors import UserError
         from annotator.io.images import read_image
 
@@ -153,7 +176,7 @@ class Scene:
                 f"image is {img.shape[1]}x{img.shape[0]}, the rig says {camera.width}x{camera.height}",
                 path=path,
             )
-        return img
+        return orient_image(img, camera.name in self.flipped)
 
     def read_depth(self, rig: Rig) -> np.ndarray | None:
         """The depth map in mm (NaN = no measurement), or None if the scene has none."""
@@ -189,7 +212,7 @@ class Dataset:
         if not folder.is_dir():
             return []
         return [
-            Scene(p.name, p)
+            Scene(p.name, p, self.rig.flipped)
             for p in sorted(folder.iterdir())
             if p.is_dir() and not p.name.startswith(".")
         ]
@@ -211,7 +234,7 @@ class Dataset:
         path = self.root / "scenes" / scene_id
         if not path.is_dir():
             raise KeyError(scene_id)
-        return Scene(scene_id, path)
+        return Scene(scene_id, path, self.rig.flipped)
 
     @cached_property
     def background_depth(self) -> np.ndarray | None:

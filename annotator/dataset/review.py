@@ -8,7 +8,11 @@
      "annotation_fingerprint": "<sha256 of the judged poses>",
      "reason": "a part has no pose",
      "missing": [{"camera": "left", "pixel": [612.0, 433.5], "at": "2026-11-22T16:03:58+00:00"}],
-     "decided_by": "page-3f9a2c-1"}
+     "decided_by": "page-3f9a2c-1",
+     "poses": {"<object>/<instance>": {"cam_R_m2c": [9 floats], "cam_t_m2c": [3 floats],
+               "source": "edited", "steps": [{"op": "refine", ...}, ...],
+               "decided_by": "page-3f9a2c-1", "at": "2026-11-22T16:04:10+00:00",
+               "auto_fingerprint": "<sha256 of the auto pose it was made from> | null"}}}
 
 The first four fields are those of FORMAT.md. The others are optional and written only when
 they have a value:
@@ -18,7 +22,12 @@ they have a value:
 - ``missing``: the "a part has no pose here" marks, each the camera it was made in, the
   pixel (OpenCV convention, full resolution) and when;
 - ``decided_by``: an opaque id of the page (browser tab) that made the last decision, so
-  that a page can tell that another reviewer has since decided the same scene.
+  that a page can tell that another reviewer has since decided the same scene;
+- ``poses``: poses a reviewer repaired in the viewer (:class:`EditedPose`), which replace
+  annotation.json's pose of that instance for the export and the evaluation (annotation.json
+  stays what ``annotate`` wrote). ``auto_fingerprint`` is that of the instance's auto pose
+  the edit started from (null: an instance ``annotate`` did not pose, added by hand); when
+  the auto pose is no longer that one, the edit is *stale* (:func:`apply_edits`).
 
 A decision is *stale* when the scene's annotation.json no longer has the fingerprint the
 decision was made on (its poses have changed since). Unknown keys are kept (``extra``) and
@@ -39,6 +48,7 @@ import numpy as np
 
 from annotator.dataset.poses import InstancePose
 from annotator.errors import UserError
+from annotator.geometry.transforms import is_rotation
 from annotator.io.atomic import write_json
 from annotator.io.documents import read_json
 
@@ -81,6 +91,43 @@ class MissingPart:
         return out
 
 
+#: The ``source`` of a pose in review.json's ``poses``.
+EDITED_SOURCE = "edited"
+#: A repaired rotation must be this close to orthonormal (max |R R^T - I|).
+_ROTATION_TOLERANCE = 1e-5
+
+
+@dataclass
+class EditedPose:
+    """A pose repaired by a reviewer (review.json ``poses``), in the reference camera.
+
+    Attributes:
+        R, t: The pose (``x_cam = R x_model + t``, mm).
+        steps: What was done to the auto pose to get here, oldest first (``{"op": ...}``).
+        decided_by: The page that made it; at: when (ISO 8601).
+        auto_fingerprint: :func:`instance_fingerprint` of the auto pose it was made from;
+            None for an instance that had no auto pose (added by hand).
+    """
+
+    R: np.ndarray
+    t: np.ndarray
+    steps: list[dict[str, Any]] = field(default_factory=list)
+    decided_by: str | None = None
+    at: str | None = None
+    auto_fingerprint: str | None = None
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "cam_R_m2c": [float(x) for x in np.asarray(self.R).reshape(9)],
+            "cam_t_m2c": [float(x) for x in np.asarray(self.t).reshape(3)],
+            "source": EDITED_SOURCE,
+            "steps": list(self.steps),
+            "decided_by": self.decided_by,
+            "at": self.at,
+            "auto_fingerprint": self.auto_fingerprint,
+        }
+
+
 @dataclass
 class Review:
     """A scene's review decisions (see the module docstring for the file)."""
@@ -93,6 +140,7 @@ class Review:
     reason: str | None = None
     missing: list[MissingPart] = field(default_factory=list)
     decided_by: str | None = None
+    poses: dict[str, EditedPose] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         # Callers may pass plain strings; keep the enum inside.
@@ -117,6 +165,8 @@ class Review:
             out["missing"] = [m.to_json() for m in self.missing]
         if self.decided_by is not None:
             out["decided_by"] = self.decided_by
+        if self.poses:
+            out["poses"] = {k: v.to_json() for k, v in sorted(self.poses.items())}
         return out
 
 
@@ -141,6 +191,100 @@ def poses_fingerprint(poses: list[InstancePose]) -> str:
         for p in poses
     )
     return hashlib.sha256(json.dumps(rows).encode()).hexdigest()
+
+
+def instance_fingerprint(pose: InstancePose) -> str:
+    """The fingerprint of one auto pose (:func:`poses_fingerprint` of it alone)."""
+    return poses_fingerprint([pose])
+
+
+@dataclass
+class EditedPoses:
+    """A scene's poses with the reviewer's repairs applied (:func:`apply_edits`)."""
+
+    poses: list[Any]
+    edited: set[str] = field(default_factory=set)  # keys whose pose is a current edit
+    stale: set[str] = field(default_factory=set)  # keys whose edit was made on another auto pose
+
+
+def apply_edits(poses: list[Any], review: Review | None, added: Any = InstancePose) -> EditedPoses:
+    """``poses`` (records with ``object``, ``instance``, ``R``, ``t``: InstancePose or
+    InstanceAnnotation) with the current edits of ``review`` applied, and the instances added
+    by hand appended (made by ``added(object, instance, R, t)``).
+
+    An edit is *current* when the auto pose it was made from is the one in ``poses`` (for an
+    added instance: when ``poses`` still has none of it); a stale edit is not applied: the
+    auto pose is kept, and the edit is listed, as a stale decision is.
+    """
+    from dataclasses import replace as _replace
+
+    edits = dict(review.poses) if review is not None else {}
+    out = EditedPoses([])
+    for p in poses:
+        edit = edits.pop(p.key, None)
+        if edit is None:
+            out.poses.append(p)
+        elif edit.auto_fingerprint == instance_fingerprint(p):
+            out.poses.append(_replace(p, R=np.array(edit.R), t=np.array(edit.t)))
+            out.edited.add(p.key)
+        else:
+            out.poses.append(p)
+            out.stale.add(p.key)
+    for key, edit in sorted(edits.items()):
+        if edit.auto_fingerprint is not None:  # its auto pose has gone since
+            out.stale.add(key)
+            continue
+        obj, _, inst = key.partition("/")
+        out.poses.append(added(obj, inst, np.array(edit.R), np.array(edit.t)))
+        out.edited.add(key)
+    return out
+
+
+def _numbers(value: Any, n: int) -> bool:
+    return (
+        isinstance(value, list)
+        and len(value) == n
+        and all(
+            isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v)
+            for v in value
+        )
+    )
+
+
+def _edited_poses(value: Any, path: Path) -> dict[str, EditedPose]:
+    if not isinstance(value, dict):
+        raise UserError("'poses' must map object/instance to an edited pose", path=path)
+    out = {}
+    for key, rec in value.items():
+        where = f"poses[{key!r}]"
+        if not isinstance(key, str) or key.count("/") != 1 or not all(key.split("/")):
+            raise UserError(f"{where}: the key must be 'object/instance'", path=path)
+        if not isinstance(rec, dict):
+            raise UserError(f"{where}: must be an object", path=path)
+        if not _numbers(rec.get("cam_R_m2c"), 9) or not _numbers(rec.get("cam_t_m2c"), 3):
+            raise UserError(
+                f"{where}: cam_R_m2c must be 9 finite numbers and cam_t_m2c 3", path=path
+            )
+        R = np.array(rec["cam_R_m2c"], float).reshape(3, 3)
+        if not is_rotation(R, tol=_ROTATION_TOLERANCE):
+            raise UserError(f"{where}: cam_R_m2c is not a rotation", path=path)
+        if rec.get("source", EDITED_SOURCE) != EDITED_SOURCE:
+            raise UserError(f"{where}: source must be {EDITED_SOURCE!r}", path=path)
+        steps = rec.get("steps", [])
+        if not isinstance(steps, list) or not all(isinstance(s, dict) for s in steps):
+            raise UserError(f"{where}: steps must be a list of objects", path=path)
+        for name in ("decided_by", "at", "auto_fingerprint"):
+            if rec.get(name) is not None and not isinstance(rec[name], str):
+                raise UserError(f"{where}: {name} must be a string", path=path)
+        out[key] = EditedPose(
+            R=R,
+            t=np.array(rec["cam_t_m2c"], float),
+            steps=steps,
+            decided_by=rec.get("decided_by"),
+            at=rec.get("at"),
+            auto_fingerprint=rec.get("auto_fingerprint"),
+        )
+    return out
 
 
 def _missing_parts(value: Any, path: Path) -> list[MissingPart]:
@@ -204,6 +348,7 @@ def read_review(path: str | Path) -> Review | None:
         "reason",
         "missing",
         "decided_by",
+        "poses",
     }
     return Review(
         status=ReviewStatus(status),
@@ -214,6 +359,7 @@ def read_review(path: str | Path) -> Review | None:
         reason=reason,
         missing=_missing_parts(doc.get("missing", []), path),
         decided_by=None if decided_by is None else str(decided_by),
+        poses=_edited_poses(doc.get("poses", {}), path),
     )
 
 

@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-from annotator.dataset.model import Instance, MarkerSites, Rig
+from annotator.dataset.model import FLIP_HORIZONTAL, Instance, MarkerSites, Rig
 from annotator.io.atomic import write_text
 from annotator.symmetry.classes import Symmetry, symmetry_to_yaml
 
@@ -31,6 +31,7 @@ def rig_to_yaml(rig: Rig) -> dict[str, Any]:
             "K": _floats(c.K),
             "dist": _floats(c.dist),
             "rig_T_cam": _floats(c.rig_T_cam),
+            **({"flip": FLIP_HORIZONTAL} if c.name in rig.flipped else {}),
         }
         for c in rig.cameras
     ]

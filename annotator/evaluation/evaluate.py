@@ -15,6 +15,9 @@ from typing import Any
 from annotator.evaluation.metrics import SceneCurve, Summary, scene_curve, summarise
 from annotator.formats.base import GroundTruth, PoseSet, Results
 
+#: The paper's match threshold: a tenth of the diameter.
+DEFAULT_THRESHOLD_FRACTION = 0.1
+
 
 @dataclass(frozen=True)
 class Options:
@@ -23,16 +26,17 @@ class Options:
     Attributes:
         max_occlusion: True poses up to this occlusion rate (inclusive) are to find.
         max_results: The n of each AP_n.
-        threshold_mm: Match threshold; default: the dataset's own (the paper's files carry
-            one), else ``threshold_fraction`` times the object's diameter.
-        threshold_fraction: See ``threshold_mm``.
+        threshold_mm: Match threshold in mm for every object.
+        threshold_fraction: Match threshold as a fraction of each object's diameter. With
+            neither, the dataset's own threshold where it has one (the paper's files carry
+            one), else :data:`DEFAULT_THRESHOLD_FRACTION` of the diameter.
         only_scenes_with_results: Score only the scenes the results mention.
     """
 
     max_occlusion: float = 0.5
     max_results: tuple[int, ...] = (1, 3)
     threshold_mm: float | None = None
-    threshold_fraction: float = 0.1
+    threshold_fraction: float | None = None
     only_scenes_with_results: bool = False
 
 
@@ -79,10 +83,12 @@ def thresholds_for(gt: GroundTruth, options: Options) -> dict[str, float]:
     for name, sp in gt.spaces.items():
         if options.threshold_mm is not None:
             out[name] = options.threshold_mm
+        elif options.threshold_fraction is not None:
+            out[name] = options.threshold_fraction * sp.diameter
         elif name in gt.thresholds:
             out[name] = gt.thresholds[name]
         else:
-            out[name] = options.threshold_fraction * sp.diameter
+            out[name] = DEFAULT_THRESHOLD_FRACTION * sp.diameter
     return out
 
 

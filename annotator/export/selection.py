@@ -3,6 +3,10 @@
 By default only *accepted* scenes whose decision is not stale (the annotation has not changed
 since) and that have no rejected instance are exported; ``include_pending`` adds undecided
 scenes, ``drop_rejected_instances`` exports scenes with rejected instances without them.
+
+Poses a reviewer repaired in the viewer (review.json ``poses``) replace annotation.json's,
+and instances added by hand are exported with the others; a scene with a stale edit (made
+on an auto pose that ``annotate`` has changed since) is left out, as a stale decision is.
 """
 
 from __future__ import annotations
@@ -11,7 +15,7 @@ from dataclasses import dataclass, field
 
 from annotator.dataset import Dataset, InstancePose, Scene
 from annotator.dataset.poses import read_poses
-from annotator.dataset.review import poses_fingerprint, read_review
+from annotator.dataset.review import apply_edits, poses_fingerprint, read_review
 from annotator.errors import UserError
 
 
@@ -67,6 +71,12 @@ def select_scenes(
         if status == "pending" and not include_pending:
             sel.skipped[scene.id] = "pending"
             continue
+        if poses_from == "annotation":
+            edits = apply_edits(poses, review)
+            if edits.stale:
+                sel.skipped[scene.id] = "stale pose edit (annotation changed since)"
+                continue
+            poses = edits.poses
         rejected = {k for k, v in (review.instances if review else {}).items() if v == "rejected"}
         if rejected and not drop_rejected_instances:
             sel.skipped[scene.id] = "has a rejected instance"

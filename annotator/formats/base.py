@@ -183,7 +183,7 @@ def checked_poses(
         ok = np.zeros(n, bool)
     if not ok.all():
         for i in np.flatnonzero(~ok):
-            checked_pose(Rs[i], ts[i], where(i), path, scale=scale)  # raises for the culprit
+            checked_pose(Rs[i], ts[i], where(int(i)), path, scale=scale)  # raises for the culprit
         raise AssertionError("unreachable: a pose failed the batch check but not its own")
     R, projected = projected_rotations(R)
     return R, t, projected

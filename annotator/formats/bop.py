@@ -34,7 +34,7 @@ import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -52,6 +52,10 @@ from annotator.formats.base import (
 from annotator.geometry.transforms import is_rotation
 from annotator.io.documents import read_json
 
+if TYPE_CHECKING:
+    from annotator.dataset import Dataset
+    from annotator.export.selection import Selected
+
 NAME = "bop"
 
 
@@ -62,145 +66,21 @@ def detect(path: Path) -> bool:
 # -------------------------------------------------------------------------------- export
 
 
-def models_info(obj: Any) -> dict[str, Any]:
-    """A models_info.json entry: diameter (largest vertex distance), min/size, symmetries."""
-    from scipy.spatial import ConvexHull
-
-    from annotator.symmetry.classes import symmetry_to_bop
-
-    v = obj.mesh.vertices
-    hull = v[ConvexHull(v).vertices]
-    d = np.sqrt(((hull[:, None] - hull[None]) ** 2).sum(-1)).max()
-    lo, hi = v.min(axis=0), v.max(axis=0)
-    info: dict[str, Any] = {
-        "diameter": float(d),
-        "min_x": float(lo[0]),
-        "min_y": float(lo[1]),
-        "min_z": float(lo[2]),
-        "size_x": float(hi[0] - lo[0]),
-        "size_y": float(hi[1] - lo[1]),
-        "size_z": float(hi[2] - lo[2]),
-    }
-    info.update(symmetry_to_bop(obj.symmetry, obj.mesh.moments.centroid))
-    return info
-
-
 def export(
-    ds: Any,
-    selected: Sequence[Any],
+    ds: Dataset,
+    selected: Sequence[Selected],
     out: Path,
     *,
     cameras: Sequence[str],
     progress: Callable[[], None] | None = None,
+    layout: str = "scenewise",
 ) -> dict[str, str]:
-    """Write ``selected`` scenes into the empty folder ``out``; returns the scenes left out
-    because an input was unreadable (scene id -> one-line reason)."""
-    from annotator.export.inputs import read_scene_inputs
-    from annotator.export.undistort import pinhole_rig
-    from annotator.io.atomic import write_json
-    from annotator.io.images import encode_depth, write_png
-    from annotator.io.ply import write_ply
-    from annotator.occlusion import scene_visibility
+    """Write ``selected`` scenes into the empty folder ``out`` (see
+    :func:`annotator.formats.bop_export.export_bop`, imported only here so that reading BOP
+    files does not load the renderer)."""
+    from annotator.formats.bop_export import export_bop
 
-    obj_ids = {name: k + 1 for k, name in enumerate(ds.objects)}
-    info = {}
-    for name, oid in obj_ids.items():
-        write_ply(out / "models" / f"obj_{oid:06d}.ply", ds.objects[name].mesh)
-        info[str(oid)] = models_info(ds.objects[name])
-    write_json(out / "models" / "models_info.json", info)
-    rig = pinhole_rig(ds.rig)
-    multi = len(cameras) > 1
-    depth_scale = ds.rig.depth.scale if ds.rig.depth else 1.0
-    for name in cameras:
-        K = rig.camera(name).K
-        write_json(
-            out / f"camera{_suffix(name, multi)}.json",
-            {
-                "width": rig.camera(name).width,
-                "height": rig.camera(name).height,
-                "fx": K[0, 0],
-                "fy": K[1, 1],
-                "cx": K[0, 2],
-                "cy": K[1, 2],
-                "depth_scale": depth_scale,
-            },
-        )
-    ids: dict[str, str] = {}
-    failed: dict[str, str] = {}
-    for item in selected:
-        try:
-            inputs = read_scene_inputs(ds, item.scene, cameras)
-        except UserError as exc:
-            failed[item.scene.id] = str(exc)
-            if progress:
-                progress()
-            continue
-        bop_id = f"{len(ids):06d}"
-        ids[bop_id] = item.scene.id
-        scene_dir = out / "test" / bop_id
-        depth = inputs.depth
-        meshes = [ds.objects[p.object].mesh for p in item.poses]
-        vis = scene_visibility(
-            rig, meshes, [p.T for p in item.poses], depth=depth, cameras=cameras, masks=True
-        )
-        for ci, name in enumerate(cameras):
-            sfx = _suffix(name, multi)
-            cam = rig.camera(name)
-            img = inputs.images[name]
-            write_png(scene_dir / f"{'gray' if img.ndim == 2 else 'rgb'}{sfx}" / "000000.png", img)
-            has_depth = depth is not None and name == ds.rig.depth.camera
-            if has_depth:
-                write_png(
-                    scene_dir / f"depth{sfx}" / "000000.png", encode_depth(depth, depth_scale)
-                )
-            gts, infos = [], []
-            for k, (p, v) in enumerate(zip(item.poses, vis)):
-                cv = v.cameras[ci]
-                M = cam.cam_T_rig @ p.T
-                gts.append(
-                    {
-                        "cam_R_m2c": M[:3, :3].ravel().tolist(),
-                        "cam_t_m2c": M[:3, 3].tolist(),
-                        "obj_id": obj_ids[p.object],
-                    }
-                )
-                valid = int(np.sum(cv.mask_all & np.isfinite(depth))) if has_depth else cv.px_all
-                infos.append(
-                    {
-                        "bbox_obj": list(cv.bbox_all) if cv.bbox_all else [-1, -1, -1, -1],
-                        "bbox_visib": list(cv.bbox_visib) if cv.bbox_visib else [-1, -1, -1, -1],
-                        "px_count_all": cv.px_all,
-                        "px_count_valid": valid,
-                        "px_count_visib": int(cv.mask_visib.sum()),
-                        "visib_fract": float(cv.mask_visib.sum() / cv.px_all) if cv.px_all else 0.0,
-                    }
-                )
-                write_png(
-                    scene_dir / f"mask{sfx}" / f"000000_{k:06d}.png",
-                    cv.mask_all.astype(np.uint8) * 255,
-                )
-                write_png(
-                    scene_dir / f"mask_visib{sfx}" / f"000000_{k:06d}.png",
-                    cv.mask_visib.astype(np.uint8) * 255,
-                )
-            cam_rec: dict[str, Any] = {
-                "cam_K": cam.K.ravel().tolist(),
-                "cam_R_w2c": cam.cam_T_rig[:3, :3].ravel().tolist(),
-                "cam_t_w2c": cam.cam_T_rig[:3, 3].tolist(),
-            }
-            if has_depth:
-                cam_rec["depth_scale"] = depth_scale
-            write_json(scene_dir / f"scene_camera{sfx}.json", {"0": cam_rec})
-            write_json(scene_dir / f"scene_gt{sfx}.json", {"0": gts})
-            write_json(scene_dir / f"scene_gt_info{sfx}.json", {"0": infos})
-        if progress:
-            progress()
-    write_json(out / "test" / "scene_ids.json", ids)
-    return failed
-
-
-def _suffix(name: str, multi: bool) -> str:
-    return f"_{name}" if multi else ""
+    return export_bop(ds, selected, out, cameras=cameras, progress=progress, layout=layout)
 
 
 # ------------------------------------------------------------------------- ground truth
@@ -229,16 +109,15 @@ def read_ground_truth(path: Path, *, symmetry: str | None = None) -> GroundTruth
         notes += [f"{info_path}: object {key}: {line}" for line in snapped]
         mesh = load_mesh(path / "models" / f"{name}.ply")
         spaces[name] = PoseSpace.from_moments(mesh.moments, sym)
+        notes += [
+            f"{info_path}: object {key}: {line}"
+            for line in off_centre(entry, mesh.moments.centroid, float(spaces[name].diameter))
+        ]
     table: Table = {}
     scenes = []
     projected = total = 0
     for scene_dir in sorted({p.parent for p in path.glob("*/*/scene_gt*.json")}):
-        sensors = sorted(
-            p.name[len("scene_gt") : -len(".json")]
-            for p in scene_dir.glob("scene_gt*.json")
-            if not p.name.startswith("scene_gt_info")
-        )
-        sfx = "" if "" in sensors else sensors[0]
+        sfx = evaluated_sensor(scene_dir)
         gt = read_json(scene_dir / f"scene_gt{sfx}.json")
         gi_path = scene_dir / f"scene_gt_info{sfx}.json"
         gi = read_json(gi_path) if gi_path.exists() else {}
@@ -275,6 +154,49 @@ def read_ground_truth(path: Path, *, symmetry: str | None = None) -> GroundTruth
         )
         return GroundTruth(spaces, table, scenes, NAME, "mm", names, notes=notes, targets=pairs)
     return GroundTruth(spaces, table, scenes, NAME, "mm", names, notes=notes)
+
+
+#: A listed symmetry whose axis misses the surface centroid by more than this fraction of the
+#: diameter is said in the header (the paper's distance takes every axis through the centroid,
+#: where a rigid part's symmetry axes must pass).
+OFF_CENTRE_FRACTION = 0.01
+
+
+def off_centre(entry: dict[str, Any], centroid: np.ndarray, diameter: float) -> list[str]:
+    """Header lines for the symmetries of a models_info.json entry whose axis (continuous:
+    through ``offset``; discrete: the points ``R x + t`` leaves in place) passes farther than
+    :data:`OFF_CENTRE_FRACTION` of the diameter from the surface centroid."""
+    lines = []
+    for k, c in enumerate(entry.get("symmetries_continuous") or []):
+        axis = np.asarray(c.get("axis"), float)
+        axis = axis / np.linalg.norm(axis)
+        d = np.asarray(c.get("offset", [0, 0, 0]), float) - centroid
+        miss = float(np.linalg.norm(d - (d @ axis) * axis))
+        if miss > OFF_CENTRE_FRACTION * diameter:
+            lines.append(
+                f"symmetries_continuous[{k}]: its axis (through offset) passes {miss:.2f} mm "
+                "from the surface centroid; taken through the centroid"
+            )
+    for k, m in enumerate(entry.get("symmetries_discrete") or []):
+        M = np.asarray(m, float).reshape(4, 4)
+        miss = float(np.linalg.norm(M[:3, :3] @ centroid + M[:3, 3] - centroid))
+        if miss > OFF_CENTRE_FRACTION * diameter:
+            lines.append(
+                f"symmetries_discrete[{k}] moves the surface centroid by {miss:.2f} mm; taken "
+                "as the same rotation about the centroid"
+            )
+    return lines
+
+
+def evaluated_sensor(scene_dir: Path) -> str:
+    """The file suffix of the sensor a scene is evaluated on: ``""`` for the classic
+    single-sensor layout, else the first sensor by name (``_<sensor>``)."""
+    sensors = sorted(
+        p.name[len("scene_gt") : -len(".json")]
+        for p in scene_dir.glob("scene_gt*.json")
+        if not p.name.startswith(("scene_gt_info", "scene_gt_coco"))
+    )
+    return "" if "" in sensors or not sensors else sensors[0]
 
 
 #: BOP's lists of what is to be found, in the order they are looked for at the dataset's
@@ -336,6 +258,34 @@ def read_csv_results(
     seconds; any other file, or one that numpy cannot take, is read cell by cell, which
     names the first bad line as :func:`checked_pose` and :func:`checked_score` do.
     """
+    rows, numbers, objects, R, t, projected = read_csv_rows(path, gt)
+    keys: dict[tuple[str, int], str] = {}
+    groups: dict[tuple[str, str], list[int]] = {}
+    known = set(gt.scenes)
+    unknown: list[str] = []
+    for i, (sid, im, obj) in enumerate(zip(rows.scene_ids, rows.im_ids.tolist(), objects)):
+        key = keys.get((sid, im))
+        if key is None:
+            try:
+                key = keys[(sid, im)] = scene_key(sid, im)
+            except ValueError:
+                raise UserError(
+                    f"line {numbers[i]}: malformed scene_id {sid!r}", path=path
+                ) from None
+            if key not in known and key not in unknown:
+                unknown.append(key)
+        if key in known:
+            groups.setdefault((key, obj), []).append(i)
+    table: Table = {g: PoseSet.of(R[i], t[i], rows.scores[i]) for g, i in groups.items()}
+    return Results(table, unknown, notes=projected_note(projected, len(R), path.name))
+
+
+def read_csv_rows(
+    path: Path, gt: GroundTruth
+) -> tuple[CsvRows, list[int], list[str], np.ndarray, np.ndarray, int]:
+    """A results CSV's rows as written, checked: the rows, their line numbers, object names,
+    rotations (near-rotations projected), translations and how many were projected (see
+    :func:`read_csv_results`)."""
     if not path.is_file():
         raise UserError("results file or folder is missing", path=path)
     try:
@@ -364,29 +314,11 @@ def read_csv_results(
         # line is named with what is really wrong with it.
         rows = _cell_rows(lines, numbers, index, path)
         objects, R, t, projected = _checked(rows, numbers, gt, path)
-    keys: dict[tuple[str, int], str] = {}
-    groups: dict[tuple[str, str], list[int]] = {}
-    known = set(gt.scenes)
-    unknown: list[str] = []
-    for i, (sid, im, obj) in enumerate(zip(rows.scene_ids, rows.im_ids.tolist(), objects)):
-        key = keys.get((sid, im))
-        if key is None:
-            try:
-                key = keys[(sid, im)] = scene_key(sid, im)
-            except ValueError:
-                raise UserError(
-                    f"line {numbers[i]}: malformed scene_id {sid!r}", path=path
-                ) from None
-            if key not in known and key not in unknown:
-                unknown.append(key)
-        if key in known:
-            groups.setdefault((key, obj), []).append(i)
-    table: Table = {g: PoseSet.of(R[i], t[i], rows.scores[i]) for g, i in groups.items()}
-    return Results(table, unknown, notes=projected_note(projected, len(R), path.name))
+    return rows, numbers, objects, R, t, projected
 
 
 def _checked(
-    rows: _Rows, numbers: list[int], gt: GroundTruth, path: Path
+    rows: CsvRows, numbers: list[int], gt: GroundTruth, path: Path
 ) -> tuple[list[str], np.ndarray, np.ndarray, int]:
     """The rows' object names and poses, checked (the first bad line is named), and how
     many rotations were projected."""
@@ -399,7 +331,7 @@ def _checked(
 
 
 @dataclass
-class _Rows:
+class CsvRows:
     """The columns of a results CSV, one entry per data line."""
 
     scene_ids: Sequence[str]
@@ -415,7 +347,7 @@ class _Rows:
 _WIDTHS = {"R": 9, "t": 3}
 
 
-def _numeric_rows(lines: list[str], numbers: list[int], header: list[str] | None) -> _Rows | None:
+def _numeric_rows(lines: list[str], numbers: list[int], header: list[str] | None) -> CsvRows | None:
     """The rows of a file made of numbers only, parsed by numpy; None if it is not one (the
     cell-by-cell reader then reads it and names what is wrong)."""
     names = header or list(CSV_COLUMNS)
@@ -447,7 +379,7 @@ def _numeric_rows(lines: list[str], numbers: list[int], header: list[str] | None
     if not np.all(np.isfinite(col("score"))):
         return None  # named with the cell's own text
     ids = ids.astype(np.int64)
-    return _Rows(
+    return CsvRows(
         scene_ids=_as_text(ids[:, 0]),
         im_ids=ids[:, 1],
         objects=_as_text(ids[:, 2]),
@@ -463,7 +395,7 @@ def _as_text(values: np.ndarray) -> Sequence[str]:
     return np.array([str(v) for v in unique], dtype=object)[inverse.reshape(-1)].tolist()
 
 
-def _cell_rows(lines: list[str], numbers: list[int], index: dict[str, int], path: Path) -> _Rows:
+def _cell_rows(lines: list[str], numbers: list[int], index: dict[str, int], path: Path) -> CsvRows:
     """The rows read cell by cell; the first bad line is named."""
     table = list(csv.reader(lines[n - 1] for n in numbers))
     width = max(index.values()) + 1
@@ -476,7 +408,7 @@ def _cell_rows(lines: list[str], numbers: list[int], index: dict[str, int], path
         return [row[i].strip() for row in table]
 
     scores = column("score")
-    return _Rows(
+    return CsvRows(
         scene_ids=column("scene_id"),
         im_ids=_parsed(column("im_id"), numbers, path, int, "malformed number"),
         objects=column("obj_id"),
@@ -529,7 +461,9 @@ def _vectors(cells: list[str], numbers: list[int], path: Path) -> list[list[floa
         raise
 
 
-def _object_names(cells: list[str], numbers: list[int], gt: GroundTruth, path: Path) -> list[str]:
+def _object_names(
+    cells: Sequence[str], numbers: list[int], gt: GroundTruth, path: Path
+) -> list[str]:
     """Object names for ``obj_id`` cells (numbers through ``gt.object_ids``, or names)."""
     names: dict[str, str] = {}
     out = []

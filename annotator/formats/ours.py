@@ -1,11 +1,13 @@
 """Our own dataset format (docs/FORMAT.md) as ground truth and results for the evaluation.
 
-- Ground truth: ``scenes/<id>/gt.json``, or ``annotation.json`` when a scene has no gt.json;
+- Ground truth: ``scenes/<id>/gt.json``, or ``annotation.json`` when a scene has no gt.json
+  (with the poses a reviewer repaired in review.json applied, see
+  :func:`annotator.dataset.review.apply_edits`);
   occlusion from each instance's ``occlusion.rate`` (or ``occlusion_rate``); symmetries from
   object.yaml (see :mod:`annotator.symmetry.classes`). Millimetres.
 - Results: a folder of ``<scene>.json`` lists (millimetres), a BOP CSV (see
   :mod:`annotator.formats.bop`), or, with no results given, the dataset's own annotation.json
-  poses (how good is the auto-annotation against gt.json).
+  poses, repaired ones applied (how good is the annotation against gt.json).
 
 The dataset itself is written by ``annotator synth`` and ``annotator markers``
 (:mod:`annotator.dataset.write`); there is no export to this format.
@@ -47,7 +49,10 @@ def read_ground_truth(path: Path, *, symmetry: str | None = None) -> GroundTruth
         if not src.exists():
             continue
         scenes.append(sc.id)
-        for i, p in enumerate(read_poses(src)):
+        poses = read_poses(src)
+        if src == sc.annotation_path:
+            poses = _edited(poses, sc.review_path)
+        for i, p in enumerate(poses):
             if p.object not in spaces:
                 raise UserError(
                     f"instances[{i}]: unknown object {p.object!r} (objects: {', '.join(spaces)})",
@@ -56,6 +61,13 @@ def read_ground_truth(path: Path, *, symmetry: str | None = None) -> GroundTruth
             table.setdefault((sc.id, p.object), PoseSet()).add(p.R, p.t, _occlusion(p.extra))
     ids = {k + 1: n for k, n in enumerate(ds.objects)}
     return GroundTruth(spaces, table, scenes, NAME, "mm", ids)
+
+
+def _edited(poses: list, review_path: Path) -> list:
+    """``poses`` with the current edits of review.json (if any) applied."""
+    from annotator.dataset.review import apply_edits, read_review
+
+    return apply_edits(poses, read_review(review_path)).poses
 
 
 def read_results(path: Path, gt: GroundTruth) -> Results:
@@ -79,7 +91,8 @@ def _scene_key(scene_id: str, gt: GroundTruth) -> str:
 
 
 def annotations_as_results(root: Path, gt: GroundTruth) -> Results:
-    """annotation.json poses as results, scored ``1 / (1 + uncertainty_mm)``."""
+    """annotation.json poses (repaired ones applied) as results, scored ``1 / (1 +
+    uncertainty_mm)`` (an instance added by hand has none: score 0)."""
     from annotator.annotation.record import SceneAnnotation
     from annotator.dataset import load_dataset
 
@@ -88,8 +101,9 @@ def annotations_as_results(root: Path, gt: GroundTruth) -> Results:
     for sc in ds.scenes():
         if not sc.annotation_path.exists():
             continue
-        for i in SceneAnnotation.read(sc.annotation_path).instances:
-            unc = i.uncertainty_mm
+        instances = SceneAnnotation.read(sc.annotation_path).instances
+        for i in _edited(instances, sc.review_path):
+            unc = getattr(i, "uncertainty_mm", None)
             score = 1.0 / (1.0 + float(unc)) if unc is not None else 0.0
             table.setdefault((sc.id, i.object), PoseSet()).add(i.R, i.t, score)
     return Results(table)

@@ -213,7 +213,7 @@ def export(
                 enc = np.where(np.isfinite(z), np.round(enc), 65535).astype(np.uint16)
                 write_png(folder / "depth" / f"{sid}.PNG", enc)
             seg = np.full((ref.height, ref.width), NO_SEGMENT, np.uint8)
-            gt = []
+            gt: list[dict[str, Any]] = []
             for p, v in zip(item.poses, vis):
                 if p.object != name:
                     continue

@@ -74,9 +74,25 @@ class Mesh:
     def is_watertight(self) -> bool:
         """True if every edge is shared by exactly two triangles once coincident vertices
         are merged (a closed surface)."""
-        import trimesh
+        # trimesh's rule (vertices merged to 8 decimals, every edge in exactly two faces),
+        # without importing trimesh at start-up
+        _, merged = np.unique(np.round(self.vertices, 8), axis=0, return_inverse=True)
+        f = merged.reshape(-1)[self.faces]
+        edges = np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1)
+        _, counts = np.unique(edges, axis=0, return_counts=True)
+        return bool(len(counts) and np.all(counts == 2))
 
-        return bool(trimesh.Trimesh(self.vertices, self.faces, process=True).is_watertight)
+    def distance_to_surface(self, points: np.ndarray) -> np.ndarray:
+        """(N,) distance in mm from each of ``points`` (N, 3) to the nearest point of the
+        surface (:func:`closest_on_triangles`), in chunks to bound memory."""
+        pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+        out = np.empty(len(pts))
+        step = max(1, 4_000_000 // max(1, len(self.faces)))
+        for i in range(0, len(pts), step):
+            p = pts[i : i + step]
+            q = closest_on_triangles(p[:, None, :], self.triangles[None])
+            out[i : i + step] = np.sqrt(((q - p[:, None, :]) ** 2).sum(-1)).min(axis=1)
+        return out
 
     def to_trimesh(self):  # noqa: ANN201 - trimesh is imported lazily
         """This mesh as a ``trimesh.Trimesh`` (no processing)."""
@@ -158,8 +174,6 @@ def load_mesh(path: str | Path) -> Mesh:
     Raises:
         UserError: naming the file, if it is missing, unreadable or has no triangles.
     """
-    import trimesh
-
     path = Path(path)
     if not path.is_file():
         raise UserError("mesh file is missing", path=path)
@@ -168,16 +182,72 @@ def load_mesh(path: str | Path) -> Mesh:
             f"not a mesh file type this tool reads ({', '.join(MESH_SUFFIXES)})", path=path
         )
     try:
-        loaded = trimesh.load(path, force="mesh", process=False)
-    except Exception as exc:  # trimesh raises many types for corrupt files
+        if path.suffix.lower() == ".ply":
+            vertices, faces = _read_ply(path)
+        else:
+            import trimesh
+
+            loaded = trimesh.load(path, force="mesh", process=False)
+            faces = np.asarray(getattr(loaded, "faces", np.zeros((0, 3))), dtype=np.int32)
+            vertices = np.asarray(getattr(loaded, "vertices", np.zeros((0, 3))), dtype=np.float64)
+    except Exception as exc:  # the readers raise many types for corrupt files
         raise UserError(
             f"unreadable mesh ({type(exc).__name__}: {exc})".split("\n")[0], path=path
         ) from None
-    faces = np.asarray(getattr(loaded, "faces", np.zeros((0, 3))), dtype=np.int32)
-    vertices = np.asarray(getattr(loaded, "vertices", np.zeros((0, 3))), dtype=np.float64)
     if faces.ndim != 2 or faces.shape[0] == 0 or faces.shape[1] != 3:
         raise UserError("mesh has no triangles", path=path)
     mesh = Mesh(vertices=vertices, faces=faces)
     if mesh.face_areas.sum() <= 0 or not np.all(np.isfinite(vertices)):
         raise UserError("mesh is degenerate (zero area or non-finite vertices)", path=path)
     return mesh
+
+
+def closest_on_triangles(p: np.ndarray, tri: np.ndarray) -> np.ndarray:
+    """The point of each triangle nearest to ``p``: ``p`` (..., 3) and ``tri`` (..., 3, 3)
+    broadcast together; by the Voronoi regions of the vertices, edges and face (Ericson,
+    *Real-Time Collision Detection*, 5.1.5)."""
+    a, b, c = tri[..., 0, :], tri[..., 1, :], tri[..., 2, :]
+    ab, ac, ap = b - a, c - a, p - a
+    d1, d2 = (ab * ap).sum(-1), (ac * ap).sum(-1)
+    bp = p - b
+    d3, d4 = (ab * bp).sum(-1), (ac * bp).sum(-1)
+    cp = p - c
+    d5, d6 = (ab * cp).sum(-1), (ac * cp).sum(-1)
+    va, vb, vc = d3 * d6 - d5 * d4, d5 * d2 - d1 * d6, d1 * d4 - d3 * d2
+    with np.errstate(divide="ignore", invalid="ignore"):
+        denom = va + vb + vc
+        v, w = vb / denom, vc / denom
+        out = a + ab * v[..., None] + ac * w[..., None]  # inside the face
+        t_ab = d1 / (d1 - d3)
+        t_ac = d2 / (d2 - d6)
+        t_bc = (d4 - d3) / ((d4 - d3) + (d5 - d6))
+    regions = [  # later regions win, as the early returns of the original do
+        ((va <= 0) & (d4 - d3 >= 0) & (d5 - d6 >= 0), b + (c - b) * t_bc[..., None]),
+        ((vb <= 0) & (d2 >= 0) & (d6 <= 0), a + ac * t_ac[..., None]),
+        ((d6 >= 0) & (d5 <= d6), c),
+        ((vc <= 0) & (d1 >= 0) & (d3 <= 0), a + ab * t_ab[..., None]),
+        ((d3 >= 0) & (d4 <= d3), b),
+        ((d1 <= 0) & (d2 <= 0), a),
+    ]
+    for where, point in regions:
+        out = np.where(where[..., None], np.broadcast_to(point, out.shape), out)
+    return out
+
+
+def _read_ply(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """Vertices and triangles of a PLY file (ASCII or binary) as written, polygons split
+    into fans as trimesh splits them. plyfile reads it: a PLY needs no more, and trimesh
+    costs a second of start-up."""
+    from plyfile import PlyData
+
+    ply = PlyData.read(str(path))
+    v = ply["vertex"]
+    vertices = np.column_stack([v["x"], v["y"], v["z"]]).astype(np.float64)
+    if "face" not in ply or not len(ply["face"].properties):
+        return vertices, np.zeros((0, 3), np.int32)
+    face = ply["face"]
+    polygons = face[face.properties[0].name]
+    if len(polygons) and all(len(q) == 3 for q in polygons):
+        return vertices, np.asarray(np.stack(polygons), np.int32)
+    fans = [[q[0], q[k], q[k + 1]] for q in polygons for k in range(1, len(q) - 1)]
+    return vertices, np.asarray(fans, np.int32).reshape(-1, 3)

@@ -4,8 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 
-# scipy.spatial is imported inside the functions that need it: it costs a third of a second,
-# which commands such as ``evaluate`` would otherwise pay at start-up.
+# scipy.spatial costs more than half a second to import, which commands such as ``check`` and
+# ``evaluate`` would pay at start-up: the rotation conversions are written here, and only
+# random_rotations imports it.
 
 
 def make_transform(R: np.ndarray, t: np.ndarray) -> np.ndarray:
@@ -44,17 +45,83 @@ def nearest_rotation(M: np.ndarray) -> np.ndarray:
 
 
 def rotvec_to_matrix(rotvec: np.ndarray) -> np.ndarray:
-    """Rotation vector (axis * angle, shape (..., 3)) to rotation matrices (..., 3, 3)."""
-    from scipy.spatial.transform import Rotation
-
-    return Rotation.from_rotvec(np.asarray(rotvec, dtype=float)).as_matrix()
+    """Rotation vector (axis * angle, shape (..., 3)) to rotation matrices (..., 3, 3), by
+    Rodrigues' formula (series near zero)."""
+    r = np.asarray(rotvec, dtype=float)
+    theta = np.linalg.norm(r, axis=-1)[..., None, None]
+    small = theta < 1e-4
+    t2 = theta**2
+    with np.errstate(invalid="ignore", divide="ignore"):
+        a = np.where(small, 1.0 - t2 / 6.0, np.sin(theta) / theta)
+        b = np.where(small, 0.5 - t2 / 24.0, (1.0 - np.cos(theta)) / t2)
+    K = np.zeros(r.shape[:-1] + (3, 3))
+    K[..., 0, 1], K[..., 0, 2], K[..., 1, 2] = -r[..., 2], r[..., 1], -r[..., 0]
+    K[..., 1, 0], K[..., 2, 0], K[..., 2, 1] = r[..., 2], -r[..., 1], r[..., 0]
+    return np.eye(3) + a * K + b * (K @ K)
 
 
 def matrix_to_rotvec(R: np.ndarray) -> np.ndarray:
-    """Rotation matrices (..., 3, 3) to rotation vectors (..., 3)."""
-    from scipy.spatial.transform import Rotation
-
-    return Rotation.from_matrix(np.asarray(R, dtype=float)).as_rotvec()
+    """Rotation matrices (..., 3, 3) to rotation vectors (..., 3), angles in [0, pi], through
+    the quaternion (Shepperd: from its largest component, for accuracy)."""
+    R = np.asarray(R, dtype=float)
+    r = {(i, j): R[..., i, j] for i in range(3) for j in range(3)}
+    tr = r[0, 0] + r[1, 1] + r[2, 2]
+    big = np.stack(
+        [1.0 + 2.0 * r[0, 0] - tr, 1.0 + 2.0 * r[1, 1] - tr, 1.0 + 2.0 * r[2, 2] - tr, 1.0 + tr], -1
+    )
+    h = np.sqrt(np.maximum(big, 1e-300)) / 2.0  # each candidate's largest component
+    d = 4.0 * h
+    candidates = np.stack(  # (x, y, z, w) from x, from y, from z, from w
+        [
+            np.stack(
+                [
+                    h[..., 0],
+                    (r[0, 1] + r[1, 0]) / d[..., 0],
+                    (r[0, 2] + r[2, 0]) / d[..., 0],
+                    (r[2, 1] - r[1, 2]) / d[..., 0],
+                ],
+                -1,
+            ),
+            np.stack(
+                [
+                    (r[0, 1] + r[1, 0]) / d[..., 1],
+                    h[..., 1],
+                    (r[1, 2] + r[2, 1]) / d[..., 1],
+                    (r[0, 2] - r[2, 0]) / d[..., 1],
+                ],
+                -1,
+            ),
+            np.stack(
+                [
+                    (r[0, 2] + r[2, 0]) / d[..., 2],
+                    (r[1, 2] + r[2, 1]) / d[..., 2],
+                    h[..., 2],
+                    (r[1, 0] - r[0, 1]) / d[..., 2],
+                ],
+                -1,
+            ),
+            np.stack(
+                [
+                    (r[2, 1] - r[1, 2]) / d[..., 3],
+                    (r[0, 2] - r[2, 0]) / d[..., 3],
+                    (r[1, 0] - r[0, 1]) / d[..., 3],
+                    h[..., 3],
+                ],
+                -1,
+            ),
+        ],
+        -2,
+    )
+    pick = np.argmax(big, axis=-1)[..., None, None]
+    q = np.take_along_axis(candidates, pick, axis=-2)[..., 0, :]
+    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    q = np.where(q[..., 3:4] < 0, -q, q)  # w >= 0: angles up to pi
+    v = q[..., :3]
+    s = np.linalg.norm(v, axis=-1)
+    angle = 2.0 * np.arctan2(s, q[..., 3])
+    with np.errstate(invalid="ignore", divide="ignore"):
+        scale = np.where(s < 1e-12, 2.0, angle / s)
+    return v * scale[..., None]
 
 
 def axis_angle(axis: np.ndarray, angle: float) -> np.ndarray:

@@ -8,26 +8,13 @@ and row ``t * pixels`` (pixel *edges*, so pixel ``(i, j)`` covers ``s in [i, i+1
 
 from __future__ import annotations
 
-from functools import lru_cache
-
 import cv2
 import numpy as np
 
 from annotator.errors import UserError
+from annotator.markers.dictionary import dictionary, dictionary_size
 
-
-@lru_cache(maxsize=8)
-def dictionary(name: str) -> cv2.aruco.Dictionary:
-    """The OpenCV predefined ArUco dictionary called ``name`` (e.g. ``DICT_4X4_1000``)."""
-    code = getattr(cv2.aruco, name, None)
-    if not name.startswith("DICT_") or not isinstance(code, int):
-        raise UserError(f"unknown ArUco dictionary {name!r}")
-    return cv2.aruco.getPredefinedDictionary(code)
-
-
-def dictionary_size(name: str) -> int:
-    """How many distinct markers the dictionary has."""
-    return int(dictionary(name).bytesList.shape[0])
+__all__ = ["dictionary", "dictionary_size", "marker_bits", "marker_image"]
 
 
 def marker_bits(name: str, marker_id: int) -> np.ndarray:

@@ -36,6 +36,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from annotator.dataset.model import Rig
+from annotator.geometry.camera import Camera
 from annotator.geometry.mesh import Mesh
 from annotator.rendering.raycast import (
     Hits,
@@ -46,19 +47,25 @@ from annotator.rendering.raycast import (
     projected_bbox,
 )
 
-Box = tuple[int, int, int, int]
+#: A box as BOP writes it: ``(x, y, width, height)`` of the pixels it covers. The rectangles
+#: cast over are :data:`annotator.rendering.raycast.Rect`, ``(x0, y0, x1, y1)`` end exclusive.
+XYWH = tuple[int, int, int, int]
+
+#: How much closer (mm) a measurement must be than the rendered part to hide a pixel of it:
+#: several times the sensor noise.
+DEPTH_TOLERANCE_MM = 5.0
 
 
 @dataclass
 class CameraVisibility:
-    """One instance in one camera. Boxes are ``(x, y, w, h)`` (BOP's convention)."""
+    """One instance in one camera; boxes are :data:`XYWH`."""
 
     camera: str
     px_all: int
     px_visib: int
     px_visib_depth: int | None
-    bbox_all: Box | None
-    bbox_visib: Box | None
+    bbox_all: XYWH | None
+    bbox_visib: XYWH | None
     occlusion: float
     occlusion_depth: float | None
     mask_all: np.ndarray | None = None
@@ -82,7 +89,7 @@ class InstanceVisibility:
 AGREEMENT_TOLERANCE_MM = 3.0
 
 
-def _on_grid(box: Box | None, step: int) -> Box | None:
+def _on_grid(box: Rect | None, step: int) -> Rect | None:
     """A pixel rectangle ``(x0, y0, x1, y1)`` as the range of grid samples ``pixel / step``
     inside it; None if it holds no sample."""
     if box is None:
@@ -91,7 +98,7 @@ def _on_grid(box: Box | None, step: int) -> Box | None:
     return None if g[0] >= g[2] or g[1] >= g[3] else g  # type: ignore[return-value]
 
 
-def _bbox(mask: np.ndarray, x0: int = 0, y0: int = 0, step: int = 1) -> Box | None:
+def _bbox(mask: np.ndarray, x0: int = 0, y0: int = 0, step: int = 1) -> XYWH | None:
     """``(x, y, w, h)`` of the true samples of a grid mask whose sample (0, 0) is grid point
     ``(x0, y0)``, in pixels."""
     ys, xs = np.nonzero(mask)
@@ -111,7 +118,7 @@ def scene_visibility(
     poses: Sequence[np.ndarray],
     *,
     depth: np.ndarray | None = None,
-    depth_tolerance: float = 5.0,
+    depth_tolerance: float = DEPTH_TOLERANCE_MM,
     cameras: Sequence[str] | None = None,
     masks: bool = False,
     step: int = 1,
@@ -135,90 +142,113 @@ def scene_visibility(
     """
     if masks and step != 1:
         raise ValueError("masks need step=1")
-    area = step * step
     names = list(cameras) if cameras is not None else [c.name for c in rig.cameras]
     per_instance: list[list[CameraVisibility]] = [[] for _ in meshes]
     depth_cam = rig.depth.camera if rig.depth is not None else None
     for name in names:
         cam = rig.camera(name)
-        placed = [PlacedMesh(m, cam.cam_T_rig @ T) for m, T in zip(meshes, poses)]
-        rays = cam.pixel_rays(step)
         done = casts.get(name) if casts is not None and step == 1 else None
-        if done is not None:
-            boxes = [None if c is None else c[0] for c in done]
-            own = [None if c is None else c[1] for c in done]
-            together = nearest(rays.shape[:2], boxes, own, surface=False)
-        else:
-            boxes = [_on_grid(projected_bbox(cam, pm.mesh, pm.cam_T_model), step) for pm in placed]
-            # Every instance alone over its box, then a depth buffer of all of them (on equal
-            # depths the first instance wins, so that visible parts never overlap).
-            together, own = cast_separately(rays, placed, boxes, surface=False)
-        zbuf, front = together.depth, together.instance
-        alone = [None if h is None else (h.hit, h.depth) for h in own]
+        boxes, alone, front, zbuf = _cast_camera(cam, meshes, poses, step, done)
         if renders is not None:
             renders[name] = (zbuf, front)
-        use_depth = depth is not None and name == depth_cam
-        measured_depth = depth[::step, ::step] if use_depth else None
+        measured = depth[::step, ::step] if depth is not None and name == depth_cam else None
+        size = cam.size if masks else None
         for k, box in enumerate(boxes):
-            full = np.zeros((cam.height, cam.width), bool) if masks else None
-            if box is None or alone[k] is None:
-                vis = CameraVisibility(
-                    name,
-                    0,
-                    0,
-                    0 if use_depth else None,
-                    None,
-                    None,
-                    1.0,
-                    1.0 if use_depth else None,
-                )
-            else:
-                x0, y0, x1, y1 = box
-                m_all, rend = alone[k]
-                m_vis = front[y0:y1, x0:x1] == k
-                px_all, px_vis = area * int(m_all.sum()), area * int(m_vis.sum())
-                px_dep = occ_dep = None
-                m_dep = m_vis
-                agreement = median_abs = None
-                n_meas = 0
-                if use_depth:
-                    meas = measured_depth[y0:y1, x0:x1]
-                    hidden = np.isfinite(meas) & (meas < rend - depth_tolerance)
-                    m_dep = m_vis & ~hidden
-                    px_dep = area * int(m_dep.sum())
-                    occ_dep = 1.0 - px_dep / px_all if px_all else 1.0
-                    measured = m_vis & np.isfinite(meas)
-                    n_meas = area * int(measured.sum())
-                    if n_meas:
-                        diff = np.abs(meas[measured] - rend[measured])
-                        tol = np.maximum(AGREEMENT_TOLERANCE_MM, 0.01 * rend[measured])
-                        agreement = float(np.mean(diff < tol))
-                        median_abs = float(np.median(diff))
-                vis = CameraVisibility(
-                    name,
-                    px_all,
-                    px_vis,
-                    px_dep,
-                    _bbox(m_all, x0, y0, step),
-                    _bbox(m_vis, x0, y0, step),
-                    1.0 - px_vis / px_all if px_all else 1.0,
-                    occ_dep,
-                    depth_agreement=agreement,
-                    depth_median_abs_mm=median_abs,
-                    depth_pixels=n_meas,
-                )
-                if masks:
-                    full[y0:y1, x0:x1] = m_all
-                    visible = np.zeros_like(full)
-                    visible[y0:y1, x0:x1] = m_dep
-                    vis.mask_all, vis.mask_visib = full, visible
-            if masks and vis.mask_all is None:
-                vis.mask_all = full
-                vis.mask_visib = np.zeros_like(full)
-            per_instance[k].append(vis)
+            cast = _InstanceCast(name, box, alone[k], front, k)
+            per_instance[k].append(_visibility(cast, measured, depth_tolerance, step, size))
     out = []
     for cams_vis in per_instance:
         ref = cams_vis[0]
         rate = ref.occlusion_depth if ref.occlusion_depth is not None else ref.occlusion
         out.append(InstanceVisibility(cams_vis, float(rate)))
     return out
+
+
+def _cast_camera(
+    cam: Camera,
+    meshes: Sequence[Mesh],
+    poses: Sequence[np.ndarray],
+    step: int,
+    done: Sequence[tuple[Rect, Hits] | None] | None,
+) -> tuple[list[Rect | None], list[tuple[np.ndarray, np.ndarray] | None], np.ndarray, np.ndarray]:
+    """Every instance cast alone over its rectangle, then a depth buffer of all of them (on
+    equal depths the first instance wins, so that visible parts never overlap): the
+    rectangles (on the sample grid), per instance its (hit mask, depth) there, and the
+    nearest instance and its depth at every sample."""
+    rays = cam.pixel_rays(step)
+    if done is not None:
+        boxes = [None if c is None else c[0] for c in done]
+        own = [None if c is None else c[1] for c in done]
+        together = nearest(rays.shape[:2], boxes, own, surface=False)
+    else:
+        placed = [PlacedMesh(m, cam.cam_T_rig @ T) for m, T in zip(meshes, poses)]
+        boxes = [_on_grid(projected_bbox(cam, pm.mesh, pm.cam_T_model), step) for pm in placed]
+        together, own = cast_separately(rays, placed, boxes, surface=False)
+    alone = [None if h is None else (h.hit, h.depth) for h in own]
+    return boxes, alone, together.instance, together.depth
+
+
+@dataclass(frozen=True)
+class _InstanceCast:
+    """Instance ``index`` in one camera: its rectangle on the sample grid, its own (hit
+    mask, depth) there, and the index of the nearest instance at every sample."""
+
+    camera: str
+    box: Rect | None
+    alone: tuple[np.ndarray, np.ndarray] | None
+    front: np.ndarray
+    index: int
+
+
+def _visibility(
+    cast: _InstanceCast,
+    measured: np.ndarray | None,
+    depth_tolerance: float,
+    step: int,
+    size: tuple[int, int] | None,
+) -> CameraVisibility:
+    """The instance's counts, boxes, occlusion and depth agreement in one camera (pixel
+    counts are samples times ``step**2``), and with ``size`` (width, height) its full-image
+    masks: the silhouette and its visible part, with the depth test in the depth camera."""
+    use_depth = measured is not None
+    empty = None if size is None else np.zeros((size[1], size[0]), bool)
+    if cast.box is None or cast.alone is None:
+        vis = CameraVisibility(
+            cast.camera, 0, 0, 0 if use_depth else None, None, None, 1.0, 1.0 if use_depth else None
+        )
+        if empty is not None:
+            vis.mask_all, vis.mask_visib = empty, empty.copy()
+        return vis
+    area = step * step
+    x0, y0, x1, y1 = cast.box
+    m_all, rend = cast.alone
+    m_vis = cast.front[y0:y1, x0:x1] == cast.index
+    px_all, px_vis = area * int(m_all.sum()), area * int(m_vis.sum())
+    vis = CameraVisibility(
+        cast.camera,
+        px_all,
+        px_vis,
+        None,
+        _bbox(m_all, x0, y0, step),
+        _bbox(m_vis, x0, y0, step),
+        1.0 - px_vis / px_all if px_all else 1.0,
+        None,
+    )
+    m_dep = m_vis
+    if measured is not None:
+        meas = measured[y0:y1, x0:x1]
+        m_dep = m_vis & ~(np.isfinite(meas) & (meas < rend - depth_tolerance))
+        vis.px_visib_depth = area * int(m_dep.sum())
+        vis.occlusion_depth = 1.0 - vis.px_visib_depth / px_all if px_all else 1.0
+        seen = m_vis & np.isfinite(meas)
+        vis.depth_pixels = area * int(seen.sum())
+        if vis.depth_pixels:
+            diff = np.abs(meas[seen] - rend[seen])
+            tol = np.maximum(AGREEMENT_TOLERANCE_MM, 0.01 * rend[seen])
+            vis.depth_agreement = float(np.mean(diff < tol))
+            vis.depth_median_abs_mm = float(np.median(diff))
+    if empty is not None:
+        vis.mask_all, vis.mask_visib = empty, empty.copy()
+        vis.mask_all[y0:y1, x0:x1] = m_all
+        vis.mask_visib[y0:y1, x0:x1] = m_dep
+    return vis

@@ -13,10 +13,10 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-import open3d as o3d
 
 from annotator.geometry.camera import Camera
 from annotator.geometry.mesh import Mesh
+from annotator.geometry.open3d_lib import o3d
 
 #: ``instance`` value of a pixel whose ray hits nothing.
 NO_HIT = -1
@@ -162,13 +162,16 @@ Rect = tuple[int, int, int, int]
 _MODEL_SCENES: dict[bytes, RayScene] = {}
 
 
-def cast_alone(mesh: Mesh, cam_T_model: np.ndarray, rays: np.ndarray) -> Hits:
+def cast_alone(
+    mesh: Mesh, cam_T_model: np.ndarray, rays: np.ndarray, *, origin: np.ndarray | None = None
+) -> Hits:
     """Cast camera rays (..., 3) at one placed mesh, alone.
 
     The rays are brought into the model frame, where the mesh's ray-casting scene lives,
     built once per process and kept by content (a mesh loaded again reuses it), so one BVH
     serves every copy of a part in every scene and camera. Depths are unchanged (a rigid
-    motion keeps ray parameters); ``Hits.instance`` is 0 on a hit.
+    motion keeps ray parameters); ``Hits.instance`` is 0 on a hit. ``origin``: the rays'
+    common start in the camera frame (default its centre).
     """
     scene = _MODEL_SCENES.get(mesh.digest)
     if scene is None:
@@ -176,7 +179,8 @@ def cast_alone(mesh: Mesh, cam_T_model: np.ndarray, rays: np.ndarray) -> Hits:
             _MODEL_SCENES.clear()
         scene = _MODEL_SCENES[mesh.digest] = RayScene([PlacedMesh(mesh, np.eye(4))])
     R, t = cam_T_model[:3, :3], cam_T_model[:3, 3]
-    return scene.cast(rays @ R, origin=-R.T @ t)
+    start = -R.T @ t if origin is None else R.T @ (np.asarray(origin, float) - t)
+    return scene.cast(rays @ R, origin=start)
 
 
 def cast_separately(
@@ -349,3 +353,24 @@ def projected_bbox(
     x1, y1 = np.ceil(uv.max(axis=0)).astype(int) + margin + 1
     box = clip_region((x0, y0, x1, y1), camera.width, camera.height)
     return None if box[0] >= box[2] or box[1] >= box[3] else box
+
+
+def render_depth(
+    mesh: Mesh, cam_T_model: np.ndarray, K: np.ndarray, width: int, height: int
+) -> tuple[Rect, np.ndarray] | None:
+    """One mesh's z-depth (mm, float32, 0 where it is not seen) in a pinhole camera without
+    distortion, over the rectangle it projects into: ``(rect, depth)``, or None when it is out
+    of view. BOP's evaluation renders models this way (its depth images have no distortion)."""
+    camera = Camera("pinhole", int(width), int(height), np.asarray(K, float), np.zeros(5))
+    box = projected_bbox(camera, mesh, cam_T_model)
+    if box is None:
+        return None
+    x0, y0, x1, y1 = box
+    # The pose is applied as written: a rotation that is not quite orthonormal (BOP's files
+    # have them) deforms the mesh slightly, as a renderer given the matrix would.
+    A = np.linalg.inv(cam_T_model)
+    hits = cast_alone(
+        mesh, np.eye(4), camera.pixel_rays()[y0:y1, x0:x1] @ A[:3, :3].T, origin=A[:3, 3]
+    )
+    depth = np.where(np.isfinite(hits.depth), hits.depth, np.float32(0.0)).astype(np.float32)
+    return box, depth

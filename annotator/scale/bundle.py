@@ -16,6 +16,7 @@ from pathlib import Path, PurePosixPath
 from annotator.dataset import Dataset
 from annotator.errors import UserError
 from annotator.io.atomic import write_bytes
+from annotator.markers.dictionary import PREDEFINED_PREFIX
 
 #: Files by relative path; ``None`` (outputs only) = the file is to be deleted.
 Files = dict[str, bytes]
@@ -30,11 +31,18 @@ def relative(root: str | Path, rel: str) -> Path:
     return Path(root, *pure.parts)
 
 
+def dictionary_files(ds: Dataset) -> list[Path]:
+    """The dataset's marker dictionary file, when it names one rather than a predefined
+    dictionary."""
+    return [] if ds.dictionary.startswith(PREDEFINED_PREFIX) else [Path(ds.dictionary)]
+
+
 def description_files(ds: Dataset) -> list[str]:
-    """What every scene's work depends on besides the scene: dataset.yaml, each object's
-    object.yaml and mesh, and the empty bin's depth map (``rig.depth.background``)."""
+    """What every scene's work depends on besides the scene: dataset.yaml, a custom marker
+    dictionary file, each object's object.yaml and mesh, and the empty bin's depth map
+    (``rig.depth.background``)."""
     root = ds.root
-    paths = [root / "dataset.yaml"]
+    paths = [root / "dataset.yaml", *dictionary_files(ds)]
     for name in sorted(ds.objects):
         obj = ds.objects[name]
         paths += [obj.folder / "object.yaml", obj.mesh_path]

@@ -200,7 +200,7 @@ class ClosestPoints:
     """Closest points and outward normals on a mesh's surface (open3d, model frame)."""
 
     def __init__(self, vertices: np.ndarray, faces: np.ndarray) -> None:
-        import open3d as o3d
+        from annotator.geometry.open3d_lib import o3d
 
         self._scene = o3d.t.geometry.RaycastingScene()
         self._scene.add_triangles(

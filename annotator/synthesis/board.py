@@ -12,11 +12,23 @@ The true chessboard corners therefore project exactly with ``cv2.projectPoints``
 Board poses (reproducible from the seed): the board centre at a depth of 520-760 mm in the
 reference camera, anywhere in its image; the board facing the rig, tilted by up to 40
 degrees about a random axis in its plane and turned by up to 90 degrees in its plane; kept
-only if each camera sees at least 85% of the chessboard corners.
+only if each camera sees at least 85% of the chessboard corners (all of them for a plain
+chessboard, which is only found whole), within the central ``centre`` fraction of the image
+when asked (a board that covers only the middle of the image: the case where a distortion
+model extrapolates).
+
+Boards as people print and film them: ``inverted`` prints the board colour-inverted (white
+markers on black, a black margin), ``mirrored`` cameras store their images flipped left to
+right (their truth carries ``flip: horizontal``), and a board of a custom dictionary gets the
+dictionary file copied beside board.yaml. :func:`write_videos` turns the shot folders into
+one lossless video per camera (FFV1), the second camera's video one frame late, with
+timestamps files that pair the frames.
 """
 
 from __future__ import annotations
 
+import dataclasses
+import shutil
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -25,8 +37,9 @@ import numpy as np
 import trimesh
 import yaml
 
-from annotator.calibration.board import BOARD_FILE, BoardSpec, write_board_yaml
-from annotator.dataset.model import Rig
+from annotator.calibration.board import BOARD_FILE, BoardSpec
+from annotator.calibration.captures import TIMESTAMPS_SUFFIX
+from annotator.dataset.model import Rig, orient_image
 from annotator.dataset.write import rig_to_yaml
 from annotator.errors import UserError
 from annotator.geometry.camera import Camera
@@ -34,12 +47,15 @@ from annotator.geometry.mesh import Mesh
 from annotator.geometry.transforms import axis_angle, make_transform
 from annotator.io.atomic import write_text
 from annotator.io.images import write_png
+from annotator.markers.dictionary import is_predefined
 from annotator.rendering.raycast import PlacedMesh, RayScene, clip_region, projected_bbox
 from annotator.synthesis.rig import make_rig
 from annotator.synthesis.shading import _interpolate_rays, finish_image
 
 #: The truth file written beside synthetic captures.
 TRUTH_FILE = "truth.yaml"
+#: A custom dictionary's copy beside board.yaml.
+DICTIONARY_FILE = "dictionary.yml"
 
 #: White margin around the chessboard, as a fraction of a square (OpenCV prints half).
 MARGIN_SQUARES = 0.5
@@ -66,6 +82,9 @@ class CaptureConfig:
         noise: Image noise sigma, grey levels.
         blur: Image blur sigma, px.
         supersample: Sub-pixel rays per axis at texture edges.
+        inverted: The board is printed colour-inverted.
+        mirrored: Cameras whose images are stored mirrored (left to right).
+        centre: Every corner within the central fraction of each image (1: anywhere).
     """
 
     shots: int = 30
@@ -78,6 +97,9 @@ class CaptureConfig:
     noise: float = 2.0
     blur: float = 0.6
     supersample: int = 4
+    inverted: bool = False
+    mirrored: tuple[str, ...] = ()
+    centre: float = 1.0
 
 
 def board_poses(rig: Rig, config: CaptureConfig, rng: np.random.Generator) -> list[np.ndarray]:
@@ -106,7 +128,8 @@ def board_poses(rig: Rig, config: CaptureConfig, rng: np.random.Generator) -> li
         R = axis_angle(tilt_axis, tilt) @ spin @ facing
         T = make_transform(R, centre - R @ centre_board)
         if all(
-            _visible_fraction(cam, cam.cam_T_rig @ T, spec.corners) >= config.min_visible
+            _visible_fraction(cam, cam.cam_T_rig @ T, spec.corners, config.centre)
+            >= config.min_visible
             for cam in rig.cameras
         ):
             poses.append(T)
@@ -124,15 +147,19 @@ def _frame_with_z(z: np.ndarray) -> np.ndarray:
     return np.column_stack([x, np.cross(z, x), z])
 
 
-def _visible_fraction(cam: Camera, cam_T_board: np.ndarray, points: np.ndarray) -> float:
+def _visible_fraction(
+    cam: Camera, cam_T_board: np.ndarray, points: np.ndarray, centre: float = 1.0
+) -> float:
     pts = points @ cam_T_board[:3, :3].T + cam_T_board[:3, 3]
     uv = cam.project(pts)
+    mx = max(8.0, 0.5 * (1 - centre) * cam.width)
+    my = max(8.0, 0.5 * (1 - centre) * cam.height)
     inside = (
         np.isfinite(uv).all(axis=1)
-        & (uv[:, 0] >= 8)
-        & (uv[:, 1] >= 8)
-        & (uv[:, 0] <= cam.width - 9)
-        & (uv[:, 1] <= cam.height - 9)
+        & (uv[:, 0] >= mx)
+        & (uv[:, 1] >= my)
+        & (uv[:, 0] <= cam.width - 1 - mx)
+        & (uv[:, 1] <= cam.height - 1 - my)
     )
     # The board must face the camera: its normal -z points towards the camera centre.
     facing = (cam_T_board[:3, 2] @ cam_T_board[:3, 3]) > 0
@@ -142,7 +169,7 @@ def _visible_fraction(cam: Camera, cam_T_board: np.ndarray, points: np.ndarray) 
 class BoardModel:
     """The board's slab mesh and texture, built once per board."""
 
-    def __init__(self, spec: BoardSpec) -> None:
+    def __init__(self, spec: BoardSpec, *, inverted: bool = False) -> None:
         self.spec = spec
         w, h = spec.size_mm
         m = MARGIN_SQUARES * spec.square_mm
@@ -150,8 +177,15 @@ class BoardModel:
         slab.apply_translation([w / 2, h / 2, THICKNESS_MM / 2])  # face at z = 0, body behind
         self.mesh = Mesh(np.asarray(slab.vertices), np.asarray(slab.faces, dtype=np.int32))
         texels = (spec.squares_x * TEXELS_PER_SQUARE, spec.squares_y * TEXELS_PER_SQUARE)
-        image = spec.cv_board.generateImage(texels, marginSize=0, borderBits=1)
-        self.texture = np.where(image > 127, WHITE, BLACK).astype(np.float32)
+        if spec.has_markers:
+            image = spec.cv_board.generateImage(texels, marginSize=0, borderBits=1)
+        else:  # a plain chessboard, black at the board's origin
+            rows, cols = np.indices((spec.squares_y, spec.squares_x))
+            squares = np.where((rows + cols) % 2 == 0, 0, 255).astype(np.uint8)
+            image = np.kron(squares, np.ones((TEXELS_PER_SQUARE, TEXELS_PER_SQUARE), np.uint8))
+        white, black = (BLACK, WHITE) if inverted else (WHITE, BLACK)
+        self.texture = np.where(image > 127, white, black).astype(np.float32)
+        self.margin = white
         self.texels_per_mm = TEXELS_PER_SQUARE / spec.square_mm
 
     def albedo(self, points: np.ndarray) -> np.ndarray:
@@ -160,7 +194,7 @@ class BoardModel:
         x, y, z = points[..., 0], points[..., 1], points[..., 2]
         out = np.full(x.shape, SIDE, np.float32)
         face = np.abs(z) < 1e-3
-        out[face] = WHITE
+        out[face] = self.margin
         th, tw = self.texture.shape
         col = np.floor(x * self.texels_per_mm).astype(np.int64)
         row = np.floor(y * self.texels_per_mm).astype(np.int64)
@@ -275,15 +309,28 @@ def plan_captures(config: CaptureConfig) -> CapturePlan:
     """The synthetic rig of ``annotator synth --seed`` (the same rig as its scenes) and the
     board poses, all from the seed."""
     rig = make_rig(*config.size, rng=np.random.default_rng(config.seed)).rig
+    unknown = [c for c in config.mirrored if c not in [cam.name for cam in rig.cameras]]
+    if unknown:
+        raise UserError(
+            f"no camera {unknown[0]!r} to mirror: the rig's cameras are "
+            + ", ".join(c.name for c in rig.cameras)
+        )
+    rig = Rig(rig.cameras, rig.depth, frozenset(config.mirrored))
     poses = board_poses(rig, config, np.random.default_rng([config.seed, _POSE_STREAM]))
-    return CapturePlan(config, rig, poses, BoardModel(config.board))
+    return CapturePlan(config, rig, poses, BoardModel(config.board, inverted=config.inverted))
 
 
 def write_truth(plan: CapturePlan, root: Path) -> None:
     """``board.yaml`` (the board, read by ``annotator calibrate``) and ``truth.yaml`` (the rig
     in dataset.yaml's ``rig:`` format, each shot's ``rig_T_board`` and the settings)."""
-    write_board_yaml(root / BOARD_FILE, plan.config.board)
     cfg = plan.config
+    board = dataclasses.replace(cfg.board, inverted=cfg.inverted or None)
+    doc = board.to_yaml()
+    if board.has_markers and not is_predefined(board.dictionary):
+        # The dictionary travels with the captures, named relative to board.yaml.
+        shutil.copyfile(board.dictionary, root / DICTIONARY_FILE)
+        doc["dictionary"] = DICTIONARY_FILE
+    write_text(root / BOARD_FILE, yaml.safe_dump(doc, sort_keys=False))
     doc = {
         "rig": rig_to_yaml(plan.rig),
         "board_poses": {
@@ -300,6 +347,9 @@ def write_truth(plan: CapturePlan, root: Path) -> None:
             "noise": cfg.noise,
             "blur": cfg.blur,
             "supersample": cfg.supersample,
+            "inverted": cfg.inverted,
+            "mirrored": list(cfg.mirrored),
+            "centre": cfg.centre,
         },
     }
     header = (
@@ -329,8 +379,41 @@ class ShotJob:
         plan = _plan(self.config)
         images = plan.render(plan.shot_names.index(shot))
         for cam, img in zip(plan.rig.cameras, images):
-            write_png(Path(self.root) / cam.name / f"{shot}.png", img)
+            stored = orient_image(img, cam.name in plan.rig.flipped)
+            write_png(Path(self.root) / cam.name / f"{shot}.png", stored)
         return {}
+
+
+#: Frame rate written into the synthetic videos (and their timestamps).
+VIDEO_FPS = 10.0
+
+
+def write_videos(root: Path, cameras: list[str]) -> list[Path]:
+    """Replace each camera's shot folder under ``root`` by a lossless video
+    ``<camera>.mkv`` (FFV1, one frame per shot in shot order) and a timestamps file. Every
+    camera after the first starts one frame (a frame without the board) earlier, so that only
+    the timestamps pair the frames right."""
+    out = []
+    for k, name in enumerate(cameras):
+        folder = root / name
+        frames = [cv2.imread(str(p), cv2.IMREAD_GRAYSCALE) for p in sorted(folder.glob("*.png"))]
+        h, w = frames[0].shape
+        lead = [np.full((h, w), int(255 * BACKGROUND), np.uint8)] if k > 0 else []
+        path = root / f"{name}.mkv"
+        writer = cv2.VideoWriter(
+            str(path), cv2.VideoWriter_fourcc(*"FFV1"), VIDEO_FPS, (w, h), isColor=False
+        )
+        if not writer.isOpened():
+            raise UserError("OpenCV cannot write FFV1 videos here", path=path)
+        for img in lead + frames:
+            writer.write(img)
+        writer.release()
+        # A camera's clock runs a little off the first's: 3 ms, well within half a frame.
+        times = (np.arange(len(lead) + len(frames)) - len(lead)) / VIDEO_FPS + 0.003 * k
+        write_text(root / f"{name}{TIMESTAMPS_SUFFIX}", "".join(f"{t:.6f}\n" for t in times))
+        shutil.rmtree(folder)
+        out.append(path)
+    return out
 
 
 _POSE_STREAM, _NOISE_STREAM = 7919, 104729

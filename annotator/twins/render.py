@@ -24,8 +24,10 @@ from pathlib import Path
 import numpy as np
 
 from annotator.dataset import Dataset, InstancePose, Scene
+from annotator.dataset.model import orient_image
 from annotator.geometry.mesh import Mesh
 from annotator.io.images import encode_depth, write_png
+from annotator.markers.dictionary import is_predefined
 from annotator.markers.texture import marker_bits
 from annotator.synthesis.rig import RigSetup, look_at
 from annotator.synthesis.shading import Surface, finish_image, render_intensity
@@ -152,9 +154,13 @@ def make_twin_scene(
             supersample=settings.supersample,
             fixed=fixed,
         )
+        # Stored as the camera stores its images (mirrored for a flip: horizontal camera).
         write_png(
             out / f"{cam.name}.png",
-            finish_image(img, blur=settings.blur, noise=settings.noise, rng=rng),
+            orient_image(
+                finish_image(img, blur=settings.blur, noise=settings.noise, rng=rng),
+                cam.name in ds.rig.flipped,
+            ),
         )
         views.append(view)
     if ds.rig.depth is not None:
@@ -232,6 +238,11 @@ def write_twin_description(ds: Dataset, out: Path) -> None:
 
     shutil.copy2(ds.root / "dataset.yaml", out / "dataset.yaml")
     shutil.copytree(ds.root / "objects", out / "objects")
+    # A custom dictionary file named relative to dataset.yaml travels with it.
+    named = Path(str(ds.raw.get("markers", {}).get("dictionary", "")))
+    if not is_predefined(str(named)) and not named.is_absolute() and (ds.root / named).is_file():
+        (out / named).parent.mkdir(parents=True, exist_ok=True)
+        shutil.copy2(ds.root / named, out / named)
     if ds.rig.depth is not None and ds.rig.depth.background is not None:
         target = out / ds.rig.depth.background
         target.parent.mkdir(parents=True, exist_ok=True)

@@ -1,0 +1,144 @@
+"""Choosing the distortion model by the held-out error (:mod:`.heldout`).
+
+Every candidate model (k1 k2 p1 p2, then + k3) is calibrated on all shots and measured on
+shots it did not fit. The RMS on fitted shots always prefers more coefficients; the held-out
+error does not when the extra ones only fit noise or extrapolate. Rule: the model with the
+fewest coefficients whose held-out error is within ``REL_TOLERANCE`` (and ``ABS_TOLERANCE_PX``)
+of the best one's: an extra coefficient must earn its place on unseen shots. The chosen
+calibration carries the held-out error of every candidate, and a warning per camera whose
+model is extrapolated at the image corners (:mod:`.extrapolation`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from annotator.calibration.board import BoardSpec
+from annotator.calibration.extrapolation import extrapolation
+from annotator.calibration.heldout import FOLDS, HeldOut, held_out_error
+from annotator.calibration.solve import Calibration, CalibrationOptions, View, calibrate_rig
+
+#: The models tried by default (number of coefficients), simplest first.
+CANDIDATES = (4, 5)
+#: A model within this fraction of the best held-out error counts as good as the best ...
+REL_TOLERANCE = 0.03
+#: ... or within this many pixels.
+ABS_TOLERANCE_PX = 0.003
+
+
+@dataclass(frozen=True)
+class ModelChoice:
+    """Which distortion model was chosen and why.
+
+    Attributes:
+        dist_coeffs: The chosen model's number of coefficients.
+        held_out: Held-out error of each model tried.
+        reason: One line for the report.
+    """
+
+    dist_coeffs: int
+    held_out: Mapping[int, HeldOut]
+    reason: str
+
+
+def choose(held_out: Mapping[int, HeldOut]) -> tuple[int, str]:
+    """The model chosen by the rule of the module docstring, and why."""
+    measured = {m: h.rms_px for m, h in held_out.items() if np.isfinite(h.rms_px)}
+    if not measured:
+        m = max(held_out)
+        return m, f"no held-out error could be measured (too few shots): {m} coefficients"
+    best = min(measured.values())
+    good = [
+        m
+        for m, e in measured.items()
+        if e <= max(best * (1 + REL_TOLERANCE), best + ABS_TOLERANCE_PX)
+    ]
+    m = min(good)
+    figures = ", ".join(f"{k} coefficients {measured[k]:.3f} px" for k in sorted(measured))
+    return (
+        m,
+        f"held-out error {figures}: {m} chosen (the fewest within {100 * REL_TOLERANCE:g}% of the best)",
+    )
+
+
+def calibrate_and_assess(
+    views: Sequence[View],
+    *,
+    cameras: Sequence[str],
+    sizes: Sequence[tuple[int, int]],
+    shots: Sequence[str],
+    board: BoardSpec,
+    options: CalibrationOptions | None = None,
+    candidates: Sequence[int] = CANDIDATES,
+    folds: int = FOLDS,
+    where: Mapping[str, Path] | None = None,
+) -> Calibration:
+    """Calibrate with each candidate model, measure each on held-out shots, keep the chosen
+    one (``candidates`` of one model: that model, still measured). The result carries
+    ``held_out``, ``model_choice`` and the extrapolation warnings."""
+    opts = options or CalibrationOptions()
+    cals: dict[int, Calibration] = {}
+    held: dict[int, HeldOut] = {}
+    for m in candidates:
+        model_opts = dataclasses.replace(opts, dist_coeffs=m)
+        cals[m] = calibrate_rig(
+            views,
+            cameras=cameras,
+            sizes=sizes,
+            shots=shots,
+            board=board,
+            options=model_opts,
+            where=where,
+        )
+        # Folds fit fewer shots: a camera with just enough shots in all must still fit.
+        fold_opts = dataclasses.replace(model_opts, min_shots=3)
+
+        def fit(train: Sequence[View], fold_opts: CalibrationOptions = fold_opts):
+            return calibrate_rig(
+                train, cameras=cameras, sizes=sizes, shots=shots, board=board, options=fold_opts
+            ).rig_cameras
+
+        used = _used_views(cals[m])
+        held[m] = held_out_error(
+            [v for v in views if (v.camera, v.shot) in used],
+            fit,
+            board,
+            cameras,
+            folds=folds,
+            min_corners=opts.min_corners,
+        )
+    chosen, reason = (
+        choose(held)
+        if len(candidates) > 1
+        else (
+            candidates[0],
+            f"{candidates[0]} coefficients (as asked); held-out error {held[candidates[0]].rms_px:.3f} px",
+        )
+    )
+    cal = cals[chosen]
+    extra = []
+    for c, rep in enumerate(cal.cameras):
+        sel = cal.used & (cal.corners.camera == c)
+        ex = extrapolation(rep.camera, cal.corners.pixel[sel])
+        extra.append(ex)
+    warnings = list(cal.warnings) + [
+        ex.warning(rep.camera.name) for ex, rep in zip(extra, cal.cameras) if ex.extrapolated
+    ]
+    return dataclasses.replace(
+        cal,
+        warnings=tuple(warnings),
+        held_out=held[chosen],
+        model_choice=ModelChoice(chosen, held, reason),
+        extrapolation=tuple(extra),
+    )
+
+
+def _used_views(cal: Calibration) -> set[tuple[int, int]]:
+    """(camera, shot) of the views the calibration kept (outlier views are not predicted)."""
+    obs = cal.corners
+    return {(int(c), int(s)) for c, s in zip(obs.camera[cal.used], obs.shot[cal.used])}

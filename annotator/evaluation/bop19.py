@@ -1,0 +1,462 @@
+"""BOP's pose scores (BOP Challenge 2019 onwards): VSD, MSSD, MSPD and their average recall.
+
+The definitions are bop_toolkit's (``scripts/eval_bop19_pose.py`` with ``eval_calc_errors.py``,
+``eval_calc_scores.py``, ``pose_error.py``, ``pose_matching.py`` and ``score.py``), written
+again on arrays, on the records :mod:`annotator.formats.bop_images` reads from a dataset and
+a result file.
+
+- **Targets.** Per (image, object), the targets file gives ``inst_count``. The estimates
+  scored are the ``inst_count`` of that object with the highest scores (bop_toolkit's
+  ``n_top = -1``); the true poses to find are the ``inst_count`` of that object most visible
+  in the image (``visib_gt_min = -1``). Ties keep the file's order.
+- **Errors** of an estimate against each true pose of its object in the image:
+
+  - MSSD: the largest distance between the model points in the two poses, least over the
+    object's symmetries, divided by the diameter; infinite when the two centres are a
+    diameter or more apart.
+  - MSPD: the same in pixels after projection, scaled to an image 640 pixels wide.
+  - VSD: the share of the union of the two visible surfaces where they are not within
+    ``tau`` (divided by the diameter) of each other, one value per ``tau``; visibility from
+    the depth image with tolerance ``delta`` (15 mm, 5 for ITODD; pixels without depth count
+    as visible); 1 when the two bounding spheres' projections do not meet.
+
+- **Matching.** Per (image, object), estimates in decreasing score each take the valid, not
+  yet taken true pose of least error, strictly below the threshold.
+- **Recall** is the matched true poses over all true poses to find in the dataset, per
+  threshold (and ``tau`` for VSD); a metric's AR is the mean over its settings
+  (:data:`CORRECT_TH`, :data:`MSPD_TH_PX`, :data:`VSD_TAUS`), and AR the mean of the three.
+
+Symmetries are bop_toolkit's too: every listed discrete element as written (not snapped),
+continuous ones sampled so that consecutive samples are at most
+:data:`MAX_SYM_DISC_STEP` x pi apart, combined with each discrete one. Poses are used as
+written, not projected to the nearest rotation, as bop_toolkit does.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from annotator.formats.bop_images import VSD_DELTA_MM, BopEstimates, BopImage, BopObject
+from annotator.geometry.mesh import Mesh
+
+#: Thresholds of correctness of VSD and MSSD (a fraction), as ``np.arange(0.05, 0.51, 0.05)``
+#: in bop_toolkit: the same floats, so that ties fall the same way.
+CORRECT_TH = np.arange(0.05, 0.51, 0.05)
+#: Thresholds of MSPD, in pixels of an image 640 pixels wide.
+MSPD_TH_PX = np.arange(5, 51, 5)
+#: VSD's misalignment tolerances (a fraction of the diameter).
+VSD_TAUS = np.arange(0.05, 0.51, 0.05)
+#: MSPD is scaled to an image of this width.
+MSPD_REFERENCE_WIDTH_PX = 640.0
+
+METRICS = ("vsd", "mssd", "mspd")
+
+
+@dataclass
+class Bop19Scores:
+    """BOP's average recalls, overall and per object id (None where nothing is to be found,
+    or, for VSD and AR, without depth images).
+
+    Attributes:
+        ar: Mean of the three metrics' ARs.
+        metrics: ``"vsd" | "mssd" | "mspd"`` -> AR.
+        per_object: object id -> ``{"AR", "vsd", "mssd", "mspd"}``.
+        recalls: metric -> recall per setting (thresholds, and taus for VSD, in
+            bop_toolkit's order: tau outer, threshold inner).
+        targets: True poses to find; ``estimates``: estimates scored.
+    """
+
+    ar: float | None
+    metrics: dict[str, float | None]
+    per_object: dict[int, dict[str, float | None]]
+    recalls: dict[str, list[float]]
+    targets: int
+    estimates: int
+    notes: list[str] = field(default_factory=list)
+
+    def to_json(self) -> dict[str, Any]:
+        """The ``"bop19"`` block of ``evaluate --json``."""
+        return {
+            "AR": self.ar,
+            "AR_VSD": self.metrics["vsd"],
+            "AR_MSSD": self.metrics["mssd"],
+            "AR_MSPD": self.metrics["mspd"],
+            "targets": self.targets,
+            "estimates": self.estimates,
+            "per_object": {
+                str(oid): {
+                    "AR": v["AR"],
+                    "AR_VSD": v["vsd"],
+                    "AR_MSSD": v["mssd"],
+                    "AR_MSPD": v["mspd"],
+                }
+                for oid, v in sorted(self.per_object.items())
+            },
+            "notes": self.notes,
+        }
+
+
+# ---------------------------------------------------------------------------------- errors
+
+
+def symmetric_points(obj: BopObject) -> np.ndarray:
+    """(S, N, 3): the model points moved by each symmetry, computed once per object."""
+    cached = _SYMMETRIC.get(id(obj))
+    if cached is None or cached[0] is not obj:
+        pts = obj.sym_R @ obj.points.T  # (S, 3, N)
+        cached = (obj, np.ascontiguousarray(np.swapaxes(pts, 1, 2) + obj.sym_t[:, None, :]))
+        if len(_SYMMETRIC) > 256:
+            _SYMMETRIC.clear()
+        _SYMMETRIC[id(obj)] = cached
+    return cached[1]
+
+
+_SYMMETRIC: dict[int, tuple[BopObject, np.ndarray]] = {}
+
+
+def mssd(
+    R_e: np.ndarray, t_e: np.ndarray, R_g: np.ndarray, t_g: np.ndarray, obj: BopObject
+) -> float:
+    """Maximum symmetry-aware surface distance in mm (not divided by the diameter).
+
+    The true pose is applied as written, to the symmetric copies of the points computed once
+    per object (:func:`symmetric_points`): a rotation that is not quite orthonormal, as BOP's
+    own files have, moves them as bop_toolkit moves them.
+
+    >>> obj = BopObject(np.eye(3), 1.0, np.eye(3)[None], np.zeros((1, 3)))
+    >>> mssd(np.eye(3), np.array([0, 0, 2.0]), np.eye(3), np.zeros(3), obj)
+    2.0
+    """
+    pts_e = obj.points @ R_e.T + t_e
+    sym = symmetric_points(obj)
+
+    def squared(rows: np.ndarray, cols: slice | np.ndarray) -> np.ndarray:
+        d = sym[rows][:, cols] @ R_g.T + (t_g - pts_e[cols])
+        return np.einsum("snk,snk->sn", d, d)
+
+    return math.sqrt(_min_max(squared, len(sym), len(pts_e)))
+
+
+def _project(K: np.ndarray, pts_cam: np.ndarray) -> np.ndarray:
+    uvw = pts_cam @ K.T
+    return uvw[..., :2] / uvw[..., 2:3]
+
+
+def mspd(
+    R_e: np.ndarray,
+    t_e: np.ndarray,
+    R_g: np.ndarray,
+    t_g: np.ndarray,
+    K: np.ndarray,
+    obj: BopObject,
+) -> float:
+    """Maximum symmetry-aware projection distance in pixels (not rescaled)."""
+    uv_e = _project(K, obj.points @ R_e.T + t_e)
+    sym = symmetric_points(obj)
+
+    def squared(rows: np.ndarray, cols: slice | np.ndarray) -> np.ndarray:
+        d = _project(K, sym[rows][:, cols] @ R_g.T + t_g) - uv_e[cols]
+        return np.einsum("snk,snk->sn", d, d)
+
+    return math.sqrt(_min_max(squared, len(sym), len(uv_e)))
+
+
+#: Points the first pass of :func:`_min_max` looks at.
+_SAMPLE_POINTS = 64
+
+
+def _min_max(
+    squared: Callable[[np.ndarray, slice | np.ndarray], np.ndarray], S: int, N: int
+) -> float:
+    """min over symmetries s of max over points n of ``squared(s, n)``, exactly, without
+    computing every symmetry on every point: the largest over a sample of points is a lower
+    bound for each symmetry, and only those whose bound is below the best exact value found
+    so far are computed on all points."""
+    everything = np.arange(S)
+    if S <= 4 or N <= 2 * _SAMPLE_POINTS:
+        return float(squared(everything, slice(None)).max(axis=1).min())
+    sample = np.linspace(0, N - 1, _SAMPLE_POINTS).astype(int)
+    bound = squared(everything, sample).max(axis=1)
+    best = np.inf
+    order = np.argsort(bound, kind="stable")
+    for start in range(0, S, 8):
+        rows = order[start : start + 8]
+        rows = rows[bound[rows] < best]
+        if not len(rows):
+            break
+        best = min(best, float(squared(rows, slice(None)).max(axis=1).min()))
+    return best
+
+
+def spheres_projections_overlap(radius: float, p1: np.ndarray, p2: np.ndarray) -> bool:
+    """bop_toolkit's approximate test that two spheres' projections meet."""
+    if p1[2] == 0 or p2[2] == 0:
+        return False
+    dist = float(np.linalg.norm((p1 / p1[2])[:2] - (p2 / p2[2])[:2]))
+    return dist < radius * (1.0 / p1[2] + 1.0 / p2[2])
+
+
+#: Renders a mesh's z-depth (mm, 0 where it is not seen) over a pixel rectangle
+#: ``(x0, y0, x1, y1)`` of an image: ``render(mesh, cam_T_model, K, width, height)`` returns
+#: the rectangle and the depth over it, or None when the mesh is out of view.
+DepthRenderer = Callable[
+    [Mesh, np.ndarray, np.ndarray, int, int],
+    "tuple[tuple[int, int, int, int], np.ndarray] | None",
+]
+
+
+def vsd(
+    depth_test: np.ndarray,
+    K: np.ndarray,
+    rendered_e: tuple[tuple[int, int, int, int], np.ndarray] | None,
+    rendered_g: tuple[tuple[int, int, int, int], np.ndarray] | None,
+    *,
+    delta: float,
+    taus: Sequence[float] | np.ndarray,
+    diameter: float,
+) -> list[float]:
+    """Visible surface discrepancy per ``tau`` ("step" cost, normalised by the diameter),
+    from the depth image (mm, 0: none) and the model's depth rendered in the estimated and
+    the true pose (each a rectangle and its depth, see :data:`DepthRenderer`)."""
+    boxes = [r[0] for r in (rendered_e, rendered_g) if r is not None]
+    if not boxes:
+        return [1.0] * len(taus)
+    x0, y0 = min(b[0] for b in boxes), min(b[1] for b in boxes)
+    x1, y1 = max(b[2] for b in boxes), max(b[3] for b in boxes)
+
+    def crop(r: tuple[tuple[int, int, int, int], np.ndarray] | None) -> np.ndarray:
+        out = np.zeros((y1 - y0, x1 - x0), np.float32)
+        if r is not None:
+            (a, b, c, d), depth = r
+            out[b - y0 : d - y0, a - x0 : c - x0] = depth
+        return out
+
+    xs, ys = np.meshgrid(np.arange(x0, x1), np.arange(y0, y1))
+    pre_x = (xs - K[0, 2]) / np.float64(K[0, 0])
+    pre_y = (ys - K[1, 2]) / np.float64(K[1, 1])
+
+    def distance(depth: np.ndarray) -> np.ndarray:
+        return np.sqrt((pre_x * depth) ** 2 + (pre_y * depth) ** 2 + depth.astype(np.float64) ** 2)
+
+    dist_test = distance(depth_test[y0:y1, x0:x1])
+    dist_e, dist_g = distance(crop(rendered_e)), distance(crop(rendered_g))
+    test32 = dist_test.astype(np.float32)
+
+    def visible(d_model: np.ndarray) -> np.ndarray:
+        diff = d_model.astype(np.float32) - test32
+        return ((diff <= delta) | (dist_test == 0)) & (d_model > 0)
+
+    visib_g = visible(dist_g)
+    visib_e = visible(dist_e) | (visib_g & (dist_e > 0))
+    inter = visib_g & visib_e
+    union_count = int((visib_g | visib_e).sum())
+    if union_count == 0:
+        return [1.0] * len(taus)
+    comp_count = union_count - int(inter.sum())
+    dists = np.abs(dist_g[inter] - dist_e[inter]) / diameter
+    return [(float(np.sum(dists >= tau)) + comp_count) / float(union_count) for tau in taus]
+
+
+# -------------------------------------------------------------------------------- matching
+
+
+def matched_count(errors: np.ndarray, valid: np.ndarray, threshold: float) -> int:
+    """True poses matched by bop_toolkit's greedy matching: ``errors`` (E, G) with estimates
+    already in decreasing score; each takes the valid free true pose of least error strictly
+    below ``threshold`` (on equal errors the first)."""
+    taken = ~valid.copy()
+    count = 0
+    for row in errors:
+        ok = (row < threshold) & ~taken
+        if ok.any():
+            g = int(np.flatnonzero(ok)[np.argmin(row[ok])])
+            taken[g] = True
+            count += 1
+    return count
+
+
+@dataclass
+class _Group:
+    """One (image, object) target: the error tables of its scored estimates."""
+
+    obj_id: int
+    valid: np.ndarray  # (G,) among the image's true poses of this object
+    errors: dict[str, np.ndarray]  # metric -> (E, G) or (E, G, taus) for VSD
+
+
+def _valid(visib: np.ndarray, count: int) -> np.ndarray:
+    """The ``count`` most visible (stable on ties), as bop_toolkit's ``visib_gt_min = -1``."""
+    order = np.argsort(-visib, kind="stable")
+    mask = np.zeros(len(visib), bool)
+    mask[order[:count]] = True
+    return mask
+
+
+def _image_groups(
+    image: BopImage,
+    estimates: BopEstimates | None,
+    objects: dict[int, BopObject],
+    *,
+    depth: np.ndarray | None,
+    render: DepthRenderer | None,
+    delta: float,
+) -> list[_Group]:
+    groups = []
+    rendered: dict[tuple[int, str, int], Any] = {}
+    for oid, count in image.targets.items():
+        gts = np.flatnonzero(image.obj_ids == oid)
+        obj = objects[oid]
+        valid = _valid(image.visib[gts], count)
+        if estimates is None:
+            ests = np.zeros(0, int)
+        else:
+            mine = np.flatnonzero(estimates.obj_ids == oid)
+            ests = mine[np.argsort(-estimates.scores[mine], kind="stable")][:count]
+        E, G = len(ests), len(gts)
+        errs = {m: np.full((E, G), np.inf) for m in ("mssd", "mspd")}
+        if depth is not None:
+            errs["vsd"] = np.ones((E, G, len(VSD_TAUS)))
+        scale = MSPD_REFERENCE_WIDTH_PX / image.width
+        for i, e in enumerate(ests):
+            R_e, t_e = estimates.R[e], estimates.t[e]  # type: ignore[union-attr]
+            for j, g in enumerate(gts):
+                R_g, t_g = image.R[g], image.t[g]
+                if np.linalg.norm(t_e - t_g) < obj.diameter:
+                    errs["mssd"][i, j] = mssd(R_e, t_e, R_g, t_g, obj) / obj.diameter
+                errs["mspd"][i, j] = scale * mspd(R_e, t_e, R_g, t_g, image.K, obj)
+                if depth is None or render is None or obj.mesh is None:
+                    continue
+                if not spheres_projections_overlap(0.5 * obj.diameter, t_e, t_g):
+                    continue
+                ren_e = _rendered(rendered, ("e", e), render, obj.mesh, R_e, t_e, image)
+                ren_g = _rendered(rendered, ("g", int(g)), render, obj.mesh, R_g, t_g, image)
+                errs["vsd"][i, j] = vsd(
+                    depth,
+                    image.K,
+                    ren_e,
+                    ren_g,
+                    delta=delta,
+                    taus=VSD_TAUS,
+                    diameter=obj.diameter,
+                )
+        groups.append(_Group(oid, valid, errs))
+    return groups
+
+
+def _rendered(
+    cache: dict[Any, Any],
+    key: tuple[str, int],
+    render: DepthRenderer,
+    mesh: Mesh,
+    R: np.ndarray,
+    t: np.ndarray,
+    image: BopImage,
+) -> Any:
+    if key not in cache:
+        T = np.eye(4)
+        T[:3, :3], T[:3, 3] = R, t
+        cache[key] = render(mesh, T, image.K, image.width, image.height)
+    return cache[key]
+
+
+def bop19_scores(
+    images: Sequence[BopImage],
+    estimates: dict[tuple[int, int], BopEstimates],
+    objects: dict[int, BopObject],
+    *,
+    render: DepthRenderer | None = None,
+    delta: float = VSD_DELTA_MM,
+    progress: Callable[[], None] | None = None,
+) -> Bop19Scores:
+    """BOP's ARs of ``estimates`` ((scene_id, im_id) -> estimates) on ``images``.
+
+    VSD is computed when every image has a depth image and ``render`` is given; otherwise
+    it and AR are None.
+    """
+    with_vsd = render is not None and all(im.depth is not None for im in images)
+    settings = {
+        "mssd": CORRECT_TH,
+        "mspd": MSPD_TH_PX,
+        "vsd": CORRECT_TH,
+    }
+    metrics = [m for m in METRICS if m != "vsd" or with_vsd]
+    n_settings = {m: len(settings[m]) * (len(VSD_TAUS) if m == "vsd" else 1) for m in metrics}
+    tps = {m: {} for m in metrics}  # type: dict[str, dict[int, np.ndarray]]
+    tars: dict[int, int] = {}
+    scored = 0
+    for image in images:
+        depth = image.depth() if with_vsd and image.depth is not None else None
+        groups = _image_groups(
+            image,
+            estimates.get((image.scene_id, image.im_id)),
+            objects,
+            depth=depth,
+            render=render,
+            delta=delta,
+        )
+        for grp in groups:
+            tars[grp.obj_id] = tars.get(grp.obj_id, 0) + int(grp.valid.sum())
+            scored += len(grp.errors["mssd"])
+            for m in metrics:
+                got = tps[m].setdefault(grp.obj_id, np.zeros(n_settings[m], np.int64))
+                got += _matches(grp.errors[m], grp.valid, settings[m], vsd=m == "vsd")
+        if progress:
+            progress()
+    return _summary(tps, tars, objects, metrics, scored, with_vsd)
+
+
+def _matches(
+    errors: np.ndarray, valid: np.ndarray, thresholds: np.ndarray, *, vsd: bool
+) -> np.ndarray:
+    """Matched counts per setting (for VSD: per tau, then per threshold)."""
+    if errors.shape[0] == 0 or not valid.any():
+        return np.zeros(len(thresholds) * (errors.shape[2] if vsd else 1), np.int64)
+    if vsd:
+        return np.array(
+            [
+                matched_count(errors[:, :, k], valid, float(th))
+                for k in range(errors.shape[2])
+                for th in thresholds
+            ]
+        )
+    return np.array([matched_count(errors, valid, float(th)) for th in thresholds])
+
+
+def _summary(
+    tps: dict[str, dict[int, np.ndarray]],
+    tars: dict[int, int],
+    objects: dict[int, BopObject],
+    metrics: list[str],
+    scored: int,
+    with_vsd: bool,
+) -> Bop19Scores:
+    total = sum(tars.values())
+    ars: dict[str, float | None] = {m: None for m in METRICS}
+    recalls: dict[str, list[float]] = {}
+    for m in metrics:
+        hits = sum(tps[m].values(), np.zeros(1, np.int64))
+        if total:
+            rec = hits / float(total)
+            recalls[m] = rec.tolist()
+            ars[m] = float(np.mean(rec))
+    per_object: dict[int, dict[str, float | None]] = {}
+    for oid in sorted(objects):
+        row: dict[str, float | None] = {m: None for m in METRICS}
+        n = tars.get(oid, 0)
+        if n:
+            for m in metrics:
+                row[m] = float(np.mean(tps[m].get(oid, 0) / float(n)))
+        row["AR"] = _mean3(row)
+        per_object[oid] = row
+    notes = [] if with_vsd else ["VSD not computed (no depth images): AR_VSD and AR are null"]
+    return Bop19Scores(_mean3(ars), ars, per_object, recalls, total, scored, notes)
+
+
+def _mean3(values: dict[str, float | None]) -> float | None:
+    got = [values[m] for m in METRICS]
+    return None if any(v is None for v in got) else float(np.mean(got))  # type: ignore[arg-type]

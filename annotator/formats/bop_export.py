@@ -1,0 +1,355 @@
+"""Writing accepted scenes of one of our datasets as a BOP dataset (the layout is in
+:mod:`annotator.formats.bop`), with what BOP's own tools expect beside the scenes:
+
+- ``models/`` and ``models_eval/`` (the same meshes: MSSD's largest distance over a triangle
+  is at one of its corners, so the vertices are the points BOP's scores need);
+- ``test_targets_bop19.json`` (per image and object, the instances at least 10 % visible, as
+  bop_toolkit's ``enumerate_test_targets.py``) and ``test_targets_bop24.json`` (every image);
+- ``scene_gt_coco[_<cam>].json`` per scene: COCO annotations with RLE masks of the visible
+  part (pycocotools), amodal boxes and ``ignore`` for instances less than 10 % visible, as
+  bop_toolkit's ``calc_gt_coco.py``.
+
+``layout`` ``imagewise`` and ``webdataset`` then turn ``test/`` into bop_toolkit's
+``bop_imagewise`` files (``test_imagewise/KEY.gray.tiff``, ``KEY.depth.png``,
+``KEY.camera.json``, ``KEY.gt.json``, ``KEY.gt_info.json``, ``KEY.mask.json``,
+``KEY.mask_visib.json``, with KEY ``<scene>_<image>``; a rig's cameras are images 0, 1, ...
+of their scene), or into the tar shards of ``bop_webdataset`` (``test_webdataset/
+shard-000000.tar``... and ``key_to_shard.json``), as MegaPose's training sets are stored.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+import webdataset as wds
+from pycocotools import mask as coco_mask
+from scipy.spatial import ConvexHull
+
+from annotator.dataset import Dataset
+from annotator.errors import UserError
+from annotator.export.inputs import read_scene_inputs
+from annotator.export.selection import Selected
+from annotator.export.undistort import pinhole_rig
+from annotator.io.atomic import write_bytes, write_json
+from annotator.io.images import encode_depth, read_image, write_png
+from annotator.io.ply import write_ply
+from annotator.occlusion import scene_visibility
+from annotator.symmetry.classes import symmetry_to_bop
+
+LAYOUTS = ("scenewise", "imagewise", "webdataset")
+#: Instances at least this visible are targets (BOP's test_targets_bop19.json rule), and
+#: the others are ``ignore`` in COCO.
+TARGET_MIN_VISIB = 0.1
+#: Images per tar shard of the webdataset layout (bop_toolkit's default ``maxcount``).
+SHARD_IMAGES = 1000
+
+
+def models_info(obj: Any) -> dict[str, Any]:
+    """A models_info.json entry: diameter (largest vertex distance), min/size, symmetries."""
+    v = obj.mesh.vertices
+    hull = v[ConvexHull(v).vertices]
+    d = np.sqrt(((hull[:, None] - hull[None]) ** 2).sum(-1)).max()
+    lo, hi = v.min(axis=0), v.max(axis=0)
+    info: dict[str, Any] = {
+        "diameter": float(d),
+        "min_x": float(lo[0]),
+        "min_y": float(lo[1]),
+        "min_z": float(lo[2]),
+        "size_x": float(hi[0] - lo[0]),
+        "size_y": float(hi[1] - lo[1]),
+        "size_z": float(hi[2] - lo[2]),
+    }
+    info.update(symmetry_to_bop(obj.symmetry, obj.mesh.moments.centroid))
+    return info
+
+
+def export_bop(
+    ds: Dataset,
+    selected: Sequence[Selected],
+    out: Path,
+    *,
+    cameras: Sequence[str],
+    progress: Callable[[], None] | None = None,
+    layout: str = "scenewise",
+) -> dict[str, str]:
+    """Write ``selected`` scenes into the empty folder ``out``; returns the scenes left out
+    because an input was unreadable (scene id -> one-line reason)."""
+    if layout not in LAYOUTS:
+        raise UserError(f"unknown layout {layout!r} (expected one of {', '.join(LAYOUTS)})")
+    obj_ids = _write_models(ds, out)
+    rig = pinhole_rig(ds.rig)
+    multi = len(cameras) > 1
+    depth_scale = ds.rig.depth.scale if ds.rig.depth else 1.0
+    for name in cameras:
+        cam = rig.camera(name)
+        write_json(
+            out / f"camera{suffix(name, multi)}.json",
+            {
+                "width": cam.width,
+                "height": cam.height,
+                "fx": cam.K[0, 0],
+                "fy": cam.K[1, 1],
+                "cx": cam.K[0, 2],
+                "cy": cam.K[1, 2],
+                "depth_scale": depth_scale,
+            },
+        )
+    ids: dict[str, str] = {}
+    failed: dict[str, str] = {}
+    targets: list[dict[str, int]] = []
+    for item in selected:
+        try:
+            inputs = read_scene_inputs(ds, item.scene, cameras)
+        except UserError as exc:
+            failed[item.scene.id] = str(exc)
+        else:
+            bop_id = len(ids)
+            ids[f"{bop_id:06d}"] = item.scene.id
+            scene = _SceneWriter(ds, rig, cameras, obj_ids, out / "test" / f"{bop_id:06d}")
+            targets += scene.write(item, inputs, bop_id)
+        if progress:
+            progress()
+    write_json(out / "test" / "scene_ids.json", ids)
+    write_json(out / "test_targets_bop19.json", targets)
+    write_json(
+        out / "test_targets_bop24.json", [{"scene_id": int(k), "im_id": 0} for k in sorted(ids)]
+    )
+    if layout != "scenewise":
+        _imagewise(out / "test", out / "test_imagewise", cameras)
+        if layout == "webdataset":
+            _webdataset(out / "test_imagewise", out / "test_webdataset")
+            shutil.rmtree(out / "test_imagewise")
+        shutil.move(out / "test" / "scene_ids.json", out / "scene_ids.json")
+        shutil.rmtree(out / "test")
+    return failed
+
+
+def suffix(name: str, multi: bool) -> str:
+    """A camera's file suffix: ``_<name>`` when several cameras are exported."""
+    return f"_{name}" if multi else ""
+
+
+def _write_models(ds: Dataset, out: Path) -> dict[str, int]:
+    """models/ and models_eval/ with models_info.json; object name -> BOP id."""
+    obj_ids = {name: k + 1 for k, name in enumerate(ds.objects)}
+    info = {str(oid): models_info(ds.objects[name]) for name, oid in obj_ids.items()}
+    for folder in ("models", "models_eval"):
+        for name, oid in obj_ids.items():
+            write_ply(out / folder / f"obj_{oid:06d}.ply", ds.objects[name].mesh)
+        write_json(out / folder / "models_info.json", info)
+    return obj_ids
+
+
+class _SceneWriter:
+    """One of our scenes as one BOP scene: an image per exported camera, with its poses,
+    masks, visibility and COCO annotations."""
+
+    def __init__(
+        self,
+        ds: Dataset,
+        rig: Any,
+        cameras: Sequence[str],
+        obj_ids: dict[str, int],
+        folder: Path,
+    ) -> None:
+        self.ds, self.rig, self.cameras, self.obj_ids, self.folder = (
+            ds,
+            rig,
+            cameras,
+            obj_ids,
+            folder,
+        )
+        self.depth_scale = ds.rig.depth.scale if ds.rig.depth else 1.0
+
+    def write(self, item: Selected, inputs: Any, bop_id: int) -> list[dict[str, int]]:
+        """Write the scene; returns its entries of test_targets_bop19.json (for the first
+        camera: BOP's targets name one image per scene here)."""
+        depth = inputs.depth
+        meshes = [self.ds.objects[p.object].mesh for p in item.poses]
+        vis = scene_visibility(
+            self.rig,
+            meshes,
+            [p.T for p in item.poses],
+            depth=depth,
+            cameras=self.cameras,
+            masks=True,
+        )
+        targets: list[dict[str, int]] = []
+        for ci, name in enumerate(self.cameras):
+            visib = self._write_camera(ci, name, item, inputs.images[name], depth, vis)
+            if ci == 0:
+                targets = _targets(bop_id, [self.obj_ids[p.object] for p in item.poses], visib)
+        return targets
+
+    def _write_camera(
+        self, ci: int, name: str, item: Selected, img: np.ndarray, depth: Any, vis: Any
+    ) -> list[float]:
+        sfx = suffix(name, len(self.cameras) > 1)
+        cam = self.rig.camera(name)
+        d = self.folder
+        kind = "gray" if img.ndim == 2 else "rgb"
+        write_png(d / f"{kind}{sfx}" / "000000.png", img)
+        has_depth = (
+            depth is not None and self.ds.rig.depth is not None and name == self.ds.rig.depth.camera
+        )
+        if has_depth:
+            write_png(d / f"depth{sfx}" / "000000.png", encode_depth(depth, self.depth_scale))
+        gts, infos, coco = [], [], []
+        for k, (p, v) in enumerate(zip(item.poses, vis)):
+            cv = v.cameras[ci]
+            M = cam.cam_T_rig @ p.T
+            gts.append(
+                {
+                    "cam_R_m2c": M[:3, :3].ravel().tolist(),
+                    "cam_t_m2c": M[:3, 3].tolist(),
+                    "obj_id": self.obj_ids[p.object],
+                }
+            )
+            visib_px = int(cv.mask_visib.sum())
+            fract = float(visib_px / cv.px_all) if cv.px_all else 0.0
+            infos.append(
+                {
+                    "bbox_obj": list(cv.bbox_all) if cv.bbox_all else [-1, -1, -1, -1],
+                    "bbox_visib": list(cv.bbox_visib) if cv.bbox_visib else [-1, -1, -1, -1],
+                    "px_count_all": cv.px_all,
+                    "px_count_valid": (
+                        int(np.sum(cv.mask_all & np.isfinite(depth))) if has_depth else cv.px_all
+                    ),
+                    "px_count_visib": visib_px,
+                    "visib_fract": fract,
+                }
+            )
+            write_png(d / f"mask{sfx}" / f"000000_{k:06d}.png", cv.mask_all.astype(np.uint8) * 255)
+            write_png(
+                d / f"mask_visib{sfx}" / f"000000_{k:06d}.png",
+                cv.mask_visib.astype(np.uint8) * 255,
+            )
+            coco.append((self.obj_ids[p.object], cv.mask_all, cv.mask_visib, fract))
+        cam_rec: dict[str, Any] = {
+            "cam_K": cam.K.ravel().tolist(),
+            "cam_R_w2c": cam.cam_T_rig[:3, :3].ravel().tolist(),
+            "cam_t_w2c": cam.cam_T_rig[:3, 3].tolist(),
+        }
+        if has_depth:
+            cam_rec["depth_scale"] = self.depth_scale
+        write_json(d / f"scene_camera{sfx}.json", {"0": cam_rec})
+        write_json(d / f"scene_gt{sfx}.json", {"0": gts})
+        write_json(d / f"scene_gt_info{sfx}.json", {"0": infos})
+        write_json(
+            d / f"scene_gt_coco{sfx}.json",
+            coco_scene(coco, f"{kind}{sfx}/000000.png", cam.width, cam.height, self.obj_ids),
+        )
+        return [c[3] for c in coco]
+
+
+def _targets(scene_id: int, obj_ids: list[int], visib: list[float]) -> list[dict[str, int]]:
+    counts: dict[int, int] = {}
+    for oid, v in zip(obj_ids, visib):
+        if v >= TARGET_MIN_VISIB:
+            counts[oid] = counts.get(oid, 0) + 1
+    return [
+        {"scene_id": scene_id, "im_id": 0, "obj_id": oid, "inst_count": n}
+        for oid, n in counts.items()
+    ]
+
+
+def rle(mask: np.ndarray) -> dict[str, Any]:
+    """A boolean mask as COCO's compressed RLE, JSON-ready (``counts`` as text)."""
+    code = coco_mask.encode(np.asfortranarray(mask.astype(np.uint8)))
+    return {"counts": code["counts"].decode("ascii"), "size": [int(s) for s in code["size"]]}
+
+
+def coco_scene(
+    instances: list[tuple[int, np.ndarray, np.ndarray, float]],
+    file_name: str,
+    width: int,
+    height: int,
+    obj_ids: dict[str, int],
+) -> dict[str, Any]:
+    """A scene_gt_coco.json of one image: per instance (object id, full mask, visible mask,
+    visible fraction); instances with nothing visible are left out, as bop_toolkit does."""
+    annotations: list[dict[str, Any]] = []
+    for oid, full, visib, fract in instances:
+        if not visib.any() or not full.any():
+            continue
+        ys, xs = np.nonzero(full)
+        x0, y0 = int(xs.min()), int(ys.min())
+        annotations.append(
+            {
+                "id": len(annotations) + 1,
+                "image_id": 0,
+                "category_id": oid,
+                "iscrowd": 0,
+                "area": int(visib.sum()),
+                "bbox": [x0, y0, int(xs.max()) - x0 + 1, int(ys.max()) - y0 + 1],
+                "segmentation": rle(visib),
+                "width": int(width),
+                "height": int(height),
+                "ignore": bool(fract < TARGET_MIN_VISIB),
+            }
+        )
+    return {
+        "info": {"description": "annotator export", "url": "", "version": "0.1.0"},
+        "licenses": [],
+        "categories": [
+            {"id": oid, "name": str(oid), "supercategory": "annotator"} for oid in obj_ids.values()
+        ],
+        "images": [{"id": 0, "file_name": file_name, "width": int(width), "height": int(height)}],
+        "annotations": annotations,
+    }
+
+
+# -------------------------------------------------------------------------------- layouts
+
+
+def _imagewise(scenes: Path, out: Path, cameras: Sequence[str]) -> None:
+    """bop_toolkit's bop_imagewise files from the scene-wise export: one image per (scene,
+    camera), the camera's index as image id."""
+    multi = len(cameras) > 1
+    for scene in sorted(p for p in scenes.iterdir() if p.is_dir()):
+        for ci, name in enumerate(cameras):
+            sfx = suffix(name, multi)
+            key = f"{scene.name}_{ci:06d}"
+            for what in ("camera", "gt", "gt_info"):
+                doc = json.loads((scene / f"scene_{what}{sfx}.json").read_text())["0"]
+                write_json(out / f"{key}.{what}.json", doc)
+            for what in ("mask", "mask_visib"):
+                files = sorted((scene / f"{what}{sfx}").glob("000000_*.png"))
+                masks = {str(k): rle(read_image(f) > 0) for k, f in enumerate(files)}
+                write_json(out / f"{key}.{what}.json", masks)
+            if (scene / f"rgb{sfx}").is_dir():
+                shutil.copy(scene / f"rgb{sfx}" / "000000.png", out / f"{key}.rgb.png")
+            else:  # bop_imagewise reads grey images as TIFF only
+                gray = read_image(scene / f"gray{sfx}" / "000000.png")
+                # uncompressed: imageio's TIFF reader needs an extra codec package for LZW
+                ok, buf = cv2.imencode(".tiff", gray, [cv2.IMWRITE_TIFF_COMPRESSION, 1])
+                if not ok:
+                    raise OSError(f"{key}: TIFF encoding failed")
+                write_bytes(out / f"{key}.gray.tiff", buf.tobytes())
+            if (scene / f"depth{sfx}").is_dir():
+                shutil.copy(scene / f"depth{sfx}" / "000000.png", out / f"{key}.depth.png")
+
+
+def _webdataset(imagewise: Path, out: Path) -> None:
+    """The imagewise files as tar shards (one sample per image key) and key_to_shard.json."""
+    out.mkdir(parents=True, exist_ok=True)
+    files: dict[str, list[Path]] = {}
+    for f in sorted(imagewise.iterdir()):
+        files.setdefault(f.name.split(".")[0], []).append(f)
+    key_to_shard: dict[str, int] = {}
+    with wds.ShardWriter(
+        str(out / "shard-%06d.tar"), maxcount=SHARD_IMAGES, encoder=False, verbose=0
+    ) as sink:
+        for n, (key, group) in enumerate(sorted(files.items())):
+            sample: dict[str, Any] = {"__key__": key}
+            for f in group:
+                sample[f.name[len(key) + 1 :]] = f.read_bytes()
+            sink.write(sample)
+            key_to_shard[key] = n // SHARD_IMAGES
+    write_json(out / "key_to_shard.json", key_to_shard)
