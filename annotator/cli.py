@@ -23,9 +23,9 @@ from typing import NoReturn
 
 from annotator.errors import Terminated, UserError
 
-# One BLAS thread: the matrices here are small, and threads only add overhead (measured:
-# annotate 0.35 s per scene with one thread, 0.6 s with the default); batch commands get
-# their parallelism from worker processes. Set before numpy is first imported; a user's own
+# One BLAS thread: the matrices here are small, and threads only add overhead (annotate is
+# faster with one, `benchmarks/bench_annotate.py`); batch commands get their parallelism from
+# worker processes. Set before numpy is first imported; a user's own
 # setting wins.
 for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
@@ -118,7 +118,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     chosen = next((a for a in argv if not a.startswith("-")), None)
     for name, module, _help_text in COMMANDS:
         if name == chosen:
-            sub = parser._subparsers._group_actions[0].choices[name]  # type: ignore[union-attr]
+            commands = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+            sub = commands.choices[name]
             mod = importlib.import_module(module)
             mod.add_arguments(sub)
             break
@@ -170,7 +171,7 @@ _TERMINATING = threading.Event()
 
 def _exit_soon(delay: float = 5.0) -> None:
     time.sleep(delay)
-    batch = sys.modules.get("annotator.batch")
+    batch = sys.modules.get("annotator.runner.local")
     if batch is not None:
         batch.kill_workers()
     print("annotator: terminated", file=sys.stderr, flush=True)

@@ -9,7 +9,7 @@ about 20-27 px), made by the synth library with its background depth.
 
     .venv/bin/python benchmarks/bench_annotate.py [--scenes N]
 
-Targets (issue 12): posed >= 95% sharp and >= 90% blurred of the parts at least half visible;
+Targets: posed >= 95% sharp and >= 90% blurred of the parts at least half visible;
 0 gross errors (> 5% of D) without a flag; every scene with an unposed visible part warned;
 at most 1 complete scene in 8 warned; annotate time per scene no more than 25% above the
 0.41 s of before (0.51 s).
@@ -38,15 +38,15 @@ import numpy as np  # noqa: E402
 import yaml  # noqa: E402
 
 from annotator.annotation.batch import AnnotateJob  # noqa: E402
-from annotator.annotation.record import SceneAnnotation  # noqa: E402
-from annotator.batch import run_batch  # noqa: E402
 from annotator.dataset import load_dataset, read_poses  # noqa: E402
+from annotator.dataset.annotation import SceneAnnotation  # noqa: E402
 from annotator.markers.texture import marker_image  # noqa: E402
 from annotator.rendering.raycast import PlacedMesh, RayScene  # noqa: E402
+from annotator.runner import run_batch  # noqa: E402
 from annotator.symmetry import PoseSpace  # noqa: E402
 from annotator.synthesis.generate import SynthConfig, plan_dataset, write_dataset_files  # noqa: E402
 
-BASELINE_S = 0.41  # annotate, warm, one worker, per scene, before issue 12
+BASELINE_S = 0.41  # annotate, warm, one worker, per scene, before blur reading and completeness
 CONFIG = SynthConfig(parts=("bracket", "brick", "cylinder"), instances=(12, 20), seed=11)
 
 

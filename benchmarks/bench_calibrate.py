@@ -1,4 +1,4 @@
-"""Rig calibration accuracy on issue 16's reference setup: 30 shots of a 7x5 ChArUco board
+"""Rig calibration accuracy on the reference setup: 30 shots of a 7x5 ChArUco board
 (30 mm squares) at 520-760 mm seen by the synthetic two-camera rig, about 0.15 px of corner
 noise (image noise 12 grey levels, blur 1 px). Ours (joint refinement over all corners)
 against OpenCV's two-step pipeline (calibrateCamera, then stereoCalibrate with the

@@ -25,13 +25,13 @@ from pathlib import Path
 
 import numpy as np
 
-from annotator.batch import available_cpus, run_batch
 from annotator.cli import main as annotator
 from annotator.estimation.estimator import variants
 from annotator.estimation.job import EstimateJob
 from annotator.estimation.results import write_results
 from annotator.evaluation.evaluate import Options, evaluate
 from annotator.formats import ours
+from annotator.runner import available_cpus, run_batch
 
 PARTS = ("bracket", "brick", "gear", "cylinder")
 VARIANTS = variants(symmetric=(False, True), post_process=(False, True))

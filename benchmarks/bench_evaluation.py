@@ -25,7 +25,7 @@ from annotator.geometry.transforms import random_rotations
 from annotator.parts import build_part
 from annotator.symmetry import PoseSpace, finite_group
 
-AUTHORS_SECONDS_PER_SCENE = 0.9  # the faster end of the authors' code here (issue 11)
+AUTHORS_SECONDS_PER_SCENE = 0.9  # the faster end of the authors' code, measured on this machine
 
 
 def write_problem(

@@ -1,4 +1,4 @@
-"""Ray's overhead (issue 15): the same 8-scene annotate batch with 2 local worker processes and
+"""Ray's overhead: the same 8-scene annotate batch with 2 local worker processes and
 on a 2-CPU Ray cluster on this machine. Target: Ray overhead <= 15%.
 
 The batch: the four sample scenes twice over (8 scenes, two 1280x1024 cameras and a depth
@@ -31,7 +31,9 @@ import tempfile
 import time
 from pathlib import Path
 
-from annotator.scale.local_cluster import LocalCluster
+# The throwaway local cluster is test support code: it lives beside the tests.
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
+from local_cluster import LocalCluster  # noqa: E402
 
 SAMPLE = Path(__file__).resolve().parent.parent / "sample_scenes"
 ANNOTATOR = str(Path(sys.executable).parent / "annotator")
@@ -68,8 +70,8 @@ def batch_seconds(local: Path, remote: Path, address: str, repeat: int) -> tuple
     """Best seconds of a warm batch: local (2 workers), then on Ray (this process joined;
     only then: a process with Ray's threads should not fork local workers)."""
     from annotator.annotation.batch import AnnotateJob
-    from annotator.batch import run_batch
     from annotator.dataset import load_dataset
+    from annotator.runner import run_batch
 
     ids = [s.id for s in load_dataset(local).scenes()]
 

@@ -11,9 +11,18 @@ that of the last frame once the page has been still for 400 ms. Between presses
 the script waits one second, as a person looking at the scene would, which is when the next
 scenes are prepared. Targets: median <= 300 ms, worst <= 600 ms.
 
-It also prints the server-side part of a switch.
+It also prints the server-side part of a switch, and then, the same way, the time from a
+repair key to the new overlay on screen (the zoom on the instance repaired): R (refine; its
+ICP time, which the page shows as it runs, printed apart and also taken out), A (the next
+candidate pose), a nudge (1 mm) and U (undo), on a copy of the sample where bracket/01 of
+scene 000000 was moved by 3 mm and 4 degrees; A on brick/05 of scene 000003 (one marker: two
+IPPE solutions). Target: 150 ms after the key (R: after the ICP). A repair changes few
+pixels, so its frames are larger (700 px wide) and "the new overlay" also means: where the
+settled frame differs from the one on screen at the key, the frame is at least 3/4 of the
+way there (the overall test alone passes a frame still showing the old overlay).
 
-    .venv/bin/python benchmarks/bench_viewer.py
+    .venv/bin/python benchmarks/bench_viewer.py            # switches, then repairs
+    .venv/bin/python benchmarks/bench_viewer.py --repair   # repairs only
 """
 
 from __future__ import annotations
@@ -38,8 +47,14 @@ from viewer.headless import free_port, launch_chromium  # noqa: E402
 
 SAMPLE = ROOT / "sample_scenes"
 SWITCHES = 20
+REPAIRS = 8  # presses of each repair key
+REPAIR_TARGET_MS = 150.0
 VIEWPORT = {"width": 1400, "height": 1000}
 FRAME_WIDTH = 350  # screencast frames, scaled down: cheap to make, still plenty to compare
+#: A repair moves an outline by a pixel or two: its frames are larger, to see that.
+REPAIR_FRAME_WIDTH = 700
+CHANGE_LEVEL = 24  # grey levels: a pixel the repair changed, well above JPEG noise
+MIN_CHANGED = 8  # pixels; fewer: nothing to see changing, the overall test alone
 KEY_CLOCK = """
 window.__keys = [];
 document.addEventListener("keydown", () => window.__keys.push(Date.now() / 1000), true);
@@ -49,7 +64,7 @@ document.addEventListener("keydown", () => window.__keys.push(Date.now() / 1000)
 class Screencast:
     """Frames the page's compositor produces, with their times (seconds since the epoch)."""
 
-    def __init__(self, page) -> None:
+    def __init__(self, page, width: int = FRAME_WIDTH) -> None:
         self.frames: list[tuple[float, np.ndarray]] = []
         self._lock = threading.Lock()
         self._cdp = page.context.new_cdp_session(page)
@@ -59,8 +74,8 @@ class Screencast:
             {
                 "format": "jpeg",
                 "quality": 80,
-                "maxWidth": FRAME_WIDTH,
-                "maxHeight": FRAME_WIDTH,
+                "maxWidth": width,
+                "maxHeight": width,
                 "everyNthFrame": 1,
             },
         )
@@ -78,6 +93,12 @@ class Screencast:
     def since(self, t: float) -> list[tuple[float, np.ndarray]]:
         with self._lock:
             return [f for f in self.frames if f[0] > t]
+
+    def at(self, t: float) -> np.ndarray | None:
+        """The frame on screen at time ``t`` (the last one made before it)."""
+        with self._lock:
+            earlier = [f for f in self.frames if f[0] <= t]
+        return earlier[-1][1] if earlier else None
 
     def stop(self) -> None:
         self._cdp.send("Page.stopScreencast")
@@ -97,9 +118,30 @@ def _picture_area(frame: np.ndarray) -> np.ndarray:
     return frame[:, : frame.shape[1] * 6 // 10]
 
 
-def shown_at(page, cast: Screencast, pressed: float, timeout: float = 10.0) -> float:
+def _arrived(img: np.ndarray, final: np.ndarray, before: np.ndarray | None) -> bool:
+    """Whether frame ``img`` shows the picture ``final``: within JPEG noise of it overall, and,
+    where ``final`` differs from the picture ``before`` the key, at least 3/4 of the way there
+    (a repair changes few pixels: a frame still showing the old overlay is as close to the
+    final one overall as JPEG noise)."""
+    img = _picture_area(img)
+    if np.abs(img - final).mean() >= 2.0:
+        return False
+    if before is None:
+        return True
+    change = np.abs(_picture_area(before) - final)
+    changed = change > CHANGE_LEVEL
+    if changed.sum() < MIN_CHANGED:
+        return True
+    return np.abs(img - final)[changed].mean() <= 0.25 * change[changed].mean()
+
+
+def shown_at(
+    page, cast: Screencast, pressed: float, timeout: float = 10.0, *, changes: bool = False
+) -> float:
     """Time of the first frame after ``pressed`` whose picture area is the one the page
-    settles on (no new frame for 400 ms)."""
+    settles on (no new frame for 400 ms); with ``changes``, also where it changed since the
+    frame on screen at the key (see :func:`_arrived`)."""
+    before = cast.at(pressed) if changes else None
     end = time.monotonic() + timeout
     while time.monotonic() < end:
         # Waiting through Playwright, not time.sleep: frames arrive (and are acknowledged,
@@ -109,7 +151,7 @@ def shown_at(page, cast: Screencast, pressed: float, timeout: float = 10.0) -> f
         if frames and time.time() - frames[-1][0] > 0.4:
             final = _picture_area(frames[-1][1])
             for t, img in frames:
-                if np.abs(_picture_area(img) - final).mean() < 2.0:
+                if _arrived(img, final, before):
                     return t
     raise RuntimeError("the page did not settle within 10 s of the key")
 
@@ -166,7 +208,150 @@ def server_switches(app: ReviewApp) -> tuple[float, list[float]]:
     return cold, times
 
 
+def _moved_dataset(dst: Path) -> Path:
+    """The sample with bracket/01 of scene 000000 moved by 3 mm and turned by 4 degrees."""
+    import json
+
+    from annotator.geometry.transforms import axis_angle
+
+    shutil.copytree(SAMPLE, dst, ignore=shutil.ignore_patterns("review.json"))
+    path = dst / "scenes" / "000000" / "annotation.json"
+    doc = json.loads(path.read_text())
+    for rec in doc["instances"]:
+        if (rec["object"], rec["instance"]) == ("bracket", "01"):
+            R = np.array(rec["cam_R_m2c"]).reshape(3, 3)
+            dR = axis_angle(np.array([1.0, 2.0, -1.0]), np.radians(4.0))
+            rec["cam_R_m2c"] = (dR @ R).ravel().tolist()
+            rec["cam_t_m2c"] = (np.array(rec["cam_t_m2c"]) + [1.8, -2.4, 0.0]).tolist()
+    path.write_text(json.dumps(doc))
+    return dst
+
+
+def browser_repairs(app: ReviewApp) -> dict[str, list[float]]:
+    """Key press to the new overlay on screen, ms, for each repair key; and the ICP's time
+    (``"icp"``, ms) of each R."""
+    from playwright.sync_api import sync_playwright
+
+    import viewer.repair
+
+    icp: list[float] = []
+    real = viewer.repair.refine
+
+    def timed(*args, **kwargs):
+        t0 = time.perf_counter()
+        try:
+            return real(*args, **kwargs)
+        finally:
+            icp.append(1000.0 * (time.perf_counter() - t0))
+
+    viewer.repair.refine = timed
+    out: dict[str, list[float]] = {
+        "R": [],
+        "A": [],
+        "C": [],
+        "nudge": [],
+        "U": [],
+        "nudge, mosaic": [],
+        "U, mosaic": [],
+    }
+    try:
+        with sync_playwright() as pw:
+            browser = launch_chromium(pw)
+            try:
+                page = browser.new_page(viewport=VIEWPORT)
+                page.add_init_script(KEY_CLOCK)
+                page.goto(app.url)
+                page.wait_for_selector("canvas", timeout=60000)
+                page.get_by_text("Scene 000000").first.wait_for(timeout=60000)
+                page.wait_for_timeout(3000)
+                cast = Screencast(page, REPAIR_FRAME_WIDTH)
+                session = next(iter(app.sessions.values()))
+
+                def press(key: str, name: str | None, done=None) -> None:
+                    page.wait_for_timeout(700)  # a person looks at the result
+                    page.keyboard.press(key)
+                    if done is not None:  # the overlay has been sent once it is done
+                        end = time.monotonic() + 30
+                        while not done() and time.monotonic() < end:
+                            page.wait_for_timeout(20)
+                        page.wait_for_timeout(600)  # its frames come, then the page settles
+                    pressed = page.evaluate("window.__keys[window.__keys.length - 1]")
+                    ms = 1000.0 * (shown_at(page, cast, pressed, changes=True) - pressed)
+                    if name is not None:
+                        out[name].append(ms)
+
+                def select(key: str) -> None:
+                    page.get_by_role("button", name=key, exact=True).first.click()
+                    page.get_by_text(f"Scene {session.nav.current}").first.click()
+                    page.wait_for_timeout(1500)
+
+                select("bracket/01")
+
+                def edits() -> int:
+                    return len(session.history.get(session.nav.current, []))
+
+                for _ in range(REPAIRS):
+                    n = edits()
+                    press("r", "R", lambda n=n: edits() > n)
+                    press("2", "nudge")
+                    press("u", "U")  # the nudge undone
+                    press("1", "nudge")
+                    press("u", "U")
+                    press("u", None)  # the refinement undone: moved again for the next R
+                press("z", None)  # the zoom closed: the same in the mosaic
+                for _ in range(REPAIRS):
+                    press("2", "nudge, mosaic")
+                    press("u", "U, mosaic")
+                for _ in range(3):
+                    press("j", None)
+                page.get_by_text("Scene 000003").first.wait_for(timeout=10000)
+                select("brick/05")
+                for _ in range(REPAIRS):
+                    press("c", "C")
+                    press("a", "A")
+                cast.stop()
+            finally:
+                browser.close()
+    finally:
+        viewer.repair.refine = real
+    out["icp"] = icp
+    return out
+
+
+def report_repairs() -> None:
+    with tempfile.TemporaryDirectory() as tmp:
+        root = _moved_dataset(Path(tmp) / "ds")
+        app = ReviewApp(root, host="127.0.0.1", port=free_port())
+        try:
+            times = browser_repairs(app)
+        finally:
+            app.stop()
+    icp = times.pop("icp")
+    after_icp = [max(0.0, r - i) for r, i in zip(times["R"], icp)]
+    print(
+        "repairs in headless Chromium, key press to the new overlay on screen (zoom on the "
+        f"instance, or the mosaic), {REPAIRS}+ presses each, target {REPAIR_TARGET_MS:.0f} ms:"
+    )
+    for name, values in [*times.items(), ("R after its ICP", after_icp), ("ICP (R's work)", icp)]:
+        med, worst = statistics.median(values), max(values)
+        ratio = (
+            ""
+            if name == "ICP (R's work)" or name == "R"
+            else (f" (ratios {med / REPAIR_TARGET_MS:.2f} / {worst / REPAIR_TARGET_MS:.2f})")
+        )
+        print(f"  {name}: median {med:.0f} ms, worst {worst:.0f} ms{ratio}")
+        print(f"    each, ms: {', '.join(f'{t:.0f}' for t in values)}")
+
+
 def main() -> None:
+    if "--repair" in sys.argv[1:]:
+        report_repairs()
+        return
+    switches()
+    report_repairs()
+
+
+def switches() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         root = make_dataset(Path(tmp) / "ds", SWITCHES + 4)
         app = ReviewApp(root, host="127.0.0.1", port=free_port())

@@ -1,4 +1,4 @@
-"""The review server's memory under hostile pages (issue 26): a real ``annotator review``
+"""The review server's memory under hostile pages: a real ``annotator review``
 (child process, on a copy of sample_scenes) and pages that are scripts speaking viser's
 websocket protocol (:mod:`viewer.wire`), no token needed on 127.0.0.1.
 

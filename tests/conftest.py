@@ -1,4 +1,6 @@
-"""Shared fixtures: copies of the committed sample dataset (tests never write into it)."""
+"""Shared fixtures: copies of the committed sample dataset (tests never write into it); and the
+``slow`` mark on the modules that a developer's inner loop (``make test-fast``) leaves out:
+Ray clusters, calibration captures, sites measured over many scenes, real browsers."""
 
 from __future__ import annotations
 
@@ -8,6 +10,20 @@ from pathlib import Path
 import pytest
 
 SAMPLE = Path(__file__).resolve().parent.parent / "sample_scenes"
+
+#: Test modules marked ``slow`` as a whole (the browser tests are, through their fixture).
+SLOW_MODULES = {
+    "test_ray.py",
+    "test_calibrate.py",
+    "test_calibrate_boards.py",
+    "test_sites.py",
+}
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    for item in items:
+        if item.path.name in SLOW_MODULES or "browser" in getattr(item, "fixturenames", ()):
+            item.add_marker(pytest.mark.slow)
 
 
 @pytest.fixture()

@@ -1,7 +1,7 @@
 """Rig calibration from ChArUco shots: the synthetic captures, the recovery of the true rig
 side by side with OpenCV's pipelines, the dataset.yaml it writes, and every bad input.
 
-The reference setup of issue 16: 30 shots of a 7x5 board (30 mm squares) at 520-760 mm
+The reference setup: 30 shots of a 7x5 board (30 mm squares) at 520-760 mm
 seen by the synthetic two-camera rig, with about 0.15 px of corner noise (image noise 12
 grey levels, blur 1 px). Rendered once per module (about 15 s on two cores).
 """
@@ -32,7 +32,7 @@ from annotator.geometry.transforms import invert, make_transform, rotvec_to_matr
 from annotator.synthesis.board import true_corners
 
 SHOTS = 30
-#: Issue 16's targets: focal lengths (%), principal points (px), rig_T_cam (mm, degrees).
+#: The targets: focal lengths (%), principal points (px), rig_T_cam (mm, degrees).
 TOLERANCE = {"focal_pct": 0.2, "principal_px": 5.0, "position_mm": 0.3, "rotation_deg": 0.2}
 
 

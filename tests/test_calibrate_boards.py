@@ -27,7 +27,7 @@ from annotator.dataset import load_dataset
 from annotator.errors import UserError
 from annotator.geometry.transforms import invert
 from annotator.markers.dictionary import dictionary, min_distance
-from annotator.scale.bundle import description_files
+from annotator.runner.bundle import description_files
 from annotator.synthesis.board import write_videos
 
 TOLERANCE = {"focal_pct": 0.2, "principal_px": 5.0, "position_mm": 0.3, "rotation_deg": 0.2}

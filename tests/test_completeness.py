@@ -11,10 +11,10 @@ import pytest
 import yaml
 
 from annotator.annotation.completeness import exposure, quality_warnings
-from annotator.annotation.record import SceneAnnotation
 from annotator.annotation.scene import Settings, annotate_scene, render_poses, unexplained_depth
 from annotator.cli import main
 from annotator.dataset import load_dataset, read_poses
+from annotator.dataset.annotation import SceneAnnotation
 from annotator.detection import MarkerDetector
 from annotator.symmetry import PoseSpace
 

@@ -1,4 +1,4 @@
-"""Bad input and faults: nothing lost, nothing hung, nothing wrong accepted (issue 14's probe).
+"""Bad input and faults: nothing lost, nothing hung, nothing wrong accepted.
 
 Each test first sets up the situation that went wrong before, then checks what the user sees.
 """

@@ -145,3 +145,9 @@ def test_registry_and_detection(tmp_path, sample) -> None:
 def test_symmetry_to_bop_lists_every_non_identity_element() -> None:
     sym = Symmetry("finite", ((Z, 8),))
     assert len(symmetry_to_bop(sym, np.zeros(3))["symmetries_discrete"]) == 7
+
+
+def test_symmetry_to_bop_takes_z_for_a_revolution_without_axis() -> None:
+    # As symmetry_to_yaml does (and a reloaded object.yaml has): no axis means z.
+    bare = symmetry_to_bop(Symmetry("revolution_flip"), np.zeros(3))
+    assert bare == symmetry_to_bop(Symmetry("revolution_flip", axis=Z), np.zeros(3))

@@ -26,14 +26,14 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from local_cluster import LocalCluster, _free_port
 
 from annotator.cli import main
 from annotator.dataset import load_dataset
 from annotator.dataset.poses import read_pose_file
 from annotator.dataset.review import Review, now_iso, poses_fingerprint, write_review
 from annotator.errors import UserError
-from annotator.scale.local_cluster import LocalCluster, _free_port
-from annotator.scale.ray_runner import run_on_ray
+from annotator.runner.ray_cluster import run_on_ray
 
 pytestmark = pytest.mark.skipif(
     importlib.util.find_spec("ray") is None,
@@ -262,7 +262,7 @@ def test_exceptions_and_dead_workers_are_retried_a_bounded_number_of_times(
 ) -> None:
     import ray
 
-    import annotator.scale.ray_runner as ray_runner
+    import annotator.runner.ray_cluster as ray_runner
 
     monkeypatch.setattr(ray_runner, "progress_bar", CountingBar)
 

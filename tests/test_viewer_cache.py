@@ -71,3 +71,16 @@ def test_the_least_recently_used_values_are_dropped(quick) -> None:
     for key in "abcd":
         quick.get(key, lambda key=key: key)
     assert not quick.ready("a") and all(quick.ready(k) for k in "bcd")
+
+
+def test_put_and_drop_keep_what_a_repair_made() -> None:
+    cache: PrefetchCache[str] = PrefetchCache(size=4)
+    try:
+        cache.put(("a", 1), "first")
+        cache.put(("a", 2), "second")
+        cache.put(("b", 1), "other scene")
+        cache.drop(lambda key: key[0] == "a" and key != ("a", 2))
+        assert not cache.ready(("a", 1)) and cache.ready(("a", 2)) and cache.ready(("b", 1))
+        assert cache.get(("a", 2), lambda: "made again") == "second"
+    finally:
+        cache.stop()

@@ -4,7 +4,8 @@
 - :mod:`viewer.session`: one page: its cursor, panel and canvas, and what its keys and
   clicks do;
 - :mod:`viewer.navigation`: one reviewer's cursor, filter, selection and zoom (no viser);
-- :mod:`viewer.state`: what is decided about each scene (review.json), progress, polling;
+- :mod:`viewer.state`: what is decided about each scene (review.json, repaired poses
+  included), progress, polling;
 - :mod:`viewer.cache`: scenes prepared in the background before they are shown;
 - :mod:`viewer.overlays`: what the pictures are drawn from, rendered pixel-exact on the server;
 - :mod:`viewer.mosaic`, :mod:`viewer.zoom`: the pictures, and the way back to camera pixels;
@@ -12,7 +13,9 @@
 - :mod:`viewer.style`: colours and what each instance's outline shows;
 - :mod:`viewer.scene_warnings`: annotation.json's warnings (unexplained depth regions);
 - :mod:`viewer.panel`: the control panel and hotkeys;
-- :mod:`viewer.scene3d`: the 3D canvas (clicks on the pictures, the 3D view) and its handles;
+- :mod:`viewer.scene3d`: the 3D canvas (clicks on the pictures, the 3D view, the gizmo) and
+  its handles;
+- :mod:`viewer.repair`: what the repair keys compute (over :mod:`annotator.repair`);
 - :mod:`viewer.access`: who may connect (Origin, token);
 - :mod:`viewer.frames`: what a connection may send (malformed frames dropped, one log line);
 - :mod:`viewer.memory`: what bounds the server's memory (canvas sizes, cache bytes, closed

@@ -32,6 +32,7 @@ from viewer.cache import PrefetchCache
 from viewer.memory import bound_allocator, give_back
 from viewer.mosaic import compose, forget
 from viewer.overlays import Prepared, prepare
+from viewer.repair import RepairInputs
 from viewer.session import Session
 from viewer.startup import check_port, start_viser
 from viewer.state import ReviewState, SceneInfo
@@ -52,6 +53,8 @@ CACHE_SCENES = 6
 #: ... and within these bytes, pictures drawn for the pages included (a scene of the sample
 #: dataset is 20 MB, plus about 8 MB per 1400 x 1000 page and up to 250 MB per 8K page).
 CACHE_BYTES = 1024 * 2**20
+#: Scenes whose detected markers and depth are kept for repairs.
+REPAIR_SCENES = 3
 
 
 def _check_listenable(host: str) -> None:
@@ -122,6 +125,8 @@ class ReviewApp:
         self.server.scene.configure_environment_map(hdri=None)
         self.server.scene.configure_default_lights(enabled=True, cast_shadow=False)
         self._lock = threading.Lock()
+        self._repair: dict[str, RepairInputs] = {}
+        self._ahead: dict[str, str] = {}  # scene -> the poses (view) prepared ahead for it
         self.sessions: dict[int, Session] = {}
         self._give_back_later: threading.Timer | None = None
         self._left_early: set[int] = set()  # pages that left before their session was listed
@@ -215,7 +220,40 @@ class ReviewApp:
 
     def prepared(self, sid: str, info: SceneInfo) -> Prepared:
         """The overlays and point cloud of a scene (waits if they are being prepared)."""
-        return self.cache.get((sid, info.fingerprint), self._make(sid, info))
+        return self.cache.get((sid, info.view), self._make(sid, info))
+
+    def reposed(self, sid: str, info: SceneInfo, prep: Prepared, before: str) -> None:
+        """``prep`` shows scene ``sid`` as ``info`` has it now (a pose repaired), made from
+        its version ``before``. Older versions of the scene are dropped: a reviewer nudging
+        a part must not push the scenes prepared ahead out of the cache (the version before
+        stays, for an undo)."""
+        keep = {(sid, info.view), (sid, before), (sid, info.fingerprint)}
+        with self._lock:
+            keep.add((sid, self._ahead.get(sid, "")))
+        self.cache.drop(lambda key: key[0] == sid and key not in keep)
+        self.cache.put((sid, info.view), prep)
+
+    def ahead(self, sid: str, view: str, prep: Prepared) -> None:
+        """``prep`` shows scene ``sid`` with the poses a page may show next (``view``, their
+        fingerprint: the next candidate of A); kept through the repairs of the scene until
+        another replaces it, so that the key only has to show it."""
+        with self._lock:
+            self._ahead[sid] = view
+        self.cache.put((sid, view), prep)
+
+    def repair_inputs(self, sid: str) -> RepairInputs:
+        """The markers as detected and the depth of scene ``sid`` (made once, kept for the
+        last few scenes: what R, A and adding a part start from)."""
+        with self._lock:
+            hit = self._repair.get(sid)
+        if hit is not None:
+            return hit
+        inputs = RepairInputs.read(self.state.ds, self.state.scene(sid))
+        with self._lock:
+            self._repair[sid] = inputs
+            while len(self._repair) > REPAIR_SCENES:
+                self._repair.pop(next(iter(self._repair)))
+        return inputs
 
     def drew(self) -> None:
         """A page drew pictures in a prepared scene: keep the cache within its bytes."""
@@ -225,7 +263,7 @@ class ReviewApp:
         """Prepare a scene in the background (not one whose folder has gone)."""
         info = self.state.info(sid)
         if not info.gone:
-            self.cache.prefetch((sid, info.fingerprint), self._make(sid, info))
+            self.cache.prefetch((sid, info.view), self._make(sid, info))
 
     def stop(self) -> None:
         """Stop serving (decisions are all on disk already)."""

@@ -131,6 +131,22 @@ class PrefetchCache(Generic[T]):
                 self._queue.popitem(last=False)
             self._cond.notify_all()
 
+    def put(self, key: Hashable, value: T) -> None:
+        """Keep ``value`` as ``key``'s, made elsewhere (a repaired pose's overlays, made from
+        the scene's previous ones)."""
+        with self._cond:
+            self._queue.pop(key, None)
+            self._done[key] = value
+            self._done.move_to_end(key)
+            self._trim()
+            self._cond.notify_all()
+
+    def drop(self, unwanted: Callable[[Hashable], bool]) -> None:
+        """Forget the values of every key that is ``unwanted`` (not one being made)."""
+        with self._cond:
+            for key in [k for k in self._done if unwanted(k)]:
+                del self._done[key]
+
     def ready(self, key: Hashable) -> bool:
         with self._cond:
             return key in self._done

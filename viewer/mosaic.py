@@ -145,7 +145,8 @@ def draw_panel(img: np.ndarray, panel: Panel, tile: Tile, prep: Prepared, look: 
         centre = layer.centres[k]
         if centre is not None:
             x, y = local.to_picture(*centre)
-            put_label(img, label(key, key in look.flagged), int(x) - 12, int(y), look.colour(key))
+            text = label(key, key in look.flagged) + ("*" if key in look.edited else "")
+            put_label(img, text, int(x) - 12, int(y), look.colour(key))
     if not panel.is_depth:
         for m in look.missing:
             if m.camera == panel.camera:

@@ -12,23 +12,28 @@ mosaic can be scaled to any browser viewport and the zoom can crop at full resol
 - the depth point cloud for the 3D view, downsampled once here.
 
 Drawing is done elsewhere (:mod:`viewer.mosaic`, :mod:`viewer.zoom`): a decision only
-re-colours what was prepared. What is drawn from a prepared scene for the pages (panels
-resized to a page's canvas, mosaics) is kept with it, within :data:`SCALED_BYTES` and
-:data:`PICTURE_BYTES` (:mod:`viewer.memory`): the sizes are the pages' to choose.
+re-colours what was prepared. A repaired pose is rendered again only where it changes
+anything (:func:`repose`: the instance's old and new rectangles, every part cast there), so
+that the new overlay is on screen at once; each part's cast there is kept
+(:attr:`CameraLayer.alone`), so the next repair of the instance casts only the part itself.
+What is drawn from a prepared scene for the pages (panels resized to a page's canvas,
+mosaics) is kept with it, within :data:`SCALED_BYTES` and :data:`PICTURE_BYTES`
+(:mod:`viewer.memory`): the sizes are the pages' to choose.
 """
 
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any
 
 import cv2
 import numpy as np
 
-from annotator.annotation.record import InstanceAnnotation
 from annotator.dataset import Dataset, Scene
+from annotator.dataset.annotation import InstanceAnnotation
 from annotator.io.images import read_image, to_gray8
-from annotator.rendering.raycast import PlacedMesh, RayScene, projected_bbox
+from annotator.rendering.raycast import PlacedMesh, RayScene, cast_alone, projected_bbox
 from viewer.memory import BytesLRU
 
 DISAGREEMENT_RANGE_MM = 10.0
@@ -39,10 +44,14 @@ CONTOUR_TOLERANCE_PX = 0.7
 SCALED_BYTES = 96 * 2**20
 #: ... and the mosaics made of them (an 8K mosaic is 100 MB; a 1400 x 1000 one 4 MB).
 PICTURE_BYTES = 160 * 2**20
+#: Pixels cast around a neighbour's share of a repair's rectangle, kept for the next repair.
+ALONE_MARGIN = 24
 DEPTH_PANEL = "depth"
 DISAGREEMENT_PANEL = "disagreement"
 
 Box = tuple[int, int, int, int]  # x0, y0, x1, y1 in pixels, end exclusive
+#: Where the shaded rendering of the parts (for blinking) is lit from, camera frame.
+_LIGHT = np.array([0.3, -0.5, -1.0]) / np.linalg.norm([0.3, -0.5, -1.0])
 
 
 @dataclass
@@ -56,6 +65,30 @@ class CameraLayer:
     contours: list[list[np.ndarray]]  # per instance: (N, 2) int32 pixel outlines
     boxes: list[Box | None]  # per instance: its visible pixels
     centres: list[tuple[int, int] | None]  # per instance: centre of its visible pixels
+    #: per instance: the rectangle its projection can cover (``projected_bbox``)
+    projected: list[Box | None] = field(default_factory=list)
+    #: per instance index, what it alone gives over a rectangle of its projection (kept
+    #: from the repairs' casts: the parts that did not move need not be cast again)
+    alone: dict[int, Alone] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class Alone:
+    """One part cast alone over ``rect``: depth (inf: missed) and triangle hit per pixel."""
+
+    rect: Box
+    depth: np.ndarray
+    triangle: np.ndarray
+
+    def covers(self, rect: Box) -> bool:
+        r = self.rect
+        return r[0] <= rect[0] and r[1] <= rect[1] and rect[2] <= r[2] and rect[3] <= r[3]
+
+    def crop(self, rect: Box) -> tuple[np.ndarray, np.ndarray]:
+        """Depth and triangles over ``rect``, which :meth:`covers` must be true of."""
+        x0, y0 = rect[0] - self.rect[0], rect[1] - self.rect[1]
+        sub = (slice(y0, y0 + rect[3] - rect[1]), slice(x0, x0 + rect[2] - rect[0]))
+        return self.depth[sub], self.triangle[sub]
 
 
 @dataclass
@@ -88,6 +121,8 @@ class Prepared:
     unexplained: np.ndarray | None = None  # bool mask on the depth grid
     cloud: np.ndarray | None = None  # (N, 3) float32 points in the reference frame, metres
     messages: list[str] = field(default_factory=list)
+    measured: np.ndarray | None = None  # float32 measured depth (mm, NaN none), depth grid
+    rendered: np.ndarray | None = None  # float32 depth of the posed parts (mm, inf none)
     #: ``(panel name, width, height)`` -> the panel resized, BGR (:meth:`scaled`)
     resized: BytesLRU[tuple[str, int, int], np.ndarray] = field(
         default_factory=lambda: BytesLRU(SCALED_BYTES, _nbytes), repr=False
@@ -101,8 +136,10 @@ class Prepared:
     def nbytes(self) -> int:
         """The memory held: the full-resolution arrays and what was drawn from them."""
         arrays = [self.depth, self.disagreement, self.unexplained, self.cloud]
+        arrays += [self.measured, self.rendered]
         for layer in self.layers:
             arrays += [layer.image, layer.instance, layer.shade]
+            arrays += [a for cast in layer.alone.values() for a in (cast.depth, cast.triangle)]
         own = sum(a.nbytes for a in arrays if a is not None)
         return own + self.resized.nbytes + self.pictures.nbytes
 
@@ -183,7 +220,6 @@ def prepare(ds: Dataset, scene: Scene, poses: list[InstanceAnnotation]) -> Prepa
     meshes = [ds.objects[p.object].mesh if p.object in ds.objects else None for p in poses]
     index = [k for k, m in enumerate(meshes) if m is not None]  # placed -> pose index
     rendered_depth = None
-    light = np.array([0.3, -0.5, -1.0]) / np.linalg.norm([0.3, -0.5, -1.0])
     for cam in ds.rig.cameras:
         try:
             gray = to_gray8(scene.read_image(cam))
@@ -204,34 +240,21 @@ def prepare(ds: Dataset, scene: Scene, poses: list[InstanceAnnotation]) -> Prepa
             hit_pose = np.where(hits.hit, np.asarray(index + [-1])[hits.instance], -1)
             instance[mask] = hit_pose
             depth[mask] = hits.depth
-            lambert = np.abs(hits.normals(placed) @ light)
+            lambert = np.abs(hits.normals(placed) @ _LIGHT)
             shade[mask] = np.where(hits.hit, 60 + 195 * lambert, 0).astype(np.uint8)
         contours: list[list[np.ndarray]] = [[] for _ in poses]
         vis_boxes: list[Box | None] = [None] * len(poses)
         centres: list[tuple[int, int] | None] = [None] * len(poses)
         for j, b in enumerate(boxes):
-            if b is None:
-                continue
-            k = index[j]
-            sub = (instance[b[1] : b[3], b[0] : b[2]] == k).astype(np.uint8)
-            ys, xs = np.nonzero(sub)
-            if not len(xs):
-                continue
-            cs, _ = cv2.findContours(sub, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
-            # Within 0.7 px of the pixel outline: below a pixel of the mosaic, which shows the
-            # images at half size or less, and many times fewer points to draw.
-            cs = [cv2.approxPolyDP(c, CONTOUR_TOLERANCE_PX, True) for c in cs if len(c) > 2]
-            contours[k] = [
-                (c.reshape(-1, 2) + [b[0], b[1]]).astype(np.int32) for c in cs if len(c) > 2
-            ]
-            vis_boxes[k] = (
-                int(xs.min() + b[0]),
-                int(ys.min() + b[1]),
-                int(xs.max() + b[0] + 1),
-                int(ys.max() + b[1] + 1),
-            )
-            centres[k] = (int(xs.mean() + b[0]), int(ys.mean() + b[1]))
-        layer = CameraLayer(cam.name, gray, instance, shade, contours, vis_boxes, centres)
+            if b is not None:
+                k = index[j]
+                contours[k], vis_boxes[k], centres[k] = _outline(instance, k, b)
+        projected: list[Box | None] = [None] * len(poses)
+        for j, b in enumerate(boxes):
+            projected[index[j]] = b
+        layer = CameraLayer(
+            cam.name, gray, instance, shade, contours, vis_boxes, centres, projected
+        )
         prep.layers.append(layer)
         if ds.rig.depth is not None and cam.name == ds.rig.depth.camera:
             prep.depth_layer = layer
@@ -245,19 +268,205 @@ def prepare(ds: Dataset, scene: Scene, poses: list[InstanceAnnotation]) -> Prepa
             measured = None
         if measured is not None:
             prep.depth = colourise_depth(measured)
-            diff = np.abs(measured - rendered_depth)
-            show = np.isfinite(rendered_depth) & np.isfinite(measured)
-            heat = np.nan_to_num(
-                np.clip(diff / DISAGREEMENT_RANGE_MM * 255, 0, 255), nan=255.0
-            ).astype(np.uint8)
-            out = cv2.cvtColor(
-                (np.nan_to_num(measured, nan=0) > 0).astype(np.uint8) * 60, cv2.COLOR_GRAY2BGR
-            )
-            out[show] = cv2.applyColorMap(heat, cv2.COLORMAP_INFERNO)[show]
-            prep.disagreement = out
+            prep.measured = measured.astype(np.float32)
+            prep.rendered = rendered_depth
+            prep.disagreement = _disagreement(measured, rendered_depth)
             prep.unexplained = _read_unexplained(scene, measured.shape, prep)
             prep.cloud = depth_cloud(dcam, measured)
     return prep
+
+
+def _outline(
+    instance: np.ndarray, k: int, box: Box
+) -> tuple[list[np.ndarray], Box | None, tuple[int, int] | None]:
+    """Instance ``k``'s silhouette contours, visible box and centre, from the instance map
+    within ``box`` (which holds all its pixels)."""
+    x0, y0, x1, y1 = box
+    sub = (instance[y0:y1, x0:x1] == k).astype(np.uint8)
+    ys, xs = np.nonzero(sub)
+    if not len(xs):
+        return [], None, None
+    cs, _ = cv2.findContours(sub, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
+    # Within 0.7 px of the pixel outline: below a pixel of the mosaic, which shows the
+    # images at half size or less, and many times fewer points to draw.
+    cs = [cv2.approxPolyDP(c, CONTOUR_TOLERANCE_PX, True) for c in cs if len(c) > 2]
+    contours = [(c.reshape(-1, 2) + [x0, y0]).astype(np.int32) for c in cs if len(c) > 2]
+    vis = (int(xs.min() + x0), int(ys.min() + y0), int(xs.max() + x0 + 1), int(ys.max() + y0 + 1))
+    return contours, vis, (int(xs.mean() + x0), int(ys.mean() + y0))
+
+
+def _disagreement(measured: np.ndarray, rendered: np.ndarray) -> np.ndarray:
+    """Measured against rendered depth (mm) as a BGR picture: bright where they disagree."""
+    diff = np.abs(measured - rendered)
+    show = np.isfinite(rendered) & np.isfinite(measured)
+    heat = np.nan_to_num(np.clip(diff / DISAGREEMENT_RANGE_MM * 255, 0, 255), nan=255.0).astype(
+        np.uint8
+    )
+    out = cv2.cvtColor(
+        (np.nan_to_num(measured, nan=0) > 0).astype(np.uint8) * 60, cv2.COLOR_GRAY2BGR
+    )
+    out[show] = cv2.applyColorMap(heat, cv2.COLORMAP_INFERNO)[show]
+    return out
+
+
+def _union(a: Box | None, b: Box | None) -> Box | None:
+    if a is None or b is None:
+        return a or b
+    return (min(a[0], b[0]), min(a[1], b[1]), max(a[2], b[2]), max(a[3], b[3]))
+
+
+def _meets(a: Box | None, b: Box) -> bool:
+    return a is not None and a[0] < b[2] and b[0] < a[2] and a[1] < b[3] and b[1] < a[3]
+
+
+def repose(
+    ds: Dataset,
+    prep: Prepared,
+    poses: list[InstanceAnnotation],
+    key: str,
+    *,
+    parallel: bool = True,
+) -> Prepared | None:
+    """``prep`` with instance ``key`` moved to its pose in ``poses`` (the scene's poses, the
+    others as in ``prep``; ``key`` may be new, last): only the rectangles its old and new
+    silhouettes cover are cast again, every part there. None when ``poses`` is not ``prep``'s
+    with that one change (an instance removed): prepare the scene anew then. ``parallel``:
+    the cameras at once, in :data:`_POOL` (work done ahead of a key runs in its own thread
+    instead: it must not hold up the pool a key's repose needs)."""
+    keys = [p.key for p in poses]
+    if key not in keys or keys[: len(prep.keys)] != prep.keys or len(keys) > len(prep.keys) + 1:
+        return None
+    k = keys.index(key)
+    out = Prepared(
+        prep.scene_id,
+        keys,
+        [],
+        depth=prep.depth,
+        unexplained=prep.unexplained,
+        cloud=prep.cloud,
+        messages=list(prep.messages),
+        measured=prep.measured,
+        rendered=None if prep.rendered is None else prep.rendered.copy(),
+    )
+    for name in prep.resized.keys():  # the images and the depth do not change
+        if name[0] != DISAGREEMENT_PANEL:
+            scaled = prep.resized.get(name)
+            if scaled is not None:
+                out.resized.put(name, scaled)
+    meshes = [ds.objects[p.object].mesh if p.object in ds.objects else None for p in poses]
+    if parallel:
+        jobs = [_POOL.submit(_repose_layer, ds, la, poses, meshes, k) for la in prep.layers]
+        results = [job.result() for job in jobs]
+    else:
+        results = [_repose_layer(ds, la, poses, meshes, k) for la in prep.layers]
+    changed: Box | None = None
+    for layer, (new, region, depth) in zip(prep.layers, results):
+        out.layers.append(new)
+        if prep.depth_layer is layer:
+            out.depth_layer = new
+            if region is not None and out.rendered is not None:
+                x0, y0, x1, y1 = region
+                out.rendered[y0:y1, x0:x1] = depth
+                changed = region
+    out.disagreement = prep.disagreement
+    if changed is not None and prep.disagreement is not None and prep.measured is not None:
+        x0, y0, x1, y1 = changed
+        out.disagreement = prep.disagreement.copy()
+        out.disagreement[y0:y1, x0:x1] = _disagreement(
+            prep.measured[y0:y1, x0:x1], out.rendered[y0:y1, x0:x1]
+        )
+    return out
+
+
+#: The cameras of a repaired pose are cast at once (open3d's casts let go of the GIL).
+_POOL = ThreadPoolExecutor(max_workers=2, thread_name_prefix="repose")
+
+
+def _repose_layer(
+    ds: Dataset,
+    layer: CameraLayer,
+    poses: list[InstanceAnnotation],
+    meshes: list,
+    k: int,
+) -> tuple[CameraLayer, Box | None, np.ndarray | None]:
+    """One camera's layer with pose ``k`` changed (see :func:`repose`), the rectangle cast
+    again and the depth rendered there."""
+    n = len(poses)
+    cam = ds.rig.camera(layer.name)
+    grow = n - len(layer.contours)
+    contours, boxes = list(layer.contours) + [[]] * grow, list(layer.boxes) + [None] * grow
+    centres = list(layer.centres) + [None] * grow
+    placed = [None if m is None else (m, cam.cam_T_rig @ p.T) for m, p in zip(meshes, poses)]
+    # The other parts have not moved: their rectangles are those of the layer's last cast.
+    known = layer.projected + [None] * (n - len(layer.projected))
+    bboxes = [
+        None
+        if q is None
+        else (projected_bbox(cam, q[0], q[1]) if j == k or not layer.projected else known[j])
+        for j, q in enumerate(placed)
+    ]
+    region = _union(boxes[k], bboxes[k])
+    instance, shade = layer.instance, layer.shade
+    # The unmoved parts' casts carry over (the dict is the new layer's: the old one's stays).
+    alone = {j: cast for j, cast in layer.alone.items() if j != k}
+    depth = None
+    if region is not None:
+        instance, shade = instance.copy(), shade.copy()
+        x0, y0, x1, y1 = region
+        rays = cam.pixel_rays()[y0:y1, x0:x1]
+        depth = np.full(rays.shape[:2], np.inf, np.float32)
+        index = np.full(rays.shape[:2], -1, np.int16)
+        lambert = np.zeros(rays.shape[:2], np.float32)
+        for j, (q, b) in enumerate(zip(placed, bboxes)):
+            if q is None or not _meets(b, region):
+                continue
+            bx0, by0, bx1, by1 = max(b[0], x0), max(b[1], y0), min(b[2], x1), min(b[3], y1)
+            sub = (slice(by0 - y0, by1 - y0), slice(bx0 - x0, bx1 - x0))
+            cast = alone.get(j) if j != k else None
+            if cast is None or not cast.covers((bx0, by0, bx1, by1)):
+                cast = _cast_alone(cam, q, (bx0, by0, bx1, by1), b if j != k else None, cast)
+                alone[j] = cast
+            hit_depth, triangle = cast.crop((bx0, by0, bx1, by1))
+            closer = hit_depth < depth[sub]
+            np.copyto(depth[sub], hit_depth, where=closer)
+            np.copyto(index[sub], np.int16(j), where=closer)
+            # Shaded where this part is the nearest only: the rest of its box is not drawn.
+            light = q[0].face_normals[triangle[closer]] @ (q[1][:3, :3].T @ _LIGHT)
+            lambert[sub][closer] = np.abs(light)
+        before = instance[y0:y1, x0:x1]
+        moved = before != index
+        # Whose silhouettes changed (the part, and those it uncovers or covers): re-outlined.
+        touched = set(np.unique(before[moved]).tolist()) | set(np.unique(index[moved]).tolist())
+        instance[y0:y1, x0:x1] = index
+        shade[y0:y1, x0:x1] = np.where(index >= 0, 60 + 195 * lambert, 0).astype(np.uint8)
+        for j in (touched | {k}) - {-1}:
+            contours[j], boxes[j], centres[j] = _outline(instance, j, _union(boxes[j], region))
+    new = CameraLayer(
+        layer.name, layer.image, instance, shade, contours, boxes, centres, bboxes, alone
+    )
+    return new, region, depth
+
+
+def _cast_alone(
+    camera, placed: tuple, rect: Box, bound: Box | None, earlier: Alone | None
+) -> Alone:
+    """A part (mesh, cam_T_model) cast alone over ``rect``; a neighbour of the part being
+    repaired (``bound``: its own rectangle) over more, kept for the next repairs: what was
+    cast of it ``earlier`` and :data:`ALONE_MARGIN` around (the next nudge's rectangle is a
+    few pixels off this one's)."""
+    if bound is not None:
+        if earlier is not None:
+            rect = _union(rect, earlier.rect)  # type: ignore[assignment]
+        m = ALONE_MARGIN
+        rect = (
+            max(rect[0] - m, bound[0]),
+            max(rect[1] - m, bound[1]),
+            min(rect[2] + m, bound[2]),
+            min(rect[3] + m, bound[3]),
+        )
+    x0, y0, x1, y1 = rect
+    hits = cast_alone(placed[0], placed[1], camera.pixel_rays()[y0:y1, x0:x1])
+    return Alone(rect, hits.depth, hits.triangle)
 
 
 def depth_cloud(camera, depth: np.ndarray, step: int = CLOUD_STEP) -> np.ndarray:

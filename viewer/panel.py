@@ -1,6 +1,8 @@
 """One page's control panel: title and progress, what went wrong, the scene's warnings, the
-buttons and hotkeys, and the instance table with one "Zoom on" button per instance. It shows a :class:`PanelView` and calls a
-:class:`PanelActions` (the page's session); it decides nothing itself.
+buttons and hotkeys, the instance table with one "Zoom on" button per instance, and the
+repair folder (what the last repair did, "Add here" after M and a click, the nudge buttons).
+It shows a :class:`PanelView` and calls a :class:`PanelActions` (the page's session); it
+decides nothing itself.
 
 Hotkeys (none on W A S D Q E or the arrows, which move the 3D camera):
 
@@ -14,8 +16,16 @@ T      toggle the selected instance (accepted <-> rejected)
 Z      open / close the zoom
 O      outline / fill in the zoom
 B      blink the rendered part over the zoom (on / off)
-M      "a part has no pose here": the next click on a picture marks it
+M      "a part has no pose here": the next click on a picture marks it (and offers
+       the instances without a pose, to add there)
 V      3D view (parts, depth points, cameras) / back to the pictures
+R      refine the selected instance (depth ICP with its markers)
+A      the selected instance's next candidate pose (from its markers)
+1-6    nudge the selected instance: -x +x -y +y -z +z of the reference camera
+G      nudges move / turn (about the part's centre)
+L      small (1 mm, 1 degree) / large (10 mm, 10 degrees) nudges
+U      undo the last pose edit of this scene (Shift+U: redo)
+X      reset the selected instance to the auto-annotation
 =====  ==========================================================================
 """
 
@@ -46,6 +56,23 @@ HOTKEYS: tuple[tuple[str, str, str], ...] = (
     ("B", "Blink the rendered part", "toggle_blink"),
     ("M", "A part has no pose here (then click it)", "arm_missing"),
     ("V", "3D view / pictures", "toggle_3d"),
+    ("R", "Refine the selected instance", "refine"),
+    ("C", "Next candidate pose", "alternative"),
+    # The issue's own key; viser's 3D camera also moves on it (its W A S D), C does not.
+    ("A", "Next candidate pose (also moves the 3D camera: C does not)", "alternative"),
+    ("G", "Nudges move / turn", "toggle_nudge_kind"),
+    ("L", "Small / large nudges", "toggle_nudge_size"),
+    ("U", "Undo a pose edit", "undo"),
+    ("X", "Reset the instance to the auto-annotation", "reset_pose"),
+)
+#: Nudge keys: (key, camera axis, sign).
+NUDGE_KEYS: tuple[tuple[str, int, int], ...] = (
+    ("1", 0, -1),
+    ("2", 0, +1),
+    ("3", 1, -1),
+    ("4", 1, +1),
+    ("5", 2, -1),
+    ("6", 2, +1),
 )
 
 
@@ -67,6 +94,15 @@ class PanelActions(Protocol):
     def set_filter(self, flt: str) -> None: ...
     def select(self, key: str) -> None: ...
     def set_instance(self, status: ReviewStatus) -> None: ...
+    def refine(self) -> None: ...
+    def alternative(self) -> None: ...
+    def toggle_nudge_kind(self) -> None: ...
+    def toggle_nudge_size(self) -> None: ...
+    def undo(self) -> None: ...
+    def redo(self) -> None: ...
+    def reset_pose(self) -> None: ...
+    def nudge(self, axis: int, sign: int) -> None: ...
+    def add_missing(self, key: str) -> None: ...
 
 
 @dataclass
@@ -80,6 +116,8 @@ class PanelView:
     progress_text: str = ""
     table: str = ""
     warnings: str = ""
+    repair: str = ""  # what the last repair did (residuals), or what it is doing
+    offer: tuple[str, ...] = ()  # instances without a pose, to add where M was clicked
 
 
 def _fmt(x: float | None, spec: str) -> str:
@@ -94,16 +132,22 @@ def instance_table(info: SceneInfo, selected: str | None) -> str:
     ]
     for p in info.poses:
         mark = "▶" if p.key == selected else ""
+        state = str(info.instance_status(p.key))
+        if p.key in info.edited:
+            state += " · ✎ edited"
+        elif p.key in info.stale_edits:
+            state += " · ✎ edit stale"
         flags = ", ".join(f.replace("_", " ") for f in p.flags) or "-"
         rows.append(
-            f"| {mark} | {p.key} | {info.instance_status(p.key)} | {flags} | "
+            f"| {mark} | {p.key} | {state} | {flags} | "
             f"{p.count('used')}/{p.count('rejected')} | {_fmt(p.reprojection_rms, '.2f')} | "
             f"{_fmt(p.uncertainty_mm, '.2f')} | {_fmt(p.occlusion_rate, '.2f')} | "
             f"{_fmt(p.depth_agreement, '.2f')} |"
         )
     rows.append(
         "\nmk: markers used/rejected · px: reprojection RMS · mm: estimated uncertainty · "
-        "occl: occlusion rate · depth: depth agreement"
+        "occl: occlusion rate · depth: depth agreement · ✎: pose repaired in review.json "
+        "(export and evaluate use it)"
     )
     return "\n".join(rows)
 
@@ -150,6 +194,22 @@ class Panel:
             self._button("Accept instance", lambda: actions.set_instance(ReviewStatus.ACCEPTED))
             self._button("Reject instance", lambda: actions.set_instance(ReviewStatus.REJECTED))
             self._button("Toggle instance (T)", actions.toggle_instance)
+        with gui.add_folder("Repair the pose"):
+            self.repair = gui.add_markdown("")
+            self.offer = gui.add_button_group("Add here", ["-"], visible=False)
+            self._button("Refine (R)", actions.refine)
+            self._button("Next candidate pose (C)", actions.alternative)
+            self.nudges = gui.add_markdown("")
+            for key, axis, sign in NUDGE_KEYS:
+                self._button(
+                    f"{'-+'[sign > 0]}{'xyz'[axis]} ({key})",
+                    lambda axis=axis, sign=sign: actions.nudge(axis, sign),
+                )
+            self._button("Move / turn (G)", actions.toggle_nudge_kind)
+            self._button("Small / large steps (L)", actions.toggle_nudge_size)
+            self._button("Undo (U)", actions.undo)
+            self._button("Redo (Shift+U)", actions.redo)
+            self._button("Reset to the auto-annotation (X)", actions.reset_pose)
         with gui.add_folder("Zoom and view"):
             self._button("Open / close zoom (Z)", actions.toggle_zoom)
             self._button("Outline / fill (O)", actions.toggle_fill)
@@ -157,10 +217,20 @@ class Panel:
             self._button("3D view / pictures (V)", actions.toggle_3d)
         self.filter.on_update(lambda _: actions.set_filter(self.filter.value))
         self.instances.on_click(lambda event: actions.select(event.target.value))
+        self.offer.on_click(lambda event: actions.add_missing(event.target.value))
         for key, text, name in HOTKEYS:
             cmd = gui.add_command(text, hotkey=key, modifier=None)  # type: ignore[arg-type]
             action = getattr(actions, name)
             cmd.on_trigger(lambda _, fn=action: fn())
+        redo = gui.add_command("Redo a pose edit", hotkey="U", modifier="shift")
+        redo.on_trigger(lambda _: actions.redo())
+        for key, axis, sign in NUDGE_KEYS:
+            cmd = gui.add_command(
+                f"Nudge {'-+'[sign > 0]}{'xyz'[axis]}",
+                hotkey=key,  # type: ignore[arg-type]
+                modifier=None,
+            )
+            cmd.on_trigger(lambda _, axis=axis, sign=sign: actions.nudge(axis, sign))
 
     def _button(self, text: str, fn: Callable[[], None], color: str | None = None) -> None:
         button = self._gui.add_button(text, color=color)  # type: ignore[arg-type]
@@ -183,3 +253,13 @@ class Panel:
         self.instances.visible = bool(keys)
         self.warnings.content = view.warnings
         self.warnings.visible = bool(view.warnings)
+        self.repair.content = view.repair
+        offer = view.offer or ("-",)
+        if tuple(self.offer.options) != offer:
+            self.offer.options = offer
+        self.offer.visible = bool(view.offer)
+
+    def show_repair(self, text: str, nudges: str) -> None:
+        """Only the repair's text (while a refinement runs) and the nudge settings."""
+        self.repair.content = text
+        self.nudges.content = nudges

@@ -15,7 +15,8 @@ element; CSS places them over the canvas:
 - ``image-rendering: pixelated``: a picture made to the canvas's size is shown pixel for
   pixel, and zoomed pixels stay square if the browser scales it.
 
-The mosaic is sent as JPEG; the zoom as PNG, since JPEG would smear its one-pixel outline.
+The mosaic is sent as JPEG; the zoom as PNG, since JPEG would smear its one-pixel outline
+(deflated fast with PNG's "up" filter, see :data:`_PNG`).
 Blinking is a CSS animation of the rendered part over the zoom: no message per blink.
 
 The HTML elements live in the control panel, so they vanish with it when the reviewer
@@ -28,6 +29,7 @@ from __future__ import annotations
 
 import base64
 import threading
+from collections.abc import Callable
 
 import cv2
 import numpy as np
@@ -41,13 +43,17 @@ _STYLE = (
     f"<style>canvas[data-engine]{{anchor-name:{_ANCHOR}}}"
     "@keyframes review-blink{0%{opacity:1}50%{opacity:0}}</style>"
 )
+#: Fast and small for the zoom, whose rows come in runs of equal rows (magnified pixels):
+#: the "up" filter makes each repeated row zeros, several times quicker to deflate than
+#: libpng's adaptive filters, and no bigger.
+_PNG = [cv2.IMWRITE_PNG_COMPRESSION, 1, cv2.IMWRITE_PNG_FILTER, cv2.IMWRITE_PNG_FILTER_UP]
 _ORDER = 1e9  # after everything else in the panel: the images take no room in it
 
 
 def _data_url(image: np.ndarray, exact: bool) -> str:
     bgr = cv2.cvtColor(image, cv2.COLOR_RGB2BGR)
     if exact:
-        ok, data = cv2.imencode(".png", bgr, [cv2.IMWRITE_PNG_COMPRESSION, 1])
+        ok, data = cv2.imencode(".png", bgr, _PNG)
         mime = "image/png"
     else:
         ok, data = cv2.imencode(".jpg", bgr, [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])
@@ -83,6 +89,8 @@ class Pictures:
         self._zoom_open = False
         self._blinking = False
         self._current: np.ndarray | None = None  # the picture on screen
+        #: draws the zoom's rendered part, not sent yet
+        self._unsent: Callable[[], np.ndarray] | None = None
         self._background_due = False
         self._timer: threading.Timer | None = None
         self._timer_pending = False
@@ -96,16 +104,24 @@ class Pictures:
             self._current, self._background_due = image, True
             self._apply()
 
-    def show_zoom(self, image: np.ndarray, rendered: np.ndarray) -> None:
-        """Show the zoom over the mosaic; ``rendered`` is what blinking shows over it."""
+    def show_zoom(self, image: np.ndarray, rendered: Callable[[], np.ndarray]) -> None:
+        """Show the zoom over the mosaic; ``rendered`` draws what blinking shows over it
+        (drawn and sent when blinking starts: making it would delay the zoom, and blinking
+        is rare)."""
         html = picture_html(image, exact=True, z=2)
-        blinking = picture_html(rendered, exact=True, z=3, blink=True)
         with self._lock:
             self._zoom.content = html
-            self._rendered.content = blinking
+            self._unsent = rendered
             self._zoom_open = True
             self._current, self._background_due = image, True
+            if self._blinking:
+                self._send_rendered()
             self._apply()
+
+    def _send_rendered(self) -> None:
+        if self._unsent is not None:
+            self._rendered.content = picture_html(self._unsent(), exact=True, z=3, blink=True)
+            self._unsent = None
 
     def clear(self) -> None:
         """Take every picture off the page (a scene that cannot be shown is named in the
@@ -114,6 +130,7 @@ class Pictures:
             self._mosaic.content = ""
             self._zoom.content = ""
             self._rendered.content = ""
+            self._unsent = None
             self._zoom_open = False
             self._current, self._background_due = None, True
             self._apply()
@@ -122,6 +139,8 @@ class Pictures:
         """Blink the rendered part over the zoom (if it is open), or stop."""
         with self._lock:
             self._blinking = on
+            if on:
+                self._send_rendered()
             self._apply()
 
     def hide(self, hidden: bool) -> None:
@@ -166,7 +185,7 @@ class Pictures:
         with self._lock:
             if self._timer is not None:
                 self._timer.cancel()
-            self._current = None
+            self._current = self._unsent = None
             self._background_due = False
 
     def _apply(self) -> None:

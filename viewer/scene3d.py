@@ -1,6 +1,10 @@
 """One page's 3D canvas: clicks on it, and the 3D view. It keeps the handles of
 everything it adds and only updates them afterwards.
 
+- **The gizmo** (viser's transform controls) sits on the selected part in the 3D view, at
+  its surface centroid, turned as the part: dragging it moves the part along, and letting it
+  go saves the new pose (``on_gizmo``).
+
 - While the pictures are shown (:mod:`viewer.pictures`, laid over the canvas), the canvas
   draws nothing and a click on it is a click on the picture: it is passed on as a position
   in 0-1 of the canvas's size.
@@ -26,8 +30,9 @@ import numpy as np
 import viser
 from scipy.spatial.transform import Rotation
 
-from annotator.annotation.record import InstanceAnnotation
 from annotator.dataset import Dataset
+from annotator.dataset.annotation import InstanceAnnotation
+from annotator.geometry.transforms import invert, make_transform
 from viewer.style import SELECTED_COLOUR, Look
 
 #: A click on the canvas at (x, y), fractions of its width and height (0 to 1).
@@ -37,6 +42,14 @@ CanvasClick = Callable[[float, float], None]
 def _wxyz(R: np.ndarray) -> np.ndarray:
     x, y, z, w = Rotation.from_matrix(R).as_quat()
     return np.array([w, x, y, z])
+
+
+def _matrix(wxyz, position) -> np.ndarray:
+    """A gizmo's pose (viser's quaternion, metres) as a 4x4 transform in mm."""
+    w, x, y, z = (float(v) for v in wxyz)
+    return make_transform(
+        Rotation.from_quat([x, y, z, w]).as_matrix(), np.asarray(position, float) * 1000.0
+    )
 
 
 def _rgb(bgr: tuple[int, int, int]) -> tuple[int, int, int]:
@@ -53,11 +66,18 @@ class Scene3D:
         *,
         on_part: Callable[[str], None],
         on_canvas: CanvasClick,
+        on_gizmo: Callable[[str, np.ndarray], None] | None = None,
     ) -> None:
         self._scene = scene
         self._ds = ds
         self._on_part = on_part
         self._on_canvas = on_canvas
+        self._on_gizmo = on_gizmo
+        self._gizmo: viser.TransformControlsHandle | None = None
+        self._gizmo_pose: InstanceAnnotation | None = None  # the part it sits on
+        self._grab: tuple[np.ndarray, np.ndarray] | None = None  # gizmo and part at the grab
+        self._dragging = False
+        self._arrays: dict[str, tuple[np.ndarray, np.ndarray]] = {}  # object -> wxyzs, positions
         self._lock = threading.RLock()
         self.showing_3d = False
         self._pending_3d: (
@@ -108,12 +128,15 @@ class Scene3D:
                 self._build_3d()
             if on:
                 self._flush_3d()
+                self._place_gizmo()
                 # From above and behind the reference camera (+y is down), towards the bin.
                 # Setting the position moves look_at with it: position first.
                 camera.up_direction = (0.0, -1.0, 0.0)
                 camera.position = (0.0, -0.25, -0.35)
                 camera.look_at = (0.0, 0.0, 0.5)
             self._root.visible = on  # type: ignore[union-attr]
+            if self._gizmo is not None:
+                self._gizmo.visible = on and self._gizmo_pose is not None
 
     # ------------------------------------------------------------- 3D view
     def _add_object(self, name: str, slots: list[str]) -> None:
@@ -191,6 +214,7 @@ class Scene3D:
                 colours[i] = _rgb(SELECTED_COLOUR if selected else look.colour(p.key))
             handle.batched_wxyzs = wxyzs
             handle.batched_positions = positions
+            self._arrays[name] = (wxyzs, positions)
             handle.batched_scales = scales
             handle.batched_colors = colours
 
@@ -210,3 +234,63 @@ class Scene3D:
         else:
             self._cloud.points = points
             self._cloud.visible = True
+
+    # --------------------------------------------------------------- gizmo
+    def show_gizmo(self, pose: InstanceAnnotation | None) -> None:
+        """Put the gizmo on ``pose``'s part (None: take it away); shown in the 3D view only."""
+        with self._lock:
+            self._gizmo_pose = pose
+            if self.showing_3d:
+                self._place_gizmo()
+
+    def _place_gizmo(self) -> None:
+        pose = self._gizmo_pose
+        if self._dragging:
+            return
+        if pose is None or pose.object not in self._ds.objects:
+            if self._gizmo is not None:
+                self._gizmo.visible = False
+            return
+        c = pose.R @ self._ds.objects[pose.object].mesh.moments.centroid + pose.t
+        radius = self._ds.objects[pose.object].mesh.moments.radius
+        if self._gizmo is None:
+            self._gizmo = self._scene.add_transform_controls(
+                "/scene3d/gizmo", scale=max(radius * 2.5 / 1000.0, 0.03), depth_test=False
+            )
+            self._gizmo.on_update(self._gizmo_moved)
+        self._gizmo.wxyz = _wxyz(pose.R)
+        self._gizmo.position = tuple(c / 1000.0)
+        self._gizmo.visible = self.showing_3d
+
+    def _gizmo_moved(self, event: viser.TransformControlsEvent) -> None:
+        with self._lock:
+            pose = self._gizmo_pose
+            if pose is None:
+                return
+            G = _matrix(event.target.wxyz, event.target.position)
+            if event.phase == "start" or self._grab is None:
+                self._grab = (G, pose.T)
+                self._dragging = True
+            G0, T0 = self._grab
+            T = G @ invert(G0) @ T0
+            self._move_slot(pose, T)
+            if event.phase != "end":
+                return
+            self._grab = None
+            self._dragging = False
+        if self._on_gizmo is not None:
+            self._on_gizmo(pose.key, T)
+
+    def _move_slot(self, pose: InstanceAnnotation, T: np.ndarray) -> None:
+        """Show ``pose``'s part at ``T`` while the gizmo is dragged."""
+        arrays = self._arrays.get(pose.object)
+        slots = self._slots.get(pose.object, [])
+        if arrays is None or pose.instance not in slots:
+            return
+        wxyzs, positions = arrays[0].copy(), arrays[1].copy()
+        i = slots.index(pose.instance)
+        wxyzs[i] = _wxyz(T[:3, :3])
+        positions[i] = T[:3, 3] / 1000.0
+        handle = self._parts[pose.object]
+        handle.batched_wxyzs = wxyzs
+        handle.batched_positions = positions

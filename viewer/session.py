@@ -18,6 +18,13 @@ and said so in red, as is a decision for a scene whose folder has gone. A scene 
 be shown (its folder gone, an unexpected failure) is named in the page, without the
 pictures of the scene shown before it, and its failure is one line in the server's log.
 
+Repairing a pose (R, A, the nudges, the gizmo, M + click + "Add here", U, X) saves the new
+pose at once in review.json (:meth:`ReviewState.set_pose`) and shows it re-rendered only
+where it changed (:func:`viewer.overlays.repose`); undo and redo are per page and scene. A
+refinement runs in its own thread, the page saying so meanwhile. Once the pixels of a
+selected instance are out, what the next A needs is made in the background (the scene's
+markers read, the candidates, the overlays of the next one): A then only shows it, as U does.
+
 The pictures are made for the page's canvas, within an 8K screen
 (:func:`viewer.memory.clamp_viewport`); when the page closes, what it held is dropped.
 """
@@ -27,15 +34,17 @@ from __future__ import annotations
 import sys
 import threading
 import time
+from concurrent.futures import ThreadPoolExecutor
 from typing import TYPE_CHECKING
 
 import viser
 
-from annotator.dataset.review import ReviewStatus
+from annotator.dataset.review import EditedPose, ReviewStatus
+from viewer import repair
 from viewer.memory import clamp_viewport
 from viewer.mosaic import Picture, compose
 from viewer.navigation import Navigator
-from viewer.overlays import Prepared
+from viewer.overlays import Prepared, repose
 from viewer.panel import Panel, PanelView, instance_table, warnings_text
 from viewer.pictures import Pictures
 from viewer.scene3d import Scene3D
@@ -50,7 +59,8 @@ DEFAULT_VIEWPORT = (1280, 960)
 #: How long a page's closing waits for its render under way (it is dropped after it).
 CLOSE_WAIT_SECONDS = 10.0
 _MAX_ALERTS = 3
-ALERT_SECONDS = 60.0  # how long the panel repeats another reviewer's overriding decision
+ALERT_SECONDS = 60.0
+AHEAD_WAIT = 1.0  # seconds a repair waits for its overlays being made ahead, at most  # how long the panel repeats another reviewer's overriding decision
 
 
 class Session:
@@ -81,10 +91,29 @@ class Session:
         self._zoom: tuple[str, Zoom] | None = None
         self._prep: Prepared | None = None
         self.blinking = False
+        # Repairs: nudge settings, per scene undo / redo stacks of (instance, its earlier
+        # edit or None), what the last repair did, the instances offered after M + click.
+        self.nudge_kind = "move"
+        self.large = False
+        self.history: dict[str, list[tuple[str, EditedPose | None]]] = {}
+        self.future: dict[str, list[tuple[str, EditedPose | None]]] = {}
+        self.repair_text = ""
+        self.offer: tuple[str, str, tuple[float, float], tuple[str, ...]] | None = None
+        self._cycle: dict[tuple[str, str, str], tuple[list, int]] = {}
+        self._refining = threading.Lock()
+        # Work for the next key, done once its pixels are out (one job at a time).
+        self._ahead_pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="ahead")
+        self._ahead_for: tuple[str, str, str] | None = None
+        self._ahead_done = threading.Condition()
+        self._ahead_making: str | None = None  # the view the job is making overlays of
         self.panel = Panel(client.gui, self)
         self.pictures = Pictures(client.gui, client.scene)
         self.scene = Scene3D(
-            client.scene, app.state.ds, on_part=self.select, on_canvas=self.clicked_canvas
+            client.scene,
+            app.state.ds,
+            on_part=self.select,
+            on_canvas=self.clicked_canvas,
+            on_gizmo=self.moved_by_gizmo,
         )
         client.camera.on_update(self._camera_moved)
         # The first render is the app's to ask for, once this page is listed among its pages.
@@ -180,7 +209,7 @@ class Session:
         look = Look.of(info, selected)
         self.viewport = self._viewport()  # the canvas may have changed size since
         w, h = self.viewport
-        base = (sid, info.fingerprint, look, (w, h))
+        base = (sid, info.view, look, (w, h))
         zkey = (*base, fill) if zoom_open and selected else None
         if zkey is not None and zkey != self._shown_zoom:
             z = zoom(prep, selected, look, w, h, fill=fill)
@@ -198,7 +227,7 @@ class Session:
                 self.blinking = False  # blinking belongs to a zoom
         elif ("zoom", zkey) != self._on_canvas:
             z = self._zoom[1]
-            self.pictures.show_zoom(z.image, z.rendered)
+            self.pictures.show_zoom(z.image, lambda: z.rendered)
             self._on_canvas = ("zoom", zkey)
         self.pictures.blink(blinking and self._on_canvas[0] == "zoom")
         self.panel.show(self._panel_view(info, prep, flt, selected), [p.key for p in info.poses])
@@ -207,6 +236,9 @@ class Session:
         self.client.flush()  # the new picture is on its way before anything else is done
         self.pictures.send_background_soon()
         self.scene.show_3d_scene(info.poses, look, prep.cloud, (sid, info.fingerprint))
+        self.scene.show_gizmo(info.pose(selected) if selected else None)
+        if selected and prep.scene_id == sid and info.pose(selected) is not None:
+            self._ahead(sid, selected, info)
         with self._lock:
             upcoming = self.nav.upcoming()
         for other in reversed(upcoming):  # the cache starts with the last asked for
@@ -238,6 +270,12 @@ class Session:
                 "**Click on a picture where a part without a pose lies** (M again to cancel)"
                 + (f"\n\n{notice}" if notice else "")
             )
+        offer = self.offer if self.offer is not None and self.offer[0] == sid else None
+        if offer is not None:
+            notice = (
+                f"**Add a part at {offer[1]} ({offer[2][0]:.0f}, {offer[2][1]:.0f})**: pick "
+                "the instance below (then R to refine it)" + (f"\n\n{notice}" if notice else "")
+            )
         done, total = state.progress()
         pace = state.pace()
         eta = f", about {(total - done) / pace:.0f} min left" if pace > 0 else ""
@@ -249,6 +287,8 @@ class Session:
             progress_text=f"reviewed {done} / {total} · {pace:.1f} scenes/min{eta}",
             table=instance_table(info, selected),
             warnings=warnings_text(info),
+            repair=self.repair_text,
+            offer=offer[3] if offer is not None else (),
         )
 
     # ------------------------------------------------------------ decisions
@@ -283,7 +323,7 @@ class Session:
         )
         return None
 
-    def _write(self, sid: str, what: str, fn) -> bool:
+    def _write(self, sid: str, what: str, fn, *, decision: bool = True) -> bool:
         """Run a write; on failure show it in this page and keep the scene unsaved."""
         try:
             review = fn()
@@ -293,7 +333,8 @@ class Session:
         with self._lock:
             self.unsaved.pop(sid, None)
             note = self._unsaved_notes.pop(sid, None)
-            self.mine[sid] = review.status
+            if decision:
+                self.mine[sid] = review.status
         if note is not None:  # saved now: the red notice would only mislead
             note.remove()
         self.app.changed(self, {sid})
@@ -353,12 +394,316 @@ class Session:
         sid = self._shown_scene(f"no pose at {camera} ({x:.0f}, {y:.0f})")
         if sid is None:
             return
-        self._write(
+        saved = self._write(
             sid,
             f"no pose at {camera} ({x:.0f}, {y:.0f})",
             lambda: self.app.state.mark_missing(sid, camera, (x, y), by=self.id),
         )
+        keys = repair.unposed(self.app.state.ds, self.app.state.info(sid))
+        if saved and keys:
+            mark = self.app.state.info(sid).review.missing[-1]
+            with self._lock:
+                self.offer = (sid, mark.camera, mark.pixel, tuple(keys))
         self.request_render()
+
+    # ---------------------------------------------------------------- repairs
+    def _say(self, text: str) -> None:
+        """Show what a repair did (or is doing) in the panel at once."""
+        with self._lock:
+            self.repair_text = text
+        self.panel.show_repair(text, self._nudge_text())
+        self.client.flush()
+
+    def _nudge_text(self) -> str:
+        size = (
+            (f"{repair.LARGE_MM:g} mm" if self.large else f"{repair.SMALL_MM:g} mm")
+            if self.nudge_kind == "move"
+            else (f"{repair.LARGE_DEG:g}°" if self.large else f"{repair.SMALL_DEG:g}°")
+        )
+        return f"nudges (1-6): **{self.nudge_kind}** by {size} in the reference camera's axes"
+
+    def _target(self, what: str) -> tuple[str, str] | None:
+        """The scene shown and its selected instance, for a repair ``what``."""
+        with self._lock:
+            key = self.nav.selected
+        if key is None:
+            self._say("select an instance first (click it, or I)")
+            return None
+        sid = self._shown_scene(f"{what} {key}")
+        if sid is None or self.app.state.info(sid).pose(key) is None:
+            return None
+        return sid, key
+
+    def _edit(
+        self,
+        sid: str,
+        key: str,
+        T,
+        step: dict,
+        *,
+        unmark: tuple[str, tuple[float, float]] | None = None,
+    ) -> bool:
+        """Save a new pose of ``key`` (``step`` added to its edit's steps) and show it."""
+        state = self.app.state
+        info = state.info(sid)
+        before = info.review.poses.get(key)
+        steps = list(before.steps) if before is not None and key in info.edited else []
+        saved = self._write(
+            sid,
+            f"pose of {key}",
+            lambda: state.set_pose(sid, key, T, [*steps, step], by=self.id, unmark=unmark),
+            decision=False,
+        )
+        if saved:
+            with self._lock:
+                self.history.setdefault(sid, []).append((key, before))
+                self.future.pop(sid, None)
+            self._reposed(sid, key, info.view)
+        return saved
+
+    def _restore(self, sid: str, key: str, edit: EditedPose | None, what: str) -> bool:
+        shown = self.app.state.info(sid).view
+        saved = self._write(
+            sid,
+            what,
+            lambda: self.app.state.restore_pose(sid, key, edit, by=self.id),
+            decision=False,
+        )
+        if saved:
+            self._reposed(sid, key, shown)
+        return saved
+
+    def _reposed(self, sid: str, key: str, before: str) -> None:
+        """Make the scene's overlays for its new poses from the shown ones (only the
+        changed rectangles cast again; ``before``: the version they show), then show them."""
+        info = self.app.state.info(sid)
+        prep = self._prep
+        with self._ahead_done:  # being made ahead (A came quickly): sooner done than redone
+            self._ahead_done.wait_for(lambda: self._ahead_making != info.view, AHEAD_WAIT)
+        if self.app.cache.ready((sid, info.view)):  # poses shown before (undo, redo, A)
+            prep = None
+        if prep is not None and prep.scene_id == sid and key in {p.key for p in info.poses}:
+            new = repose(self.app.state.ds, prep, list(info.poses), key)
+            if new is not None:
+                self.app.reposed(sid, info, new, before=before)
+        self.request_render()
+
+    def refine(self) -> None:
+        """R: refine the selected instance in a thread of its own (the page says so)."""
+        target = self._target("refine")
+        if target is None:
+            return
+        sid, key = target
+        if not self._refining.acquire(blocking=False):
+            self._say("a refinement is already running")
+            return
+        self._say(f"refining {key}: ICP against the depth and its markers…")
+        threading.Thread(target=self._refine, args=(sid, key), daemon=True).start()
+
+    def _refine(self, sid: str, key: str) -> None:
+        try:
+            state = self.app.state
+            inputs = self.app.repair_inputs(sid)
+            result = repair.refine(state.ds, state.info(sid), key, inputs)
+            residuals = f"before: {result.before.text()}; after: {result.after.text()}"
+            if result.converged:
+                if self._edit(sid, key, result.T, result.to_json()):
+                    self._say(f"✔ {key} refined in {result.seconds:.2f} s — {residuals}")
+            else:
+                self._say(
+                    f"<span style='color:#d00'>⚠ {key}: the refinement did not converge "
+                    f"({result.why}); the pose is kept</span> — {residuals}"
+                )
+        except Exception as exc:  # the page stays usable; the reviewer is told
+            self._say(f"⚠ {key}: cannot refine ({type(exc).__name__}: {exc})")
+        finally:
+            self._refining.release()
+
+    def alternative(self) -> None:
+        """A: the selected instance's next candidate pose."""
+        target = self._target("alternative for")
+        if target is None:
+            return
+        sid, key = target
+        info = self.app.state.info(sid)
+        auto = info.auto_pose(key)
+        ck, found, index = self._candidates(sid, key, info)
+        if len(found) < 2:
+            self._say(f"{key}: no other candidate pose from its markers")
+            return
+        index = (index + 1) % len(found)
+        with self._lock:
+            self._cycle[ck] = (found, index)
+        c = found[index]
+        if index == 0 and auto is not None:
+            saved = self._restore(sid, key, None, f"pose of {key}")
+            if saved:
+                with self._lock:
+                    self.history.setdefault(sid, []).append((key, info.review.poses.get(key)))
+        else:
+            step = {"op": "alternative", "source": c.source, "support": c.support}
+            saved = self._edit(sid, key, c.T, step)
+        if saved:
+            self._say(f"{key}: candidate {index + 1} of {len(found)} — {c.text()}")
+
+    def _candidates(
+        self, sid: str, key: str, info: SceneInfo
+    ) -> tuple[tuple[str, str, str], list, int]:
+        """The candidate poses of ``key`` A cycles through (made once per auto pose) and the
+        index of the one shown last, with the key they are kept under."""
+        auto = info.auto_pose(key)
+        ck = (sid, key, "" if auto is None else str(auto.T.tobytes()))
+        with self._lock:
+            hit = self._cycle.get(ck)
+        if hit is None:
+            state = self.app.state
+            found = repair.candidates(state.ds, info, key, self.app.repair_inputs(sid))
+            with self._lock:
+                hit = self._cycle.setdefault(ck, (found, 0))
+        return ck, *hit
+
+    def _ahead(self, sid: str, key: str, info: SceneInfo) -> None:
+        """Once the pixels are out, in the background: what the next A on the selected
+        instance needs (the scene's markers read, the instance's candidates, the overlays
+        of the next one), so that the key only shows it. Once per poses shown."""
+        job = (sid, key, info.view)
+        with self._lock:
+            if job == self._ahead_for or self._closed:
+                return
+            self._ahead_for = job
+        self._ahead_pool.submit(self._prepare_alternative, sid, key, info)
+
+    def _still_on(self, sid: str, key: str) -> bool:
+        """Whether the page is still on instance ``key`` of scene ``sid`` (work ahead for it
+        is of no use once the reviewer has gone on, and would slow down what they do)."""
+        with self._lock:
+            return self.nav.current == sid and self.nav.selected == key and not self._closed
+
+    def _prepare_alternative(self, sid: str, key: str, info: SceneInfo) -> None:
+        try:
+            if info.pose(key) is None or not self.app.cache.ready((sid, info.view)):
+                return
+            prep = self.app.prepared(sid, info)  # the overlays shown, made already
+            if not self._still_on(sid, key):
+                return
+            _, found, index = self._candidates(sid, key, info)
+            if len(found) < 2 or self.app.state.info(sid).view != info.view:
+                return  # nothing to cycle through, or the poses changed meanwhile
+            if not self._still_on(sid, key):
+                return
+            poses, view = info.with_pose(key, found[(index + 1) % len(found)].T)
+            if not self.app.cache.ready((sid, view)):
+                with self._ahead_done:
+                    self._ahead_making = view
+                new = repose(self.app.state.ds, prep, poses, key, parallel=False)
+                if new is not None:
+                    self.app.ahead(sid, view, new)
+        except Exception as exc:  # only a head start: A makes it itself then
+            print(f"review: {self.id}: could not prepare A ahead: {exc}", file=sys.stderr)
+        finally:
+            with self._ahead_done:
+                self._ahead_making = None
+                self._ahead_done.notify_all()
+
+    def nudge(self, axis: int, sign: int) -> None:
+        """Move or turn the selected instance by one step along / about a camera axis."""
+        target = self._target("nudge")
+        if target is None:
+            return
+        sid, key = target
+        step = repair.step_of(self.nudge_kind, axis, sign, self.large)
+        info = self.app.state.info(sid)
+        if self._edit(sid, key, repair.nudge(self.app.state.ds, info, key, step), step.to_json()):
+            unit = "mm" if step.kind == "move" else "°"
+            self._say(f"{key}: {step.kind} {step.amount:+g} {unit} along {'xyz'[axis]}")
+
+    def moved_by_gizmo(self, key: str, T) -> None:
+        """The gizmo in the 3D view was let go: ``T`` is the part's new pose."""
+        with self._lock:
+            sid = self.nav.current
+        if sid is not None and self.app.state.info(sid).pose(key) is not None:
+            if self._edit(sid, key, T, {"op": "gizmo"}):
+                self._say(f"{key}: moved with the gizmo")
+
+    def toggle_nudge_kind(self) -> None:
+        self.nudge_kind = "turn" if self.nudge_kind == "move" else "move"
+        self._say(self.repair_text)
+
+    def toggle_nudge_size(self) -> None:
+        self.large = not self.large
+        self._say(self.repair_text)
+
+    def _step_back(self, back: bool) -> None:
+        what = "undo" if back else "redo"
+        with self._lock:
+            sid = self.nav.current
+        sid = self._shown_scene(what) if sid is not None else None
+        if sid is None:
+            return
+        with self._lock:
+            source = (self.history if back else self.future).get(sid, [])
+            if not source:
+                self.repair_text = f"nothing to {what} in this scene"
+                item = None
+            else:
+                item = source.pop()
+        if item is None:
+            self._say(self.repair_text)
+            return
+        key, edit = item
+        current = self.app.state.info(sid).review.poses.get(key)
+        if self._restore(sid, key, edit, f"{what} of {key}"):
+            with self._lock:
+                (self.future if back else self.history).setdefault(sid, []).append((key, current))
+                self.nav.select(key, zoom=self.nav.zoom)
+            self._say(f"{what}: {key} " + ("back to its auto pose" if edit is None else "restored"))
+        else:
+            with self._lock:
+                source.append(item)
+
+    def undo(self) -> None:
+        self._step_back(True)
+
+    def redo(self) -> None:
+        self._step_back(False)
+
+    def reset_pose(self) -> None:
+        """X: the selected instance back to its auto pose (an added one is removed)."""
+        target = self._target("reset")
+        if target is None:
+            return
+        sid, key = target
+        before = self.app.state.info(sid).review.poses.get(key)
+        if before is None:
+            self._say(f"{key} has its auto pose already")
+            return
+        if self._restore(sid, key, None, f"reset of {key}"):
+            with self._lock:
+                self.history.setdefault(sid, []).append((key, before))
+                self.future.pop(sid, None)
+            self._say(f"{key}: reset to the auto-annotation")
+
+    def add_missing(self, key: str) -> None:
+        """ "Add here": start instance ``key`` where M was clicked."""
+        with self._lock:
+            offer = self.offer
+        if offer is None or key not in offer[3]:
+            return
+        sid, camera, pixel, _ = offer
+        if self._shown_scene(f"add {key}") != sid:
+            return
+        state = self.app.state
+        info = state.info(sid)
+        found = repair.start(state.ds, info, key, camera, pixel, self.app.repair_inputs(sid))
+        if found is None:
+            self._say(f"⚠ {key}: no marker and no depth near the click to start it from")
+            return
+        step = {"op": "add", "camera": camera, "pixel": list(pixel), "source": found.source}
+        if self._edit(sid, key, found.T, step, unmark=(camera, pixel)):
+            with self._lock:
+                self.offer = None
+                self.nav.select(key)
+            self._say(f"{key} added ({found.text()}): R refines it")
 
     # ------------------------------------------------------------ navigation
     def _move(self, fn) -> None:
@@ -480,6 +825,7 @@ class Session:
             self._dirty = False
             self._render_lock.wait_for(lambda: not self._rendering, CLOSE_WAIT_SECONDS)
         self.pictures.close()
+        self._ahead_pool.shutdown(wait=False, cancel_futures=True)
         with self._lock:
             self._picture = self._zoom = self._prep = None
             self._shown = self._shown_zoom = self._on_canvas = None

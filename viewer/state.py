@@ -8,6 +8,11 @@ tells which scenes changed on disk by other hands since it was last asked.
 A decision that cannot be written (read-only folder, full disk) raises :class:`SaveError`
 with one line for the person who made it; nothing is changed then.
 
+Poses repaired in a page (review.json ``poses``) are applied to the scene's poses here:
+:attr:`SceneInfo.poses` are what the pages show and the export takes, :attr:`SceneInfo.auto`
+what ``annotate`` wrote. An edit made on an auto pose that has changed since is stale: the
+auto pose is shown, and the scene is stale as a decision on it would be.
+
 A scene whose folder disappears while the server runs (deleted, moved, the whole dataset
 gone) is known as :attr:`SceneInfo.gone`: it is shown as gone, and a decision for it is a
 :class:`SaveError` (writing it would make the folder again, holding only a review.json).
@@ -21,13 +26,18 @@ import time
 from dataclasses import dataclass, replace
 from pathlib import Path
 
-from annotator.annotation.record import InstanceAnnotation, SceneAnnotation
+import numpy as np
+
 from annotator.dataset import Scene, load_dataset
+from annotator.dataset.annotation import InstanceAnnotation, SceneAnnotation
 from annotator.dataset.review import (
     NO_POSE_REASON,
+    EditedPose,
     MissingPart,
     Review,
     ReviewStatus,
+    apply_edits,
+    instance_fingerprint,
     now_iso,
     poses_fingerprint,
     read_review,
@@ -68,8 +78,12 @@ class SceneInfo:
     flagged: bool  # a pose has flags, or the annotation has warnings
     error: str | None  # a problem to show (unreadable annotation, corrupt review.json)
     warnings: tuple[SceneWarning, ...] = ()
-    fingerprint: str = ""  # of the poses (annotator.dataset.review.poses_fingerprint)
+    fingerprint: str = ""  # of the auto poses (annotator.dataset.review.poses_fingerprint)
     gone: bool = False  # the scene's folder is no longer there (error says where)
+    auto: tuple[InstanceAnnotation, ...] = ()  # the poses as annotate wrote them
+    edited: frozenset[str] = frozenset()  # instances whose pose is a reviewer's edit
+    stale_edits: frozenset[str] = frozenset()  # edits made on an auto pose changed since
+    view: str = ""  # fingerprint of the poses shown (edits applied): what pictures are made of
 
     @property
     def status(self) -> ReviewStatus:
@@ -91,6 +105,24 @@ class SceneInfo:
 
     def pose(self, key: str) -> InstanceAnnotation | None:
         return next((p for p in self.poses if p.key == key), None)
+
+    def auto_pose(self, key: str) -> InstanceAnnotation | None:
+        return next((p for p in self.auto if p.key == key), None)
+
+    def with_pose(self, key: str, T: np.ndarray) -> tuple[list[InstanceAnnotation], str]:
+        """The poses shown with ``key``'s at ``T`` (4x4) instead, and their fingerprint: the
+        :attr:`view` the scene has once that pose is saved (what overlays made ahead of a
+        repair are kept under)."""
+        poses = [
+            replace(p, R=np.array(T[:3, :3]), t=np.array(T[:3, 3])) if p.key == key else p
+            for p in self.poses
+        ]
+        return poses, poses_fingerprint(poses)
+
+
+def _added(obj: str, inst: str, R: object, t: object) -> InstanceAnnotation:
+    """The record of an instance added by hand: a pose, and none of annotate's figures."""
+    return InstanceAnnotation(obj, inst, R, t)  # type: ignore[arg-type]
 
 
 class ReviewState:
@@ -142,6 +174,7 @@ class ReviewState:
                 "viewer started)",
                 fingerprint=poses_fingerprint([]),
                 gone=True,
+                view=poses_fingerprint([]),
             )
             self._cache[sid] = (key, info)
             return info
@@ -161,16 +194,21 @@ class ReviewState:
         except (UserError, OSError) as exc:
             review, error = Review(), f"{exc} (it will be replaced by the next decision)"
         fingerprint = poses_fingerprint(poses)
+        edits = apply_edits(poses, review, added=_added)
         info = SceneInfo(
             id=sid,
             annotated=annotated,
-            poses=tuple(poses),
+            poses=tuple(edits.poses),
             review=review,
-            stale=review.is_stale(fingerprint),
+            stale=review.is_stale(fingerprint) or bool(edits.stale),
             flagged=bool(warnings) or any(p.flags for p in poses),
             error=error,
             warnings=warnings,
             fingerprint=fingerprint,
+            auto=tuple(poses),
+            edited=frozenset(edits.edited),
+            stale_edits=frozenset(edits.stale),
+            view=poses_fingerprint(edits.poses),
         )
         self._cache[sid] = (key, info)
         return info
@@ -188,16 +226,20 @@ class ReviewState:
         return changed
 
     # ------------------------------------------------------------ decisions
-    def _write(self, sid: str, review: Review, by: str | None) -> Review:
+    def _write(self, sid: str, review: Review, by: str | None, *, decision: bool = True) -> Review:
+        """Write ``review``; a ``decision`` is stamped with the poses it judged, when and by
+        whom (a pose edit is not a decision: a decision made earlier stays as it was, stale
+        or not)."""
         info = self.info(sid)
         path = self._scenes[sid].review_path
         # The atomic write makes missing folders: it would bring a deleted scene back as a
         # folder holding only this review.json.
         if info.gone or self.is_gone(sid):
             raise SaveError(f"{path.parent}: the scene's folder is gone (deleted or moved)")
-        review.annotation_fingerprint = info.fingerprint
-        review.decided_at = now_iso()
-        review.decided_by = by
+        if decision:
+            review.annotation_fingerprint = info.fingerprint
+            review.decided_at = now_iso()
+            review.decided_by = by
         try:
             write_review(path, review)
         except OSError as exc:
@@ -209,12 +251,15 @@ class ReviewState:
             )
             raise SaveError(msg) from None
         self._seen[sid] = self._stamps(sid)
-        self.decided += 1
+        self.decided += decision
         return review
 
     def _next_review(self, info: SceneInfo, **changes: object) -> Review:
         base = replace(
-            info.review, extra=dict(info.review.extra), missing=list(info.review.missing)
+            info.review,
+            extra=dict(info.review.extra),
+            missing=list(info.review.missing),
+            poses=dict(info.review.poses),
         )
         return replace(base, **changes)  # type: ignore[arg-type]
 
@@ -271,6 +316,71 @@ class ReviewState:
                 ),
                 by,
             )
+
+    # ------------------------------------------------------------ pose edits
+    def set_pose(
+        self,
+        sid: str,
+        key: str,
+        T: object,
+        steps: list[dict],
+        *,
+        by: str | None = None,
+        unmark: tuple[str, tuple[float, float]] | None = None,
+    ) -> Review:
+        """Save a repaired pose of instance ``key`` (``T``: 4x4 ``cam_T_model``, reference
+        camera) made by ``steps`` from its auto pose. ``unmark``: the "no pose here" mark
+        (camera, pixel) the instance was added at, which it now explains (the scene goes
+        back to pending when that was the only reason it was rejected)."""
+        import numpy as np
+
+        T = np.asarray(T, float)
+        with self._lock:
+            info = self.info(sid)
+            auto = info.auto_pose(key)
+            edit = EditedPose(
+                R=T[:3, :3].copy(),
+                t=T[:3, 3].copy(),
+                steps=list(steps),
+                decided_by=by,
+                at=now_iso(),
+                auto_fingerprint=None if auto is None else instance_fingerprint(auto),
+            )
+            review = self._next_review(info)
+            review.poses[key] = edit
+            if unmark is not None:
+                self._unmark(review, *unmark)
+            return self._write(sid, review, by, decision=False)
+
+    @staticmethod
+    def _unmark(review: Review, camera: str, pixel: tuple[float, float]) -> None:
+        keep = [
+            m
+            for m in review.missing
+            if not (
+                m.camera == camera
+                and abs(m.pixel[0] - pixel[0]) < 0.05 + 1e-9
+                and abs(m.pixel[1] - pixel[1]) < 0.05 + 1e-9
+            )
+        ]
+        if len(keep) < len(review.missing):
+            review.missing = keep
+            if not keep and review.reason == NO_POSE_REASON:
+                review.status, review.reason = ReviewStatus.PENDING, None
+
+    def restore_pose(
+        self, sid: str, key: str, edit: EditedPose | None, *, by: str | None = None
+    ) -> Review:
+        """Put back an earlier state of instance ``key``'s edit (None: no edit, the auto
+        pose), for undo, redo and reset."""
+        with self._lock:
+            info = self.info(sid)
+            review = self._next_review(info)
+            if edit is None:
+                review.poses.pop(key, None)
+            else:
+                review.poses[key] = edit
+            return self._write(sid, review, by, decision=False)
 
     # ----------------------------------------------------------- summaries
     def matches(self, sid: str, flt: str) -> bool:

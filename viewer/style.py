@@ -40,6 +40,7 @@ class Look:
     selected: str | None = None
     missing: tuple[MissingPart, ...] = ()
     regions: tuple[DepthRegion, ...] = ()
+    edited: frozenset[str] = frozenset()  # poses repaired by a reviewer (labelled with a *)
 
     @classmethod
     def of(cls, info: SceneInfo, selected: str | None = None) -> Look:
@@ -50,6 +51,7 @@ class Look:
             selected=selected,
             missing=tuple(info.review.missing),
             regions=depth_regions(info.warnings),
+            edited=frozenset(info.edited),
         )
 
     @cached_property

@@ -2,7 +2,7 @@
 scene's completeness.
 
 ``annotation.json`` (docs/FORMAT.md) is read and written through the records of
-:mod:`annotator.annotation.record`; per instance, besides the pose:
+:mod:`annotator.dataset.annotation`; per instance, besides the pose:
 
 - ``uncertainty_mm``: estimated 1-sigma pose error as RMS surface displacement (mm), from the
   joint refinement's covariance (the paper's distance, section 4.1);

@@ -1,7 +1,9 @@
-"""``annotate`` over a whole dataset: which scenes need work, and the per-scene job."""
+"""``annotate`` over a whole dataset: which scenes need work, the per-scene job, and
+:func:`annotate_dataset`, what ``annotator annotate`` runs."""
 
 from __future__ import annotations
 
+import fnmatch
 import functools
 import hashlib
 import os
@@ -10,13 +12,15 @@ from pathlib import Path
 from typing import Any
 
 from annotator.annotation.scene import UNEXPLAINED_MASK, Settings, annotate_scene
-from annotator.dataset import Dataset, Scene, cached_dataset
+from annotator.dataset import Dataset, Scene, cached_dataset, require_meshes
+from annotator.dataset.check import BROKEN_LINK
 from annotator.dataset.poses import read_pose_file
 from annotator.dataset.review import now_iso
 from annotator.detection import MarkerDetector
 from annotator.errors import UserError
 from annotator.io.images import write_png
-from annotator.scale.bundle import description_files, dictionary_files
+from annotator.runner import BatchReport, run_batch
+from annotator.runner.bundle import description_files, dictionary_files
 
 
 def description_digest(ds: Dataset) -> str:
@@ -70,7 +74,7 @@ class AnnotateJob:
         return cls(str(ds.root), description_digest(ds), settings or Settings())
 
     def prepare(self) -> None:
-        """Do once what every scene needs (see :mod:`annotator.batch`): import open3d, load
+        """Do once what every scene needs (see :mod:`annotator.runner`): import open3d, load
         the dataset, meshes and marker table, tabulate every camera's pixel rays."""
         import annotator.occlusion  # noqa: F401  (imports open3d: seconds)
 
@@ -82,7 +86,7 @@ class AnnotateJob:
             cam.pixel_rays(self.settings.visibility_step)
 
     # What a scene's work reads and writes, for runs on a cluster without the dataset's disk
-    # (annotator.scale): paths relative to ``root``.
+    # (annotator.runner.job): paths relative to ``root``.
 
     def shared_files(self) -> list[str]:
         """The dataset description (dataset.yaml, objects, background depth)."""
@@ -127,3 +131,70 @@ def _context(root: str) -> tuple[Dataset, MarkerDetector]:
 @functools.cache
 def _detector(dictionary: str) -> MarkerDetector:
     return MarkerDetector(dictionary)
+
+
+@dataclass
+class AnnotateSummary:
+    """What :func:`annotate_dataset` did; :meth:`to_json` is ``annotator annotate --json``.
+
+    Attributes:
+        scenes: Scenes matching the pattern.
+        report: Per-scene outcomes (done: their counts; failed: one line each).
+        skipped: Scenes whose annotation was up to date.
+    """
+
+    scenes: int
+    report: BatchReport
+    skipped: int
+
+    def to_json(self) -> dict[str, Any]:
+        done = self.report.done.values()
+        return {
+            "scenes": self.scenes,
+            "done": len(self.report.done),
+            "skipped": self.skipped,
+            "failed": len(self.report.failed),
+            "instances_posed": sum(r["instances"] for r in done),
+            "instances_flagged": sum(r["flagged"] for r in done),
+            "scenes_warned": sum(r["warned"] for r in done),
+            "failures": dict(sorted(self.report.failed.items())),
+        }
+
+
+def annotate_dataset(
+    ds: Dataset,
+    *,
+    scenes: str = "*",
+    force: bool = False,
+    workers: int = 1,
+    settings: Settings | None = None,
+    quiet: bool = True,
+    ray_address: str | None = None,
+    ray_wait: float | None = None,
+) -> AnnotateSummary:
+    """Annotate every scene of ``ds`` whose id matches ``scenes`` (fnmatch) and whose
+    annotation.json is not up to date (all of them with ``force``), in ``workers`` processes
+    or on a Ray cluster (``ray_address``); a scene that fails is reported, the others go on.
+
+    Raises:
+        UserError: no scene matches, or a mesh is unreadable.
+    """
+    chosen = [s for s in ds.scenes() if fnmatch.fnmatch(s.id, scenes)]
+    if not chosen:
+        raise UserError(f"no scene matches {scenes!r}", path=ds.root / "scenes")
+    require_meshes(ds)
+    job = AnnotateJob.for_dataset(ds, settings)
+    todo = [s.id for s in chosen if force or not is_up_to_date(ds, s, job.digest)]
+    report = run_batch(
+        job,
+        todo,
+        workers=workers,
+        desc="annotate",
+        quiet=quiet,
+        ray_address=ray_address,
+        ray_wait=ray_wait,
+    )
+    for link in ds.broken_scene_links():
+        if fnmatch.fnmatch(link.name, scenes):
+            report.failed[link.name] = f"{link}: {BROKEN_LINK}"
+    return AnnotateSummary(len(chosen), report, len(chosen) - len(todo))

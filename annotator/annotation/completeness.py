@@ -148,7 +148,8 @@ def support_pixels(
         on = cv2.morphologyEx(on, cv2.MORPH_OPEN, kernel)
         count, labels, stats, _ = cv2.connectedComponentsWithStats(on, connectivity=8)
         for k in range(1, count):
-            if _border_band(*(int(v) for v in stats[k, :4]), w, h):
+            x, y, bw, bh = (int(v) for v in stats[k, :4])
+            if _border_band(x, y, bw, bh, w, h):
                 out |= labels == k
     return out
 

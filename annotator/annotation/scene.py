@@ -37,8 +37,8 @@ from annotator.annotation.completeness import (
     support_depth,
     unexplained_mask,
 )
-from annotator.annotation.record import InstanceAnnotation, SceneAnnotation, SceneWarning
 from annotator.dataset import Dataset, InstancePose, Scene
+from annotator.dataset.annotation import InstanceAnnotation, SceneAnnotation, SceneWarning
 from annotator.detection import MarkerDetector
 from annotator.detection.aruco import ImageReading
 from annotator.io.images import to_gray8
@@ -51,6 +51,7 @@ from annotator.pnp import (
     rms_uncertainty,
 )
 from annotator.pnp.multiview import lone_marker_poses
+from annotator.symmetry.space import MATCH_THRESHOLD_FRACTION
 
 
 @dataclass(frozen=True)
@@ -160,13 +161,13 @@ def annotate_scene(
         warnings.insert(0, SceneWarning("no_markers", "no marker detected in any camera"))
     mask = None
     if depth is not None and ds.rig.depth is not None:
-        ref = [c.name for c in cams].index(ds.rig.depth.camera)
+        depth_index = [c.name for c in cams].index(ds.rig.depth.camera)
         found, mask = unexplained_depth(
             ds,
             depth,
             renders,
             disagreeing=[k for k, r in enumerate(results) if _owns_its_region(r)],
-            unread=readings[ref].unread,
+            unread=readings[depth_index].unread,
             settings=settings,
         )
         if found is not None:
@@ -312,10 +313,12 @@ def unexplained_depth(
     cs = settings.completeness
     step = settings.visibility_step
     cam = ds.rig.depth_camera
+    assert cam is not None, "unexplained_depth needs a dataset with depth"
     rays = cam.pixel_rays(step)
     measured = depth[::step, ::step]
-    rendered, front = renders.get(cam.name, (None, None))
-    if rendered is None:
+    if cam.name in renders:
+        rendered, front = renders[cam.name]
+    else:
         rendered = np.full(measured.shape, np.inf, np.float32)
         front = np.full(measured.shape, -1, np.int32)
     full_bg = ds.background_depth
@@ -485,7 +488,7 @@ def _flag_overlaps(ds: Dataset, results: list[InstanceResult]) -> None:
         t = np.stack([r.T[:3, 3] for r in mine])
         D = space.distance_matrix(R, t, R, t)
         np.fill_diagonal(D, np.inf)
-        for k in np.flatnonzero(D.min(axis=1) < 0.1 * space.diameter):
+        for k in np.flatnonzero(D.min(axis=1) < MATCH_THRESHOLD_FRACTION * space.diameter):
             mine[k].extra["flags"].append("overlap")
 
 
@@ -552,6 +555,7 @@ def _add_visibility(
         cv = next((c for c in v.cameras if c.camera == depth_cam), None)
         if depth is None or cv is None or cv.depth_agreement is None or cv.depth_pixels < 20:
             continue
+        assert cv.depth_median_abs_mm is not None  # set together with depth_agreement
         r.extra["depth"] = {
             "agreement": round(cv.depth_agreement, 4),
             "median_abs_mm": round(cv.depth_median_abs_mm, 3),

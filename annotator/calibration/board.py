@@ -206,7 +206,7 @@ def read_board_yaml(path: str | Path) -> BoardSpec:
     if missing:
         raise UserError(f"missing board field(s) {', '.join(missing)}", path=path)
     try:
-        kwargs = {
+        kwargs: dict[str, Any] = {
             "squares_x": _integer(doc["squares_x"], "squares_x"),
             "squares_y": _integer(doc["squares_y"], "squares_y"),
             "square_mm": _number(doc["square_mm"], "square_mm"),

@@ -16,8 +16,8 @@ OpenCV's derivatives of the projection (``cv2.projectPoints``: with respect to t
 the camera frame and to the intrinsics) chained with left perturbations of the poses,
 ``R -> exp([w]x) R``, ``t -> t + v``. The Jacobian is sparse (a corner depends on one camera
 and one shot), so the normal equations are assembled and solved sparse, with the columns
-scaled to unit norm (Marquardt's scaling); a problem of 100 shots and 4 cameras takes well
-under a second per iteration.
+scaled to unit norm (Marquardt's scaling), so that an iteration's cost grows with the
+corners, not with their square.
 
 The covariance of the camera parameters (marginalised over the board poses) is
 ``sigma^2 (J^T J)^-1`` at the optimum, ``sigma`` the residual standard deviation per axis.
@@ -125,7 +125,8 @@ class _Layout:
         """First column of camera ``c``'s (w, v); only for c >= 1."""
         return self.cameras * self.n_intr + 6 * (c - 1)
 
-    def pose(self, s: int) -> int:
+    def pose(self, s: np.ndarray) -> np.ndarray:
+        """First columns of the poses of shots ``s`` (an index array)."""
         return self.camera_block + 6 * s
 
 

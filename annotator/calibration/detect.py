@@ -5,9 +5,8 @@ ChArUco boards: ``cv2.aruco.CharucoDetector`` (OpenCV 4.7+ and 5.x) finds the ma
 again for missed ones where the board says they must be (``tryRefineMarkers``), interpolates
 the chessboard corners between them and refines each with ``cornerSubPix``. A corner is kept
 only if both markers next to it were found (``minMarkers = 2``), so no corner is guessed from
-a single marker. Measured on rendered boards (1280x1024, squares of 55-80 px): RMS corner
-error 0.06 px without image noise, 0.14-0.16 px with a noise of 12 grey levels and a
-1 px blur.
+a single marker (the corner error on rendered boards is printed by
+``benchmarks/bench_calibrate.py``).
 
 Boards as people print and film them: when the board is not found as it is, the image is
 searched again colour-inverted (white markers on black: some tools print boards so, and a
@@ -157,10 +156,9 @@ def chessboard_corners(gray: np.ndarray, spec: BoardSpec) -> tuple[np.ndarray, n
         found, pts = cv2.findChessboardCornersSB(gray, (cols, rows))
     if not found or pts is None or len(pts) != cols * rows:
         return np.zeros(0, np.int64), np.zeros((0, 2))
-    # Sub-pixel corners over a window of about half a square (measured on rendered boards
-    # with 12 grey levels of noise and a 1 px blur: 0.12 px RMS, against 0.17 px with
-    # OpenCV's customary 5x5 window).
-    grid = np.asarray(pts, np.float32).reshape(rows, cols, 2)
+    # Sub-pixel corners over a window of about half a square: on noisy, blurred boards it
+    # beats OpenCV's customary 5x5 window (benchmarks/bench_calibrate.py).
+    grid: np.ndarray = np.asarray(pts, np.float32).reshape(rows, cols, 2)
     step = min(
         float(np.linalg.norm(np.diff(grid, axis=1), axis=2).min()),
         float(np.linalg.norm(np.diff(grid, axis=0), axis=2).min()),
@@ -229,8 +227,8 @@ def detect_captures(
     views: list[View] = []
     sizes: dict[int, tuple[int, int]] = {}
     foreign = 0
-    mirrored = [[] for _ in captures.cameras]
-    normal = [[] for _ in captures.cameras]
+    mirrored: list[list[str]] = [[] for _ in captures.cameras]
+    normal: list[list[str]] = [[] for _ in captures.cameras]
     inverted = [0] * len(captures.cameras)
     for c, s, img in read_images(
         captures, expected_sizes=expected_sizes, expected_source=expected_source, progress=progress

@@ -17,7 +17,7 @@ OpenCV's pipeline (benchmarks), so that both are measured on the same folds.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 
 import cv2
@@ -84,7 +84,7 @@ class HeldOut:
         }
 
 
-def fold_of_shots(shots: Sequence[int], folds: int) -> dict[int, int]:
+def fold_of_shots(shots: Iterable[int], folds: int) -> dict[int, int]:
     """Shot index -> fold, dealt round-robin in shot order (so that every fold spans the
     whole capture session, not one stretch of it)."""
     return {s: k % folds for k, s in enumerate(sorted(shots))}

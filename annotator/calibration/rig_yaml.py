@@ -19,7 +19,7 @@ from typing import Any
 
 import yaml
 
-from annotator.dataset.model import DepthSpec, Rig
+from annotator.dataset.model import FORMAT_VERSION, DepthSpec, Rig
 from annotator.dataset.write import rig_to_yaml
 from annotator.errors import UserError
 from annotator.geometry.camera import Camera
@@ -137,7 +137,7 @@ def updated_text(old: str | None, rig: dict[str, Any], *, name: str) -> str:
     rig_text = rig_yaml_text(rig, flow=not block_style)
     if old is None or not old.strip():
         head = yaml.safe_dump(
-            {"format": 1, "name": name, "markers": {"dictionary": DEFAULT_DICTIONARY}},
+            {"format": FORMAT_VERSION, "name": name, "markers": {"dictionary": DEFAULT_DICTIONARY}},
             sort_keys=False,
         )
         return head + rig_text + "objects: []\n"

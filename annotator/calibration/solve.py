@@ -419,11 +419,11 @@ def _calibrate_camera(
             ) from None
         dist = np.asarray(dist, float).reshape(-1)[:n_dist]
         dist = np.pad(dist, (0, n_dist - len(dist)))
-        per_view = []
+        view_rms = []
         for v, rv, tv in zip(views, rvecs, tvecs):
             uv, _ = cv2.projectPoints(board.corners[v.ids], rv, tv, K, dist)
-            per_view.append(np.sqrt(np.mean(np.sum((uv.reshape(-1, 2) - v.corners) ** 2, 1))))
-        per_view = np.asarray(per_view)
+            view_rms.append(np.sqrt(np.mean(np.sum((uv.reshape(-1, 2) - v.corners) ** 2, 1))))
+        per_view = np.asarray(view_rms)
         limit = max(5.0 * float(np.median(per_view)), 2.0)
         bad = per_view > limit
         if not np.any(bad) or bad.sum() > len(views) // 2:
@@ -531,7 +531,7 @@ def _inliers(
     median_rms = float(np.median(rms[present & (good > 0)])) if np.any(good > 0) else 0.0
     view_limit = max(3.0 * median_rms, 1.0)
     dropped: dict[int, str] = {}
-    for i in np.flatnonzero(present):
+    for i in np.flatnonzero(present).tolist():
         lost = counts[i] - good[i]
         if good[i] < opts.min_corners or lost > 0.25 * counts[i]:
             dropped[i] = (

@@ -13,7 +13,7 @@ import sys
 from collections.abc import Callable
 from pathlib import Path
 
-from annotator.batch import BatchReport, available_cpus
+from annotator.runner import RAY_WAIT_S, BatchReport, available_cpus
 
 
 def add_workers_option(parser: argparse.ArgumentParser) -> None:
@@ -26,6 +26,38 @@ def add_workers_option(parser: argparse.ArgumentParser) -> None:
         metavar="N",
         help=f"worker processes, one core each (default: the {cores} available cores)",
     )
+
+
+def add_ray_option(parser: argparse.ArgumentParser) -> None:
+    """``--ray ADDRESS``: one Ray task per scene on that cluster (``auto``: the running one)."""
+    parser.add_argument(
+        "--ray",
+        metavar="ADDRESS",
+        default=None,
+        help="run every scene as a task on the Ray cluster whose head is at ADDRESS "
+        "(host:port), or 'auto' for the one this machine belongs to (RAY_ADDRESS or the "
+        "latest `ray start`); files travel as bytes, no shared file system is needed; "
+        "--workers is then ignored (needs `pip install 'bin-annotator[ray]'`)",
+    )
+    parser.add_argument(
+        "--ray-wait",
+        metavar="SECONDS",
+        type=_seconds,
+        default=RAY_WAIT_S,
+        help="with --ray: how long to wait for a CPU when the cluster has none for its tasks "
+        "(its worker nodes died or none joined) before stopping with the unfinished scenes "
+        f"listed (default {RAY_WAIT_S:g})",
+    )
+
+
+def _seconds(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number of seconds: {text!r}") from None
+    if not (value >= 0 and value < float("inf")):
+        raise argparse.ArgumentTypeError(f"must be a finite number of seconds >= 0: {text!r}")
+    return value
 
 
 def whole(*, low: int = 0, high: int | None = None) -> Callable[[str], int]:

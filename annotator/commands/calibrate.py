@@ -1,6 +1,6 @@
 """``annotator calibrate CAPTURES``: the rig's intrinsics and extrinsics from ChArUco shots.
 
-Also ``annotator synth --calibration OUT`` (:func:`synth_captures`): synthetic captures of
+Synthetic captures for it come from ``annotator synth --calibration OUT``: synthetic captures of
 a board in random poses seen by the synthetic rig, with the truth beside them.
 """
 
@@ -306,7 +306,7 @@ def _depth(
         )
     if args.depth_scale is not None and not args.depth_scale > 0:
         raise UserError(f"--depth-scale must be positive (mm per unit), got {args.depth_scale}")
-    old = old_rig["depth"] or {}
+    old: dict[str, Any] = old_rig["depth"] or {}
     scale = args.depth_scale if args.depth_scale is not None else old.get("scale")
     if scale is None:
         if args.depth_camera is not None:
@@ -315,9 +315,7 @@ def _depth(
                 "unit)" + (f"; {ds_yaml} has none" if ds_yaml else "")
             )
         return None
-    camera = args.depth_camera or (
-        old.get("camera") if old.get("camera") in cameras else cameras[0]
-    )
+    camera = args.depth_camera or (old["camera"] if old.get("camera") in cameras else cameras[0])
     return DepthSpec(camera=camera, scale=float(scale))
 
 
@@ -444,79 +442,3 @@ def _output(
         )
         print(f"calibrate: RMS {cal.rms_px:.3f} px; report in {report_dir}; {what}")
     return status
-
-
-def synth_captures(args: argparse.Namespace, config: Any) -> int:
-    """``annotator synth --calibration OUT``: render a board in ``--scenes`` random poses seen by
-    the synthetic rig of ``--seed`` (``--size``, ``--noise``, ``--blur`` apply), into
-    OUT/<camera>/<shot>.png with OUT/board.yaml and OUT/truth.yaml."""
-    from annotator.batch import run_batch
-    from annotator.calibration.board import BoardSpec
-    from annotator.io.atomic import atomic_folder
-    from annotator.io.output_folder import write_manifest
-    from annotator.markers.dictionary import resolve_dictionary
-    from annotator.synthesis.board import (
-        CaptureConfig,
-        ShotJob,
-        plan_captures,
-        write_truth,
-        write_videos,
-    )
-
-    if args.board_kind == "chessboard":
-        board = BoardSpec(9, 6, 30.0, kind="chessboard")
-    else:
-        name = args.board_dictionary or BoardSpec.dictionary
-        board = BoardSpec(dictionary=resolve_dictionary(name, Path.cwd()))
-    try:
-        lo, _, hi = args.distance.partition("-")
-        distance = (float(lo), float(hi))
-    except ValueError:
-        raise UserError(f"--distance must be MIN-MAX in mm, got {args.distance!r}") from None
-    if not 0 < distance[0] <= distance[1]:
-        raise UserError(f"--distance must satisfy 0 < MIN <= MAX, got {args.distance!r}")
-    cfg = CaptureConfig(
-        shots=config.scenes,
-        distance=distance,
-        seed=config.seed,
-        size=config.size,
-        board=board,
-        # A plain chessboard is only found whole.
-        min_visible=1.0 if not board.has_markers else CaptureConfig.min_visible,
-        noise=config.noise,
-        blur=config.blur,
-        inverted=args.inverted,
-        mirrored=tuple(args.mirror),
-        centre=args.centre,
-    )
-    out = Path(args.out)
-    with atomic_folder(out) as tmp:
-        write_manifest(tmp, command="synth")
-        plan = plan_captures(cfg)
-        write_truth(plan, tmp)
-        report = run_batch(
-            ShotJob(cfg, str(tmp)),
-            plan.shot_names,
-            workers=args.workers,
-            desc="synth --calibration",
-            quiet=args.quiet,
-        )
-        if report.failed:
-            report.print_failures()
-            raise UserError(f"{len(report.failed)} shots failed to render; nothing written")
-        if args.video:
-            write_videos(tmp, [c.name for c in plan.rig.cameras])
-    summary = {
-        "out": str(out),
-        "shots": len(report.done),
-        "cameras": [c.name for c in plan.rig.cameras],
-        "board": cfg.board.to_yaml(),
-    }
-    if args.json:
-        print(json.dumps(summary, indent=1))
-    else:
-        print(
-            f"synth --calibration: {len(report.done)} shots of a {cfg.board.describe()} board "
-            f"seen by {', '.join(summary['cameras'])}, written to {out} (board.yaml, truth.yaml)"
-        )
-    return 0

@@ -13,11 +13,10 @@ import argparse
 import fnmatch
 from pathlib import Path
 
-from annotator.batch import run_batch
-from annotator.commands import add_workers_option, finish_batch, whole
+from annotator.commands import add_ray_option, add_workers_option, finish_batch, whole
 from annotator.dataset import load_dataset, require_meshes
 from annotator.errors import UserError
-from annotator.scale import add_ray_option
+from annotator.runner import run_batch
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

@@ -186,7 +186,7 @@ def _print_header(
     results: Results,
     report: Report,
 ) -> None:
-    from annotator.evaluation.evaluate import DEFAULT_THRESHOLD_FRACTION
+    from annotator.symmetry.space import MATCH_THRESHOLD_FRACTION
 
     if results.unknown_scenes:
         first = ", ".join(results.unknown_scenes[:5])
@@ -201,7 +201,7 @@ def _print_header(
     elif args.threshold_fraction is None and gt.thresholds:
         thr = "the dataset's own (poseutils.json distance_threshold)"
     else:
-        fraction = args.threshold_fraction or DEFAULT_THRESHOLD_FRACTION
+        fraction = args.threshold_fraction or MATCH_THRESHOLD_FRACTION
         thr = f"{fraction:g} x diameter of the enclosing sphere centred on the surface centroid"
     print(
         f"evaluating {source} against {args.gt} ({format_name}); threshold: {thr}; "

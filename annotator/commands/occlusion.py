@@ -9,97 +9,30 @@ from __future__ import annotations
 
 import argparse
 import fnmatch
-from dataclasses import dataclass
-from typing import Any
 
-from annotator.batch import run_batch
-from annotator.commands import add_workers_option, finish_batch, number
-from annotator.dataset import cached_dataset, load_dataset, read_poses
+from annotator.commands import add_ray_option, add_workers_option, finish_batch, number
+from annotator.dataset import load_dataset
 from annotator.errors import UserError
-from annotator.io.atomic import write_json
-from annotator.occlusion import scene_visibility
-from annotator.scale import add_ray_option
-from annotator.scale.bundle import description_files
+from annotator.occlusion import DEPTH_TOLERANCE_MM
+from annotator.occlusion.job import VisibilityJob
+from annotator.runner import run_batch
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("dataset", help="dataset folder (FORMAT.md)")
     parser.add_argument("--poses", choices=("annotation", "gt"), default="annotation")
     parser.add_argument("--scenes", default="*", metavar="PATTERN")
-    parser.add_argument("--depth-tolerance", type=number(low=0), default=5.0, help="mm (default 5)")
+    parser.add_argument(
+        "--depth-tolerance",
+        type=number(low=0),
+        default=DEPTH_TOLERANCE_MM,
+        help=f"mm (default {DEPTH_TOLERANCE_MM:g})",
+    )
     add_workers_option(parser)
     add_ray_option(parser)
     parser.add_argument("--force", action="store_true")
     parser.add_argument("--json", action="store_true")
     parser.add_argument("--quiet", action="store_true")
-
-
-@dataclass(frozen=True)
-class VisibilityJob:
-    root: str
-    poses: str
-    tolerance: float
-
-    def prepare(self) -> None:
-        """Import open3d, load the dataset and tabulate the rays once, before forking."""
-        ds = cached_dataset(self.root)
-        for cam in ds.rig.cameras:
-            cam.pixel_rays()
-
-    # What a scene's work reads and writes, relative to ``root`` (for --ray).
-
-    def shared_files(self) -> list[str]:
-        """The dataset description (dataset.yaml, objects, background depth)."""
-        return description_files(cached_dataset(self.root))
-
-    def scene_files(self, scene_id: str) -> list[str]:
-        """The poses (annotation.json or gt.json) and the depth map."""
-        src = "annotation.json" if self.poses == "annotation" else "gt.json"
-        return [f"scenes/{scene_id}/{src}", f"scenes/{scene_id}/depth.png"]
-
-    def output_files(self, scene_id: str) -> list[str]:
-        """visibility.json."""
-        return [f"scenes/{scene_id}/visibility.json"]
-
-    def __call__(self, scene_id: str) -> dict[str, Any]:
-        ds = cached_dataset(self.root)
-        scene = ds.scene(scene_id)
-        src = scene.annotation_path if self.poses == "annotation" else scene.gt_path
-        if not src.exists():
-            raise UserError(f"no {src.name}", path=scene.path)
-        poses = read_poses(src)
-        vis = scene_visibility(
-            ds.rig,
-            [ds.objects[p.object].mesh for p in poses],
-            [p.T for p in poses],
-            depth=scene.read_depth(ds.rig),
-            depth_tolerance=self.tolerance,
-        )
-        out = {"depth_tolerance_mm": self.tolerance, "instances": []}
-        for p, v in zip(poses, vis):
-            cams = {}
-            for c in v.cameras:
-                cams[c.camera] = {
-                    "px_all": c.px_all,
-                    "px_visib": c.px_visib,
-                    "px_visib_depth": c.px_visib_depth,
-                    "bbox_all": c.bbox_all,
-                    "bbox_visib": c.bbox_visib,
-                    "occlusion": round(c.occlusion, 5),
-                    "occlusion_depth": None
-                    if c.occlusion_depth is None
-                    else round(c.occlusion_depth, 5),
-                }
-            out["instances"].append(
-                {
-                    "object": p.object,
-                    "instance": p.instance,
-                    "occlusion": round(v.occlusion, 5),
-                    "cameras": cams,
-                }
-            )
-        write_json(scene.path / "visibility.json", out)
-        return {"instances": len(poses)}
 
 
 def run(args: argparse.Namespace) -> int:

@@ -13,12 +13,12 @@ import sys
 
 import numpy as np
 
-from annotator.batch import run_batch
 from annotator.commands import add_workers_option, confirm, number
 from annotator.dataset import load_dataset, require_meshes
 from annotator.errors import UserError
 from annotator.io.atomic import write_text
 from annotator.io.documents import unified_diff
+from annotator.runner import run_batch
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

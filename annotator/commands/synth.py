@@ -3,16 +3,17 @@
 from __future__ import annotations
 
 import argparse
+import json
 import shutil
 from pathlib import Path
+from typing import Any
 
-from annotator.batch import run_batch
-from annotator.commands import add_workers_option, finish_batch, number, whole
+from annotator.commands import add_ray_option, add_workers_option, finish_batch, number, whole
 from annotator.errors import UserError
 from annotator.io.atomic import atomic_folder
 from annotator.io.output_folder import check_output_folder, write_manifest
 from annotator.parts import PART_NAMES, build_part
-from annotator.scale import add_ray_option
+from annotator.runner import run_batch
 from annotator.synthesis.generate import (
     GLUED_SITES,
     SceneJob,
@@ -194,12 +195,9 @@ def run(args: argparse.Namespace) -> int:
     config = _config(args)
     check_output_folder(out, command="synth", overwrite=args.overwrite)
     if args.calibration:
-        from annotator.commands.calibrate import synth_captures
-
         if args.ray is not None:
             raise UserError("--ray does not apply to --calibration (board shots are quick)")
-
-        return synth_captures(args, config)
+        return _calibration_captures(args, config)
     with atomic_folder(out) as tmp:
         write_manifest(tmp, command="synth")
         plan = _plan(config)
@@ -236,3 +234,56 @@ def run(args: argparse.Namespace) -> int:
         f"{t['rendering']} s, depth {t['depth']} s, occlusion rates {t['occlusion']} s",
         as_json=args.json,
     )
+
+
+def _calibration_captures(args: argparse.Namespace, config: Any) -> int:
+    """``annotator synth --calibration OUT``: a board in ``--scenes`` random poses seen by the
+    synthetic rig of ``--seed`` (``--size``, ``--noise``, ``--blur`` apply), written by
+    :func:`annotator.synthesis.board.write_captures`."""
+    from annotator.calibration.board import BoardSpec
+    from annotator.markers.dictionary import resolve_dictionary
+    from annotator.synthesis.board import CaptureConfig, write_captures
+
+    if args.board_kind == "chessboard":
+        board = BoardSpec(9, 6, 30.0, kind="chessboard")
+    else:
+        name = args.board_dictionary or BoardSpec.dictionary
+        board = BoardSpec(dictionary=resolve_dictionary(name, Path.cwd()))
+    try:
+        lo, _, hi = args.distance.partition("-")
+        distance = (float(lo), float(hi))
+    except ValueError:
+        raise UserError(f"--distance must be MIN-MAX in mm, got {args.distance!r}") from None
+    if not 0 < distance[0] <= distance[1]:
+        raise UserError(f"--distance must satisfy 0 < MIN <= MAX, got {args.distance!r}")
+    cfg = CaptureConfig(
+        shots=config.scenes,
+        distance=distance,
+        seed=config.seed,
+        size=config.size,
+        board=board,
+        # A plain chessboard is only found whole.
+        min_visible=1.0 if not board.has_markers else CaptureConfig.min_visible,
+        noise=config.noise,
+        blur=config.blur,
+        inverted=args.inverted,
+        mirrored=tuple(args.mirror),
+        centre=args.centre,
+    )
+    out = Path(args.out)
+    plan = write_captures(cfg, out, workers=args.workers, quiet=args.quiet, video=args.video)
+    cameras = [c.name for c in plan.rig.cameras]
+    summary = {
+        "out": str(out),
+        "shots": len(plan.shot_names),
+        "cameras": cameras,
+        "board": cfg.board.to_yaml(),
+    }
+    if args.json:
+        print(json.dumps(summary, indent=1))
+    else:
+        print(
+            f"synth --calibration: {len(plan.shot_names)} shots of a {cfg.board.describe()} "
+            f"board seen by {', '.join(cameras)}, written to {out} (board.yaml, truth.yaml)"
+        )
+    return 0

@@ -12,12 +12,12 @@ from annotator.errors import UserError
 
 
 def synth_twin(args: argparse.Namespace) -> int:
-    from annotator.batch import run_batch
     from annotator.commands import finish_batch
     from annotator.dataset import load_dataset, require_meshes
     from annotator.export.selection import select_scenes
     from annotator.io.atomic import atomic_folder
     from annotator.io.output_folder import check_output_folder, write_manifest
+    from annotator.runner import run_batch
     from annotator.twins.render import TwinJob, TwinSettings, write_twin_description
 
     ds = load_dataset(args.twin)

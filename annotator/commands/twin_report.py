@@ -49,6 +49,8 @@ def run(args: argparse.Namespace) -> int:
     twin = load_dataset(args.twin)
     if ds.rig.depth is None:
         raise UserError("the dataset has no depth maps to compare (rig.depth)", path=ds.root)
+    depth_cam = ds.rig.depth_camera
+    assert depth_cam is not None  # rig.depth is set
     twins = {s.id: s for s in twin.scenes() if s.gt_path.exists()}
     if not twins:
         raise UserError("no twin scene (run `annotator synth --twin` first)", path=twin.root)
@@ -69,7 +71,7 @@ def run(args: argparse.Namespace) -> int:
         comp, front = compare_scene(ds, sid, real, sim, poses, tolerance_mm=args.tolerance)
         rows.append(comp)
         diffs.append(comp.part_diffs)
-        img = real_scene.read_image(ds.rig.depth_camera)
+        img = real_scene.read_image(depth_cam)
         write_png(report_dir / f"{sid}.png", overlay(img, front, comp, args.max_disagreement, 2))
     if not rows:
         raise UserError("no scene with depth in both datasets", path=twin.root)

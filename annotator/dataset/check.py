@@ -45,7 +45,7 @@ def check_dataset(root: str | Path, *, annotations: bool = False) -> tuple[list[
 
 
 def _annotation_warnings(path: Path) -> list[Problem]:
-    from annotator.annotation.record import SceneAnnotation
+    from annotator.dataset.annotation import SceneAnnotation
 
     try:
         ann = SceneAnnotation.read(path)
@@ -66,7 +66,7 @@ def _check_objects(ds: Dataset) -> list[Problem]:
         yaml_path = obj.folder / "object.yaml"
         for inst in obj.instances:
             bad = [i for i in inst.marker_ids if n_dict is not None and i >= n_dict]
-            if bad:
+            if bad and n_dict is not None:  # (bad is empty without n_dict)
                 out.append(
                     Problem(
                         yaml_path,

@@ -17,6 +17,7 @@ import numpy as np
 
 from annotator.dataset.model import (
     FLIP_HORIZONTAL,
+    FORMAT_VERSION,
     Dataset,
     DepthSpec,
     Instance,
@@ -99,7 +100,7 @@ def read_dataset(root: str | Path) -> tuple[Dataset | None, list[Problem]]:
     if doc is None:
         return None, problems
     p = _Parser(yaml_path, problems)
-    if doc.get("format", 1) != 1:
+    if doc.get("format", FORMAT_VERSION) != FORMAT_VERSION:
         p.problem(f"unsupported format {doc.get('format')!r} (this tool reads format 1)")
     dictionary = _parse_dictionary(
         p, str(p.get(doc, "markers", dict, {}).get("dictionary", "DICT_4X4_1000")), root
@@ -248,6 +249,7 @@ def _parse_rig(p: _Parser, rig: dict[str, Any] | None) -> Rig | None:
         if not ok:
             broken.append(name)
             continue
+        assert size is not None and K is not None and dist is not None and T is not None  # ok
         if i == 0 and not np.allclose(T, np.eye(4), atol=1e-9):
             p.problem(
                 f"{where}.rig_T_cam must be the identity: the first camera is the reference frame"

@@ -11,7 +11,12 @@ import numpy as np
 
 from annotator.geometry.camera import Camera
 from annotator.geometry.mesh import Mesh, load_mesh
+from annotator.markers.sites import MarkerSites
 from annotator.symmetry.classes import SYMMETRY_CLASSES, Symmetry
+
+#: The version of the on-disk contract (docs/FORMAT.md), written as ``format`` in dataset.yaml,
+#: gt.json and annotation.json.
+FORMAT_VERSION = 1
 
 __all__ = ["SYMMETRY_CLASSES", "Symmetry"]  # re-exported: object.yaml records use them
 
@@ -62,14 +67,6 @@ class Rig:
     def depth_camera(self) -> Camera | None:
         """The camera whose pixel grid the depth maps use, or None without depth."""
         return None if self.depth is None else self.camera(self.depth.camera)
-
-
-@dataclass(frozen=True)
-class MarkerSites:
-    """Marker sites on a part: ``size`` mm squares, ``corners`` (S, 4, 3) in ArUco order."""
-
-    size: float
-    corners: np.ndarray
 
 
 @dataclass(frozen=True)

@@ -38,11 +38,12 @@ from __future__ import annotations
 
 import hashlib
 import json
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from enum import Enum
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -175,7 +176,20 @@ def now_iso() -> str:
     return datetime.now(timezone.utc).replace(microsecond=0).isoformat()
 
 
-def poses_fingerprint(poses: list[InstancePose]) -> str:
+class Posed(Protocol):
+    """Anything with a pose: :class:`InstancePose`, an annotation.json instance."""
+
+    @property
+    def object(self) -> str: ...
+    @property
+    def instance(self) -> str: ...
+    @property
+    def R(self) -> np.ndarray: ...
+    @property
+    def t(self) -> np.ndarray: ...
+
+
+def poses_fingerprint(poses: Sequence[Posed]) -> str:
     """SHA-256 of the poses (object, instance, R to 1e-6, t to 1e-4 mm), order-independent.
 
     It ignores everything but the poses, so re-running ``annotate`` with identical results
@@ -193,7 +207,7 @@ def poses_fingerprint(poses: list[InstancePose]) -> str:
     return hashlib.sha256(json.dumps(rows).encode()).hexdigest()
 
 
-def instance_fingerprint(pose: InstancePose) -> str:
+def instance_fingerprint(pose: Posed) -> str:
     """The fingerprint of one auto pose (:func:`poses_fingerprint` of it alone)."""
     return poses_fingerprint([pose])
 

@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-from annotator.dataset.model import FLIP_HORIZONTAL, Instance, MarkerSites, Rig
+from annotator.dataset.model import FLIP_HORIZONTAL, FORMAT_VERSION, Instance, MarkerSites, Rig
 from annotator.io.atomic import write_text
 from annotator.symmetry.classes import Symmetry, symmetry_to_yaml
 
@@ -48,7 +48,7 @@ def write_dataset_yaml(
 ) -> None:
     """Write ``<root>/dataset.yaml`` (format 1); ``extra`` adds free top-level fields."""
     doc: dict[str, Any] = {
-        "format": 1,
+        "format": FORMAT_VERSION,
         "name": name,
         "markers": {"dictionary": dictionary},
         "rig": rig_to_yaml(rig),
@@ -60,7 +60,10 @@ def write_dataset_yaml(
 
 def instance_to_yaml(instance: Instance) -> dict[str, Any]:
     """An ``instances`` entry of object.yaml (with its measured ``sites`` if it has them)."""
-    out: dict[str, Any] = {"name": instance.name, "marker_ids": [int(m) for m in instance.marker_ids]}
+    out: dict[str, Any] = {
+        "name": instance.name,
+        "marker_ids": [int(m) for m in instance.marker_ids],
+    }
     if instance.sites is not None:
         out["sites"] = sites_to_yaml(instance.sites)
     return out

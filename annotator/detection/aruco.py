@@ -2,8 +2,8 @@
 identifies them, and an edge fit refines their corners.
 
 *Identification.* OpenCV compares every candidate square with every marker of the dictionary
-(and its four rotations); with the 1000-marker dictionaries that parts need, that costs about
-1 ms per candidate, 0.2-0.3 s per 1280x1024 image. Here OpenCV's detector is given a one-marker
+(and its four rotations), which with the 1000-marker dictionaries that parts need is most of
+the detection's time (``benchmarks/bench_detection.py``). Here OpenCV's detector is given a one-marker
 dictionary, so that it returns every candidate square (as "rejected") almost for free, and
 each candidate's bits are read and looked up in a sorted table of all codes in all rotations.
 The bits are read the way OpenCV reads them: the square is resampled to ``4`` pixels per cell,
@@ -17,8 +17,8 @@ So each identified quad is refined here: cv2.cornerSubPix with a small window fi
 each side, at many points, the centroid of the intensity gradient across the side (within half
 a cell each way), a line fitted to these points, and the corners where adjacent lines meet. For
 a step edge under any symmetric blur, the centroid of the gradient is the edge itself, hence no
-bias (benchmarks/bench_detection.py, rendered bin scenes: median corner error 0.12 px against
-OpenCV's 0.50 px).
+bias (``benchmarks/bench_detection.py`` measures it against OpenCV's sub-pixel corners on
+rendered bin scenes).
 
 Corner order is OpenCV's: top-left, top-right, bottom-right, bottom-left of the printed marker.
 """
@@ -192,7 +192,7 @@ class MarkerDetector:
         if len(quads) == 0:
             return quads
         # A small-window corner fit first, so that the edge fit starts near the sides.
-        start = quads.reshape(-1, 1, 2).astype(np.float32)
+        start: np.ndarray = quads.reshape(-1, 1, 2).astype(np.float32)
         window = (SUBPIX_HALF_WINDOW, SUBPIX_HALF_WINDOW)
         start = cv2.cornerSubPix(gray, start, window, (-1, -1), _SUBPIX_CRITERIA)
         cells = self._codebook.marker_size + 2
@@ -296,7 +296,7 @@ def identify(
     *,
     border_tolerance: int,
     min_std: float = 5.0,
-) -> tuple[np.ndarray, np.ndarray]:
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Read the bits of (N, 4, 2) candidate quads and look them up.
 
     Returns the ids (M,) and quads (M, 4, 2) of the markers found, corners turned to OpenCV's

@@ -1,5 +1,5 @@
 """One scene of ``annotator estimate`` (and of the benchmark) as a batch job
-(:func:`annotator.batch.run_batch`): picklable, prepared once before the workers fork."""
+(:func:`annotator.runner.run_batch`): picklable, prepared once before the workers fork."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ from typing import Any
 from annotator.dataset import cached_dataset
 from annotator.estimation.estimator import PPFSettings, estimate_scene, train_all
 from annotator.estimation.results import result_rows
-from annotator.scale.bundle import description_files
+from annotator.runner.bundle import description_files
 
 
 @dataclass(frozen=True)
@@ -34,7 +34,7 @@ class EstimateJob:
         ds.background_depth  # noqa: B018  (cached property: read once, before forking)
 
     # What a scene's work reads (for runs on a Ray cluster without the dataset's disk, see
-    # annotator.scale): the results travel back in the job's return value, no file is written.
+    # annotator.runner.job): the results travel back in the job's return value, no file is written.
 
     def shared_files(self) -> list[str]:
         """The dataset description (dataset.yaml, objects, background depth)."""

@@ -14,9 +14,7 @@ from typing import Any
 
 from annotator.evaluation.metrics import SceneCurve, Summary, scene_curve, summarise
 from annotator.formats.base import GroundTruth, PoseSet, Results
-
-#: The paper's match threshold: a tenth of the diameter.
-DEFAULT_THRESHOLD_FRACTION = 0.1
+from annotator.symmetry.space import MATCH_THRESHOLD_FRACTION
 
 
 @dataclass(frozen=True)
@@ -29,7 +27,7 @@ class Options:
         threshold_mm: Match threshold in mm for every object.
         threshold_fraction: Match threshold as a fraction of each object's diameter. With
             neither, the dataset's own threshold where it has one (the paper's files carry
-            one), else :data:`DEFAULT_THRESHOLD_FRACTION` of the diameter.
+            one), else :data:`MATCH_THRESHOLD_FRACTION` of the diameter.
         only_scenes_with_results: Score only the scenes the results mention.
     """
 
@@ -88,7 +86,7 @@ def thresholds_for(gt: GroundTruth, options: Options) -> dict[str, float]:
         elif name in gt.thresholds:
             out[name] = gt.thresholds[name]
         else:
-            out[name] = DEFAULT_THRESHOLD_FRACTION * sp.diameter
+            out[name] = MATCH_THRESHOLD_FRACTION * sp.diameter
     return out
 
 
@@ -197,8 +195,8 @@ def plot_curves(report: Report, path: str | Path) -> None:
 def per_instance_errors(root: Path) -> list[dict[str, Any]]:
     """For each annotated instance with a true pose: the pose error (mm, the paper's distance),
     the estimated uncertainty, the diameter and the flags."""
-    from annotator.annotation.record import InstanceAnnotation, SceneAnnotation
     from annotator.dataset import load_dataset, read_poses
+    from annotator.dataset.annotation import InstanceAnnotation, SceneAnnotation
     from annotator.symmetry import PoseSpace
 
     ds = load_dataset(root)

@@ -40,5 +40,7 @@ def read_scene_inputs(
         images[name] = undistort_image(scene.read_image(cam), cam)
     d = scene.read_depth(ds.rig) if depth else None
     if d is not None:
-        d = undistort_depth(d, ds.rig.depth_camera)
+        depth_cam = ds.rig.depth_camera
+        assert depth_cam is not None  # a depth map is read only when the rig has depth
+        d = undistort_depth(d, depth_cam)
     return SceneInputs(images, d)

@@ -19,6 +19,7 @@ from types import ModuleType
 
 from annotator.errors import UserError
 from annotator.formats import bop, ours, sileane
+from annotator.formats.base import GroundTruth, Results
 
 FORMATS: dict[str, ModuleType] = {m.NAME: m for m in (ours, bop, sileane)}
 EXPORTS: tuple[str, ...] = tuple(n for n, m in FORMATS.items() if hasattr(m, "export"))
@@ -43,3 +44,15 @@ def detect_format(path: str | Path) -> ModuleType:
         "not a dataset: no dataset.yaml (ours), models/models_info.json (BOP) or gt/ (Siléane)",
         path=path,
     )
+
+
+def read_ground_truth(path: str | Path, *, symmetry: str | None = None) -> GroundTruth:
+    """The true poses of the dataset at ``path``, whatever its format (:func:`detect_format`):
+    ours, BOP or the paper's. ``symmetry``: the class for a Siléane folder with only a mesh."""
+    return detect_format(path).read_ground_truth(Path(path), symmetry=symmetry)
+
+
+def read_results(path: str | Path, gt: GroundTruth) -> Results:
+    """Results to score against ``gt``: a BOP CSV or a folder of per-scene JSON lists, in
+    ``gt``'s unit."""
+    return get_format(gt.format).read_results(Path(path), gt)

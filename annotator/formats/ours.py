@@ -93,8 +93,8 @@ def _scene_key(scene_id: str, gt: GroundTruth) -> str:
 def annotations_as_results(root: Path, gt: GroundTruth) -> Results:
     """annotation.json poses (repaired ones applied) as results, scored ``1 / (1 +
     uncertainty_mm)`` (an instance added by hand has none: score 0)."""
-    from annotator.annotation.record import SceneAnnotation
     from annotator.dataset import load_dataset
+    from annotator.dataset.annotation import SceneAnnotation
 
     ds = load_dataset(root)
     table: Table = {}

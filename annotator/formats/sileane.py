@@ -52,12 +52,13 @@ from annotator.formats.base import (
     checked_entries,
     read_json_lists,
 )
+from annotator.geometry import MM_PER_M
 from annotator.io.documents import read_json, read_yaml
-from annotator.symmetry.space import PoseSpace
+from annotator.symmetry.space import MATCH_THRESHOLD_FRACTION, PoseSpace
 
 NAME = "sileane"
 NO_SEGMENT = 255
-M = 1000.0  # millimetres per metre
+M = MM_PER_M  # the paper's files are in metres
 
 
 def detect(path: Path) -> bool:
@@ -183,7 +184,7 @@ def export(
         write_ply(folder / "mesh.ply", Mesh((obj.mesh.vertices - c) @ B / M, obj.mesh.faces))
         write_json(
             folder / "poseutils.json",
-            poseutils_to_json(space, threshold_mm=0.1 * space.diameter),
+            poseutils_to_json(space, threshold_mm=MATCH_THRESHOLD_FRACTION * space.diameter),
         )
         K = ref.K
         write_text(

@@ -2,7 +2,8 @@
 
 Conventions, stated once for the whole project (they follow docs/FORMAT.md):
 
-- Lengths are millimetres; angles radians.
+- Lengths are millimetres; angles radians. Libraries that want metres (MuJoCo, viser, the
+  paper's files) are given ``mm / MM_PER_M``.
 - A rigid transform ``a_T_b`` is a 4x4 homogeneous matrix mapping coordinates in frame ``b``
   to frame ``a``: ``x_a = a_T_b @ x_b``. Rotations are 3x3 matrices, serialised row-major.
 - A pose maps model to camera, ``x_cam = R @ x_model + t`` (BOP's ``cam_R_m2c``,
@@ -12,3 +13,6 @@ Conventions, stated once for the whole project (they follow docs/FORMAT.md):
 - Marker corners follow OpenCV ArUco order: top-left, top-right, bottom-right, bottom-left
   as seen from outside the object.
 """
+
+#: Millimetres per metre: the one conversion between our lengths and metric libraries'.
+MM_PER_M = 1000.0

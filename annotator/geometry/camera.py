@@ -132,8 +132,8 @@ class Camera:
         (ceil(height / step), ceil(width / step), 3) (the same as
         ``pixel_rays()[::step, ::step]``).
 
-        Computed once per camera and step, and cached (about 0.4 s for 1280x1024 with
-        distortion, a quarter of that with ``step=2``).
+        Computed once per camera and step, and cached (the undistortion of every pixel is
+        the slow part; ``step=2`` does a quarter of the work).
         """
         key = self.grid_key
         rays = _RAY_CACHE.get((key, step))

@@ -20,10 +20,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import open3d as o3d
 
-from annotator.dataset.model import MarkerSites
 from annotator.geometry.mesh import Mesh
+from annotator.geometry.open3d_lib import o3d
+from annotator.markers.sites import MarkerSites
 
 
 @dataclass(frozen=True)

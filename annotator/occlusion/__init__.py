@@ -30,7 +30,7 @@ occlusion`` use the exact ``step=1``.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -123,7 +123,7 @@ def scene_visibility(
     masks: bool = False,
     step: int = 1,
     renders: dict[str, tuple[np.ndarray, np.ndarray]] | None = None,
-    casts: dict[str, Sequence[tuple[Rect, Hits] | None]] | None = None,
+    casts: Mapping[str, Sequence[tuple[Rect, Hits] | None]] | None = None,
 ) -> list[InstanceVisibility]:
     """Silhouettes and occlusion of every posed instance (poses: ``rig_T_model`` 4x4).
 

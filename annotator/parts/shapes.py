@@ -7,6 +7,8 @@ has is stated in its docstring and checked in the tests.
 
 from __future__ import annotations
 
+from typing import cast
+
 import numpy as np
 import trimesh
 from shapely.geometry import Polygon
@@ -86,7 +88,8 @@ def _concat(*meshes: trimesh.Trimesh) -> trimesh.Trimesh:
     of what a camera sees; internal faces are removed when a boolean engine is available."""
     if _has_boolean():
         return trimesh.boolean.union(list(meshes))
-    return trimesh.util.concatenate(list(meshes))
+    # Trimeshes concatenate to a Trimesh; the signature says Geometry.
+    return cast(trimesh.Trimesh, trimesh.util.concatenate(list(meshes)))
 
 
 def _has_boolean() -> bool:

@@ -31,9 +31,9 @@ from typing import Any
 import numpy as np
 from scipy import ndimage
 
-from annotator.annotation.record import SceneAnnotation
 from annotator.annotation.scene import render_poses
 from annotator.dataset import Dataset, Scene, cached_dataset
+from annotator.dataset.annotation import SceneAnnotation
 from annotator.dataset.write import sites_to_yaml
 from annotator.detection import MarkerDetector
 from annotator.errors import UserError
@@ -233,9 +233,9 @@ def _gather_scene(
             # rejected by its consensus, and is just what must be measured. The solve leaves
             # out whatever does not fit the pose at all.
             for mid in set(uses.get("used", [])) | set(uses.get("rejected", [])):
-                corners = by_id.get((j, mid))
-                if mid in ids and corners is not None:
-                    data.markers.append(MarkerView(view, j, ids.index(mid), corners))
+                seen = by_id.get((j, mid))
+                if mid in ids and seen is not None:
+                    data.markers.append(MarkerView(view, j, ids.index(mid), seen))
                     read_here.add(ids.index(mid))
         for k in read_here:
             read[(inst.object, inst.instance)][k] += 1

@@ -137,7 +137,8 @@ def symmetry_to_bop(sym: Symmetry, centroid: np.ndarray) -> dict[str, Any]:
     if sym.kind == "finite":
         return {"symmetries_discrete": [T(G) for G in group_of(sym)[1:]]}
     if sym.kind in ("revolution", "revolution_flip"):
-        axis = np.asarray(sym.axis, float) / np.linalg.norm(sym.axis)
+        given = sym.axis if sym.axis is not None else [0.0, 0.0, 1.0]  # as symmetry_to_yaml
+        axis = np.asarray(given, float) / np.linalg.norm(given)
         out: dict[str, Any] = {
             "symmetries_continuous": [{"axis": axis.tolist(), "offset": c.tolist()}]
         }

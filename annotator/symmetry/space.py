@@ -22,6 +22,10 @@ import numpy as np
 from annotator.geometry.mesh import SurfaceMoments
 from annotator.symmetry.classes import Symmetry, group_of
 
+#: The paper's match threshold, as a fraction of a part's diameter: two poses closer than
+#: this are the same pose (evaluation), and two copies posed closer are in the same place.
+MATCH_THRESHOLD_FRACTION = 0.1
+
 
 def _frame_with_z(axis: np.ndarray) -> np.ndarray:
     z = axis / np.linalg.norm(axis)

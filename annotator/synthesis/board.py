@@ -365,7 +365,7 @@ def write_truth(plan: CapturePlan, root: Path) -> None:
 
 @dataclass(frozen=True)
 class ShotJob:
-    """Render and write one shot (a job of :func:`annotator.batch.run_batch`, picklable)."""
+    """Render and write one shot (a job of :func:`annotator.runner.run_batch`, picklable)."""
 
     config: CaptureConfig
     root: str
@@ -396,13 +396,16 @@ def write_videos(root: Path, cameras: list[str]) -> list[Path]:
     out = []
     for k, name in enumerate(cameras):
         folder = root / name
-        frames = [cv2.imread(str(p), cv2.IMREAD_GRAYSCALE) for p in sorted(folder.glob("*.png"))]
+        frames: list[np.ndarray] = []
+        for p in sorted(folder.glob("*.png")):
+            img = cv2.imread(str(p), cv2.IMREAD_GRAYSCALE)
+            assert img is not None, p  # a shot this module has just written
+            frames.append(img)
         h, w = frames[0].shape
         lead = [np.full((h, w), int(255 * BACKGROUND), np.uint8)] if k > 0 else []
         path = root / f"{name}.mkv"
-        writer = cv2.VideoWriter(
-            str(path), cv2.VideoWriter_fourcc(*"FFV1"), VIDEO_FPS, (w, h), isColor=False
-        )
+        fourcc = cv2.VideoWriter_fourcc(*"FFV1")  # type: ignore[attr-defined]  # cv2 has it, its stubs not
+        writer = cv2.VideoWriter(str(path), fourcc, VIDEO_FPS, (w, h), isColor=False)
         if not writer.isOpened():
             raise UserError("OpenCV cannot write FFV1 videos here", path=path)
         for img in lead + frames:
@@ -424,3 +427,41 @@ def _plan(config: CaptureConfig) -> CapturePlan:
     if config not in _PLANS:
         _PLANS[config] = plan_captures(config)
     return _PLANS[config]
+
+
+def write_captures(
+    config: CaptureConfig,
+    out: Path,
+    *,
+    workers: int = 1,
+    quiet: bool = True,
+    video: bool = False,
+) -> CapturePlan:
+    """Render every shot of ``config`` into the new folder ``out`` (``<camera>/<shot>.png``,
+    board.yaml, truth.yaml; with ``video``, one video per camera instead of its images),
+    written whole or not at all; returns the plan (the rig and the shots).
+
+    Raises:
+        UserError: a shot failed to render (nothing is written).
+    """
+    from annotator.io.atomic import atomic_folder
+    from annotator.io.output_folder import write_manifest
+    from annotator.runner import run_batch
+
+    with atomic_folder(out) as tmp:
+        write_manifest(tmp, command="synth")
+        plan = plan_captures(config)
+        write_truth(plan, tmp)
+        report = run_batch(
+            ShotJob(config, str(tmp)),
+            plan.shot_names,
+            workers=workers,
+            desc="synth --calibration",
+            quiet=quiet,
+        )
+        if report.failed:
+            report.print_failures()
+            raise UserError(f"{len(report.failed)} shots failed to render; nothing written")
+        if video:
+            write_videos(tmp, [c.name for c in plan.rig.cameras])
+    return plan

@@ -7,13 +7,14 @@ order by any number of worker processes and the dataset is the same byte for byt
 from __future__ import annotations
 
 import time
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 import trimesh
 
-from annotator.dataset.model import Instance, Rig
+from annotator.dataset.model import FORMAT_VERSION, Instance, Rig
 from annotator.dataset.poses import InstancePose, write_poses
 from annotator.dataset.write import sites_to_yaml, write_dataset_yaml, write_object_yaml
 from annotator.errors import UserError
@@ -27,7 +28,7 @@ from annotator.markers.layout import MarkerLayout, assign_ids, place_markers
 from annotator.markers.texture import dictionary_size, marker_bits
 from annotator.occlusion import scene_visibility
 from annotator.parts import Part, build_part
-from annotator.rendering.raycast import PlacedMesh
+from annotator.rendering.raycast import Hits, PlacedMesh, Rect
 from annotator.synthesis.physics import Bin, drop_parts
 from annotator.synthesis.rig import RigSetup, make_rig
 from annotator.synthesis.shading import Surface, finish_image, render_intensity, render_view
@@ -224,17 +225,19 @@ def make_scene(
     fixed = len(surfaces)
     poses: list[InstancePose] = []
     for k, (p, copy) in enumerate(chosen):
-        if world_T[k] is None:
+        T = world_T[k]
+        if T is None:
             continue
         inst = plan.instances[p][copy]
         bits = np.stack([marker_bits(DICTIONARY, m) for m in inst.marker_ids])
         corners = plan.glued[p][copy][: len(inst.marker_ids)]
-        surfaces.append(Surface(plan.parts[p].mesh, world_T[k], 0.8, corners, bits))
-        cam_T = plan.setup.ref_T_world @ world_T[k]
+        surfaces.append(Surface(plan.parts[p].mesh, T, 0.8, corners, bits))
+        cam_T = plan.setup.ref_T_world @ T
         poses.append(InstancePose(plan.parts[p].name, inst.name, cam_T[:3, :3], cam_T[:3, 3]))
     for k in range(len(chosen), len(meshes)):
-        if world_T[k] is not None:
-            surfaces.append(Surface(meshes[k], world_T[k], 0.7))
+        T = world_T[k]
+        if T is not None:
+            surfaces.append(Surface(meshes[k], T, 0.7))
 
     t0 = time.perf_counter()
     views = []
@@ -249,15 +252,17 @@ def make_scene(
     timing.rendering = time.perf_counter() - t0
 
     if cfg.depth:
+        depth_spec = plan.setup.rig.depth
+        assert depth_spec is not None  # make_rig always gives the rig a depth camera
         t0 = time.perf_counter()
         depth = simulate_depth(
             plan.setup, surfaces, views, rng, pattern_seed=plan.config.seed + 7, fixed=fixed
         )
-        write_png(folder / "depth.png", encode_depth(depth, plan.setup.rig.depth.scale))
+        write_png(folder / "depth.png", encode_depth(depth, depth_spec.scale))
         # The exact depth of everything (parts, bin, clutter), for comparison with the sensor's.
         write_png(
             folder / "depth_ideal.png",
-            encode_depth(views[0].hits.depth, plan.setup.rig.depth.scale),
+            encode_depth(views[0].hits.depth, depth_spec.scale),
         )
         timing.depth = time.perf_counter() - t0
     t0 = time.perf_counter()
@@ -266,7 +271,7 @@ def make_scene(
     casts = {cam.name: view.own[: len(poses)] for cam, view in zip(plan.setup.rig.cameras, views)}
     add_true_occlusion(plan.setup.rig, poses, meshes, views[0].hits.depth, casts=casts)
     timing.occlusion = time.perf_counter() - t0
-    write_poses(folder / "gt.json", poses, format=1)
+    write_poses(folder / "gt.json", poses, format=FORMAT_VERSION)
     return poses, timing
 
 
@@ -276,7 +281,7 @@ def add_true_occlusion(
     meshes: list[Mesh],
     ideal_depth: np.ndarray,
     *,
-    casts: dict[str, list] | None = None,
+    casts: Mapping[str, Sequence[tuple[Rect, Hits] | None]] | None = None,
 ) -> None:
     """Set each pose's true ``occlusion`` (``{"rate", "per_camera"}``): the posed instances
     occlude each other, and the exact depth of everything else (bin walls, clutter) hides

@@ -14,6 +14,7 @@ import mujoco
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from annotator.geometry import MM_PER_M
 from annotator.geometry.mesh import Mesh
 from annotator.geometry.transforms import make_transform
 
@@ -61,22 +62,22 @@ def drop_parts(
         g.name = f"bin{k}"
         g.type = mujoco.mjtGeom.mjGEOM_BOX
         g.size = size / 2000.0
-        g.pos = centre / 1000.0
+        g.pos = centre / MM_PER_M
         g.friction = [0.6, 0.005, 0.0001]
     ix, iy = bin.inner
     margin = 0.3
     for k, mesh in enumerate(meshes):
         m = spec.add_mesh()
         m.name = f"mesh{k}"
-        m.uservert = (mesh.vertices / 1000.0).astype(np.float32).ravel().tolist()
+        m.uservert = (mesh.vertices / MM_PER_M).astype(np.float32).ravel().tolist()
         m.userface = mesh.faces.astype(np.int32).ravel().tolist()
         body = spec.worldbody.add_body()
         body.name = f"part{k}"
         r = mesh.moments.radius
         body.pos = [
-            rng.uniform(-ix / 2 * (1 - margin), ix / 2 * (1 - margin)) / 1000.0,
-            rng.uniform(-iy / 2 * (1 - margin), iy / 2 * (1 - margin)) / 1000.0,
-            (bin.height + r + (k // 3) * 1.6 * r) / 1000.0,
+            rng.uniform(-ix / 2 * (1 - margin), ix / 2 * (1 - margin)) / MM_PER_M,
+            rng.uniform(-iy / 2 * (1 - margin), iy / 2 * (1 - margin)) / MM_PER_M,
+            (bin.height + r + (k // 3) * 1.6 * r) / MM_PER_M,
         ]
         q = Rotation.random(random_state=rng).as_quat()  # x, y, z, w
         body.quat = [q[3], q[0], q[1], q[2]]
@@ -96,7 +97,7 @@ def drop_parts(
         bid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, f"part{k}")
         w, x, y, z = data.xquat[bid]
         R = Rotation.from_quat([x, y, z, w]).as_matrix()
-        t = data.xpos[bid] * 1000.0
+        t = data.xpos[bid] * MM_PER_M
         inside = abs(t[0]) < ix / 2 and abs(t[1]) < iy / 2 and -1.0 < t[2] < bin.height * 3
         poses.append(make_transform(R, t) if inside else None)
     return poses

@@ -129,6 +129,7 @@ def _textured(
             parts[0].append(np.zeros(len(s.mesh.faces), np.int32))  # grid 0: no candidate
             parts[1].append(np.zeros(len(s.mesh.faces), np.int32))
             continue
+        assert s.bits is not None  # a Surface with sites has their bits
         fs = _face_sites(s.mesh, s.sites)
         for k, a in enumerate(
             (fs.grid, fs.cell_offset + cells, fs.count, fs.first + pairs, fs.site + site_base)
@@ -361,7 +362,7 @@ def finish_image(
     img: np.ndarray, *, blur: float, noise: float, rng: np.random.Generator
 ) -> np.ndarray:
     """Blur (Gaussian sigma, px), add Gaussian noise (sigma, grey levels), quantise to uint8."""
-    out = img.astype(np.float32) * 255.0
+    out: np.ndarray = img.astype(np.float32) * 255.0
     if blur > 0:
         out = cv2.GaussianBlur(out, (0, 0), blur)
     if noise > 0:

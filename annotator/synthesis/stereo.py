@@ -207,7 +207,7 @@ def stereo_depth(
     d_min = int(np.floor(fb / z_range[1] + rect.offset)) - 2
     n_disp = int(np.ceil((fb / z_range[0] + rect.offset - d_min + 2) / 16.0)) * 16
     block = 5
-    sgbm = cv2.StereoSGBM_create(
+    sgbm = cv2.StereoSGBM.create(
         minDisparity=d_min,
         numDisparities=n_disp,
         blockSize=block,

@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from annotator.dataset import Dataset, InstancePose, Scene
-from annotator.dataset.model import orient_image
+from annotator.dataset.model import FORMAT_VERSION, orient_image
 from annotator.geometry.mesh import Mesh
 from annotator.io.images import encode_depth, write_png
 from annotator.markers.dictionary import is_predefined
@@ -58,6 +58,8 @@ def background_mesh(ds: Dataset, scene: Scene) -> Mesh | None:
     from annotator.annotation.completeness import fit_support_plane
 
     cam = ds.rig.depth_camera
+    if cam is None:  # no depth: neither a background depth nor the scene's
+        return None
     depth = ds.background_depth
     if depth is not None:
         hit = _BACKGROUND.get(id(depth))
@@ -176,7 +178,7 @@ def make_twin_scene(
     meshes = [ds.objects[p.object].mesh for p in truth]
     casts = {cam.name: view.own for cam, view in zip(ds.rig.cameras, views)}
     add_true_occlusion(ds.rig, truth, meshes, views[0].hits.depth, casts=casts)
-    write_poses(out / "gt.json", truth, format=1)
+    write_poses(out / "gt.json", truth, format=FORMAT_VERSION)
 
 
 @dataclass(frozen=True)
@@ -205,7 +207,7 @@ class TwinJob:
     def shared_files(self) -> list[str]:
         """The dataset description (dataset.yaml, objects, background depth)."""
         from annotator.dataset import cached_dataset
-        from annotator.scale.bundle import description_files
+        from annotator.runner.bundle import description_files
 
         return description_files(cached_dataset(self.root))
 

@@ -78,6 +78,7 @@ def compare_scene(
 
     renders = render_poses(ds, poses, step=step)
     cam = ds.rig.depth_camera
+    assert cam is not None, "comparing depth maps needs a rig with depth"
     front = renders[cam.name][1] if renders else np.full(real[::step, ::step].shape, -1)
     r, t = real[::step, ::step], twin[::step, ::step]
     both = np.isfinite(r) & np.isfinite(t)

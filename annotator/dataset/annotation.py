@@ -14,9 +14,8 @@ from typing import Any
 
 import numpy as np
 
+from annotator.dataset.model import FORMAT_VERSION
 from annotator.dataset.poses import InstancePose, read_pose_file, write_poses
-
-FORMAT = 1
 
 _INSTANCE_KEYS = (
     "uncertainty_mm",
@@ -191,7 +190,7 @@ class SceneAnnotation:
         """Write annotation.json atomically."""
         top = dict(self.extra)
         top.update(
-            format=FORMAT,
+            format=FORMAT_VERSION,
             created_at=self.created_at,
             description_digest=self.description_digest,
             unknown_markers=self.unknown_markers,

@@ -1,4 +1,4 @@
-"""Batches on a Ray cluster: ``--ray ADDRESS`` on ``synth``, ``annotate`` and ``occlusion``.
+"""What a job that can run on a Ray cluster declares (``--ray ADDRESS`` on the batch commands).
 
 Nothing here assumes a shared file system. The driver (the machine that runs the command
 and holds the dataset) reads every file a scene needs and sends it as bytes through Ray's
@@ -15,18 +15,14 @@ reads (``synth --twin``) has an ``out`` field too: its outputs are then relative
 and a task runs with ``out`` an empty folder of its own. Scene folders are
 ``scenes/<scene_id>`` (docs/FORMAT.md).
 
-Modules: :mod:`annotator.scale.bundle` (files as bytes), :mod:`annotator.scale.ray_runner`
-(joining the cluster, tasks, retries, cancellation), :mod:`annotator.scale.local_cluster` (a
-throwaway cluster on this machine, for the tests and the benchmark). Ray itself is imported
-only when ``--ray`` is given: it is an optional extra, ``pip install 'bin-annotator[ray]'``.
+See :mod:`annotator.runner.bundle` (files as bytes) and :mod:`annotator.runner.ray_cluster`
+(joining the cluster, tasks, retries, cancellation). Ray itself is imported only when
+``--ray`` is given: it is an optional extra, ``pip install 'bin-annotator[ray]'``.
 """
 
 from __future__ import annotations
 
-import argparse
 from typing import Any, Protocol
-
-__all__ = ["RAY_WAIT_S", "DistributableJob", "add_ray_option"]
 
 #: How long (s) a run waits by default for a cluster that has no CPU for its tasks (its
 #: only worker node died, or none joined) before it stops and lists the unfinished scenes.
@@ -57,35 +53,3 @@ class DistributableJob(Protocol):
     def __call__(self, scene_id: str) -> dict[str, Any]:
         """Process one scene under ``root`` (reads its inputs, writes its outputs)."""
         ...
-
-
-def add_ray_option(parser: argparse.ArgumentParser) -> None:
-    """``--ray ADDRESS``: one Ray task per scene on that cluster (``auto``: the running one)."""
-    parser.add_argument(
-        "--ray",
-        metavar="ADDRESS",
-        default=None,
-        help="run every scene as a task on the Ray cluster whose head is at ADDRESS "
-        "(host:port), or 'auto' for the one this machine belongs to (RAY_ADDRESS or the "
-        "latest `ray start`); files travel as bytes, no shared file system is needed; "
-        "--workers is then ignored (needs `pip install 'bin-annotator[ray]'`)",
-    )
-    parser.add_argument(
-        "--ray-wait",
-        metavar="SECONDS",
-        type=_seconds,
-        default=RAY_WAIT_S,
-        help="with --ray: how long to wait for a CPU when the cluster has none for its tasks "
-        "(its worker nodes died or none joined) before stopping with the unfinished scenes "
-        f"listed (default {RAY_WAIT_S:g})",
-    )
-
-
-def _seconds(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number of seconds: {text!r}") from None
-    if not (value >= 0 and value < float("inf")):
-        raise argparse.ArgumentTypeError(f"must be a finite number of seconds >= 0: {text!r}")
-    return value

@@ -1,4 +1,4 @@
-"""Running one job per scene over a dataset: worker processes, progress bar, failure report.
+"""The local runner: one job per scene in worker processes of this machine.
 
 A job is a picklable callable ``job(scene_id) -> dict``; a :class:`~annotator.errors.UserError`
 (or any exception) in one scene is recorded as that scene's failure and the batch goes on.
@@ -15,8 +15,6 @@ are forked from it, so that they start ready. (Forked workers must not call
 ``cv2.setNumThreads``: it waits forever for the parent's OpenCV threads, which a child does
 not have. The parent sets one thread before forking instead, and restores its setting after.)
 
-With ``ray_address``, the scenes go to a Ray cluster instead (:mod:`annotator.scale`): same
-report, same progress bar, same files written.
 """
 
 from __future__ import annotations
@@ -26,29 +24,14 @@ import os
 import sys
 import threading
 import time
-import traceback
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
-from contextlib import contextmanager
-from dataclasses import dataclass, field
 from typing import Any
 
-from tqdm import tqdm
-
 from annotator.errors import UserError
-
-
-@dataclass
-class BatchReport:
-    """Per-scene outcomes: results of the scenes done and one-line errors of the failed ones."""
-
-    done: dict[str, dict[str, Any]] = field(default_factory=dict)
-    failed: dict[str, str] = field(default_factory=dict)
-
-    def print_failures(self) -> None:
-        """One line per failed scene on stderr, in scene order."""
-        for sid, err in sorted(self.failed.items()):
-            print(f"failed: scene {sid}: {err}", file=sys.stderr)
+from annotator.runner import threads
+from annotator.runner.report import BatchReport, describe_failure, progress_bar, record
+from annotator.runner.threads import one_thread_meanwhile
 
 
 def _run_one(
@@ -64,50 +47,16 @@ def _run_one(
         return scene_id, None, describe_failure(exc)
 
 
-def describe_failure(exc: BaseException) -> str:
-    """The one line a failed scene's unexpected exception is reported with: its type, message
-    and the line of code that raised it."""
-    tb = traceback.extract_tb(exc.__traceback__)
-    where = f" (at {tb[-1].filename}:{tb[-1].lineno})" if tb else ""
-    return f"{type(exc).__name__}: {exc}{where}"
-
-
-def progress_bar(total: int, desc: str, quiet: bool) -> tqdm:
-    """The batch progress bar: scenes finished (done or failed), on stderr when it is a
-    terminal."""
-    return tqdm(
-        total=total,
-        desc=desc,
-        unit="scene",
-        disable=quiet or not sys.stderr.isatty(),
-        file=sys.stderr,
-    )
-
-
-def run_batch(
+def run_local(
     job: Callable[[str], dict[str, Any]],
     scene_ids: Sequence[str],
     *,
     workers: int = 1,
     desc: str = "scenes",
     quiet: bool = False,
-    ray_address: str | None = None,
-    ray_wait: float | None = None,
 ) -> BatchReport:
     """Run ``job`` on every scene id, in ``workers`` processes of one thread each (OpenCV and
-    ray casting), with a progress bar on stderr.
-
-    With ``ray_address`` (``"auto"`` or a cluster's address), every scene is a task on that
-    Ray cluster instead and ``workers`` is ignored; ``job`` must then declare its files (see
-    :class:`annotator.scale.DistributableJob`); ``ray_wait`` bounds the wait (s) for a
-    cluster that has no CPU for the tasks (default :data:`annotator.scale.RAY_WAIT_S`).
-    """
-    if ray_address is not None:
-        from annotator.scale.ray_runner import run_on_ray
-
-        return run_on_ray(
-            job, scene_ids, address=ray_address, desc=desc, quiet=quiet, wait_s=ray_wait
-        )
+    ray casting), with a progress bar on stderr."""
     report = BatchReport()
     pool = None
     if workers > 1 and len(scene_ids) > 1:
@@ -126,16 +75,16 @@ def run_batch(
         _POOLS.add(pool)
     bar = progress_bar(len(scene_ids), desc, quiet)
     try:
-        with _one_thread_meanwhile():
+        with one_thread_meanwhile():
             if pool is None:
                 for sid in scene_ids:
-                    _record(report, *_run_one(job, sid))
+                    record(report, *_run_one(job, sid))
                     bar.update()
             else:
                 try:
                     futures = [pool.submit(_run_one, job, sid) for sid in scene_ids]
                     for fut in as_completed(futures):
-                        _record(report, *fut.result())
+                        record(report, *fut.result())
                         bar.update()
                 except BaseException:
                     _stop_workers(pool)
@@ -172,7 +121,7 @@ def _worker_start(parent: int, one_thread: bool) -> None:
     # Elsewhere (and as a second guard), a watcher notices the parent's death within a second.
     threading.Thread(target=_exit_with_parent, args=(parent,), daemon=True).start()
     if one_thread:
-        _one_thread()
+        threads.one_thread()
 
 
 def _exit_with_parent(parent: int) -> None:
@@ -215,34 +164,3 @@ def _fork_context() -> multiprocessing.context.BaseContext | None:
     return None
 
 
-def _one_thread() -> None:
-    import cv2
-
-    from annotator.rendering.raycast import set_threads
-
-    cv2.setNumThreads(1)
-    set_threads(1)
-
-
-@contextmanager
-def _one_thread_meanwhile() -> Iterator[None]:
-    import cv2
-
-    from annotator.rendering import raycast
-
-    before = cv2.getNumThreads(), raycast.get_threads()
-    _one_thread()
-    try:
-        yield
-    finally:
-        cv2.setNumThreads(before[0])
-        raycast.set_threads(before[1])
-
-
-def _record(
-    report: BatchReport, sid: str, result: dict[str, Any] | None, error: str | None
-) -> None:
-    if error is not None:
-        report.failed[sid] = error
-    else:
-        report.done[sid] = result or {}

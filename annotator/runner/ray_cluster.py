@@ -42,11 +42,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from annotator.batch import BatchReport, describe_failure, progress_bar
 from annotator.errors import UserError
 from annotator.io.atomic import remove_if_abandoned, temporary_folder
-from annotator.scale import RAY_WAIT_S
-from annotator.scale.bundle import (
+from annotator.runner.bundle import (
     Bundle,
     Files,
     Outputs,
@@ -56,6 +54,9 @@ from annotator.scale.bundle import (
     relative,
     write_outputs,
 )
+from annotator.runner.job import RAY_WAIT_S
+from annotator.runner.report import BatchReport, describe_failure, progress_bar
+from annotator.runner.threads import one_thread
 
 #: Further attempts of a scene after the first (exceptions other than UserError, dead
 #: workers, dead nodes).
@@ -94,12 +95,12 @@ def run_on_ray(
     retries: int = RETRIES,
     wait_s: float | None = None,
 ) -> BatchReport:
-    """Run ``job`` (a :class:`~annotator.scale.DistributableJob`) on every scene id as tasks
+    """Run ``job`` (a :class:`~annotator.runner.DistributableJob`) on every scene id as tasks
     of the Ray cluster at ``address`` (``"auto"``: the running one); the same report as
-    :func:`annotator.batch.run_batch`, with failures after ``retries`` further attempts.
+    :func:`annotator.runner.run_batch`, with failures after ``retries`` further attempts.
 
     A cluster that has no CPU for the tasks (its worker nodes died, or none joined) is
-    waited for ``wait_s`` seconds (default :data:`annotator.scale.RAY_WAIT_S`), with one
+    waited for ``wait_s`` seconds (default :data:`annotator.runner.RAY_WAIT_S`), with one
     line on stderr; then the run stops and every unfinished scene is reported failed.
 
     Joins the cluster unless this process already has (then it stays joined, as it was), and
@@ -112,10 +113,11 @@ def run_on_ray(
         for name in ("shared_files", "scene_files", "output_files")
         if not callable(getattr(job, name, None))
     ]
-    if missing or not dataclasses.is_dataclass(job):
+    is_dataclass = dataclasses.is_dataclass(job)  # (not in the if: it would narrow job's type)
+    if missing or not is_dataclass:
         raise TypeError(
             f"{type(job).__name__} cannot run on Ray: it must be a dataclass with a root field "
-            f"and {', '.join(missing) or 'its'} file declarations (annotator.scale)"
+            f"and {', '.join(missing) or 'its'} file declarations (annotator.runner.job)"
         )
     if not scene_ids:
         return BatchReport()
@@ -426,10 +428,8 @@ def _replica(digest: str, box: list[Any]) -> tuple[Path, frozenset[str]]:
     if hit is None:
         import ray
 
-        from annotator.batch import _one_thread
-
         if not _REPLICAS:
-            _one_thread()  # as in a local worker: same speed per core, same numbers
+            one_thread()  # as in a local worker: same speed per core, same numbers
         files = ray.get(box[0])
         root = _base() / digest[:16]
         shutil.rmtree(root, ignore_errors=True)

@@ -1,0 +1,145 @@
+"""Exporting accepted scenes of one of our datasets into another format:
+:func:`export_dataset`, what ``annotator export`` runs.
+
+Which scenes go is decided by the reviews (:mod:`annotator.export.selection`); the writing is
+the format's own (``export`` of :mod:`annotator.formats.bop` or
+:mod:`annotator.formats.sileane`), into a temporary folder renamed at the end (never half an
+export). A scene whose inputs cannot be read is left out and named; the others are written.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from annotator.dataset import Dataset
+from annotator.errors import UserError
+from annotator.export.selection import Selection, select_scenes
+from annotator.formats import EXPORTS, get_format
+from annotator.io.atomic import atomic_folder
+from annotator.io.output_folder import check_output_folder, write_manifest
+
+
+@dataclass
+class ExportSummary:
+    """What :func:`export_dataset` wrote; :meth:`to_json` is ``annotator export --json``.
+
+    Attributes:
+        format, out: The format and the folder written.
+        exported: Scenes written.
+        left_out: Scene id -> why it was left out by the reviews (pending, rejected...).
+        failures: Scene id -> why it could not be read.
+    """
+
+    format: str
+    out: Path
+    exported: int
+    left_out: dict[str, str] = field(default_factory=dict)
+    failures: dict[str, str] = field(default_factory=dict)
+
+    def reasons(self) -> dict[str, int]:
+        """How many scenes were left out for each reason (``unreadable`` for failures)."""
+        out: dict[str, int] = {}
+        for r in self.left_out.values():
+            out[r] = out.get(r, 0) + 1
+        if self.failures:
+            out["unreadable"] = len(self.failures)
+        return out
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "format": self.format,
+            "out": str(self.out),
+            "exported": self.exported,
+            "left_out": self.reasons(),
+            "scenes_left_out": self.left_out,
+            "failures": dict(sorted(self.failures.items())),
+        }
+
+
+def export_dataset(
+    ds: Dataset,
+    out: str | Path,
+    *,
+    format: str,
+    cameras: Sequence[str] | None = None,
+    include_pending: bool = False,
+    drop_rejected_instances: bool = False,
+    poses: str = "annotation",
+    layout: str = "scenewise",
+    overwrite: bool = False,
+    progress: Callable[[int], Callable[[], None]] | None = None,
+) -> ExportSummary:
+    """Export the accepted scenes of ``ds`` into the new folder ``out`` (or, with
+    ``overwrite``, one an earlier export wrote).
+
+    Args:
+        format: ``bop`` or ``sileane``.
+        cameras: Rig cameras to export (BOP; default all).
+        include_pending: Also scenes not reviewed yet.
+        drop_rejected_instances: Export scenes with rejected instances, without them.
+        poses: ``annotation`` (annotation.json with the review's repairs) or ``gt``.
+        layout: BOP only: ``scenewise``, ``imagewise`` or ``webdataset``.
+        progress: Given the number of scenes, returns what to call after each.
+
+    Raises:
+        UserError: a bad option, an output folder that may not be written, or no scene to
+            export.
+    """
+    if format not in EXPORTS:
+        raise UserError(f"unknown format {format!r} (expected one of {', '.join(EXPORTS)})")
+    if layout != "scenewise" and format != "bop":
+        raise UserError("--layout is for --format bop")
+    names = [c.name for c in ds.rig.cameras]
+    chosen = list(cameras) if cameras else names
+    unknown = [c for c in chosen if c not in names]
+    if unknown:
+        raise UserError(f"unknown camera(s) {', '.join(unknown)} (the rig has {', '.join(names)})")
+    out = Path(out)
+    _check_writable(out, ds, overwrite)
+    sel = select_scenes(
+        ds,
+        include_pending=include_pending,
+        drop_rejected_instances=drop_rejected_instances,
+        poses_from=poses,
+    )
+    if not sel.scenes:
+        why = ", ".join(f"{n} {r}" for r, n in sorted(sel.reasons().items())) or "no scenes"
+        raise UserError(
+            f"no accepted scene to export ({why}); review them with `annotator review`, or "
+            "use --include-pending",
+            path=ds.root,
+        )
+    tick = progress(len(sel.scenes)) if progress else None
+    options: dict[str, Any] = {"layout": layout} if format == "bop" else {}
+    with atomic_folder(out) as tmp:
+        write_manifest(tmp, command="export")
+        unreadable = get_format(format).export(
+            ds, sel.scenes, tmp, cameras=chosen, progress=tick, **options
+        )
+    return _summary(format, out, sel, unreadable)
+
+
+def _check_writable(out: Path, ds: Dataset, overwrite: bool) -> None:
+    check_output_folder(out, command="export", overwrite=overwrite, protect=[ds.root])
+    parent = out.resolve().parent
+    try:
+        parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise UserError(f"cannot create the output folder ({exc.strerror})", path=out) from None
+    if not os.access(parent, os.W_OK):
+        raise UserError("the output folder is not writable", path=out)
+
+
+def _summary(format: str, out: Path, sel: Selection, unreadable: dict[str, str]) -> ExportSummary:
+    # Scenes that could not be read (corrupt annotation, review, image or depth) are named
+    # and make the command's exit status 1; the rest of the export is complete.
+    failures = {
+        sid: r[len("error: ") :] for sid, r in sel.skipped.items() if r.startswith("error: ")
+    }
+    failures.update(unreadable)
+    left_out = {sid: r for sid, r in sel.skipped.items() if sid not in failures}
+    return ExportSummary(format, out, len(sel.scenes) - len(unreadable), left_out, failures)

@@ -1,0 +1,391 @@
+"""Refining one instance's pose against the measured depth, jointly with its markers.
+
+The measured points are those of the depth map inside the instance's rendered silhouette
+(pixel-exact ray casting, :mod:`annotator.rendering.raycast`) grown by a margin, less the
+pixels that another posed part explains (rendered there in front of it, or at the measured
+depth): a neighbour's surface must not pull the part onto it. Each measured point is matched
+to its nearest model point (open3d's correspondence search, within a gate that shrinks over
+the iterations, model normals facing the camera only) and the pose minimises, by
+Gauss-Newton with Huber weights, the point-to-plane distances in mm together with the
+reprojection errors of the instance's markers in px (:mod:`annotator.pnp`), each over its
+noise. Where the depth alone is ambiguous (a cylinder about its axis, a face seen flat) the
+marker term keeps the pose; where there are no markers, the depth alone decides.
+
+The result is kept only when it converged: the steps became small, enough measured points
+lie on the refined surface, and the markers (if any) still reproject.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+import open3d as o3d
+
+from annotator.estimation.model import surface_samples
+from annotator.geometry.camera import Camera
+from annotator.geometry.mesh import Mesh
+from annotator.geometry.transforms import make_transform, rotvec_to_matrix
+from annotator.pnp.multiview import Observation, _residuals_jacobian, reprojection_errors
+from annotator.rendering.raycast import PlacedMesh, cast_alone, clip_region, projected_bbox
+
+#: The model's surface samples are about this far apart (mm): well below the depth's own
+#: spacing at the working distance.
+MODEL_SPACING_MM = 0.7
+
+
+@dataclass(frozen=True)
+class RefineSettings:
+    """Thresholds of the refinement (px, mm)."""
+
+    #: The silhouette grows by this many pixels: a pose a few mm off has its part beside it.
+    margin_px: int = 15
+    start_gate_mm: float = 15.0
+    end_gate_mm: float = 3.0
+    gate_iterations: int = 12  # the gate shrinks over these, then stays
+    iterations: int = 40
+    max_points: int = 4000
+    depth_sigma_mm: float = 1.0
+    marker_sigma_px: float = 0.5
+    #: A pixel another part's surface is rendered within this of the measured depth is its.
+    explained_mm: float = 4.0
+    min_points: int = 30
+    #: Converged: at least this share of the measured points on the refined surface ...
+    min_inlier_fraction: float = 0.5
+    #: ... and the markers (if any) within this RMS.
+    max_marker_px: float = 2.0
+    #: Converged when a step moves the residuals by less than this RMS (mm or px).
+    converged_moves: float = 0.02
+
+
+@dataclass(frozen=True)
+class Residuals:
+    """How well a pose explains the data: point-to-plane RMS (mm) of the measured points
+    within the end gate and their share, marker corner RMS (px)."""
+
+    depth_rms_mm: float | None
+    depth_inliers: float | None
+    depth_points: int
+    marker_rms_px: float | None
+    markers: int
+
+    def text(self) -> str:
+        parts = []
+        if self.depth_rms_mm is not None:
+            parts.append(
+                f"depth {self.depth_rms_mm:.2f} mm RMS on {100 * (self.depth_inliers or 0):.0f}%"
+                f" of {self.depth_points} points"
+            )
+        if self.marker_rms_px is not None:
+            parts.append(f"markers {self.marker_rms_px:.2f} px RMS ({self.markers})")
+        return ", ".join(parts) or "no depth and no markers"
+
+    def to_json(self) -> dict[str, float | int | None]:
+        return {
+            "depth_rms_mm": None if self.depth_rms_mm is None else round(self.depth_rms_mm, 4),
+            "depth_inliers": None if self.depth_inliers is None else round(self.depth_inliers, 4),
+            "markers_px": None if self.marker_rms_px is None else round(self.marker_rms_px, 4),
+        }
+
+
+@dataclass(frozen=True)
+class Refinement:
+    """The refined ``rig_T_model`` (the start when it did not converge), and why."""
+
+    T: np.ndarray
+    start: np.ndarray
+    converged: bool
+    iterations: int
+    before: Residuals
+    after: Residuals
+    why: str  # "" when converged, else the reason in a few words
+    seconds: float
+
+    def to_json(self) -> dict[str, object]:
+        return {
+            "op": "refine",
+            "before": self.before.to_json(),
+            "after": self.after.to_json(),
+            "iterations": self.iterations,
+        }
+
+
+_CLOUDS: dict[bytes, tuple[o3d.geometry.PointCloud, np.ndarray, np.ndarray]] = {}
+
+
+def _model_cloud(mesh: Mesh) -> tuple[o3d.geometry.PointCloud, np.ndarray, np.ndarray]:
+    """Evenly spread surface samples of a mesh (about two per mm^2) with their face normals,
+    model frame, the same every time (seeded); kept by the mesh's content."""
+    hit = _CLOUDS.get(mesh.digest)
+    if hit is None:
+        if len(_CLOUDS) >= 16:
+            _CLOUDS.clear()
+        pts, normals = surface_samples(mesh, MODEL_SPACING_MM, density=1.0)
+        cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts))
+        hit = _CLOUDS[mesh.digest] = (cloud, pts, normals)
+    return hit
+
+
+def measured_points(
+    camera: Camera,
+    depth: np.ndarray,
+    mesh: Mesh,
+    rig_T_model: np.ndarray,
+    others: Sequence[PlacedMesh],
+    settings: RefineSettings = RefineSettings(),
+) -> np.ndarray:
+    """The measured points the instance is refined against and their surface normals,
+    (N, 6) in the reference frame (mm): see the module docstring. ``others`` are the other
+    posed parts, placed in the reference frame."""
+    cam_T_model = camera.cam_T_rig @ rig_T_model
+    box = projected_bbox(camera, mesh, cam_T_model)
+    if box is None:
+        return np.zeros((0, 3))
+    m = settings.margin_px
+    x0, y0, x1, y1 = clip_region(
+        (box[0] - m, box[1] - m, box[2] + m, box[3] + m), camera.width, camera.height
+    )
+    rays = camera.pixel_rays()[y0:y1, x0:x1]
+    own = cast_alone(mesh, cam_T_model, rays).depth
+    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * m + 1, 2 * m + 1))
+    mask = cv2.dilate(np.isfinite(own).astype(np.uint8), kernel) > 0
+    measured = depth[y0:y1, x0:x1]
+    mask &= np.isfinite(measured) & (measured > 0)
+    other = np.full(own.shape, np.inf, np.float32)
+    for pm in others:
+        cam_T_other = camera.cam_T_rig @ pm.cam_T_model
+        ob = projected_bbox(camera, pm.mesh, cam_T_other)
+        if ob is None:
+            continue
+        bx0, by0, bx1, by1 = max(ob[0], x0), max(ob[1], y0), min(ob[2], x1), min(ob[3], y1)
+        if bx0 >= bx1 or by0 >= by1:
+            continue
+        d = cast_alone(pm.mesh, cam_T_other, rays[by0 - y0 : by1 - y0, bx0 - x0 : bx1 - x0]).depth
+        sub = other[by0 - y0 : by1 - y0, bx0 - x0 : bx1 - x0]
+        np.minimum(sub, d, out=sub)
+    theirs = np.isfinite(other) & (
+        (np.abs(measured - other) < settings.explained_mm) | (other < own)
+    )
+    mask &= ~theirs
+    grid = rays.astype(np.float64) * measured[..., None]
+    normals = _grid_normals(grid)
+    mask &= np.isfinite(normals).all(axis=-1)
+    ys, xs = np.nonzero(mask)
+    if len(ys) > settings.max_points:  # evenly thinned, deterministically
+        keep = np.linspace(0, len(ys) - 1, settings.max_points).astype(int)
+        ys, xs = ys[keep], xs[keep]
+    R, t = camera.rig_T_cam[:3, :3], camera.rig_T_cam[:3, 3]
+    return np.concatenate([grid[ys, xs] @ R.T + t, normals[ys, xs] @ R.T], axis=1)
+
+
+def _grid_normals(grid: np.ndarray) -> np.ndarray:
+    """Unit normals (towards the camera) of a grid of measured points (H, W, 3), from their
+    neighbours; NaN where a neighbour is missing or the surface jumps (a depth edge)."""
+    out = np.full(grid.shape, np.nan)
+    dx = grid[1:-1, 2:] - grid[1:-1, :-2]
+    dy = grid[2:, 1:-1] - grid[:-2, 1:-1]
+    n = np.cross(dx, dy)
+    norm = np.linalg.norm(n, axis=-1, keepdims=True)
+    n = n / np.where(norm > 0, norm, np.nan)
+    n *= -np.sign(np.einsum("ijk,ijk->ij", n, grid[1:-1, 1:-1]))[..., None]
+    # Across a depth edge the "surface" is the jump itself: a neighbour step far longer than
+    # the pixel's footprint.
+    footprint = np.abs(grid[1:-1, 1:-1, 2]) / 500.0
+    jump = np.maximum(np.linalg.norm(dx, axis=-1), np.linalg.norm(dy, axis=-1)) > 8 * footprint
+    n[jump] = np.nan
+    out[1:-1, 1:-1] = n
+    return out
+
+
+def _perturb(T: np.ndarray, d: np.ndarray) -> np.ndarray:
+    """``R -> exp([w]x) R``, ``t -> t + v`` for ``d = (w, v)``: the perturbation of
+    :mod:`annotator.pnp.multiview`, so that both terms' Jacobians share it."""
+    return make_transform(rotvec_to_matrix(d[:3]) @ T[:3, :3], T[:3, 3] + d[3:])
+
+
+#: A measured point matches a model point whose normal is within 45 degrees of its own.
+_SAME_NORMAL = float(np.cos(np.radians(45.0)))
+
+
+class _DepthTerm:
+    """Point-to-plane residuals of the measured points against the model at a pose."""
+
+    def __init__(self, mesh: Mesh, measured: np.ndarray, camera_centre: np.ndarray) -> None:
+        self.cloud, self.model, self.normals = _model_cloud(mesh)
+        self.points = measured[:, :3]
+        self.point_normals = measured[:, 3:]
+        self.scene = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(self.points))
+        self.centre = camera_centre  # the depth camera's centre, reference frame
+
+    def residuals(self, T: np.ndarray, gate: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Residuals (mm) and Jacobian (N, 6) of the matches within ``gate``, and their scene
+        indices."""
+        if len(self.points) == 0:
+            return np.zeros(0), np.zeros((0, 6)), np.zeros(0, int)
+        inv = np.linalg.inv(T)
+        # open3d matches source (the measured points, brought to the model frame) to target.
+        reg = o3d.pipelines.registration.evaluate_registration(self.scene, self.cloud, gate, inv)
+        pairs = np.asarray(reg.correspondence_set, dtype=int).reshape(-1, 2)
+        if len(pairs) == 0:
+            return np.zeros(0), np.zeros((0, 6)), np.zeros(0, int)
+        i, j = pairs[:, 0], pairs[:, 1]
+        R, t = T[:3, :3], T[:3, 3]
+        y = self.model[j] @ R.T
+        n = self.normals[j] @ R.T
+        p = y + t
+        # A surface the camera can see, turned as the measured one: the floor beside a
+        # part's end must not pull the part along onto it.
+        ok = (np.einsum("ij,ij->i", n, p - self.centre) < 0) & (
+            np.einsum("ij,ij->i", n, self.point_normals[i]) > _SAME_NORMAL
+        )
+        i, y, n, p = i[ok], y[ok], n[ok], p[ok]
+        r = np.einsum("ij,ij->i", n, p - self.points[i])
+        J = np.concatenate([np.cross(y, n), n], axis=1)
+        return r, J, i
+
+
+#: Directions of the normal equations this much weaker than the strongest (after scaling)
+#: are not moved along: what neither term sees (a cylinder's turn about its axis without
+#: markers) stays as it was instead of wandering.
+_WEAK = 1e-6
+
+
+def _solve(H: np.ndarray, g: np.ndarray) -> np.ndarray:
+    """The Gauss-Newton step ``-H^+ g``, scaled to unit diagonal first (rotations about the
+    reference origin, far from the part, weigh far more than translations) and without the
+    unobserved directions."""
+    d = np.sqrt(np.maximum(np.diag(H), 1e-300))
+    Hs = H / d[:, None] / d[None, :]
+    w, V = np.linalg.eigh(Hs)
+    keep = w > _WEAK * w.max()
+    x = V[:, keep] @ ((V[:, keep].T @ (-g / d)) / w[keep])
+    return x / d
+
+
+def _huber(r: np.ndarray, k: float) -> np.ndarray:
+    a = np.abs(r)
+    return np.where(a <= k, 1.0, k / np.maximum(a, 1e-12))
+
+
+def residuals_at(
+    T: np.ndarray,
+    depth: _DepthTerm | None,
+    cameras: Sequence[Camera],
+    obs: Sequence[Observation],
+    settings: RefineSettings,
+) -> Residuals:
+    """:class:`Residuals` of pose T."""
+    d_rms = d_in = None
+    n_pts = 0
+    if depth is not None and len(depth.points):
+        n_pts = len(depth.points)
+        r, _, _ = depth.residuals(T, settings.end_gate_mm)
+        d_in = len(r) / n_pts
+        d_rms = float(np.sqrt(np.mean(r**2))) if len(r) else float("inf")
+    m_rms = None
+    if obs:
+        e = reprojection_errors(cameras, obs, T)
+        m_rms = float(np.sqrt(np.mean(e**2)))
+    return Residuals(d_rms, d_in, n_pts, m_rms, len(obs))
+
+
+def refine_instance(
+    mesh: Mesh,
+    rig_T_model: np.ndarray,
+    *,
+    depth_camera: Camera | None,
+    depth: np.ndarray | None,
+    others: Sequence[PlacedMesh] = (),
+    cameras: Sequence[Camera] = (),
+    observations: Sequence[Observation] = (),
+    settings: RefineSettings = RefineSettings(),
+) -> Refinement:
+    """Refine one instance's pose ``rig_T_model`` (see the module docstring).
+
+    Args:
+        mesh: The part's mesh (mm).
+        depth_camera, depth: The depth map (mm, NaN = none) and the camera of its grid; None
+            without depth.
+        others: The other posed parts, placed in the reference frame.
+        cameras, observations: The rig's cameras and the instance's markers as detected
+            (:func:`annotator.repair.instance_observations`); none: depth only.
+    """
+    started = time.perf_counter()
+    T0 = np.array(rig_T_model, float)
+    obs = list(observations)
+    term = None
+    if depth is not None and depth_camera is not None:
+        pts = measured_points(depth_camera, depth, mesh, T0, others, settings)
+        if len(pts) >= settings.min_points:
+            term = _DepthTerm(mesh, pts, depth_camera.rig_T_cam[:3, 3])
+    before = residuals_at(T0, term, cameras, obs, settings)
+    if term is None and not obs:
+        return Refinement(
+            T0,
+            T0,
+            False,
+            0,
+            before,
+            before,
+            "no measured depth and no marker on it",
+            time.perf_counter() - started,
+        )
+    x = np.stack([o.image_corners for o in obs]) if obs else None
+    T = T0.copy()
+    done = False
+    k = 0
+    for k in range(1, settings.iterations + 1):
+        frac = min(1.0, (k - 1) / max(settings.gate_iterations - 1, 1))
+        gate = settings.start_gate_mm + (settings.end_gate_mm - settings.start_gate_mm) * frac
+        H = np.zeros((6, 6))
+        g = np.zeros(6)
+        jacobians = []
+        if term is not None:
+            r, J, _ = term.residuals(T, gate)
+            if len(r):
+                w = _huber(r, 1.5 * settings.depth_sigma_mm) / settings.depth_sigma_mm**2
+                H += J.T @ (J * w[:, None])
+                g += J.T @ (r * w)
+                jacobians.append(J)
+        if obs:
+            r, J = _residuals_jacobian(cameras, obs, T, x)
+            w = _huber(r, 3.0 * settings.marker_sigma_px) / settings.marker_sigma_px**2
+            H += J.T @ (J * w[:, None])
+            g += J.T @ (r * w)
+            jacobians.append(J)
+        if not np.any(H):
+            break
+        step = _solve(H, g)
+        T = _perturb(T, step)
+        # Converged when the step moves the residuals (mm, px) by a few hundredths RMS: a
+        # motion the data hardly sees (a faceted cylinder turning about its axis, snapping
+        # from facet to facet) does not count.
+        moved = max(float(np.sqrt(np.mean((J @ step) ** 2))) for J in jacobians)
+        if moved < settings.converged_moves and frac >= 1.0:
+            done = True
+            break
+    after = residuals_at(T, term, cameras, obs, settings)
+    why = ""
+    if not done:
+        why = f"no convergence in {settings.iterations} iterations"
+    elif term is not None and (after.depth_inliers or 0.0) < settings.min_inlier_fraction:
+        why = (
+            f"only {100 * (after.depth_inliers or 0):.0f}% of the measured points on the "
+            "refined surface"
+        )
+    elif obs and not (after.marker_rms_px or 0.0) <= settings.max_marker_px:
+        why = f"the markers reproject {after.marker_rms_px:.1f} px off"
+    converged = not why
+    return Refinement(
+        T if converged else T0,
+        T0,
+        converged,
+        k,
+        before,
+        after,
+        why,
+        time.perf_counter() - started,
+    )

@@ -1,0 +1,37 @@
+"""One thread for OpenCV and the ray caster in a worker: the workers are the parallelism
+(threads inside one process scale much worse).
+
+OpenCV and the ray caster (open3d) are imported when a batch starts, not when this module is:
+the commands that only read and print import the runner too, and open3d costs a second.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from contextlib import contextmanager
+
+
+def one_thread() -> None:
+    """OpenCV and the ray caster on one thread, in this process."""
+    import cv2
+
+    from annotator.rendering import raycast
+
+    cv2.setNumThreads(1)
+    raycast.set_threads(1)
+
+
+@contextmanager
+def one_thread_meanwhile() -> Iterator[None]:
+    """:func:`one_thread` for the duration of the block, then the settings as they were."""
+    import cv2
+
+    from annotator.rendering import raycast
+
+    before = cv2.getNumThreads(), raycast.get_threads()
+    one_thread()
+    try:
+        yield
+    finally:
+        cv2.setNumThreads(before[0])
+        raycast.set_threads(before[1])

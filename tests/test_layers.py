@@ -1,0 +1,85 @@
+"""The packages form layers: no import cycle between them, counting the imports made inside
+functions (a lazy import may spare start-up time, but one that points back up is a hidden
+cycle) and those made only for type checking."""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def _package(module: str) -> str | None:
+    """The package a module belongs to: ``annotator.<name>`` (a top-level module counts as
+    its own), ``viewer``; None outside the project."""
+    parts = module.split(".")
+    if parts[0] == "viewer":
+        return "viewer"
+    if parts[0] != "annotator" or len(parts) < 2:
+        return None
+    return f"annotator.{parts[1]}"
+
+
+def _imports() -> dict[str, dict[str, str]]:
+    """package -> {imported package: a module that imports it}."""
+    edges: dict[str, dict[str, str]] = {}
+    for folder in ("annotator", "viewer"):
+        for path in sorted((ROOT / folder).rglob("*.py")):
+            module = ".".join(path.relative_to(ROOT).with_suffix("").parts)
+            source = _package(module.removesuffix(".__init__"))
+            if source is None:  # annotator/__init__.py: the public API sits above everything
+                continue
+            for node in ast.walk(ast.parse(path.read_text())):
+                if isinstance(node, ast.Import):
+                    names = [a.name for a in node.names]
+                elif isinstance(node, ast.ImportFrom) and node.module and not node.level:
+                    names = [node.module]
+                else:
+                    continue
+                for name in names:
+                    target = _package(name)
+                    if target is not None and target != source:
+                        edges.setdefault(source, {}).setdefault(target, module)
+    return edges
+
+
+def _cycle(edges: dict[str, dict[str, str]]) -> list[str] | None:
+    """One cycle of the graph, as the packages along it, or None."""
+    state: dict[str, int] = {}  # 1: on the current path, 2: done
+    path: list[str] = []
+
+    def visit(node: str) -> list[str] | None:
+        state[node] = 1
+        path.append(node)
+        for nxt in sorted(edges.get(node, {})):
+            if state.get(nxt) == 1:
+                return path[path.index(nxt) :] + [nxt]
+            if nxt not in state:
+                found = visit(nxt)
+                if found:
+                    return found
+        path.pop()
+        state[node] = 2
+        return None
+
+    for node in sorted(edges):
+        if node not in state:
+            found = visit(node)
+            if found:
+                return found
+    return None
+
+
+def test_no_import_cycle_between_packages() -> None:
+    edges = _imports()
+    cycle = _cycle(edges)
+    if cycle:
+        steps = [f"{a} -> {b} ({edges[a][b]})" for a, b in zip(cycle, cycle[1:])]
+        raise AssertionError("import cycle: " + "; ".join(steps))
+
+
+def test_the_checker_finds_a_cycle() -> None:
+    edges = {"a": {"b": "a.x"}, "b": {"c": "b.y"}, "c": {"a": "c.z"}, "d": {"a": "d.w"}}
+    assert _cycle(edges) == ["a", "b", "c", "a"]
+    assert _cycle({"a": {"b": "a.x"}, "b": {}}) is None
