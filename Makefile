@@ -32,15 +32,17 @@ demo: $(STAMP)
 
 test: $(STAMP)
 	$(BIN)/ruff check .
+	$(BIN)/mypy annotator viewer
 	$(BIN)/python -m pytest -q
 
-# The inner loop: everything but the tests marked slow (Ray, calibration, browsers).
+# The inner loop: everything but the tests marked slow (Ray, calibration, browsers, real
+# processes and servers), on every core.
 test-fast: $(STAMP)
 	$(BIN)/ruff check .
-	$(BIN)/python -m pytest -q -m "not slow"
+	$(BIN)/python -m pytest -q -m "not slow" -n auto
 
 lint: $(STAMP)
-	$(BIN)/ruff check . && $(BIN)/ruff format --check .
+	$(BIN)/ruff check . && $(BIN)/ruff format --check . && $(BIN)/mypy annotator viewer
 
 format: $(STAMP)
 	$(BIN)/ruff format . && $(BIN)/ruff check --fix .

@@ -30,11 +30,15 @@ _HOMES = {
     "InstancePose": "annotator.dataset",
     "SceneAnnotation": "annotator.dataset.annotation",
     "InstanceAnnotation": "annotator.dataset.annotation",
+    "SceneWarning": "annotator.dataset.annotation",
+    "Flag": "annotator.dataset.annotation",
+    "WarningKind": "annotator.dataset.annotation",
+    "ReviewStatus": "annotator.dataset.review",
     "check_dataset": "annotator.dataset.check",
     # marker detection and auto-annotation
     "MarkerDetector": "annotator.detection",
     "annotate_scene": "annotator.annotation.scene",
-    "Settings": "annotator.annotation.scene",
+    "Settings": "annotator.annotation.settings",
     "SceneResult": "annotator.annotation.scene",
     "annotate_dataset": "annotator.annotation.batch",
     "AnnotateSummary": "annotator.annotation.batch",
@@ -60,6 +64,7 @@ __all__ = [
     "Dataset",
     "ExportSummary",
     "FLAGS",
+    "Flag",
     "GroundTruth",
     "InstanceAnnotation",
     "InstancePose",
@@ -68,12 +73,15 @@ __all__ = [
     "Options",
     "Report",
     "Results",
+    "ReviewStatus",
     "Rig",
     "Scene",
     "SceneAnnotation",
     "SceneResult",
+    "SceneWarning",
     "Settings",
     "UserError",
+    "WarningKind",
     "annotate_dataset",
     "annotate_scene",
     "annotations_as_results",
@@ -102,10 +110,18 @@ def __dir__() -> list[str]:
 if TYPE_CHECKING:
     from annotator.annotation import FLAGS
     from annotator.annotation.batch import AnnotateSummary, annotate_dataset
-    from annotator.annotation.scene import SceneResult, Settings, annotate_scene
+    from annotator.annotation.scene import SceneResult, annotate_scene
+    from annotator.annotation.settings import Settings
     from annotator.dataset import Dataset, InstancePose, ObjectModel, Rig, Scene, load_dataset
-    from annotator.dataset.annotation import InstanceAnnotation, SceneAnnotation
+    from annotator.dataset.annotation import (
+        Flag,
+        InstanceAnnotation,
+        SceneAnnotation,
+        SceneWarning,
+        WarningKind,
+    )
     from annotator.dataset.check import check_dataset
+    from annotator.dataset.review import ReviewStatus
     from annotator.detection import MarkerDetector
     from annotator.errors import UserError
     from annotator.evaluation.evaluate import Options, Report, evaluate

@@ -91,18 +91,30 @@ class _Parser(argparse.ArgumentParser):
         raise _UsageError(f"{self.prog}: error: {message} (see `{self.prog} --help`)")
 
 
+class _Version(argparse.Action):
+    """``--version``, looked up only when asked for: importlib.metadata is slow to import,
+    and every command would pay for it."""
+
+    def __init__(self, option_strings: Sequence[str], dest: str, help: str | None = None) -> None:
+        super().__init__(option_strings, dest, nargs=0, default=argparse.SUPPRESS, help=help)
+
+    def __call__(self, parser: argparse.ArgumentParser, *_: object) -> NoReturn:
+        from importlib.metadata import PackageNotFoundError, version
+
+        try:
+            ver = version("bin-annotator")
+        except PackageNotFoundError:
+            ver = "unknown"
+        print(f"annotator {ver}")
+        parser.exit()
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(
         prog="annotator",
         description="Ground-truth 6D poses for bin-picking scenes, and symmetry-aware evaluation.",
     )
-    from importlib.metadata import PackageNotFoundError, version
-
-    try:
-        ver = version("bin-annotator")
-    except PackageNotFoundError:
-        ver = "unknown"
-    parser.add_argument("--version", action="version", version=f"annotator {ver}")
+    parser.add_argument("--version", action=_Version, help="show the version and exit")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name, module, help_text in COMMANDS:
         p = sub.add_parser(name, help=help_text, description=help_text)

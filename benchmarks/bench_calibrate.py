@@ -21,11 +21,16 @@ Seed 0 is the captures of tests/test_calibrate.py (``annotator synth --calibrati
 from __future__ import annotations
 
 import argparse
+import sys
 import time
+from pathlib import Path
 
 import numpy as np
 
-from annotator.calibration.baseline import opencv_stereo
+# OpenCV's pipelines, the reference, are test support code: they live beside the tests.
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
+from opencv_baseline import opencv_stereo  # noqa: E402
+
 from annotator.calibration.detect import BoardDetector
 from annotator.calibration.heldout import held_out_error
 from annotator.calibration.model_choice import calibrate_and_assess

@@ -38,12 +38,13 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "tests"))  # headless: the browser tests' Chromium
 
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
+from headless import free_port, launch_chromium  # noqa: E402
 
 from viewer.app import ReviewApp  # noqa: E402
-from viewer.headless import free_port, launch_chromium  # noqa: E402
 
 SAMPLE = ROOT / "sample_scenes"
 SWITCHES = 20

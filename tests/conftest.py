@@ -44,7 +44,7 @@ def sample() -> Path:
 def browser():
     """Debian's Chromium, headless, driven by Playwright (the browser tests' one browser)."""
     playwright = pytest.importorskip("playwright.sync_api")
-    from viewer.headless import launch_chromium
+    from headless import launch_chromium
 
     with playwright.sync_playwright() as pw:
         b = launch_chromium(pw)

@@ -163,9 +163,12 @@ def _set_mesh(root: Path, value: str) -> Path:
 
 @pytest.mark.parametrize("kind", ["absolute", "parent", "passwd", "symlink"])
 def test_mesh_paths_stay_inside_the_dataset(sample_copy, tmp_path, capsys, kind) -> None:
-    mesh = sample_copy / "objects" / "brick" / yaml.safe_load(
-        (sample_copy / "objects" / "brick" / "object.yaml").read_text()
-    )["mesh"]
+    mesh = (
+        sample_copy
+        / "objects"
+        / "brick"
+        / yaml.safe_load((sample_copy / "objects" / "brick" / "object.yaml").read_text())["mesh"]
+    )
     outside = tmp_path / "elsewhere.ply"
     outside.write_bytes(mesh.read_bytes())
     if kind == "absolute":

@@ -17,10 +17,10 @@ import numpy as np
 import pytest
 import yaml
 from cli_calls import one_error_line, run_cli
+from opencv_baseline import opencv_stereo
 
-from annotator.calibration.baseline import opencv_stereo
 from annotator.calibration.board import BoardSpec, read_board_yaml
-from annotator.calibration.bundle import Corners, RigState, _apply, _Layout, _residuals_jacobian
+from annotator.calibration.bundle import Corners, RigState, _apply, _Layout, residuals_jacobian
 from annotator.calibration.captures import find_captures
 from annotator.calibration.detect import detect_captures
 from annotator.calibration.rig_yaml import updated_text
@@ -187,13 +187,13 @@ def test_joint_refinement_jacobian_matches_finite_differences(rational: bool) ->
         rng.uniform(0, 600, (n, 2)),
     )
     layout = _Layout(C, S, free)
-    _, J = _residuals_jacobian(state, obs, layout)
+    _, J = residuals_jacobian(state, obs, layout)
     numeric = np.zeros(J.shape)
     for i in range(layout.size):
         step = np.zeros(layout.size)
         step[i] = 1e-6
-        plus, _ = _residuals_jacobian(_apply(state, step, layout), obs, layout)
-        minus, _ = _residuals_jacobian(_apply(state, -step, layout), obs, layout)
+        plus, _ = residuals_jacobian(_apply(state, step, layout), obs, layout)
+        minus, _ = residuals_jacobian(_apply(state, -step, layout), obs, layout)
         numeric[:, i] = (plus - minus) / 2e-6
     assert np.abs(J.toarray() - numeric).max() < 1e-5 * np.abs(numeric).max()
 

@@ -11,10 +11,12 @@ import pytest
 import yaml
 
 from annotator.annotation.completeness import exposure, quality_warnings
-from annotator.annotation.scene import Settings, annotate_scene, render_poses, unexplained_depth
+from annotator.annotation.scene import Settings, annotate_scene
+from annotator.annotation.unexplained import unexplained_depth
+from annotator.annotation.visibility import render_poses
 from annotator.cli import main
 from annotator.dataset import load_dataset, read_poses
-from annotator.dataset.annotation import SceneAnnotation
+from annotator.dataset.annotation import ImageQuality, SceneAnnotation
 from annotator.detection import MarkerDetector
 from annotator.symmetry import PoseSpace
 
@@ -48,7 +50,7 @@ def test_every_part_posed_gives_no_warning_and_a_deleted_one_is_found(sample_cop
     corners = ds.objects[gone.object].mesh.vertices @ gone.R.T + gone.t
     uv = cam.project(corners)
     cx, cy = uv.mean(axis=0)
-    boxes = [r["box"] for r in warning.details["regions"]]
+    boxes = [r.box for r in warning.regions]
     assert any(x0 <= cx <= x1 and y0 <= cy <= y1 for x0, y0, x1, y1 in boxes)
     assert (
         mask[int(cy), int(cx)] == 255
@@ -100,8 +102,8 @@ def test_blur_and_exposure_warnings(sample) -> None:
 
     def kinds(image, blur):
         median, saturated = exposure(image)
-        q = {"left": {"edge_blur_px": blur, "median": median, "saturated": saturated}}
-        return [w["kind"] for w in quality_warnings(q)]
+        q = {"left": ImageQuality(blur, median, saturated)}
+        return [w.kind for w in quality_warnings(q)]
 
     assert kinds(img, sharp.blur_px) == []
     assert kinds(img, blurred.blur_px) == ["blurred"]
@@ -121,8 +123,10 @@ def test_a_blurred_marker_is_recovered_only_where_the_pose_agrees(sample_copy) -
     det = MarkerDetector(ds.dictionary)
     before = annotate_scene(ds, scene, det).annotation
     # An instance with several markers read in the left image: blur one of them.
-    inst = next(i for i in before.instances if len(i.markers.get("left", {}).get("used", [])) >= 3)
-    target = inst.markers["left"]["used"][0]
+    inst = next(
+        i for i in before.instances if "left" in i.markers and len(i.markers["left"].used) >= 3
+    )
+    target = inst.markers["left"].used[0]
     ref = ds.marker_table[target]
     obj = ds.objects[ref.object]
     cam = ds.rig.camera("left")
@@ -139,8 +143,8 @@ def test_a_blurred_marker_is_recovered_only_where_the_pose_agrees(sample_copy) -
     assert target not in {d.id for d in det.detect(img)}
     cv2.imwrite(str(path), img)
     after = {i.key: i for i in annotate_scene(ds, scene, det).annotation.instances}
-    assert target in after[inst.key].markers["left"]["used"]
-    assert target in after[inst.key].markers["left"].get("recovered", [])
+    assert target in after[inst.key].markers["left"].used
+    assert target in after[inst.key].markers["left"].recovered
     # The same square now shows a marker of an instance that is not in the scene.
     present = {i.key for i in before.instances}
     absent = next(
@@ -163,7 +167,7 @@ def test_a_blurred_marker_is_recovered_only_where_the_pose_agrees(sample_copy) -
     _blur_patch(img, uv, sigma)
     cv2.imwrite(str(path), img)
     result = {i.key: i for i in annotate_scene(ds, scene, det).annotation.instances}
-    assert target not in result[inst.key].markers["left"].get("recovered", [])
+    assert target not in result[inst.key].markers["left"].recovered
     assert f"{absent[0]}/{absent[1].name}" not in result  # one blurred reading poses nothing
 
 

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from annotator.detection import MarkerDetector
-from annotator.detection.aruco import Codebook, pack_bits
+from annotator.detection.identify import Codebook, pack_bits
 from annotator.markers.texture import marker_image
 
 DICT = "DICT_4X4_1000"
@@ -120,3 +120,10 @@ def test_codebook_corrects_as_many_bits_as_opencv_allows() -> None:
 
 def test_blank_image_has_no_markers() -> None:
     assert MarkerDetector(DICT).detect(np.full((200, 300), 128, np.uint8)) == []
+
+
+def test_no_candidate_to_read_is_no_code_not_an_error() -> None:
+    # A heavily blurred image can leave no candidate square large enough to read.
+    assert pack_bits(np.zeros((0, 4, 4), bool)).shape == (0,)
+    assert pack_bits(np.zeros((0, 2, 6, 6), bool)).shape == (0, 2)
+    assert pack_bits(np.eye(4, dtype=bool)[None]).tolist() == [0b1000010000100001]

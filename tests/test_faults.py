@@ -146,10 +146,25 @@ def test_folders_named_like_ours_are_never_removed_or_renamed(sample_copy, tmp_p
         (d / name).mkdir(parents=True)
         (d / name / "notes.txt").write_text(name)
     for _ in range(2):
-        assert main(["export", str(sample_copy), str(d / "bop"), "--format", "bop", "--quiet",
-                     "--overwrite"]) == 0
+        assert (
+            main(
+                [
+                    "export",
+                    str(sample_copy),
+                    str(d / "bop"),
+                    "--format",
+                    "bop",
+                    "--quiet",
+                    "--overwrite",
+                ]
+            )
+            == 0
+        )
         assert sorted(p.name for p in d.iterdir()) == [
-            ".bop.abc123", ".bop.backup", ".bop.old.1", "bop"
+            ".bop.abc123",
+            ".bop.backup",
+            ".bop.old.1",
+            "bop",
         ]
         for name in (".bop.backup", ".bop.old.1", ".bop.abc123"):
             assert (d / name / "notes.txt").read_text() == name
@@ -241,6 +256,7 @@ def _alive(pids: set[int]) -> set[int]:
     return alive
 
 
+@pytest.mark.slow  # real processes killed and waited for
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
 @pytest.mark.parametrize("sig, code", [(signal.SIGTERM, 143), (signal.SIGKILL, -9)])
 def test_no_worker_survives_its_parent(sample_copy, sig, code) -> None:

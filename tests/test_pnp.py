@@ -118,7 +118,7 @@ def _box():
     return np.asarray(b.vertices), np.asarray(b.faces, dtype=np.int32)
 
 
-# --- Robust per-instance pose (annotator.annotation.scene) on the same hand-made geometry ---
+# --- Robust per-instance pose (annotator.annotation.consensus) on the same hand-made geometry ---
 
 
 def _fake_dataset(cams):
@@ -132,7 +132,8 @@ def _fake_dataset(cams):
 
 
 def test_a_mislabeled_marker_is_rejected_and_flagged() -> None:
-    from annotator.annotation.scene import Settings, _pose_instance
+    from annotator.annotation.consensus import pose_instance
+    from annotator.annotation.settings import Settings
 
     rng = np.random.default_rng(11)
     cams = _rig()
@@ -143,15 +144,16 @@ def test_a_mislabeled_marker_is_rejected_and_flagged() -> None:
     other = make_transform(T[:3, :3], T[:3, 3] + [40.0, 10.0, 0.0])
     uv = cams[0].project(sites[2] @ other[:3, :3].T + other[:3, 3])
     obs = [o if (o.camera, o.marker_id) != (0, 2) else Observation(0, 2, sites[2], uv) for o in obs]
-    r = _pose_instance(_fake_dataset(cams), "box", "01", obs, Settings())
+    r = pose_instance(_fake_dataset(cams), "box", "01", obs, Settings())
     assert np.abs(r.T[:3, 3] - T[:3, 3]).max() < 0.5
-    assert r.extra["markers"]["left"]["rejected"] == [2]
-    assert 2 in r.extra["markers"]["right"]["used"]
-    assert "rejected_markers" in r.extra["flags"]
+    assert r.markers["left"].rejected == [2]
+    assert 2 in r.markers["right"].used
+    assert "rejected_markers" in r.flags
 
 
 def test_an_id_seen_twice_keeps_the_consistent_detection() -> None:
-    from annotator.annotation.scene import Settings, _pose_instance
+    from annotator.annotation.consensus import pose_instance
+    from annotator.annotation.settings import Settings
 
     rng = np.random.default_rng(12)
     cams = _rig()
@@ -160,15 +162,16 @@ def test_an_id_seen_twice_keeps_the_consistent_detection() -> None:
     obs = _observe(cams, sites, T, rng, noise=0.2)
     copy = next(o for o in obs if (o.camera, o.marker_id) == (1, 0))
     obs.append(Observation(1, 0, copy.model_corners, copy.image_corners + [-300.0, 150.0]))
-    r = _pose_instance(_fake_dataset(cams), "box", "01", obs, Settings())
+    r = pose_instance(_fake_dataset(cams), "box", "01", obs, Settings())
     assert np.abs(r.T[:3, 3] - T[:3, 3]).max() < 0.5
-    assert r.extra["markers"]["right"]["used"].count(0) == 1
-    assert r.extra["markers"]["right"]["rejected"] == [0]
-    assert r.extra["flags"] == ["rejected_markers"]
+    assert r.markers["right"].used.count(0) == 1
+    assert r.markers["right"].rejected == [0]
+    assert r.flags == ["rejected_markers"]
 
 
 def test_a_lone_fronto_parallel_marker_is_flagged_ambiguous_not_guessed() -> None:
-    from annotator.annotation.scene import Settings, _pose_instance
+    from annotator.annotation.consensus import pose_instance
+    from annotator.annotation.settings import Settings
 
     rng = np.random.default_rng(13)
     cams = _rig()[:1]
@@ -176,13 +179,13 @@ def test_a_lone_fronto_parallel_marker_is_flagged_ambiguous_not_guessed() -> Non
     site = square_corners(np.zeros(3), np.array([0.0, 0, -1]), np.array([1.0, 0, 0]), 10.0)
     T = make_transform(rotvec_to_matrix(np.array([0.05, 0.0, 0.0])), [0.0, 0.0, 900.0])
     obs = _observe(cams, site[None], T, rng, noise=0.2)
-    r = _pose_instance(_fake_dataset(cams), "box", "01", obs, Settings())
-    assert {"ambiguous", "single_view", "high_uncertainty"} <= set(r.extra["flags"])
+    r = pose_instance(_fake_dataset(cams), "box", "01", obs, Settings())
+    assert {"ambiguous", "single_view", "high_uncertainty"} <= set(r.flags)
     # Seen by two cameras the same instance is not ambiguous.
     cams2 = _rig()
     obs2 = _observe(cams2, _sites(3, rng), _true_pose(rng), rng, noise=0.2)
-    r2 = _pose_instance(_fake_dataset(cams2), "box", "01", obs2, Settings())
-    assert r2.extra["flags"] == [] and r2.extra["views"] == 2
+    r2 = pose_instance(_fake_dataset(cams2), "box", "01", obs2, Settings())
+    assert r2.flags == [] and r2.views == 2
 
 
 def test_uncertainty_grows_with_corner_noise() -> None:
@@ -202,20 +205,20 @@ def test_uncertainty_grows_with_corner_noise() -> None:
 def test_analytic_jacobian_matches_finite_differences() -> None:
     # The refinement's Jacobian (OpenCV's projection derivatives chained with the pose
     # perturbation, distortion included) against central differences of the residuals.
-    from annotator.pnp.multiview import _perturb, _residuals_jacobian
+    from annotator.pnp.multiview import _perturb, residuals_jacobian
 
     rng = np.random.default_rng(11)
     cams = _rig()
     T = _true_pose(rng)
     obs = _observe(cams, _sites(4, rng), T, rng, noise=0.5)
     x = np.stack([o.image_corners for o in obs])
-    _, J = _residuals_jacobian(cams, obs, T, x)
+    _, J = residuals_jacobian(cams, obs, T, x)
     eps = np.array([1e-6] * 3 + [1e-4] * 3)
     numeric = np.column_stack(
         [
             (
-                _residuals_jacobian(cams, obs, _perturb(T, e), x)[0]
-                - _residuals_jacobian(cams, obs, _perturb(T, -e), x)[0]
+                residuals_jacobian(cams, obs, _perturb(T, e), x)[0]
+                - residuals_jacobian(cams, obs, _perturb(T, -e), x)[0]
             )
             / (2 * e[k])
             for k, e in enumerate(np.diag(eps))

@@ -379,7 +379,16 @@ def test_a_cluster_without_cpus_is_given_up_with_the_unfinished_scenes_listed(
     with LocalCluster(cpus=0) as empty:
         started = time.monotonic()
         run = subprocess.run(
-            [ANNOTATOR, "annotate", str(root), "--quiet", "--ray", empty.address, "--ray-wait", "3"],
+            [
+                ANNOTATOR,
+                "annotate",
+                str(root),
+                "--quiet",
+                "--ray",
+                empty.address,
+                "--ray-wait",
+                "3",
+            ],
             env=empty.env,
             capture_output=True,
             text=True,

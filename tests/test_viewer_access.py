@@ -8,6 +8,7 @@ from argparse import Namespace
 
 import pytest
 import viser
+from headless import free_port
 from websockets.exceptions import ConnectionClosed
 from websockets.sync.client import connect
 
@@ -16,7 +17,6 @@ from annotator.cli import main
 from annotator.errors import UserError
 from viewer.access import Access, is_loopback
 from viewer.app import ReviewApp
-from viewer.headless import free_port
 
 
 def test_loopback_names() -> None:

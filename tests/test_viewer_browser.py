@@ -16,13 +16,13 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from headless import free_port
 from polling import wait_until
 
 playwright = pytest.importorskip("playwright.sync_api")
 
 import viewer.app  # noqa: E402
 from viewer.app import ReviewApp  # noqa: E402
-from viewer.headless import free_port  # noqa: E402
 
 # A page closed while its scene is being sent: viser warns of what it can no longer deliver
 # (the server ignores that warning; pytest records it anyway).

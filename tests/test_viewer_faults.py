@@ -17,6 +17,7 @@ import weakref
 import msgspec
 import numpy as np
 import pytest
+from headless import free_port
 from polling import wait_until
 
 from annotator.cli import main
@@ -26,7 +27,6 @@ from viewer import memory, startup
 from viewer.app import CACHE_BYTES, ReviewApp
 from viewer.cache import PrefetchCache
 from viewer.frames import conforms, why_malformed
-from viewer.headless import free_port
 from viewer.memory import MAX_VIEWPORT, BytesLRU, clamp_viewport
 from viewer.served import ReviewProcess
 from viewer.session import Session
@@ -198,6 +198,7 @@ def test_pages_that_never_read_are_let_go_when_they_leave(sample_copy) -> None:
         assert wait_until(lambda: _drawn(app) == 0)
 
 
+@pytest.mark.slow  # a real server, its memory measured
 def test_a_real_server_gives_the_memory_back_when_a_hostile_page_leaves(sample_copy) -> None:
     """The issue's figures were 0.32 GB before, 8.4 GB with the page, 5.4 GB after it left."""
     with ReviewProcess(sample_copy) as server:

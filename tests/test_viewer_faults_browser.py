@@ -13,6 +13,7 @@ import time
 from pathlib import Path
 
 import pytest
+from headless import free_port
 from polling import wait_until
 
 playwright = pytest.importorskip("playwright.sync_api")
@@ -20,7 +21,6 @@ playwright = pytest.importorskip("playwright.sync_api")
 
 import viewer.session  # noqa: E402
 from viewer.app import ReviewApp  # noqa: E402
-from viewer.headless import free_port  # noqa: E402
 from viewer.panel import Panel  # noqa: E402
 
 pytestmark = [pytest.mark.browser, pytest.mark.filterwarnings("ignore:Queued a:UserWarning")]

@@ -9,11 +9,11 @@ import numpy as np
 import pytest
 
 from annotator.dataset import load_dataset, read_poses
+from annotator.dataset.annotation import DepthRegion
 from annotator.dataset.review import MissingPart, ReviewStatus
 from viewer.mosaic import Tile, compose, grid
 from viewer.overlays import prepare
 from viewer.pictures import picture_html
-from viewer.scene_warnings import DepthRegion
 from viewer.style import COLOURS, MISSING_COLOUR, UNEXPLAINED_COLOUR, Look
 from viewer.zoom import inner_outline, zoom
 

@@ -1,13 +1,15 @@
 """Repaired poses without a browser: review.json's ``poses`` read, validated and written,
 applied by the viewer's state, the export and the evaluation, kept by a new ``annotate`` run
 and stale once the auto pose under them changes; the overlays of a moved pose re-rendered in
-place equal those prepared anew."""
+place equal those prepared anew; a page's edit shown first and on disk once its key is done,
+or said not to be saved."""
 
 from __future__ import annotations
 
 import dataclasses
 import json
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pytest
@@ -22,6 +24,12 @@ from annotator.formats import ours
 from annotator.geometry.transforms import axis_angle, make_transform
 from viewer.overlays import prepare, repose
 from viewer.state import ReviewState
+
+if TYPE_CHECKING:
+    from websockets.sync.client import ClientConnection
+
+    from viewer.app import ReviewApp
+    from viewer.session import Session
 
 SCENE = "000001"
 KEY = "brick/03"
@@ -220,8 +228,8 @@ def test_edits_survive_a_write_and_a_read(tmp_path) -> None:
 
 def test_letting_the_gizmo_go_saves_the_pose_it_was_dragged_to(sample) -> None:
     import viser
+    from headless import free_port
 
-    from viewer.headless import free_port
     from viewer.scene3d import Scene3D, _wxyz
 
     ds = load_dataset(sample)
@@ -304,8 +312,9 @@ def test_a_pose_moved_twice_in_place_equals_one_prepared_anew(sample) -> None:
 
 
 def test_the_overlays_made_ahead_for_a_stay_through_the_scenes_repairs(sample_copy) -> None:
+    from headless import free_port
+
     from viewer.app import ReviewApp
-    from viewer.headless import free_port
 
     app = ReviewApp(sample_copy, host="127.0.0.1", port=free_port())
     try:
@@ -324,5 +333,92 @@ def test_the_overlays_made_ahead_for_a_stay_through_the_scenes_repairs(sample_co
         # A then shows it as it is: saving that pose gives that view.
         state.set_pose(SCENE, KEY, ahead, [{"op": "alternative"}], by="p")
         assert app.cache.ready((SCENE, state.info(SCENE).view))
+    finally:
+        app.stop()
+
+
+def _page_on(app: ReviewApp, sid: str, key: str) -> tuple[ClientConnection, Session]:
+    """A bare page (no browser) showing the zoom on instance ``key`` of scene ``sid``."""
+    from polling import wait_until
+
+    from viewer.wire import open_page
+
+    ws = open_page(app.port, width=1000, height=800)
+    assert wait_until(lambda: len(app.sessions) == 1), "the page did not connect"
+    session = next(iter(app.sessions.values()))
+    assert wait_until(lambda: session.displayed is not None)
+    while session.nav.current != sid:
+        session.next()
+    session.select(key)
+    assert wait_until(lambda: session._shown_zoom is not None and session._shown_zoom[0] == sid)
+    assert wait_until(lambda: not session._rendering)  # the next render is the key's own
+    return ws, session
+
+
+def test_a_nudge_is_shown_first_and_on_disk_when_its_key_is_done(sample_copy, monkeypatch) -> None:
+    from headless import free_port
+
+    import viewer.pictures
+    import viewer.state
+    from viewer.app import ReviewApp
+
+    app = ReviewApp(sample_copy, host="127.0.0.1", port=free_port())
+    try:
+        ws, session = _page_on(app, SCENE, KEY)
+        order: list[str] = []
+        write, encode = viewer.state.write_review, viewer.pictures.picture_html
+
+        def writing(path, review):
+            order.append("write")
+            write(path, review)
+
+        def encoding(*args, **kwargs):
+            order.append("pixels")
+            return encode(*args, **kwargs)
+
+        monkeypatch.setattr(viewer.state, "write_review", writing)
+        monkeypatch.setattr(viewer.pictures, "picture_html", encoding)
+        before = app.state.info(SCENE).pose(KEY).t.copy()
+        session.nudge(0, +1)
+        # The new zoom went out before the write, and the pose is on disk once the key is
+        # handled: a server killed now loses nothing.
+        assert order[:2] == ["pixels", "write"], order
+        rec = json.loads(_review_path(sample_copy).read_text())["poses"][KEY]
+        assert np.allclose(rec["cam_t_m2c"], before + [1.0, 0.0, 0.0])
+        assert ReviewState(sample_copy).info(SCENE).view == session._shown_zoom[1]
+        assert not session.unsaved and len(session.history[SCENE]) == 1
+        ws.close()
+    finally:
+        app.stop()
+
+
+def test_a_nudge_that_cannot_be_written_is_said_so_and_taken_back(sample_copy, monkeypatch) -> None:
+    from headless import free_port
+
+    import viewer.state
+    from viewer.app import ReviewApp
+
+    app = ReviewApp(sample_copy, host="127.0.0.1", port=free_port())
+    try:
+        ws, session = _page_on(app, SCENE, KEY)
+        shown = app.state.info(SCENE).view
+
+        def refuse(path, review):
+            raise PermissionError(13, "Permission denied", str(path))
+
+        monkeypatch.setattr(viewer.state, "write_review", refuse)
+        session.nudge(0, +1)
+        assert (
+            "NOT saved" in session.unsaved[SCENE] and "Permission denied" in session.unsaved[SCENE]
+        )
+        assert not _review_path(sample_copy).exists()
+        # The page shows the pose the file holds again, and there is nothing to undo.
+        assert app.state.info(SCENE).view == shown and session._shown_zoom[1] == shown
+        assert not session.history.get(SCENE)
+        # The next change that can be written clears the red notice.
+        monkeypatch.undo()
+        session.nudge(0, +1)
+        assert SCENE not in session.unsaved and _review_path(sample_copy).exists()
+        ws.close()
     finally:
         app.stop()

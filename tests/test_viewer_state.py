@@ -8,6 +8,7 @@ import json
 
 import pytest
 
+from annotator.dataset.annotation import depth_regions
 from annotator.dataset.poses import read_pose_file, read_poses, write_poses
 from annotator.dataset.review import (
     NO_POSE_REASON,
@@ -18,7 +19,6 @@ from annotator.dataset.review import (
     write_review,
 )
 from annotator.errors import UserError
-from viewer.scene_warnings import depth_regions, parse_warnings
 from viewer.state import ReviewState, SaveError
 
 
@@ -173,8 +173,7 @@ def test_warnings_old_and_new_forms_flag_the_scene(sample_copy) -> None:
     assert info.flagged and st.matches("000000", "flagged")
     kinds = [w.kind for w in info.warnings]
     assert kinds == ["note", "unexplained_depth", "blurred", "weird", "note"]
-    assert [w.message for w in info.warnings][2:] == ["left.png is blurred", "weird", "42"]
+    assert [w.text for w in info.warnings][2:] == ["left.png is blurred", "weird", "42"]
     (r,) = depth_regions(info.warnings)
     assert r.box == (10, 20, 60, 90) and r.pixels == 812 and r.depth_mm == (431.0, 447.5)
     assert "812 px" in r.describe() and "431-448 mm" in r.describe()
-    assert parse_warnings(None) == () and parse_warnings("x") == ()

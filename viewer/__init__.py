@@ -11,7 +11,6 @@
 - :mod:`viewer.mosaic`, :mod:`viewer.zoom`: the pictures, and the way back to camera pixels;
 - :mod:`viewer.pictures`: the pictures on the page, laid over the 3D canvas as HTML images;
 - :mod:`viewer.style`: colours and what each instance's outline shows;
-- :mod:`viewer.scene_warnings`: annotation.json's warnings (unexplained depth regions);
 - :mod:`viewer.panel`: the control panel and hotkeys;
 - :mod:`viewer.scene3d`: the 3D canvas (clicks on the pictures, the 3D view, the gizmo) and
   its handles;
@@ -21,7 +20,7 @@
 - :mod:`viewer.memory`: what bounds the server's memory (canvas sizes, cache bytes, closed
   pages' memory given back);
 - :mod:`viewer.startup`: starting viser's server without waiting forever (the port checked);
-- :mod:`viewer.headless`, :mod:`viewer.wire`, :mod:`viewer.served`: for the tests and
-  benchmarks: headless Chromium, a bare client of viser's protocol, a server in a child
-  process.
+- :mod:`viewer.wire`, :mod:`viewer.served`: for the tests and benchmarks: a bare client of
+  viser's protocol, a server in a child process (headless Chromium is the tests' own:
+  ``tests/headless.py``).
 """

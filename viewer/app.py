@@ -21,6 +21,7 @@ import secrets
 import socket
 import threading
 import warnings
+from collections.abc import Hashable
 from pathlib import Path
 
 import viser
@@ -230,7 +231,11 @@ class ReviewApp:
         keep = {(sid, info.view), (sid, before), (sid, info.fingerprint)}
         with self._lock:
             keep.add((sid, self._ahead.get(sid, "")))
-        self.cache.drop(lambda key: key[0] == sid and key not in keep)
+
+        def older(key: Hashable) -> bool:  # the cache's keys are (scene, version)
+            return isinstance(key, tuple) and key[0] == sid and key not in keep
+
+        self.cache.drop(older)
         self.cache.put((sid, info.view), prep)
 
     def ahead(self, sid: str, view: str, prep: Prepared) -> None:

@@ -103,13 +103,14 @@ def why_malformed(frame: Any) -> str | None:
     if cls is None:
         return f"unknown message type {mapping['type'][:40]!r} {size}"
     fields = _fields(cls)
-    for name, value in mapping.items() if fields is not None else ():
-        if name == "type":
-            continue
-        if name not in fields:
-            return f"{cls.__name__} has no field {str(name)[:40]!r} {size}"
-        if not conforms(value, fields[name]):
-            return f"{cls.__name__}.{name} is not a {fields[name]} {size}"
+    if fields is not None:
+        for name, value in mapping.items():
+            if name == "type":
+                continue
+            if name not in fields:
+                return f"{cls.__name__} has no field {str(name)[:40]!r} {size}"
+            if not conforms(value, fields[name]):
+                return f"{cls.__name__}.{name} is not a {fields[name]} {size}"
     try:
         Message.deserialize(frame)
     except Exception as exc:

@@ -15,7 +15,8 @@ from viewer.state import FILTERS
 
 
 class _SceneLike(Protocol):
-    flagged: bool
+    @property
+    def flagged(self) -> bool: ...
 
     @property
     def poses(self) -> tuple: ...

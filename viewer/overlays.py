@@ -25,13 +25,17 @@ from __future__ import annotations
 
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, overload
 
 import cv2
 import numpy as np
 
+from annotator.annotation.unexplained import UNEXPLAINED_MASK
 from annotator.dataset import Dataset, Scene
 from annotator.dataset.annotation import InstanceAnnotation
+from annotator.geometry import MM_PER_M
+from annotator.geometry.camera import Camera
+from annotator.geometry.mesh import Mesh
 from annotator.io.images import read_image, to_gray8
 from annotator.rendering.raycast import PlacedMesh, RayScene, cast_alone, projected_bbox
 from viewer.memory import BytesLRU
@@ -195,7 +199,7 @@ def _nbytes(value: Any) -> int:
 
 
 def _read_unexplained(scene: Scene, shape: tuple[int, int], prep: Prepared) -> np.ndarray | None:
-    path = scene.path / "unexplained.png"
+    path = scene.path / UNEXPLAINED_MASK
     if not path.exists():
         return None
     try:
@@ -218,7 +222,8 @@ def prepare(ds: Dataset, scene: Scene, poses: list[InstanceAnnotation]) -> Prepa
     """Read the images and render the silhouettes of ``poses`` in every camera."""
     prep = Prepared(scene.id, [p.key for p in poses], [])
     meshes = [ds.objects[p.object].mesh if p.object in ds.objects else None for p in poses]
-    index = [k for k, m in enumerate(meshes) if m is not None]  # placed -> pose index
+    known = [(k, m) for k, m in enumerate(meshes) if m is not None]
+    index = [k for k, _ in known]  # placed -> pose index
     rendered_depth = None
     for cam in ds.rig.cameras:
         try:
@@ -226,7 +231,7 @@ def prepare(ds: Dataset, scene: Scene, poses: list[InstanceAnnotation]) -> Prepa
         except Exception as exc:  # a vanished or corrupt image must not stop the viewer
             prep.messages.append(str(exc))
             gray = np.zeros((cam.height, cam.width), np.uint8)
-        placed = [PlacedMesh(meshes[k], cam.cam_T_rig @ poses[k].T) for k in index]
+        placed = [PlacedMesh(m, cam.cam_T_rig @ poses[k].T) for k, m in known]
         boxes = [projected_bbox(cam, pm.mesh, pm.cam_T_model) for pm in placed]
         mask = np.zeros((cam.height, cam.width), bool)
         for b in boxes:
@@ -259,21 +264,27 @@ def prepare(ds: Dataset, scene: Scene, poses: list[InstanceAnnotation]) -> Prepa
         if ds.rig.depth is not None and cam.name == ds.rig.depth.camera:
             prep.depth_layer = layer
             rendered_depth = depth
-    if prep.depth_layer is not None:
-        dcam = ds.rig.depth_camera
-        try:
-            measured = scene.read_depth(ds.rig)
-        except Exception as exc:
-            prep.messages.append(str(exc))
-            measured = None
-        if measured is not None:
-            prep.depth = colourise_depth(measured)
-            prep.measured = measured.astype(np.float32)
-            prep.rendered = rendered_depth
-            prep.disagreement = _disagreement(measured, rendered_depth)
-            prep.unexplained = _read_unexplained(scene, measured.shape, prep)
-            prep.cloud = depth_cloud(dcam, measured)
+    if prep.depth_layer is not None and rendered_depth is not None:
+        _add_depth(ds, scene, prep, rendered_depth)
     return prep
+
+
+def _add_depth(ds: Dataset, scene: Scene, prep: Prepared, rendered: np.ndarray) -> None:
+    """The depth pictures and the point cloud of ``prep``, from the measured depth and the
+    depth of the posed parts ``rendered`` on its grid (none if the depth cannot be read)."""
+    try:
+        measured = scene.read_depth(ds.rig)
+    except Exception as exc:  # shown in the page; the scene stays reviewable
+        prep.messages.append(str(exc))
+        return
+    if measured is None:
+        return
+    prep.depth = colourise_depth(measured)
+    prep.measured = measured.astype(np.float32)
+    prep.rendered = rendered
+    prep.disagreement = _disagreement(measured, rendered)
+    prep.unexplained = _read_unexplained(scene, measured.shape, prep)
+    prep.cloud = depth_cloud(ds.rig.depth_camera, measured)
 
 
 def _outline(
@@ -309,6 +320,10 @@ def _disagreement(measured: np.ndarray, rendered: np.ndarray) -> np.ndarray:
     return out
 
 
+@overload
+def _union(a: Box | None, b: Box) -> Box: ...
+@overload
+def _union(a: Box | None, b: Box | None) -> Box | None: ...
 def _union(a: Box | None, b: Box | None) -> Box | None:
     if a is None or b is None:
         return a or b
@@ -369,7 +384,12 @@ def repose(
                 out.rendered[y0:y1, x0:x1] = depth
                 changed = region
     out.disagreement = prep.disagreement
-    if changed is not None and prep.disagreement is not None and prep.measured is not None:
+    if (
+        changed is not None
+        and prep.disagreement is not None
+        and prep.measured is not None
+        and out.rendered is not None
+    ):
         x0, y0, x1, y1 = changed
         out.disagreement = prep.disagreement.copy()
         out.disagreement[y0:y1, x0:x1] = _disagreement(
@@ -382,11 +402,15 @@ def repose(
 _POOL = ThreadPoolExecutor(max_workers=2, thread_name_prefix="repose")
 
 
+#: A part placed in a camera: its mesh and ``cam_T_model`` (None: an unknown object).
+_Placed = tuple[Mesh, np.ndarray] | None
+
+
 def _repose_layer(
     ds: Dataset,
     layer: CameraLayer,
     poses: list[InstanceAnnotation],
-    meshes: list,
+    meshes: list[Mesh | None],
     k: int,
 ) -> tuple[CameraLayer, Box | None, np.ndarray | None]:
     """One camera's layer with pose ``k`` changed (see :func:`repose`), the rectangle cast
@@ -396,7 +420,9 @@ def _repose_layer(
     grow = n - len(layer.contours)
     contours, boxes = list(layer.contours) + [[]] * grow, list(layer.boxes) + [None] * grow
     centres = list(layer.centres) + [None] * grow
-    placed = [None if m is None else (m, cam.cam_T_rig @ p.T) for m, p in zip(meshes, poses)]
+    placed: list[_Placed] = [
+        None if m is None else (m, cam.cam_T_rig @ p.T) for m, p in zip(meshes, poses)
+    ]
     # The other parts have not moved: their rectangles are those of the layer's last cast.
     known = layer.projected + [None] * (n - len(layer.projected))
     bboxes = [
@@ -413,26 +439,7 @@ def _repose_layer(
     if region is not None:
         instance, shade = instance.copy(), shade.copy()
         x0, y0, x1, y1 = region
-        rays = cam.pixel_rays()[y0:y1, x0:x1]
-        depth = np.full(rays.shape[:2], np.inf, np.float32)
-        index = np.full(rays.shape[:2], -1, np.int16)
-        lambert = np.zeros(rays.shape[:2], np.float32)
-        for j, (q, b) in enumerate(zip(placed, bboxes)):
-            if q is None or not _meets(b, region):
-                continue
-            bx0, by0, bx1, by1 = max(b[0], x0), max(b[1], y0), min(b[2], x1), min(b[3], y1)
-            sub = (slice(by0 - y0, by1 - y0), slice(bx0 - x0, bx1 - x0))
-            cast = alone.get(j) if j != k else None
-            if cast is None or not cast.covers((bx0, by0, bx1, by1)):
-                cast = _cast_alone(cam, q, (bx0, by0, bx1, by1), b if j != k else None, cast)
-                alone[j] = cast
-            hit_depth, triangle = cast.crop((bx0, by0, bx1, by1))
-            closer = hit_depth < depth[sub]
-            np.copyto(depth[sub], hit_depth, where=closer)
-            np.copyto(index[sub], np.int16(j), where=closer)
-            # Shaded where this part is the nearest only: the rest of its box is not drawn.
-            light = q[0].face_normals[triangle[closer]] @ (q[1][:3, :3].T @ _LIGHT)
-            lambert[sub][closer] = np.abs(light)
+        depth, index, lambert = _cast_region(cam, placed, bboxes, alone, k, region)
         before = instance[y0:y1, x0:x1]
         moved = before != index
         # Whose silhouettes changed (the part, and those it uncovers or covers): re-outlined.
@@ -447,8 +454,47 @@ def _repose_layer(
     return new, region, depth
 
 
+def _cast_region(
+    cam: Camera,
+    placed: list[_Placed],
+    bboxes: list[Box | None],
+    alone: dict[int, Alone],
+    k: int,
+    region: Box,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Depth, instance index and Lambert shading over ``region``, every part that can be
+    seen there cast alone and the nearest kept: part ``k`` (the one moved) always, the
+    others only where ``alone`` (updated here) has no cast of them yet."""
+    x0, y0, x1, y1 = region
+    shape = (y1 - y0, x1 - x0)
+    depth = np.full(shape, np.inf, np.float32)
+    index = np.full(shape, -1, np.int16)
+    lambert = np.zeros(shape, np.float32)
+    for j, (q, b) in enumerate(zip(placed, bboxes)):
+        if q is None or b is None or not _meets(b, region):
+            continue
+        rect = (max(b[0], x0), max(b[1], y0), min(b[2], x1), min(b[3], y1))
+        sub = (slice(rect[1] - y0, rect[3] - y0), slice(rect[0] - x0, rect[2] - x0))
+        cast = alone.get(j) if j != k else None
+        if cast is None or not cast.covers(rect):
+            cast = _cast_alone(cam, q, rect, b if j != k else None, cast)
+            alone[j] = cast
+        hit_depth, triangle = cast.crop(rect)
+        closer = hit_depth < depth[sub]
+        np.copyto(depth[sub], hit_depth, where=closer)
+        np.copyto(index[sub], np.int16(j), where=closer)
+        # Shaded where this part is the nearest only: the rest of its box is not drawn.
+        light = q[0].face_normals[triangle[closer]] @ (q[1][:3, :3].T @ _LIGHT)
+        lambert[sub][closer] = np.abs(light)
+    return depth, index, lambert
+
+
 def _cast_alone(
-    camera, placed: tuple, rect: Box, bound: Box | None, earlier: Alone | None
+    camera: Camera,
+    placed: tuple[Mesh, np.ndarray],
+    rect: Box,
+    bound: Box | None,
+    earlier: Alone | None,
 ) -> Alone:
     """A part (mesh, cam_T_model) cast alone over ``rect``; a neighbour of the part being
     repaired (``bound``: its own rectangle) over more, kept for the next repairs: what was
@@ -456,7 +502,7 @@ def _cast_alone(
     few pixels off this one's)."""
     if bound is not None:
         if earlier is not None:
-            rect = _union(rect, earlier.rect)  # type: ignore[assignment]
+            rect = _union(rect, earlier.rect)
         m = ALONE_MARGIN
         rect = (
             max(rect[0] - m, bound[0]),
@@ -476,7 +522,7 @@ def depth_cloud(camera, depth: np.ndarray, step: int = CLOUD_STEP) -> np.ndarray
     ok = np.isfinite(d) & (d > 0)
     pts = rays[ok] * d[ok][:, None]
     pts = pts @ camera.rig_T_cam[:3, :3].T + camera.rig_T_cam[:3, 3]
-    return (pts / 1000.0).astype(np.float32)
+    return (pts / MM_PER_M).astype(np.float32)
 
 
 def colourise_depth(depth: np.ndarray) -> np.ndarray:

@@ -156,7 +156,7 @@ def warnings_text(info: SceneInfo) -> str:
     """The scene's annotation warnings, unexplained-depth regions listed (markdown)."""
     lines = []
     for w in info.warnings:
-        lines.append(f"- **{w.kind.replace('_', ' ')}**: {w.message}")
+        lines.append(f"- **{str(w.kind).replace('_', ' ')}**: {w.text}")
         for r in w.regions:
             lines.append(f"    - <span style='color:#e00'>■</span> {r.describe()}")
     for m in info.review.missing:
@@ -179,62 +179,79 @@ class Panel:
         self.progress = gui.add_progress_bar(0.0)
         self.progress_text = gui.add_markdown("")
         self.warnings = gui.add_markdown("", visible=False)
-        with gui.add_folder("Scene"):
-            self.filter = gui.add_dropdown("Filter", FILTERS, initial_value="all")
+        self._scene_folder(actions)
+        self._instances_folder(actions)
+        self._repair_folder(actions)
+        with gui.add_folder("Zoom and view"):
+            self._button("Open / close zoom (Z)", actions.toggle_zoom)
+            self._button("Outline / fill (O)", actions.toggle_fill)
+            self._button("Blink rendered part (B)", actions.toggle_blink)
+            self._button("3D view / pictures (V)", actions.toggle_3d)
+        self._hotkeys(actions)
+
+    def _scene_folder(self, actions: PanelActions) -> None:
+        with self._gui.add_folder("Scene"):
+            self.filter = self._gui.add_dropdown("Filter", FILTERS, initial_value="all")
             self._button("Accept scene (Y)", actions.accept, color="green")
             self._button("Reject scene (N)", actions.reject, color="red")
             self._button("Previous (K)", actions.previous)
             self._button("Next (J)", actions.next)
             self._button("Next flagged (F)", actions.next_flagged)
             self._button("No pose here… (M, then click)", actions.arm_missing)
-        with gui.add_folder("Instances"):
+        self.filter.on_update(_ignoring_event(lambda: actions.set_filter(self.filter.value)))
+
+    def _instances_folder(self, actions: PanelActions) -> None:
+        with self._gui.add_folder("Instances"):
             # viser's tables are markdown, whose rows cannot be clicked: one button per row.
-            self.instances = gui.add_button_group("Zoom on", ["-"])
-            self.table = gui.add_markdown("")
+            self.instances = self._gui.add_button_group("Zoom on", ["-"])
+            self.table = self._gui.add_markdown("")
             self._button("Accept instance", lambda: actions.set_instance(ReviewStatus.ACCEPTED))
             self._button("Reject instance", lambda: actions.set_instance(ReviewStatus.REJECTED))
             self._button("Toggle instance (T)", actions.toggle_instance)
-        with gui.add_folder("Repair the pose"):
-            self.repair = gui.add_markdown("")
-            self.offer = gui.add_button_group("Add here", ["-"], visible=False)
+
+        def select(event: viser.GuiEvent[viser.GuiButtonGroupHandle]) -> None:
+            actions.select(event.target.value)
+
+        self.instances.on_click(select)
+
+    def _repair_folder(self, actions: PanelActions) -> None:
+        with self._gui.add_folder("Repair the pose"):
+            self.repair = self._gui.add_markdown("")
+            self.offer = self._gui.add_button_group("Add here", ["-"], visible=False)
             self._button("Refine (R)", actions.refine)
             self._button("Next candidate pose (C)", actions.alternative)
-            self.nudges = gui.add_markdown("")
+            self.nudges = self._gui.add_markdown("")
             for key, axis, sign in NUDGE_KEYS:
-                self._button(
-                    f"{'-+'[sign > 0]}{'xyz'[axis]} ({key})",
-                    lambda axis=axis, sign=sign: actions.nudge(axis, sign),
-                )
+                self._button(f"{'-+'[sign > 0]}{'xyz'[axis]} ({key})", _nudge(actions, axis, sign))
             self._button("Move / turn (G)", actions.toggle_nudge_kind)
             self._button("Small / large steps (L)", actions.toggle_nudge_size)
             self._button("Undo (U)", actions.undo)
             self._button("Redo (Shift+U)", actions.redo)
             self._button("Reset to the auto-annotation (X)", actions.reset_pose)
-        with gui.add_folder("Zoom and view"):
-            self._button("Open / close zoom (Z)", actions.toggle_zoom)
-            self._button("Outline / fill (O)", actions.toggle_fill)
-            self._button("Blink rendered part (B)", actions.toggle_blink)
-            self._button("3D view / pictures (V)", actions.toggle_3d)
-        self.filter.on_update(lambda _: actions.set_filter(self.filter.value))
-        self.instances.on_click(lambda event: actions.select(event.target.value))
-        self.offer.on_click(lambda event: actions.add_missing(event.target.value))
+
+        def add(event: viser.GuiEvent[viser.GuiButtonGroupHandle]) -> None:
+            actions.add_missing(event.target.value)
+
+        self.offer.on_click(add)
+
+    def _hotkeys(self, actions: PanelActions) -> None:
+        gui = self._gui
         for key, text, name in HOTKEYS:
             cmd = gui.add_command(text, hotkey=key, modifier=None)  # type: ignore[arg-type]
-            action = getattr(actions, name)
-            cmd.on_trigger(lambda _, fn=action: fn())
+            cmd.on_trigger(_ignoring_event(getattr(actions, name)))
         redo = gui.add_command("Redo a pose edit", hotkey="U", modifier="shift")
-        redo.on_trigger(lambda _: actions.redo())
+        redo.on_trigger(_ignoring_event(actions.redo))
         for key, axis, sign in NUDGE_KEYS:
             cmd = gui.add_command(
                 f"Nudge {'-+'[sign > 0]}{'xyz'[axis]}",
                 hotkey=key,  # type: ignore[arg-type]
                 modifier=None,
             )
-            cmd.on_trigger(lambda _, axis=axis, sign=sign: actions.nudge(axis, sign))
+            cmd.on_trigger(_ignoring_event(_nudge(actions, axis, sign)))
 
     def _button(self, text: str, fn: Callable[[], None], color: str | None = None) -> None:
         button = self._gui.add_button(text, color=color)  # type: ignore[arg-type]
-        button.on_click(lambda _: fn())
+        button.on_click(_ignoring_event(fn))
 
     def show(self, view: PanelView, keys: list[str]) -> None:
         """Update every element (viser sends only what changed); ``keys`` are the scene's
@@ -244,7 +261,8 @@ class Panel:
         self.alert.visible = bool(view.alert)
         self.notice.content = view.notice
         self.notice.visible = bool(view.notice)
-        self.progress.value = view.progress
+        # viser 1.1.1's handle declares the setter on a generic base mypy cannot see through.
+        self.progress.value = view.progress  # type: ignore[misc]
         self.progress_text.content = view.progress_text
         self.table.content = view.table
         options = tuple(keys) or ("-",)  # viser wants at least one button
@@ -263,3 +281,21 @@ class Panel:
         """Only the repair's text (while a refinement runs) and the nudge settings."""
         self.repair.content = text
         self.nudges.content = nudges
+
+
+def _ignoring_event(fn: Callable[[], None]) -> Callable[[object], None]:
+    """A viser callback that runs ``fn`` (the event says nothing ``fn`` needs)."""
+
+    def callback(_event: object) -> None:
+        fn()
+
+    return callback
+
+
+def _nudge(actions: PanelActions, axis: int, sign: int) -> Callable[[], None]:
+    """The nudge of one button or key (bound now: a loop's variables change)."""
+
+    def nudge() -> None:
+        actions.nudge(axis, sign)
+
+    return nudge

@@ -32,6 +32,7 @@ from scipy.spatial.transform import Rotation
 
 from annotator.dataset import Dataset
 from annotator.dataset.annotation import InstanceAnnotation
+from annotator.geometry import MM_PER_M
 from annotator.geometry.transforms import invert, make_transform
 from viewer.style import SELECTED_COLOUR, Look
 
@@ -48,7 +49,7 @@ def _matrix(wxyz, position) -> np.ndarray:
     """A gizmo's pose (viser's quaternion, metres) as a 4x4 transform in mm."""
     w, x, y, z = (float(v) for v in wxyz)
     return make_transform(
-        Rotation.from_quat([x, y, z, w]).as_matrix(), np.asarray(position, float) * 1000.0
+        Rotation.from_quat([x, y, z, w]).as_matrix(), np.asarray(position, float) * MM_PER_M
     )
 
 
@@ -108,7 +109,7 @@ class Scene3D:
                 thickness_units="screen",
                 color=(90, 90, 90),
                 wxyz=_wxyz(cam.rig_T_cam[:3, :3]),
-                position=tuple(cam.rig_T_cam[:3, 3] / 1000.0),
+                position=tuple(cam.rig_T_cam[:3, 3] / MM_PER_M),
             )
         for name, obj in self._ds.objects.items():
             self._add_object(name, [i.name for i in obj.instances])
@@ -144,7 +145,7 @@ class Scene3D:
         n = max(len(slots), 1)
         handle = self._scene.add_batched_meshes_simple(
             f"/scene3d/parts/{name}",
-            obj.mesh.vertices / 1000.0,
+            obj.mesh.vertices / MM_PER_M,
             obj.mesh.faces,
             batched_wxyzs=np.tile([1.0, 0.0, 0.0, 0.0], (n, 1)),
             batched_positions=np.zeros((n, 3)),
@@ -154,9 +155,19 @@ class Scene3D:
             cast_shadow=False,
             receive_shadow=False,
         )
-        handle.on_click(lambda event, name=name: self._clicked_part(name, event.instance_index))
+        handle.on_click(self._part_clicker(name))
         self._parts[name] = handle
         self._slots[name] = list(slots) or [""]
+
+    def _part_clicker(
+        self, obj: str
+    ) -> Callable[[viser.SceneNodePointerEvent[viser.BatchedMeshHandle]], None]:
+        """The click callback of object ``obj``'s meshes (which instance: the event's)."""
+
+        def clicked(event: viser.SceneNodePointerEvent[viser.BatchedMeshHandle]) -> None:
+            self._clicked_part(obj, event.instance_index)
+
+        return clicked
 
     def _clicked_part(self, obj: str, index: int | None) -> None:
         slots = self._slots.get(obj, [])
@@ -208,7 +219,7 @@ class Scene3D:
             for p in by_object.get(name, []):
                 i = slots.index(p.instance)
                 wxyzs[i] = _wxyz(p.R)
-                positions[i] = p.t / 1000.0
+                positions[i] = p.t / MM_PER_M
                 scales[i] = 1.0
                 selected = p.key == look.selected
                 colours[i] = _rgb(SELECTED_COLOUR if selected else look.colour(p.key))
@@ -255,11 +266,11 @@ class Scene3D:
         radius = self._ds.objects[pose.object].mesh.moments.radius
         if self._gizmo is None:
             self._gizmo = self._scene.add_transform_controls(
-                "/scene3d/gizmo", scale=max(radius * 2.5 / 1000.0, 0.03), depth_test=False
+                "/scene3d/gizmo", scale=max(radius * 2.5 / MM_PER_M, 0.03), depth_test=False
             )
             self._gizmo.on_update(self._gizmo_moved)
         self._gizmo.wxyz = _wxyz(pose.R)
-        self._gizmo.position = tuple(c / 1000.0)
+        self._gizmo.position = tuple(c / MM_PER_M)
         self._gizmo.visible = self.showing_3d
 
     def _gizmo_moved(self, event: viser.TransformControlsEvent) -> None:
@@ -290,7 +301,7 @@ class Scene3D:
         wxyzs, positions = arrays[0].copy(), arrays[1].copy()
         i = slots.index(pose.instance)
         wxyzs[i] = _wxyz(T[:3, :3])
-        positions[i] = T[:3, 3] / 1000.0
+        positions[i] = T[:3, 3] / MM_PER_M
         handle = self._parts[pose.object]
         handle.batched_wxyzs = wxyzs
         handle.batched_positions = positions

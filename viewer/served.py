@@ -2,23 +2,31 @@
 of their own (its memory, its log, its exit status): started on 127.0.0.1 at a free port,
 waited for until it prints its address, its resident memory read from ``/proc`` (Linux), and
 stopped with SIGTERM, then killed if it is still there, within bounded times.
+:func:`free_port` picks the port.
 """
 
 from __future__ import annotations
 
 import os
 import signal
+import socket
 import subprocess
 import sys
 import threading
 import time
 from pathlib import Path
 
-from viewer.headless import free_port
-
 #: Bounds on the server's start-up (loading the dataset, importing viser and open3d) and stop.
 START_SECONDS = 60.0
 STOP_SECONDS = 10.0
+
+
+def free_port() -> int:
+    """A TCP port on 127.0.0.1 that nothing listens on right now (the server's, unless
+    another process takes it first: tests and benchmarks only)."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
 
 
 class ReviewProcess:

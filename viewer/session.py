@@ -18,9 +18,11 @@ and said so in red, as is a decision for a scene whose folder has gone. A scene 
 be shown (its folder gone, an unexpected failure) is named in the page, without the
 pictures of the scene shown before it, and its failure is one line in the server's log.
 
-Repairing a pose (R, A, the nudges, the gizmo, M + click + "Add here", U, X) saves the new
-pose at once in review.json (:meth:`ReviewState.set_pose`) and shows it re-rendered only
-where it changed (:func:`viewer.overlays.repose`); undo and redo are per page and scene. A
+Repairing a pose (R, A, the nudges, the gizmo, M + click + "Add here", U, X) shows the new
+pose re-rendered only where it changed (:func:`viewer.overlays.repose`), then saves it in
+review.json (staged in memory first: :meth:`ReviewState.stage_pose`), before the key is done
+with and the next change is made; one that cannot be written is said so in red and taken
+back. Undo and redo are per page and scene. A
 refinement runs in its own thread, the page saying so meanwhile. Once the pixels of a
 selected instance are out, what the next A needs is made in the background (the scene's
 markers read, the candidates, the overlays of the next one): A then only shows it, as U does.
@@ -34,9 +36,11 @@ from __future__ import annotations
 import sys
 import threading
 import time
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from typing import TYPE_CHECKING
 
+import numpy as np
 import viser
 
 from annotator.dataset.review import EditedPose, ReviewStatus
@@ -48,7 +52,7 @@ from viewer.overlays import Prepared, repose
 from viewer.panel import Panel, PanelView, instance_table, warnings_text
 from viewer.pictures import Pictures
 from viewer.scene3d import Scene3D
-from viewer.state import FILTERS, SaveError, SceneInfo
+from viewer.state import FILTERS, SaveError, SceneInfo, Staged
 from viewer.style import Look
 from viewer.zoom import Zoom, zoom
 
@@ -101,6 +105,8 @@ class Session:
         self.offer: tuple[str, str, tuple[float, float], tuple[str, ...]] | None = None
         self._cycle: dict[tuple[str, str, str], tuple[list, int]] = {}
         self._refining = threading.Lock()
+        # One pose change at a time: each is written before the next is made.
+        self._editing = threading.RLock()
         # Work for the next key, done once its pixels are out (one job at a time).
         self._ahead_pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="ahead")
         self._ahead_for: tuple[str, str, str] | None = None
@@ -211,17 +217,18 @@ class Session:
         w, h = self.viewport
         base = (sid, info.view, look, (w, h))
         zkey = (*base, fill) if zoom_open and selected else None
-        if zkey is not None and zkey != self._shown_zoom:
+        if selected is not None and zkey is not None and zkey != self._shown_zoom:
             z = zoom(prep, selected, look, w, h, fill=fill)
             self._zoom = (sid, z) if z is not None else None
             self._shown_zoom = zkey if z is not None else None
         if zkey is None or self._zoom is None:
-            if base != self._shown:
-                self._picture = (sid, compose(prep, look, w, h))
+            picture = self._picture
+            if base != self._shown or picture is None:
+                picture = self._picture = (sid, compose(prep, look, w, h))
                 self._shown = base
                 self.app.drew()
             if ("mosaic", base) != self._on_canvas:
-                self.pictures.show_mosaic(self._picture[1].image)
+                self.pictures.show_mosaic(picture[1].image)
                 self._on_canvas = ("mosaic", base)
             with self._lock:
                 self.blinking = False  # blinking belongs to a zoom
@@ -438,39 +445,57 @@ class Session:
         self,
         sid: str,
         key: str,
-        T,
+        T: np.ndarray,
         step: dict,
         *,
         unmark: tuple[str, tuple[float, float]] | None = None,
     ) -> bool:
-        """Save a new pose of ``key`` (``step`` added to its edit's steps) and show it."""
+        """Show a new pose of ``key`` (``step`` added to its edit's steps), then save it."""
         state = self.app.state
-        info = state.info(sid)
-        before = info.review.poses.get(key)
-        steps = list(before.steps) if before is not None and key in info.edited else []
-        saved = self._write(
-            sid,
-            f"pose of {key}",
-            lambda: state.set_pose(sid, key, T, [*steps, step], by=self.id, unmark=unmark),
-            decision=False,
-        )
-        if saved:
-            with self._lock:
-                self.history.setdefault(sid, []).append((key, before))
-                self.future.pop(sid, None)
-            self._reposed(sid, key, info.view)
-        return saved
+        with self._editing:
+            info = state.info(sid)
+            before = info.review.poses.get(key)
+            steps = list(before.steps) if before is not None and key in info.edited else []
+            saved = self._show_then_save(
+                sid,
+                key,
+                f"pose of {key}",
+                lambda: state.stage_pose(sid, key, T, [*steps, step], by=self.id, unmark=unmark),
+                info.view,
+            )
+            if saved:
+                with self._lock:
+                    self.history.setdefault(sid, []).append((key, before))
+                    self.future.pop(sid, None)
+            return saved
 
     def _restore(self, sid: str, key: str, edit: EditedPose | None, what: str) -> bool:
-        shown = self.app.state.info(sid).view
-        saved = self._write(
-            sid,
-            what,
-            lambda: self.app.state.restore_pose(sid, key, edit, by=self.id),
-            decision=False,
-        )
-        if saved:
+        state = self.app.state
+        with self._editing:
+            return self._show_then_save(
+                sid,
+                key,
+                what,
+                lambda: state.stage_restore(sid, key, edit, by=self.id),
+                state.info(sid).view,
+            )
+
+    def _show_then_save(
+        self, sid: str, key: str, what: str, stage: Callable[[], Staged], shown: str
+    ) -> bool:
+        """Make a pose change in memory (``stage``), send its pixels, then write it: the
+        reviewer sees it before the disk has it, and it is on disk before this returns (and
+        so before the next change is made). A change that cannot be written is said so in
+        red, and the page goes back to what the file holds."""
+        try:
+            staged = stage()
+        except SaveError as exc:
+            self._not_saved(sid, what, str(exc))
+            return False
+        try:
             self._reposed(sid, key, shown)
+        finally:  # whatever showing it did, the change is written
+            saved = self._write(sid, what, lambda: self.app.state.commit(staged), decision=False)
         return saved
 
     def _reposed(self, sid: str, key: str, before: str) -> None:

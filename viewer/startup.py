@@ -68,6 +68,23 @@ def _server_thread(helper: threading.Thread) -> threading.Thread | None:
     return None
 
 
+def _wait_for(helper: threading.Thread, died: list[BaseException]) -> str | None:
+    """Wait until ``helper`` has made the server (None), or why it will not: viser's thread
+    died (``died``: the exception that killed it, if any) or did not listen in time."""
+    deadline = time.monotonic() + START_SECONDS
+    while True:
+        helper.join(_POLL_SECONDS)
+        if not helper.is_alive():
+            return None
+        thread = _server_thread(helper)
+        if died:
+            return f"{type(died[0]).__name__}: {died[0]}"
+        if thread is not None and not thread.is_alive():
+            return "no free port among the thousand it tried"
+        if time.monotonic() > deadline:
+            return f"not listening after {START_SECONDS:.0f} s"
+
+
 def start_viser(host: str, port: int, **kwargs: Any) -> viser.ViserServer:
     """``viser.ViserServer(host=host, port=port, **kwargs)``, or a UserError if its thread
     fails to listen (see the module docstring)."""
@@ -102,19 +119,7 @@ def start_viser(host: str, port: int, **kwargs: Any) -> viser.ViserServer:
     helper = threading.Thread(target=make, name="viser-start", daemon=True)
     try:
         helper.start()
-        deadline = time.monotonic() + START_SECONDS
-        why = None
-        while why is None:
-            helper.join(_POLL_SECONDS)
-            if not helper.is_alive():
-                break
-            thread = _server_thread(helper)
-            if died:
-                why = f"{type(died[0]).__name__}: {died[0]}"
-            elif thread is not None and not thread.is_alive():
-                why = "no free port among the thousand it tried"
-            elif time.monotonic() > deadline:
-                why = f"not listening after {START_SECONDS:.0f} s"
+        why = _wait_for(helper, died)
     except BaseException:
         abandoned.set()
         raise

@@ -8,6 +8,12 @@ tells which scenes changed on disk by other hands since it was last asked.
 A decision that cannot be written (read-only folder, full disk) raises :class:`SaveError`
 with one line for the person who made it; nothing is changed then.
 
+A pose edit can be shown before it is written: :meth:`ReviewState.stage_pose` (and
+:meth:`ReviewState.stage_restore`) make the scene's next state in memory, which
+:meth:`ReviewState.info` returns from then on, and :meth:`ReviewState.commit` writes it. No
+other write happens in between (the state's lock is held), so nothing written meanwhile can
+be overwritten, and a failed commit puts the scene back as the file has it.
+
 Poses repaired in a page (review.json ``poses``) are applied to the scene's poses here:
 :attr:`SceneInfo.poses` are what the pages show and the export takes, :attr:`SceneInfo.auto`
 what ``annotate`` wrote. An edit made on an auto pose that has changed since is stale: the
@@ -29,7 +35,7 @@ from pathlib import Path
 import numpy as np
 
 from annotator.dataset import Scene, load_dataset
-from annotator.dataset.annotation import InstanceAnnotation, SceneAnnotation
+from annotator.dataset.annotation import InstanceAnnotation, SceneAnnotation, SceneWarning
 from annotator.dataset.review import (
     NO_POSE_REASON,
     EditedPose,
@@ -44,7 +50,6 @@ from annotator.dataset.review import (
     write_review,
 )
 from annotator.errors import UserError
-from viewer.scene_warnings import SceneWarning, parse_warnings
 
 FILTERS = ("all", "pending", "flagged", "rejected", "stale")
 
@@ -63,6 +68,16 @@ def _stamp(path: str) -> _Stamp:
 
 class SaveError(Exception):
     """A decision could not be written; the message is one line naming the file and why."""
+
+
+@dataclass(frozen=True)
+class Staged:
+    """A pose edit made in memory and not written yet (:meth:`ReviewState.commit` writes it)."""
+
+    sid: str
+    review: Review
+    info: SceneInfo  # the scene as it is once ``review`` is written
+    by: str | None
 
 
 @dataclass(frozen=True)
@@ -125,6 +140,23 @@ def _added(obj: str, inst: str, R: object, t: object) -> InstanceAnnotation:
     return InstanceAnnotation(obj, inst, R, t)  # type: ignore[arg-type]
 
 
+def _gone(sid: str, scene: Scene) -> SceneInfo:
+    """What is known of a scene whose folder has gone."""
+    return SceneInfo(
+        id=sid,
+        annotated=False,
+        poses=(),
+        review=Review(),
+        stale=False,
+        flagged=False,
+        error=f"{scene.path}: the scene's folder is gone (deleted or moved since the viewer "
+        "started)",
+        fingerprint=poses_fingerprint([]),
+        gone=True,
+        view=poses_fingerprint([]),
+    )
+
+
 class ReviewState:
     """The review state of one dataset, shared by every page of a server."""
 
@@ -138,6 +170,7 @@ class ReviewState:
         self._lock = threading.RLock()
         self._cache: dict[str, tuple[tuple[_Stamp, _Stamp], SceneInfo]] = {}
         self._seen: dict[str, tuple[_Stamp, _Stamp]] = {}
+        self._staged: dict[str, Staged] = {}  # scene -> its edit shown and not yet written
         self.started = time.time()
         self.decided = 0  # decisions made through this server
 
@@ -154,7 +187,11 @@ class ReviewState:
         return not os.path.isdir(self._scenes[sid].path)
 
     def info(self, sid: str) -> SceneInfo:
-        """The scene as the files say now (re-read only when a file changed)."""
+        """The scene as the files say now (re-read only when a file changed), or as a staged
+        edit makes it (:meth:`stage_pose`) until it is written."""
+        staged = self._staged.get(sid)
+        if staged is not None:
+            return staged.info
         key = self._stamps(sid)
         # Neither file: a scene not yet annotated, or one whose folder has gone.
         gone = key == (None, None) and self.is_gone(sid)
@@ -163,19 +200,7 @@ class ReviewState:
             return hit[1]
         sc = self._scenes[sid]
         if gone:
-            info = SceneInfo(
-                id=sid,
-                annotated=False,
-                poses=(),
-                review=Review(),
-                stale=False,
-                flagged=False,
-                error=f"{sc.path}: the scene's folder is gone (deleted or moved since the "
-                "viewer started)",
-                fingerprint=poses_fingerprint([]),
-                gone=True,
-                view=poses_fingerprint([]),
-            )
+            info = _gone(sid, sc)
             self._cache[sid] = (key, info)
             return info
         error = None
@@ -186,7 +211,7 @@ class ReviewState:
             try:
                 ann = SceneAnnotation.read(sc.annotation_path)
                 poses = ann.instances
-                warnings = parse_warnings([w.to_json() for w in ann.warnings])
+                warnings = tuple(ann.warnings)
             except (UserError, OSError) as exc:  # OSError: it went between stat and read
                 error = str(exc)
         try:
@@ -274,7 +299,7 @@ class ReviewState:
                 k: v for k, v in info.review.instances.items() if v == ReviewStatus.REJECTED
             }
             accepted = status == ReviewStatus.ACCEPTED
-            changes = {"status": status, "instances": instances}
+            changes: dict[str, object] = {"status": status, "instances": instances}
             if accepted:
                 changes.update(reason=None, missing=[])
             return self._write(sid, self._next_review(info, **changes), by)
@@ -328,19 +353,31 @@ class ReviewState:
         by: str | None = None,
         unmark: tuple[str, tuple[float, float]] | None = None,
     ) -> Review:
-        """Save a repaired pose of instance ``key`` (``T``: 4x4 ``cam_T_model``, reference
-        camera) made by ``steps`` from its auto pose. ``unmark``: the "no pose here" mark
-        (camera, pixel) the instance was added at, which it now explains (the scene goes
-        back to pending when that was the only reason it was rejected)."""
-        import numpy as np
+        """Save a repaired pose of instance ``key`` (see :meth:`stage_pose`) at once."""
+        return self.commit(self.stage_pose(sid, key, T, steps, by=by, unmark=unmark))
 
-        T = np.asarray(T, float)
+    def stage_pose(
+        self,
+        sid: str,
+        key: str,
+        T: object,
+        steps: list[dict],
+        *,
+        by: str | None = None,
+        unmark: tuple[str, tuple[float, float]] | None = None,
+    ) -> Staged:
+        """A repaired pose of instance ``key`` (``T``: 4x4 ``cam_T_model``, reference
+        camera) made by ``steps`` from its auto pose, in memory until :meth:`commit`.
+        ``unmark``: the "no pose here" mark (camera, pixel) the instance was added at, which
+        it now explains (the scene goes back to pending when that was the only reason it
+        was rejected)."""
+        M = np.asarray(T, float)
         with self._lock:
             info = self.info(sid)
             auto = info.auto_pose(key)
             edit = EditedPose(
-                R=T[:3, :3].copy(),
-                t=T[:3, 3].copy(),
+                R=M[:3, :3].copy(),
+                t=M[:3, 3].copy(),
                 steps=list(steps),
                 decided_by=by,
                 at=now_iso(),
@@ -350,7 +387,7 @@ class ReviewState:
             review.poses[key] = edit
             if unmark is not None:
                 self._unmark(review, *unmark)
-            return self._write(sid, review, by, decision=False)
+            return self._stage(sid, info, review, by)
 
     @staticmethod
     def _unmark(review: Review, camera: str, pixel: tuple[float, float]) -> None:
@@ -371,8 +408,15 @@ class ReviewState:
     def restore_pose(
         self, sid: str, key: str, edit: EditedPose | None, *, by: str | None = None
     ) -> Review:
-        """Put back an earlier state of instance ``key``'s edit (None: no edit, the auto
-        pose), for undo, redo and reset."""
+        """Put back an earlier state of instance ``key``'s edit at once (see
+        :meth:`stage_restore`)."""
+        return self.commit(self.stage_restore(sid, key, edit, by=by))
+
+    def stage_restore(
+        self, sid: str, key: str, edit: EditedPose | None, *, by: str | None = None
+    ) -> Staged:
+        """An earlier state of instance ``key``'s edit (None: no edit, the auto pose), for
+        undo, redo and reset, in memory until :meth:`commit`."""
         with self._lock:
             info = self.info(sid)
             review = self._next_review(info)
@@ -380,7 +424,47 @@ class ReviewState:
                 review.poses.pop(key, None)
             else:
                 review.poses[key] = edit
-            return self._write(sid, review, by, decision=False)
+            return self._stage(sid, info, review, by)
+
+    def _stage(self, sid: str, info: SceneInfo, review: Review, by: str | None) -> Staged:
+        """Hold ``review`` as the scene's state in memory; the lock stays taken (by this
+        thread) until :meth:`commit`, so that no other write comes in between."""
+        if info.gone or self.is_gone(sid):  # as _write would say, before anything is shown
+            raise SaveError(
+                f"{self._scenes[sid].review_path.parent}: the scene's folder is gone "
+                "(deleted or moved)"
+            )
+        edits = apply_edits(list(info.auto), review, added=_added)
+        staged = Staged(
+            sid,
+            review,
+            replace(
+                info,
+                poses=tuple(edits.poses),
+                review=review,
+                stale=review.is_stale(info.fingerprint) or bool(edits.stale),
+                edited=frozenset(edits.edited),
+                stale_edits=frozenset(edits.stale),
+                view=poses_fingerprint(edits.poses),
+            ),
+            by,
+        )
+        self._lock.acquire()
+        self._staged[sid] = staged
+        return staged
+
+    def commit(self, staged: Staged) -> Review:
+        """Write a staged edit (:meth:`stage_pose`); on a SaveError the scene is as the file
+        says again. Called once per staged edit, by the thread that staged it."""
+        try:
+            with self._lock:
+                try:
+                    return self._write(staged.sid, staged.review, staged.by, decision=False)
+                finally:
+                    if self._staged.get(staged.sid) is staged:
+                        del self._staged[staged.sid]
+        finally:
+            self._lock.release()
 
     # ----------------------------------------------------------- summaries
     def matches(self, sid: str, flt: str) -> bool:

@@ -13,8 +13,8 @@ from typing import TYPE_CHECKING
 import cv2
 import numpy as np
 
+from annotator.dataset.annotation import DepthRegion, depth_regions
 from annotator.dataset.review import MissingPart, ReviewStatus
-from viewer.scene_warnings import DepthRegion, depth_regions
 
 if TYPE_CHECKING:
     from viewer.state import SceneInfo

@@ -1,6 +1,12 @@
 """Auto-annotation of a scene: markers -> robust multi-view pose per instance -> trust, and the
 scene's completeness.
 
+Modules, in the order a scene goes through them: :mod:`.scene` (the orchestration),
+:mod:`.consensus` (one instance's pose and trust), :mod:`.recovery` (markers read with the
+pose's help), :mod:`.visibility` (occlusion, depth agreement), :mod:`.unexplained` and
+:mod:`.completeness` (depth no pose explains, image quality), :mod:`.settings` (thresholds),
+:mod:`.batch` (a whole dataset).
+
 ``annotation.json`` (docs/FORMAT.md) is read and written through the records of
 :mod:`annotator.dataset.annotation`; per instance, besides the pose:
 
@@ -15,22 +21,18 @@ scene's completeness.
   ``max(3 mm, 1% of z)`` of the depth rendered at the pose, and the median absolute difference;
 - ``occlusion``: ``{"rate", "per_camera": {camera: rate}}``: 1 - visible/full silhouette pixels,
   posed instances as occluders, plus the depth test in the depth camera;
-- ``flags``: reasons a reviewer should look, from :data:`FLAGS`.
+- ``flags``: reasons a reviewer should look (:class:`annotator.dataset.annotation.Flag`).
 
 Top level: ``format``, ``created_at``, ``description_digest``, ``unknown_markers``
 (``{camera: [ids]}``, ids that belong to no instance), ``duplicates`` (``{camera: [ids]}`` seen
 twice in one image), ``image_quality``, ``warnings`` (``{"kind", "message", ...}``, see
-:mod:`annotator.annotation.completeness`), ``unexplained_mask`` and ``errors``.
+:class:`annotator.dataset.annotation.SceneWarning`), ``unexplained_mask`` and ``errors``.
 """
 
-FLAGS: tuple[str, ...] = (
-    "ambiguous",  # a lone marker / single view whose two pose solutions fit about equally well
-    "single_view",  # only one camera's markers were usable
-    "high_residual",  # reprojection error well above the corner noise
-    "rejected_markers",  # some of the instance's markers disagreed with the others and were dropped
-    "depth_disagreement",  # the depth rendered at the pose disagrees with the measured depth
-    "high_uncertainty",  # estimated uncertainty above 1% of the part's diameter
-    "overlap",  # another copy of the part is posed in the same place (a marker on the wrong copy)
-)
+from annotator.dataset.annotation import Flag
+
+#: Every flag, in the order annotation.json lists them (the names of :class:`Flag`; kept for
+#: scripts written before it).
+FLAGS: tuple[Flag, ...] = tuple(Flag)
 
 __all__ = ["FLAGS"]

@@ -11,9 +11,13 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from annotator.annotation.scene import UNEXPLAINED_MASK, Settings, annotate_scene
+from annotator.annotation.scene import annotate_scene
+from annotator.annotation.settings import Settings
+from annotator.annotation.unexplained import UNEXPLAINED_MASK
 from annotator.dataset import Dataset, Scene, cached_dataset, require_meshes
+from annotator.dataset.annotation import WarningKind
 from annotator.dataset.check import BROKEN_LINK
+from annotator.dataset.model import SCENES_DIR
 from annotator.dataset.poses import read_pose_file
 from annotator.dataset.review import now_iso
 from annotator.detection import MarkerDetector
@@ -94,19 +98,21 @@ class AnnotateJob:
 
     def scene_files(self, scene_id: str) -> list[str]:
         """The scene's images and depth map."""
-        names = [f"{c.name}.png" for c in cached_dataset(self.root).rig.cameras] + ["depth.png"]
-        return [f"scenes/{scene_id}/{name}" for name in names]
+        scene = _relative_scene(scene_id)
+        paths = [scene.image_path(c) for c in cached_dataset(self.root).rig.cameras]
+        return [p.as_posix() for p in [*paths, scene.depth_path]]
 
     def output_files(self, scene_id: str) -> list[str]:
         """The mask (or its deletion) and annotation.json, in the order they are written."""
-        return [f"scenes/{scene_id}/{UNEXPLAINED_MASK}", f"scenes/{scene_id}/annotation.json"]
+        scene = _relative_scene(scene_id)
+        return [(scene.path / UNEXPLAINED_MASK).as_posix(), scene.annotation_path.as_posix()]
 
     def __call__(self, scene_id: str) -> dict[str, Any]:
         ds, detector = _context(self.root)
         scene = ds.scene(scene_id)
         result = annotate_scene(ds, scene, detector, settings=self.settings)
         ann = result.annotation
-        if not ann.instances and any(w.kind == "no_markers" for w in ann.warnings):
+        if not ann.instances and any(w.kind == WarningKind.NO_MARKERS for w in ann.warnings):
             raise UserError("no marker of any known instance detected", path=scene.path)
         ann.created_at = now_iso()
         ann.description_digest = self.digest
@@ -181,7 +187,7 @@ def annotate_dataset(
     """
     chosen = [s for s in ds.scenes() if fnmatch.fnmatch(s.id, scenes)]
     if not chosen:
-        raise UserError(f"no scene matches {scenes!r}", path=ds.root / "scenes")
+        raise UserError(f"no scene matches {scenes!r}", path=ds.root / SCENES_DIR)
     require_meshes(ds)
     job = AnnotateJob.for_dataset(ds, settings)
     todo = [s.id for s in chosen if force or not is_up_to_date(ds, s, job.digest)]
@@ -198,3 +204,8 @@ def annotate_dataset(
         if fnmatch.fnmatch(link.name, scenes):
             report.failed[link.name] = f"{link}: {BROKEN_LINK}"
     return AnnotateSummary(len(chosen), report, len(chosen) - len(todo))
+
+
+def _relative_scene(scene_id: str) -> Scene:
+    """The scene, its paths relative to the dataset's root (what a Ray task ships)."""
+    return Scene(scene_id, Path(SCENES_DIR) / scene_id)

@@ -31,10 +31,11 @@ median is below 25, ``over_exposed`` when more than 5% of the pixels are saturat
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
 
 import cv2
 import numpy as np
+
+from annotator.dataset.annotation import DepthRegion, ImageQuality, SceneWarning, WarningKind
 
 
 @dataclass(frozen=True)
@@ -204,24 +205,6 @@ def mean_silhouette_mm2(vertices: np.ndarray) -> float:
     return float(ConvexHull(vertices).area) / 4.0
 
 
-@dataclass
-class Region:
-    """A connected unexplained region, in full-resolution pixels of the depth camera."""
-
-    box: tuple[int, int, int, int]  # x0, y0, x1, y1 (inclusive-exclusive)
-    pixels: int
-    depth_mm: tuple[float, float]  # 5th and 95th percentiles
-    unread_markers: list[tuple[float, float]]
-
-    def to_json(self) -> dict[str, Any]:
-        return {
-            "box": list(self.box),
-            "pixels": self.pixels,
-            "depth_mm": [round(self.depth_mm[0], 1), round(self.depth_mm[1], 1)],
-            "unread_markers": [[round(x, 1), round(y, 1)] for x, y in self.unread_markers],
-        }
-
-
 def find_regions(
     mask: np.ndarray,
     measured: np.ndarray,
@@ -230,7 +213,7 @@ def find_regions(
     min_pixels: float,
     skip_border_bands: bool = False,
     owned: np.ndarray | None = None,
-) -> tuple[list[Region], np.ndarray]:
+) -> tuple[list[DepthRegion], np.ndarray]:
     """Connected regions of ``mask`` (on a grid of every ``step``-th pixel) with at least
     ``min_pixels`` full-resolution pixels. With ``skip_border_bands``, pieces of a bin's wall
     are dropped: regions within 12% of the image border that reach across 30% of the image
@@ -255,8 +238,10 @@ def find_regions(
         kept |= sel
         lo, hi = np.percentile(z, [5, 95])
         out.append(
-            Region(
-                (x * step, y * step, (x + w) * step, (y + h) * step), px, (float(lo), float(hi)), []
+            DepthRegion(
+                (x * step, y * step, (x + w) * step, (y + h) * step),
+                px,
+                (round(float(lo), 1), round(float(hi), 1)),
             )
         )
     return out, kept
@@ -283,43 +268,40 @@ def exposure(gray: np.ndarray) -> tuple[float, float]:
 
 
 def quality_warnings(
-    quality: dict[str, dict[str, Any]], settings: CompletenessSettings = CompletenessSettings()
-) -> list[dict[str, Any]]:
+    quality: dict[str, ImageQuality], settings: CompletenessSettings = CompletenessSettings()
+) -> list[SceneWarning]:
     """``blurred`` / ``under_exposed`` / ``over_exposed`` warnings from per-camera figures."""
     out = []
     blurred = {
-        c: q["edge_blur_px"]
+        c: q.edge_blur_px
         for c, q in quality.items()
-        if q.get("edge_blur_px") is not None and q["edge_blur_px"] > settings.blur_warn_px
+        if q.edge_blur_px is not None and q.edge_blur_px > settings.blur_warn_px
     }
     if blurred:
-        out.append(
-            {
-                "kind": "blurred",
-                "message": "images blurred (edge blur "
-                + ", ".join(f"{c} {v:.1f} px" for c, v in blurred.items())
-                + f", above {settings.blur_warn_px} px): markers may be unreadable",
-                "cameras": sorted(blurred),
-            }
+        message = (
+            "images blurred (edge blur "
+            + ", ".join(f"{c} {v:.1f} px" for c, v in blurred.items())
+            + f", above {settings.blur_warn_px} px): markers may be unreadable"
         )
-    dark = [c for c, q in quality.items() if q["median"] < settings.dark_median]
+        out.append(SceneWarning(WarningKind.BLURRED, message, cameras=tuple(sorted(blurred))))
+    dark = [
+        c for c, q in quality.items() if q.median is not None and q.median < settings.dark_median
+    ]
     if dark:
-        out.append(
-            {
-                "kind": "under_exposed",
-                "message": f"images too dark (median grey level below {settings.dark_median:g}): "
-                + ", ".join(dark),
-                "cameras": dark,
-            }
+        message = (
+            f"images too dark (median grey level below {settings.dark_median:g}): "
+            + ", ".join(dark)
         )
-    bright = [c for c, q in quality.items() if q["saturated"] > settings.saturated_fraction]
+        out.append(SceneWarning(WarningKind.UNDER_EXPOSED, message, cameras=tuple(dark)))
+    bright = [
+        c
+        for c, q in quality.items()
+        if q.saturated is not None and q.saturated > settings.saturated_fraction
+    ]
     if bright:
-        out.append(
-            {
-                "kind": "over_exposed",
-                "message": f"images over-exposed (more than {settings.saturated_fraction:.0%} "
-                "of the pixels saturated): " + ", ".join(bright),
-                "cameras": bright,
-            }
+        message = (
+            f"images over-exposed (more than {settings.saturated_fraction:.0%} "
+            "of the pixels saturated): " + ", ".join(bright)
         )
+        out.append(SceneWarning(WarningKind.OVER_EXPOSED, message, cameras=tuple(bright)))
     return out

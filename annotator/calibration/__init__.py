@@ -14,8 +14,10 @@ One concept per module:
 - :mod:`.extrapolation`: where a distortion model is extrapolated, and by how much;
 - :mod:`.model_choice`: the distortion model chosen by the held-out error;
 - :mod:`.report`: RMS per camera and shot, rejections, coverage pictures, ``report.json``;
-- :mod:`.rig_yaml`: the ``rig:`` block of ``dataset.yaml``, spliced in, and its diff;
-- :mod:`.baseline`: OpenCV's own stereo pipelines, the reference in tests and benchmarks.
+- :mod:`.rig_yaml`: the ``rig:`` block of ``dataset.yaml``, spliced in, and its diff.
+
+OpenCV's own stereo pipelines, the reference in tests and benchmarks, live in
+``tests/opencv_baseline.py``.
 
 Typical use::
 

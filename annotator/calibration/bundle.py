@@ -177,7 +177,7 @@ def _project_camera(
     return uv.reshape(-1, 2), jac.reshape(-1, 2, jac.shape[1]), y, xc
 
 
-def _residuals_jacobian(
+def residuals_jacobian(
     state: RigState, obs: Corners, layout: _Layout
 ) -> tuple[np.ndarray, sp.csr_matrix]:
     """Stacked residuals (2N,) and their sparse Jacobian (2N, layout.size)."""
@@ -251,7 +251,7 @@ def refine(
     """
     C = state.intrinsics.shape[0]
     layout = _Layout(C, state.rig_T_board.shape[0], np.asarray(state.free_intrinsics, bool))
-    r, J = _residuals_jacobian(state, obs, layout)
+    r, J = residuals_jacobian(state, obs, layout)
     cost = float(r @ r)
     damping = 1e-4
     iterations = 0
@@ -269,7 +269,7 @@ def refine(
             A = Hs + sp.diags(np.where(d > 0, damping, 1.0))
             step = -scale * splu(A.tocsc()).solve(scale * g)
             trial = _apply(state, step, layout)
-            r_new, J_new = _residuals_jacobian(trial, obs, layout)
+            r_new, J_new = residuals_jacobian(trial, obs, layout)
             cost_new = float(r_new @ r_new)
             if np.isfinite(cost_new) and cost_new < cost:
                 improved = True

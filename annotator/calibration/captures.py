@@ -97,8 +97,51 @@ def find_captures(
     root = Path(root)
     if not root.is_dir():
         raise UserError("captures folder does not exist", path=root)
+    folders = _camera_folders(root, ignore)
+    videos = _files_with(root, VIDEO_SUFFIXES)
+    if videos and not folders:
+        return find_video_captures(root, videos, cameras=cameras, stride=stride)
+    _check_no_loose_images(root, _files_with(root, IMAGE_SUFFIXES), folders)
+    names = _camera_names(root, folders, cameras)
+    files = _shot_images(root, names)
+    return Captures(root, tuple(names), tuple(_common_shots(root, names, files)), files)
+
+
+def find_rig_captures(
+    root: str | Path,
+    *,
+    cameras: Sequence[str] | None,
+    rig_cameras: Sequence[str],
+    ignore: Sequence[Path] = (),
+    stride: int = DEFAULT_STRIDE,
+    rig_source: Path | None = None,
+) -> Captures:
+    """:func:`find_captures` for a rig that exists already (``rig_cameras``, read from
+    ``rig_source``; empty: none): the captures must be of its cameras, and keep its camera
+    order unless ``cameras`` chooses one.
+
+    Raises:
+        UserError: besides :func:`find_captures`' errors, captures of other cameras.
+    """
+    captures = find_captures(root, cameras=cameras, ignore=ignore, stride=stride)
+    if not rig_cameras:
+        return captures
+    if sorted(rig_cameras) != sorted(captures.cameras):
+        raise UserError(
+            f"its rig has cameras {', '.join(rig_cameras)} but the captures in "
+            f"{root} have {', '.join(captures.cameras)}: name the capture folders after the "
+            "rig's cameras (or choose them with --cameras)",
+            path=rig_source,
+        )
+    if cameras is None:
+        return find_captures(root, cameras=rig_cameras, ignore=ignore, stride=stride)
+    return captures
+
+
+def _camera_folders(root: Path, ignore: Sequence[Path]) -> list[Path]:
+    """The sub-folders that may be cameras: not hidden, not a report folder."""
     skip = {p.resolve() for p in ignore}
-    folders = sorted(
+    return sorted(
         p
         for p in root.iterdir()
         if p.is_dir()
@@ -106,14 +149,16 @@ def find_captures(
         and p.name != REPORT_FOLDER
         and p.resolve() not in skip
     )
-    loose = [
-        p for p in sorted(root.iterdir()) if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES
-    ]
-    videos = [
-        p for p in sorted(root.iterdir()) if p.is_file() and p.suffix.lower() in VIDEO_SUFFIXES
-    ]
-    if videos and not folders:
-        return find_video_captures(root, videos, cameras=cameras, stride=stride)
+
+
+def _files_with(root: Path, suffixes: Sequence[str]) -> list[Path]:
+    """The files directly in ``root`` with one of ``suffixes`` (any case), sorted."""
+    return [p for p in sorted(root.iterdir()) if p.is_file() and p.suffix.lower() in suffixes]
+
+
+def _check_no_loose_images(root: Path, loose: list[Path], folders: list[Path]) -> None:
+    """Images belong in camera folders; one outside them is an error (two wordings: no
+    camera folders at all is the likelier mistake)."""
     if loose and not folders:
         raise UserError(
             f"{len(loose)} images lie directly in the captures folder: put each camera's images "
@@ -125,6 +170,10 @@ def find_captures(
             "image outside the camera folders (expected CAPTURES/<camera>/<shot>.png)",
             path=loose[0],
         )
+
+
+def _camera_names(root: Path, folders: list[Path], cameras: Sequence[str] | None) -> list[str]:
+    """The cameras: the ones asked for (each must have a folder), else every folder."""
     if cameras is None:
         names = [p.name for p in folders]
         if not names:
@@ -136,23 +185,34 @@ def find_captures(
                 raise UserError(f"no folder for camera {name!r}", path=root / name)
     if len(set(names)) != len(names):
         raise UserError(f"a camera is named twice in {', '.join(names)}", path=root)
+    return names
 
+
+def _shot_images(root: Path, names: list[str]) -> dict[tuple[str, str], Path]:
+    """(camera, shot) -> image, for every camera folder."""
     files: dict[tuple[str, str], Path] = {}
-    shots_of: dict[str, set[str]] = {}
     for name in names:
-        stems: dict[str, Path] = {}
-        for p in sorted((root / name).iterdir()):
-            if not p.is_file() or p.name.startswith(".") or p.suffix.lower() not in IMAGE_SUFFIXES:
-                continue
-            if p.stem in stems:
-                raise UserError(f"two images of shot {p.stem!r} ({stems[p.stem].name})", path=p)
-            stems[p.stem] = p
-        if not stems:
-            raise UserError(
-                f"camera folder has no images ({', '.join(IMAGE_SUFFIXES)})", path=root / name
-            )
-        shots_of[name] = set(stems)
-        files.update({(name, s): p for s, p in stems.items()})
+        files.update({(name, s): p for s, p in _camera_images(root / name).items()})
+    return files
+
+
+def _camera_images(folder: Path) -> dict[str, Path]:
+    """shot -> image of one camera folder; at least one, and one per shot."""
+    stems: dict[str, Path] = {}
+    for p in sorted(folder.iterdir()):
+        if not p.is_file() or p.name.startswith(".") or p.suffix.lower() not in IMAGE_SUFFIXES:
+            continue
+        if p.stem in stems:
+            raise UserError(f"two images of shot {p.stem!r} ({stems[p.stem].name})", path=p)
+        stems[p.stem] = p
+    if not stems:
+        raise UserError(f"camera folder has no images ({', '.join(IMAGE_SUFFIXES)})", path=folder)
+    return stems
+
+
+def _common_shots(root: Path, names: list[str], files: dict[tuple[str, str], Path]) -> list[str]:
+    """Every shot, sorted; an error naming the first image some camera lacks."""
+    shots_of = {name: {s for (n, s) in files if n == name} for name in names}
     every = sorted(set().union(*shots_of.values()))
     for name in names:
         missing = [s for s in every if s not in shots_of[name]]
@@ -165,7 +225,17 @@ def find_captures(
                 f"{name}{more}; every camera needs one image of every shot",
                 path=root / name / f"{s}{files[(has, s)].suffix}",
             )
-    return Captures(root, tuple(names), tuple(every), files)
+    return every
+
+
+@dataclass(frozen=True)
+class _Pairing:
+    """The shots of videos: their names, each camera's frame of each, and the frames of the
+    first camera that some camera had no partner for."""
+
+    shots: list[str]
+    frames: dict[tuple[str, str], int]
+    unpaired: list[int]
 
 
 def find_video_captures(
@@ -174,11 +244,7 @@ def find_video_captures(
     """Video captures (see the module docstring): the shots and each camera's frame of each."""
     if stride < 1:
         raise UserError(f"the frame stride must be at least 1, not {stride}")
-    by_name: dict[str, Path] = {}
-    for p in videos:
-        if p.stem in by_name:
-            raise UserError(f"two videos of camera {p.stem!r} ({by_name[p.stem].name})", path=p)
-        by_name[p.stem] = p
+    by_name = _videos_by_camera(videos)
     names = list(cameras) if cameras is not None else sorted(by_name)
     for name in names:
         if name not in by_name:
@@ -187,6 +253,42 @@ def find_video_captures(
             )
     counts = {name: _frame_count(by_name[name]) for name in names}
     stamps = {name: _timestamps(by_name[name], counts[name]) for name in names}
+    timed = _check_timestamps(names, stamps, by_name)
+    pairing = _pair_frames(names, counts, stamps, stride)
+    if not pairing.shots:
+        raise UserError(
+            f"no frame of camera {names[0]} has a partner in every other video "
+            f"({'timestamps' if timed else 'frame index'}; frames: "
+            + ", ".join(f"{n} {counts[n]}" for n in names)
+            + ")",
+            path=root,
+        )
+    return Captures(
+        root,
+        tuple(names),
+        tuple(pairing.shots),
+        {},
+        videos={n: by_name[n] for n in names},
+        frames=pairing.frames,
+        pairing="timestamps" if timed else "frame index",
+        unpaired=tuple(pairing.unpaired),
+    )
+
+
+def _videos_by_camera(videos: Sequence[Path]) -> dict[str, Path]:
+    """camera -> video, the camera named by the file's stem; one video per camera."""
+    by_name: dict[str, Path] = {}
+    for p in videos:
+        if p.stem in by_name:
+            raise UserError(f"two videos of camera {p.stem!r} ({by_name[p.stem].name})", path=p)
+        by_name[p.stem] = p
+    return by_name
+
+
+def _check_timestamps(
+    names: list[str], stamps: dict[str, np.ndarray | None], by_name: dict[str, Path]
+) -> bool:
+    """Whether the videos have timestamps: every one of them, or none (else an error)."""
     have = [n for n in names if stamps[n] is not None]
     if have and len(have) != len(names):
         lacking = next(n for n in names if stamps[n] is None)
@@ -195,10 +297,18 @@ def find_video_captures(
             f"{TIMESTAMPS_SUFFIX} file for every video or for none",
             path=by_name[lacking].with_name(lacking + TIMESTAMPS_SUFFIX),
         )
+    return bool(have)
+
+
+def _pair_frames(
+    names: list[str],
+    counts: dict[str, int],
+    stamps: dict[str, np.ndarray | None],
+    stride: int,
+) -> _Pairing:
+    """Every ``stride``-th frame of the first camera with its partner in every other video."""
     ref = names[0]
-    frames: dict[tuple[str, str], int] = {}
-    shots: list[str] = []
-    unpaired: list[int] = []
+    pairing = _Pairing([], {}, [])
     digits = max(4, len(str(counts[ref])))
     for f in range(0, counts[ref], stride):
         partner = {ref: f}
@@ -208,29 +318,12 @@ def find_video_captures(
                 break
             partner[name] = g
         if len(partner) < len(names):
-            unpaired.append(f)
+            pairing.unpaired.append(f)
             continue
         shot = f"f{f:0{digits}d}"
-        shots.append(shot)
-        frames.update({(name, shot): g for name, g in partner.items()})
-    if not shots:
-        raise UserError(
-            f"no frame of camera {ref} has a partner in every other video "
-            f"({'timestamps' if have else 'frame index'}; frames: "
-            + ", ".join(f"{n} {counts[n]}" for n in names)
-            + ")",
-            path=root,
-        )
-    return Captures(
-        root,
-        tuple(names),
-        tuple(shots),
-        {},
-        videos={n: by_name[n] for n in names},
-        frames=frames,
-        pairing="timestamps" if have else "frame index",
-        unpaired=tuple(unpaired),
-    )
+        pairing.shots.append(shot)
+        pairing.frames.update({(name, shot): g for name, g in partner.items()})
+    return pairing
 
 
 def _frame_count(path: Path) -> int:

@@ -22,6 +22,7 @@ from annotator.calibration.board import BoardSpec
 from annotator.calibration.extrapolation import extrapolation
 from annotator.calibration.heldout import FOLDS, HeldOut, held_out_error
 from annotator.calibration.solve import Calibration, CalibrationOptions, View, calibrate_rig
+from annotator.geometry.camera import Camera
 
 #: The models tried by default (number of coefficients), simplest first.
 CANDIDATES = (4, 5)
@@ -66,6 +67,43 @@ def choose(held_out: Mapping[int, HeldOut]) -> tuple[int, str]:
     )
 
 
+@dataclass(frozen=True)
+class _Problem:
+    """The detections and what they are of: everything :func:`calibrate_rig` needs besides
+    its options."""
+
+    views: Sequence[View]
+    cameras: Sequence[str]
+    sizes: Sequence[tuple[int, int]]
+    shots: Sequence[str]
+    board: BoardSpec
+    where: Mapping[str, Path] | None
+
+    def calibrate(self, options: CalibrationOptions) -> Calibration:
+        """The calibration on every view."""
+        return calibrate_rig(
+            self.views,
+            cameras=self.cameras,
+            sizes=self.sizes,
+            shots=self.shots,
+            board=self.board,
+            options=options,
+            where=self.where,
+        )
+
+    def fit(self, options: CalibrationOptions, train: Sequence[View]) -> tuple[Camera, ...]:
+        """The cameras calibrated on ``train`` only (a fold of the held-out error: its
+        errors are passed over, so no folder needs naming)."""
+        return calibrate_rig(
+            train,
+            cameras=self.cameras,
+            sizes=self.sizes,
+            shots=self.shots,
+            board=self.board,
+            options=options,
+        ).rig_cameras
+
+
 def calibrate_and_assess(
     views: Sequence[View],
     *,
@@ -82,60 +120,59 @@ def calibrate_and_assess(
     one (``candidates`` of one model: that model, still measured). The result carries
     ``held_out``, ``model_choice`` and the extrapolation warnings."""
     opts = options or CalibrationOptions()
+    problem = _Problem(views, cameras, sizes, shots, board, where)
     cals: dict[int, Calibration] = {}
     held: dict[int, HeldOut] = {}
     for m in candidates:
-        model_opts = dataclasses.replace(opts, dist_coeffs=m)
-        cals[m] = calibrate_rig(
-            views,
-            cameras=cameras,
-            sizes=sizes,
-            shots=shots,
-            board=board,
-            options=model_opts,
-            where=where,
+        cals[m], held[m] = _calibrate_and_hold_out(
+            problem, dataclasses.replace(opts, dist_coeffs=m), folds
         )
-        # Folds fit fewer shots: a camera with just enough shots in all must still fit.
-        fold_opts = dataclasses.replace(model_opts, min_shots=3)
-
-        def fit(train: Sequence[View], fold_opts: CalibrationOptions = fold_opts):
-            return calibrate_rig(
-                train, cameras=cameras, sizes=sizes, shots=shots, board=board, options=fold_opts
-            ).rig_cameras
-
-        used = _used_views(cals[m])
-        held[m] = held_out_error(
-            [v for v in views if (v.camera, v.shot) in used],
-            fit,
-            board,
-            cameras,
-            folds=folds,
-            min_corners=opts.min_corners,
-        )
-    chosen, reason = (
-        choose(held)
-        if len(candidates) > 1
-        else (
-            candidates[0],
-            f"{candidates[0]} coefficients (as asked); held-out error {held[candidates[0]].rms_px:.3f} px",
+    if len(candidates) > 1:
+        chosen, reason = choose(held)
+    else:
+        chosen = candidates[0]
+        reason = f"{chosen} coefficients (as asked); held-out error {held[chosen].rms_px:.3f} px"
+    return _with_extrapolation(
+        dataclasses.replace(
+            cals[chosen], held_out=held[chosen], model_choice=ModelChoice(chosen, held, reason)
         )
     )
-    cal = cals[chosen]
+
+
+def _calibrate_and_hold_out(
+    problem: _Problem, opts: CalibrationOptions, folds: int
+) -> tuple[Calibration, HeldOut]:
+    """One model's calibration on every shot, and its held-out error on the views it kept."""
+    cal = problem.calibrate(opts)
+    # Folds fit fewer shots: a camera with just enough shots in all must still fit.
+    fold_opts = dataclasses.replace(opts, min_shots=3)
+
+    def fit(train: Sequence[View]) -> tuple[Camera, ...]:
+        return problem.fit(fold_opts, train)
+
+    used = _used_views(cal)
+    held = held_out_error(
+        [v for v in problem.views if (v.camera, v.shot) in used],
+        fit,
+        problem.board,
+        problem.cameras,
+        folds=folds,
+        min_corners=opts.min_corners,
+    )
+    return cal, held
+
+
+def _with_extrapolation(cal: Calibration) -> Calibration:
+    """``cal`` with where each camera's distortion is extrapolated, and a warning for each
+    camera whose model is extrapolated at the image corners."""
     extra = []
     for c, rep in enumerate(cal.cameras):
         sel = cal.used & (cal.corners.camera == c)
-        ex = extrapolation(rep.camera, cal.corners.pixel[sel])
-        extra.append(ex)
+        extra.append(extrapolation(rep.camera, cal.corners.pixel[sel]))
     warnings = list(cal.warnings) + [
         ex.warning(rep.camera.name) for ex, rep in zip(extra, cal.cameras) if ex.extrapolated
     ]
-    return dataclasses.replace(
-        cal,
-        warnings=tuple(warnings),
-        held_out=held[chosen],
-        model_choice=ModelChoice(chosen, held, reason),
-        extrapolation=tuple(extra),
-    )
+    return dataclasses.replace(cal, warnings=tuple(warnings), extrapolation=tuple(extra))
 
 
 def _used_views(cal: Calibration) -> set[tuple[int, int]]:

@@ -58,6 +58,29 @@ def coverage_picture(cal: Calibration, camera: int) -> np.ndarray:
     banner = 62
     img = np.full((H + banner, W, 3), 24, np.uint8)
     frac, counts = coverage(cal, camera)
+    _draw_cells(img, counts, banner)
+    ex = cal.extrapolation[camera] if len(cal.extrapolation) > camera else None
+    if ex is not None:
+        _draw_extrapolation(img, cal, camera, ex, s, banner)
+    magnify = _draw_corners(img, cal, camera, s, banner)
+    lines = _banner_lines(cal, camera, frac, counts.size, magnify, ex)
+    for k, text in enumerate(lines):
+        cv2.putText(
+            img,
+            text,
+            (8, 18 + 18 * k),
+            cv2.FONT_HERSHEY_SIMPLEX,
+            0.5,
+            (230, 230, 230),
+            1,
+            cv2.LINE_AA,
+        )
+    return img
+
+
+def _draw_cells(img: np.ndarray, counts: np.ndarray, banner: int) -> None:
+    """The grid below the banner, each cell green by its corner count or dull red if none."""
+    H, W = img.shape[0] - banner, img.shape[1]
     rows, cols = counts.shape
     top = counts.max() if counts.max() > 0 else 1
     for r in range(rows):
@@ -70,9 +93,11 @@ def coverage_picture(cal: Calibration, camera: int) -> np.ndarray:
             else:
                 img[y0:y1, x0:x1] = (40, 40, 90)  # dull red: never seen
             cv2.rectangle(img, (x0, y0), (x1 - 1, y1 - 1), (70, 70, 70), 1)
-    ex = cal.extrapolation[camera] if len(cal.extrapolation) > camera else None
-    if ex is not None:
-        _draw_extrapolation(img, cal, camera, ex, s, banner)
+
+
+def _draw_corners(img: np.ndarray, cal: Calibration, camera: int, s: float, banner: int) -> float:
+    """Every corner of the camera (green: used, red: outlier) with its residual magnified;
+    returns the magnification (the median residual drawn ``RESIDUAL_LENGTH`` long)."""
     sel = cal.corners.camera == camera
     norms = np.linalg.norm(cal.residuals[sel & cal.used], axis=1)
     median = float(np.median(norms)) if len(norms) else 0.0
@@ -87,10 +112,23 @@ def coverage_picture(cal: Calibration, camera: int) -> np.ndarray:
             if not used or np.hypot(du, dv) > 2:
                 q = (int(round(u + du)), banner + int(round(v + dv)))
                 cv2.line(img, p, q, colour, 1, cv2.LINE_AA)
+    return magnify
+
+
+def _banner_lines(
+    cal: Calibration,
+    camera: int,
+    frac: float,
+    cells: int,
+    magnify: float,
+    ex: Extrapolation | None,
+) -> list[str]:
+    """The figures printed at the top of the picture, and what its colours mean."""
+    w, h = cal.sizes[camera]
     rep = cal.cameras[camera]
     lines = [
         f"{rep.camera.name}: {w}x{h}, {rep.shots} shots, {rep.corners} corners, "
-        f"RMS {rep.rms_px:.3f} px, coverage {100 * frac:.0f}% of {rows * cols} cells",
+        f"RMS {rep.rms_px:.3f} px, coverage {100 * frac:.0f}% of {cells} cells",
         f"green: corners used, red: outliers; residuals x{magnify:g}; "
         "dull red cells: no corner, the distortion there is extrapolated",
     ]
@@ -100,18 +138,7 @@ def coverage_picture(cal: Calibration, camera: int) -> np.ndarray:
             f"{ex.corner_px:.1f} px at the image corners, at most {ex.covered_px:.1f} px inside"
             + ("; orange: extrapolated" if ex.extrapolated else "")
         )
-    for k, text in enumerate(lines):
-        cv2.putText(
-            img,
-            text,
-            (8, 18 + 18 * k),
-            cv2.FONT_HERSHEY_SIMPLEX,
-            0.5,
-            (230, 230, 230),
-            1,
-            cv2.LINE_AA,
-        )
-    return img
+    return lines
 
 
 def _draw_extrapolation(
@@ -160,52 +187,21 @@ def report_dict(
     cal: Calibration, board: BoardSpec, *, captures: Captures, flipped: Sequence[str] = ()
 ) -> dict[str, Any]:
     """Everything about a calibration, for ``report.json`` and ``--json``."""
-    cams = []
-    for k, rep in enumerate(cal.cameras):
-        cam = rep.camera
-        frac, _ = coverage(cal, k)
-        ex = cal.extrapolation[k] if len(cal.extrapolation) > k else None
-        extra: dict[str, Any] = {"flip": "horizontal" if cam.name in flipped else None}
-        if ex is not None:
-            extra["extrapolation"] = {
-                "covered_fraction": round(ex.coverage, 3),
-                "corner_displacement_px": round(ex.corner_px, 2),
-                "covered_displacement_px": round(ex.covered_px, 2),
-                "extrapolated": ex.extrapolated,
-            }
-        cams.append(
-            {
-                "name": cam.name,
-                "size": [cam.width, cam.height],
-                "K": cam.K.ravel().tolist(),
-                "dist": cam.dist.tolist(),
-                "rig_T_cam": cam.rig_T_cam.ravel().tolist(),
-                "rms_px": round(rep.rms_px, 4),
-                "initial_rms_px": round(rep.initial_rms_px, 4),
-                "shots": rep.shots,
-                "corners": rep.corners,
-                "outlier_corners": rep.outlier_corners,
-                "coverage": round(frac, 3),
-                "std": {k: float(f"{v:.3g}") for k, v in rep.std.items()},
-                **extra,
-            }
-        )
-    shots = [
-        {
-            "name": s.name,
-            "used": s.used,
-            "rms_px": {k: round(v, 4) for k, v in s.rms_px.items()},
-            "corners": s.corners,
-        }
-        for s in cal.shots
-    ]
     out: dict[str, Any] = {
         "captures": str(captures.root),
         "board": board.to_yaml(),
         "rms_px": round(cal.rms_px, 4),
         "iterations": cal.iterations,
-        "cameras": cams,
-        "shots": shots,
+        "cameras": [_camera_entry(cal, k, flipped) for k in range(len(cal.cameras))],
+        "shots": [
+            {
+                "name": s.name,
+                "used": s.used,
+                "rms_px": {k: round(v, 4) for k, v in s.rms_px.items()},
+                "corners": s.corners,
+            }
+            for s in cal.shots
+        ],
         "rejected": [
             {"shot": r.shot, "camera": r.camera, "reason": r.reason} for r in cal.rejections
         ],
@@ -222,16 +218,53 @@ def report_dict(
             },
         }
     if captures.videos:
-        out["videos"] = {
-            "files": {c: str(p) for c, p in captures.videos.items()},
-            "pairing": captures.pairing,
-            "frames": {
-                shot: {c: captures.frames[(c, shot)] for c in captures.cameras}
-                for shot in captures.shots
-            },
-            "unpaired": list(captures.unpaired),
-        }
+        out["videos"] = _videos_entry(captures)
     return out
+
+
+def _camera_entry(cal: Calibration, k: int, flipped: Sequence[str]) -> dict[str, Any]:
+    """One camera of ``report.json``: the calibrated camera, its figures, its flip and where
+    its distortion is extrapolated."""
+    rep = cal.cameras[k]
+    cam = rep.camera
+    frac, _ = coverage(cal, k)
+    ex = cal.extrapolation[k] if len(cal.extrapolation) > k else None
+    extra: dict[str, Any] = {"flip": "horizontal" if cam.name in flipped else None}
+    if ex is not None:
+        extra["extrapolation"] = {
+            "covered_fraction": round(ex.coverage, 3),
+            "corner_displacement_px": round(ex.corner_px, 2),
+            "covered_displacement_px": round(ex.covered_px, 2),
+            "extrapolated": ex.extrapolated,
+        }
+    return {
+        "name": cam.name,
+        "size": [cam.width, cam.height],
+        "K": cam.K.ravel().tolist(),
+        "dist": cam.dist.tolist(),
+        "rig_T_cam": cam.rig_T_cam.ravel().tolist(),
+        "rms_px": round(rep.rms_px, 4),
+        "initial_rms_px": round(rep.initial_rms_px, 4),
+        "shots": rep.shots,
+        "corners": rep.corners,
+        "outlier_corners": rep.outlier_corners,
+        "coverage": round(frac, 3),
+        "std": {k: float(f"{v:.3g}") for k, v in rep.std.items()},
+        **extra,
+    }
+
+
+def _videos_entry(captures: Captures) -> dict[str, Any]:
+    """The videos of ``report.json``: the files, the pairing, each shot's frames."""
+    return {
+        "files": {c: str(p) for c, p in captures.videos.items()},
+        "pairing": captures.pairing,
+        "frames": {
+            shot: {c: captures.frames[(c, shot)] for c in captures.cameras}
+            for shot in captures.shots
+        },
+        "unpaired": list(captures.unpaired),
+    }
 
 
 def write_report(

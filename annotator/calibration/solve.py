@@ -202,6 +202,73 @@ class Calibration:
         return tuple(c.camera for c in self.cameras)
 
 
+@dataclass(frozen=True)
+class _Setup:
+    """What :func:`calibrate_rig` was given, passed along its steps."""
+
+    views: Sequence[View]
+    cameras: Sequence[str]
+    sizes: Sequence[tuple[int, int]]
+    shots: Sequence[str]
+    board: BoardSpec
+    opts: CalibrationOptions
+    where: Mapping[str, Path]
+
+    @property
+    def n_dist(self) -> int:
+        """Distortion coefficients kept per camera: OpenCV's five, or eight (rational)."""
+        return 8 if self.opts.dist_coeffs == 8 else 5
+
+    def require_shots(self, usable: Sequence[View]) -> None:
+        """Every camera still has enough usable shots (else a UserError naming it)."""
+        for c, name in enumerate(self.cameras):
+            _require_shots(usable, c, name, self.views, self.opts, self.where)
+
+
+@dataclass(frozen=True)
+class _Initial:
+    """Step 2's outcome: each camera's intrinsics row, board poses ``{(camera, shot):
+    cam_T_board}`` and RMS, and the views still usable."""
+
+    intrinsics: np.ndarray
+    poses: dict[tuple[int, int], np.ndarray]
+    rms: list[float]
+    usable: list[View]
+
+
+@dataclass(frozen=True)
+class _Observations:
+    """The corners of the usable views, flattened, each with its view (an index into
+    ``keys``, the sorted ``(camera, shot)`` of the views)."""
+
+    corners: Corners
+    view_index: np.ndarray
+    keys: list[tuple[int, int]]
+
+
+@dataclass(frozen=True)
+class _Fit:
+    """The last refinement: the state, the optimiser's result, the observations, the
+    residual of each (projected minus detected) and which of them it used."""
+
+    state: RigState
+    result: RefineResult
+    obs: Corners
+    residuals: np.ndarray
+    keep: np.ndarray
+
+    @property
+    def err2(self) -> np.ndarray:
+        """Squared residual norm of each corner."""
+        return np.sum(self.residuals**2, axis=1)
+
+    @property
+    def used_views(self) -> set[tuple[int, int]]:
+        """``(camera, shot)`` of every view with a corner used."""
+        obs, keep = self.obs, self.keep
+        return {(int(c), int(s)) for c, s in zip(obs.camera[keep], obs.shot[keep])}
+
+
 def calibrate_rig(
     views: Sequence[View],
     *,
@@ -228,50 +295,76 @@ def calibrate_rig(
         UserError: too few usable shots for a camera, cameras that never saw the board in
             the same shot, or a calibration that cannot fit the detections.
     """
-    opts = options or CalibrationOptions()
-    where = where or {}
+    setup = _Setup(
+        views, cameras, sizes, shots, board, options or CalibrationOptions(), where or {}
+    )
     rejections: list[Rejection] = []
-    usable = _screen(views, cameras, shots, board, opts, rejections)
-    for c, name in enumerate(cameras):
-        _require_shots(usable, c, name, views, opts, where)
+    usable = _screen(views, cameras, shots, board, setup.opts, rejections)
+    setup.require_shots(usable)
+    initial = _calibrate_cameras(setup, usable, rejections)
+    # 3. Extrinsics and board poses.
+    cam_T_rig = _initial_extrinsics(initial.poses, cameras, setup.where)
+    rig_T_board = _initial_board_poses(initial, cam_T_rig, len(shots))
+    state = RigState(initial.intrinsics, cam_T_rig, rig_T_board, _free_intrinsics(setup))
+    obs = _observations(initial.usable, board)
+    fit, dropped_views = _refine_without_outliers(state, obs, setup.opts)
+    for (c, s), why in sorted(dropped_views.items(), key=lambda kv: (kv[0][1], kv[0][0])):
+        rejections.append(Rejection(shots[s], cameras[c], why))
+    used_views = {obs.keys[i] for i in np.unique(obs.view_index[fit.keep])}
+    setup.require_shots([v for v in initial.usable if (v.camera, v.shot) in used_views])
+    return _assemble(fit, setup, initial.rms, rejections)
 
-    # 2. Each camera alone.
-    flags = _flags(opts.dist_coeffs)
-    n_dist = 8 if opts.dist_coeffs == 8 else 5
-    intrinsics = np.zeros((len(cameras), 4 + n_dist))
+
+def _calibrate_cameras(setup: _Setup, usable: list[View], rejections: list[Rejection]) -> _Initial:
+    """2. Each camera alone: OpenCV's calibrateCamera; the views it cannot fit left out."""
+    flags = _flags(setup.opts.dist_coeffs)
+    intrinsics = np.zeros((len(setup.cameras), 4 + setup.n_dist))
     poses: dict[tuple[int, int], np.ndarray] = {}
     initial_rms = []
-    for c, name in enumerate(cameras):
+    for c, name in enumerate(setup.cameras):
         K, dist, cam_poses, rms = _calibrate_camera(
             [v for v in usable if v.camera == c],
-            board,
-            sizes[c],
+            setup.board,
+            setup.sizes[c],
             flags,
             rejections,
             name,
-            shots,
-            n_dist,
+            setup.shots,
+            setup.n_dist,
         )
         usable = [v for v in usable if v.camera != c or (c, v.shot) in cam_poses]
-        _require_shots(usable, c, name, views, opts, where)
+        _require_shots(usable, c, name, setup.views, setup.opts, setup.where)
         intrinsics[c] = [K[0, 0], K[1, 1], K[0, 2], K[1, 2], *dist]
         poses.update(cam_poses)
         initial_rms.append(rms)
+    return _Initial(intrinsics, poses, initial_rms, usable)
 
-    # 3. Extrinsics and board poses.
-    cam_T_rig = _initial_extrinsics(poses, cameras, where)
-    rig_T_board = np.tile(np.eye(4), (len(shots), 1, 1))
+
+def _initial_board_poses(initial: _Initial, cam_T_rig: np.ndarray, n_shots: int) -> np.ndarray:
+    """``rig_T_board`` of every shot, from the camera that saw most of its corners (the
+    identity for shots no camera could use)."""
+    rig_T_board = np.tile(np.eye(4), (n_shots, 1, 1))
     best: dict[int, tuple[int, int]] = {}
-    for v in usable:
+    for v in initial.usable:
         if len(v.ids) > best.get(v.shot, (-1, -1))[0]:
             best[v.shot] = (len(v.ids), v.camera)
     for s, (_, c) in best.items():
-        rig_T_board[s] = invert(cam_T_rig[c]) @ poses[(c, s)]
+        rig_T_board[s] = invert(cam_T_rig[c]) @ initial.poses[(c, s)]
+    return rig_T_board
 
-    # 4-5. Joint refinement, outliers out, again.
+
+def _free_intrinsics(setup: _Setup) -> np.ndarray:
+    """Which intrinsics the refinement estimates: the focal lengths, the principal point and
+    the distortion model's coefficients."""
+    n_dist = setup.n_dist
     free = np.ones(4 + n_dist, bool)
-    free[4:] = [k in DISTORTION_MODELS[opts.dist_coeffs] for k in INTRINSICS[4 : 4 + n_dist]]
-    state = RigState(intrinsics, cam_T_rig, rig_T_board, free)
+    model = DISTORTION_MODELS[setup.opts.dist_coeffs]
+    free[4:] = [k in model for k in INTRINSICS[4 : 4 + n_dist]]
+    return free
+
+
+def _observations(usable: list[View], board: BoardSpec) -> _Observations:
+    """Every corner of the usable views, in ``(camera, shot)`` order of the views."""
     view_of = {(v.camera, v.shot): v for v in usable}
     keys = sorted(view_of)
     obs = Corners(
@@ -281,6 +374,15 @@ def calibrate_rig(
         pixel=np.concatenate([view_of[k].corners for k in keys]),
     )
     view_index = np.concatenate([np.full(len(view_of[k].ids), i) for i, k in enumerate(keys)])
+    return _Observations(obs, view_index, keys)
+
+
+def _refine_without_outliers(
+    state: RigState, observations: _Observations, opts: CalibrationOptions
+) -> tuple[_Fit, dict[tuple[int, int], str]]:
+    """4-5. Joint refinement, outliers out, again, until the selection settles (at most 8
+    rounds): the last fit, and the views dropped as a whole (``(camera, shot)`` -> why)."""
+    obs, keys, view_index = observations.corners, observations.keys, observations.view_index
     keep = np.ones(len(obs.camera), bool)
     dropped_views: dict[tuple[int, int], str] = {}
     for _ in range(8):
@@ -297,17 +399,8 @@ def calibrate_rig(
     else:  # still changing after 8 rounds: settle on the last selection
         result = refine(state, obs.subset(keep))
         state = result.state
-    for (c, s), why in sorted(dropped_views.items(), key=lambda kv: (kv[0][1], kv[0][0])):
-        rejections.append(Rejection(shots[s], cameras[c], why))
-    used_views = {keys[i] for i in np.unique(view_index[keep])}
-    usable = [v for v in usable if (v.camera, v.shot) in used_views]
-    for c, name in enumerate(cameras):
-        _require_shots(usable, c, name, views, opts, where)
-
     residuals = project(state, obs) - obs.pixel
-    return _assemble(
-        state, result, obs, residuals, keep, cameras, sizes, shots, initial_rms, rejections
-    )
+    return _Fit(state, result, obs, residuals, keep), dropped_views
 
 
 def _flags(dist_coeffs: int) -> int:
@@ -550,84 +643,17 @@ def _inliers(
 
 
 def _assemble(
-    state: RigState,
-    result: RefineResult,
-    obs: Corners,
-    residuals: np.ndarray,
-    keep: np.ndarray,
-    cameras: Sequence[str],
-    sizes: Sequence[tuple[int, int]],
-    shots: Sequence[str],
-    initial_rms: Sequence[float],
-    rejections: list[Rejection],
+    fit: _Fit, setup: _Setup, initial_rms: Sequence[float], rejections: list[Rejection]
 ) -> Calibration:
-    err2 = np.sum(residuals**2, axis=1)
-    free_names = [n for n, f in zip(INTRINSICS, state.free_intrinsics) if f]
-    reports = []
-    used_views = {(int(c), int(s)) for c, s in zip(obs.camera[keep], obs.shot[keep])}
-    for c, name in enumerate(cameras):
-        sel = keep & (obs.camera == c)
-        in_used_views = np.array([(c, int(s)) in used_views for s in obs.shot], bool) & (
-            obs.camera == c
-        )
-        cov = result.camera_covariance[c]
-        std = {n: float(np.sqrt(max(cov[i, i], 0.0))) for i, n in enumerate(free_names)}
-        R = state.cam_T_rig[c, :3, :3]
-        t = state.cam_T_rig[c, :3, 3]
-        if c > 0:
-            k = len(free_names)
-            cw = cov[k:, k:]
-            tx = np.array([[0, -t[2], t[1]], [t[2], 0, -t[0]], [-t[1], t[0], 0]])
-            Jc = -R.T @ np.hstack([tx, np.eye(3)])
-            std["rotation_deg"] = float(np.degrees(np.sqrt(max(np.trace(cw[:3, :3]), 0.0))))
-            std["position_mm"] = float(np.sqrt(max(np.trace(Jc @ cw @ Jc.T), 0.0)))
-        else:
-            std["rotation_deg"] = 0.0
-            std["position_mm"] = 0.0
-        camera = Camera(
-            name=name,
-            width=int(sizes[c][0]),
-            height=int(sizes[c][1]),
-            K=state.K(c),
-            dist=state.dist(c),
-            rig_T_cam=np.eye(4) if c == 0 else invert(state.cam_T_rig[c]),
-        )
-        reports.append(
-            CameraReport(
-                camera=camera,
-                rms_px=float(np.sqrt(np.mean(err2[sel]))) if np.any(sel) else float("nan"),
-                initial_rms_px=float(initial_rms[c]),
-                shots=len({s for (cc, s) in used_views if cc == c}),
-                corners=int(sel.sum()),
-                outlier_corners=int((in_used_views & ~keep).sum()),
-                std=std,
-            )
-        )
-    shot_reports = []
-    for s, name in enumerate(shots):
-        rms, count = {}, {}
-        for c, cam in enumerate(cameras):
-            sel = keep & (obs.camera == c) & (obs.shot == s)
-            if np.any(sel):
-                rms[cam] = float(np.sqrt(np.mean(err2[sel])))
-                count[cam] = int(sel.sum())
-        pose = state.rig_T_board[s].copy() if rms else None
-        shot_reports.append(ShotReport(name, pose, rms, count))
-        if not rms and not any(r.shot == name for r in rejections):
-            rejections.append(Rejection(name, None, "no usable view"))
-    warnings = []
-    for c, name in enumerate(cameras):
-        together = sum(
-            1
-            for s in range(len(shots))
-            if (c, s) in used_views
-            and any((o, s) in used_views for o in range(len(cameras)) if o != c)
-        )
-        if len(cameras) > 1 and together < 3:
-            warnings.append(
-                f"camera {name} saw the board together with another camera in only {together} "
-                "shot(s): its pose in the rig rests on very few shots"
-            )
+    """The calibration's figures from the last fit; ``rejections`` gains the shots no view
+    of which was used, and is sorted by shot, then camera."""
+    cameras, shots = setup.cameras, setup.shots
+    used_views = fit.used_views
+    reports = [
+        _camera_report(fit, c, name, setup.sizes[c], initial_rms[c], used_views)
+        for c, name in enumerate(cameras)
+    ]
+    shot_reports = _shot_reports(fit, cameras, shots, rejections)
     order = {name: k for k, name in enumerate(shots)}
     rejections.sort(
         key=lambda r: (order[r.shot], -1 if r.camera is None else cameras.index(r.camera))
@@ -636,11 +662,108 @@ def _assemble(
         cameras=tuple(reports),
         shots=tuple(shot_reports),
         rejections=tuple(rejections),
-        rms_px=float(np.sqrt(np.mean(err2[keep]))),
-        iterations=result.iterations,
-        corners=obs,
-        residuals=residuals,
-        used=keep,
-        sizes=tuple((int(w), int(h)) for w, h in sizes),
-        warnings=tuple(warnings),
+        rms_px=float(np.sqrt(np.mean(fit.err2[fit.keep]))),
+        iterations=fit.result.iterations,
+        corners=fit.obs,
+        residuals=fit.residuals,
+        used=fit.keep,
+        sizes=tuple((int(w), int(h)) for w, h in setup.sizes),
+        warnings=tuple(_few_shots_together(cameras, len(shots), used_views)),
     )
+
+
+def _camera_report(
+    fit: _Fit,
+    c: int,
+    name: str,
+    size: tuple[int, int],
+    initial_rms: float,
+    used_views: set[tuple[int, int]],
+) -> CameraReport:
+    """Camera ``c``: its calibrated :class:`Camera`, its RMS, counts and standard deviations."""
+    obs, keep, state = fit.obs, fit.keep, fit.state
+    sel = keep & (obs.camera == c)
+    in_used_views = np.array([(c, int(s)) in used_views for s in obs.shot], bool) & (
+        obs.camera == c
+    )
+    camera = Camera(
+        name=name,
+        width=int(size[0]),
+        height=int(size[1]),
+        K=state.K(c),
+        dist=state.dist(c),
+        rig_T_cam=np.eye(4) if c == 0 else invert(state.cam_T_rig[c]),
+    )
+    return CameraReport(
+        camera=camera,
+        rms_px=float(np.sqrt(np.mean(fit.err2[sel]))) if np.any(sel) else float("nan"),
+        initial_rms_px=float(initial_rms),
+        shots=len({s for (cc, s) in used_views if cc == c}),
+        corners=int(sel.sum()),
+        outlier_corners=int((in_used_views & ~keep).sum()),
+        std=_camera_std(fit, c),
+    )
+
+
+def _camera_std(fit: _Fit, c: int) -> dict[str, float]:
+    """One standard deviation of camera ``c``'s free intrinsics, orientation (degrees) and
+    position in the rig (mm; both 0 for camera 0, the rig frame)."""
+    state = fit.state
+    free_names = [n for n, f in zip(INTRINSICS, state.free_intrinsics) if f]
+    cov = fit.result.camera_covariance[c]
+    std = {n: float(np.sqrt(max(cov[i, i], 0.0))) for i, n in enumerate(free_names)}
+    if c == 0:
+        std["rotation_deg"] = 0.0
+        std["position_mm"] = 0.0
+        return std
+    R = state.cam_T_rig[c, :3, :3]
+    t = state.cam_T_rig[c, :3, 3]
+    k = len(free_names)
+    cw = cov[k:, k:]
+    # The covariance is of cam_T_rig's left perturbation; the position is rig_T_cam's.
+    tx = np.array([[0, -t[2], t[1]], [t[2], 0, -t[0]], [-t[1], t[0], 0]])
+    Jc = -R.T @ np.hstack([tx, np.eye(3)])
+    std["rotation_deg"] = float(np.degrees(np.sqrt(max(np.trace(cw[:3, :3]), 0.0))))
+    std["position_mm"] = float(np.sqrt(max(np.trace(Jc @ cw @ Jc.T), 0.0)))
+    return std
+
+
+def _shot_reports(
+    fit: _Fit, cameras: Sequence[str], shots: Sequence[str], rejections: list[Rejection]
+) -> list[ShotReport]:
+    """Every shot's board pose and per-camera fit; a shot with no view used is rejected
+    (unless it already is)."""
+    obs, keep, err2 = fit.obs, fit.keep, fit.err2
+    out = []
+    for s, name in enumerate(shots):
+        rms, count = {}, {}
+        for c, cam in enumerate(cameras):
+            sel = keep & (obs.camera == c) & (obs.shot == s)
+            if np.any(sel):
+                rms[cam] = float(np.sqrt(np.mean(err2[sel])))
+                count[cam] = int(sel.sum())
+        pose = fit.state.rig_T_board[s].copy() if rms else None
+        out.append(ShotReport(name, pose, rms, count))
+        if not rms and not any(r.shot == name for r in rejections):
+            rejections.append(Rejection(name, None, "no usable view"))
+    return out
+
+
+def _few_shots_together(
+    cameras: Sequence[str], n_shots: int, used_views: set[tuple[int, int]]
+) -> list[str]:
+    """A warning for each camera that saw the board with another one in under 3 shots."""
+    warnings = []
+    for c, name in enumerate(cameras):
+        together = sum(
+            1
+            for s in range(n_shots)
+            if (c, s) in used_views
+            and any((o, s) in used_views for o in range(len(cameras)) if o != c)
+        )
+        if len(cameras) > 1 and together < 3:
+            warnings.append(
+                f"camera {name} saw the board together with another camera in only {together} "
+                "shot(s): its pose in the rig rests on very few shots"
+            )
+    return warnings

@@ -10,6 +10,7 @@ import argparse
 import json
 import sys
 from collections.abc import Iterator
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -51,12 +52,21 @@ frame; depth maps are registered to the first camera or --depth-camera.
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.description = DESCRIPTION
     parser.formatter_class = argparse.RawDescriptionHelpFormatter
+    # The order of the calls is the order of the usage line, which argparse errors print.
     parser.add_argument("captures", help="captures folder: CAPTURES/<camera>/<shot>.png")
     parser.add_argument(
         "--dataset",
         metavar="DS",
         help="write the rig into DS/dataset.yaml (created if missing); without it, only the report",
     )
+    _add_board_options(parser)
+    _add_rig_options(parser)
+    _add_model_options(parser)
+    _add_output_options(parser)
+
+
+def _add_board_options(parser: argparse.ArgumentParser) -> None:
+    """The board, when CAPTURES/board.yaml does not describe it (or to override it)."""
     board = parser.add_argument_group(
         "board", "the board (default: CAPTURES/board.yaml; options override its fields)"
     )
@@ -88,23 +98,33 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=None,
         help="board printed by OpenCV < 4.6 (matters for an even number of rows)",
     )
-    parser.add_argument(
+
+
+def _add_rig_options(parser: argparse.ArgumentParser) -> None:
+    """The rig's cameras, their order, and its depth section."""
+    rig = parser.add_argument_group("rig", "the cameras and the depth maps")
+    rig.add_argument(
         "--cameras",
         metavar="A,B",
         help="camera folders to use, in rig order (default: the existing rig's order, else sorted)",
     )
-    parser.add_argument(
+    rig.add_argument(
         "--depth-camera",
         metavar="NAME",
         help="rig camera whose pixel grid the depth maps use (default: kept, else the first)",
     )
-    parser.add_argument(
+    rig.add_argument(
         "--depth-scale",
         type=number(low=0, above=True),
         metavar="MM",
         help="mm per depth unit (default: kept from the dataset; without either, no depth section)",
     )
-    parser.add_argument(
+
+
+def _add_model_options(parser: argparse.ArgumentParser) -> None:
+    """The distortion model, its held-out choice, and which shots count."""
+    model = parser.add_argument_group("model", "the distortion model and the shots")
+    model.add_argument(
         "--dist-coeffs",
         choices=("auto", "2", "4", "5", "8"),
         default="auto",
@@ -112,97 +132,144 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "rational model, for wide-angle lenses); auto (default): 4 or 5, whichever the "
         "held-out error supports",
     )
-    parser.add_argument(
+    model.add_argument(
         "--folds", type=whole(low=2), default=5, help="folds of the held-out error (default 5)"
     )
-    parser.add_argument(
+    model.add_argument(
         "--stride",
         type=whole(low=1),
         default=10,
         help="video captures: every N-th frame is a shot (default 10)",
     )
-    parser.add_argument(
+    model.add_argument(
         "--min-shots",
         type=whole(low=1),
         default=6,
         help="usable shots each camera needs (default 6)",
     )
-    parser.add_argument(
+
+
+def _add_output_options(parser: argparse.ArgumentParser) -> None:
+    """Where the report goes, whether dataset.yaml is written, what is printed."""
+    output = parser.add_argument_group("output")
+    output.add_argument(
         "--report",
         metavar="DIR",
         help="report folder (default CAPTURES/calibration_report)",
     )
-    parser.add_argument("--yes", action="store_true", help="write dataset.yaml without asking")
-    parser.add_argument(
+    output.add_argument("--yes", action="store_true", help="write dataset.yaml without asking")
+    output.add_argument(
         "--dry-run", action="store_true", help="show the diff of dataset.yaml, write nothing there"
     )
-    parser.add_argument("--json", action="store_true", help="print the result as JSON")
-    parser.add_argument("--quiet", action="store_true", help="no progress bar")
+    output.add_argument("--json", action="store_true", help="print the result as JSON")
+    output.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
+@dataclass(frozen=True)
+class _Target:
+    """The dataset the rig goes into (``path`` None: none, only the report), as it is now."""
+
+    path: Path | None
+    old_text: str | None
+    old_doc: dict[str, Any] | None
+    old_rig: dict[str, Any]
+
+
+@dataclass(frozen=True)
+class _Inputs:
+    """What the calibration starts from, and where its report goes."""
+
+    board: BoardSpec
+    captures: Captures
+    found: CapturesDetection
+    depth: DepthSpec | None
+    report_dir: Path
+
+    @property
+    def flipped(self) -> list[str]:
+        """The mirrored cameras."""
+        return [c for c, m in zip(self.captures.cameras, self.found.mirrored) if m]
 
 
 def run(args: argparse.Namespace) -> int:
-    from annotator.calibration.captures import REPORT_FOLDER, find_captures
-    from annotator.calibration.rig_yaml import existing_rig, read_dataset_doc
+    inputs, target = _inputs(args)
+    if not args.json:
+        for line in _capture_lines(inputs.captures, inputs.found):
+            print(line)
+    return _output(args, _calibrate(args, inputs), inputs, target)
+
+
+def _inputs(args: argparse.Namespace) -> tuple[_Inputs, _Target]:
+    """The board, the dataset, the captures in rig order, the depth section, the detections."""
+    from annotator.calibration.captures import REPORT_FOLDER
 
     root = Path(args.captures)
     report_dir = Path(args.report) if args.report else root / REPORT_FOLDER
     board = _board(args, root)
+    target = _target(args)
+    captures = _captures(args, root, report_dir, target)
+    depth = _depth(args, captures.cameras, target.old_rig, target.path)
+    found = _detect(captures, board, target.old_rig["sizes"], target.path, quiet=args.quiet)
+    return _Inputs(board, captures, found, depth, report_dir), target
+
+
+def _target(args: argparse.Namespace) -> _Target:
+    """``--dataset``'s dataset.yaml, read if it exists."""
+    from annotator.calibration.rig_yaml import existing_rig, read_dataset_doc
+
     ds_yaml = Path(args.dataset) / "dataset.yaml" if args.dataset else None
     if ds_yaml is not None and Path(args.dataset).exists() and not Path(args.dataset).is_dir():
         raise UserError("exists and is not a folder", path=args.dataset)
     old_text, old_doc = read_dataset_doc(ds_yaml) if ds_yaml else (None, None)
-    old_rig = existing_rig(old_doc)
+    return _Target(ds_yaml, old_text, old_doc, existing_rig(old_doc))
+
+
+def _captures(args: argparse.Namespace, root: Path, report_dir: Path, target: _Target) -> Captures:
+    """The captures, in the existing rig's camera order unless --cameras sets one (which
+    may move the rig frame: a warning)."""
+    from annotator.calibration.captures import find_rig_captures
 
     cameras = None
     if args.cameras:
         cameras = [c.strip() for c in args.cameras.split(",") if c.strip()]
-    captures = find_captures(root, cameras=cameras, ignore=[report_dir], stride=args.stride)
-    if old_rig["cameras"]:
-        if sorted(old_rig["cameras"]) != sorted(captures.cameras):
-            raise UserError(
-                f"its rig has cameras {', '.join(old_rig['cameras'])} but the captures in "
-                f"{root} have {', '.join(captures.cameras)}: name the capture folders after the "
-                "rig's cameras (or choose them with --cameras)",
-                path=ds_yaml,
-            )
-        if cameras is None:
-            captures = find_captures(
-                root, cameras=old_rig["cameras"], ignore=[report_dir], stride=args.stride
-            )
-        elif captures.cameras[0] != old_rig["cameras"][0]:
-            print(
-                f"warning: the rig frame changes from camera {old_rig['cameras'][0]} to "
-                f"{captures.cameras[0]}: poses already in {args.dataset} (gt.json, "
-                "annotation.json) stay in the old frame",
-                file=sys.stderr,
-            )
-    depth = _depth(args, captures.cameras, old_rig, ds_yaml)
+    rig_cameras = target.old_rig["cameras"]
+    captures = find_rig_captures(
+        root,
+        cameras=cameras,
+        rig_cameras=rig_cameras,
+        ignore=[report_dir],
+        stride=args.stride,
+        rig_source=target.path,
+    )
+    if rig_cameras and cameras is not None and captures.cameras[0] != rig_cameras[0]:
+        print(
+            f"warning: the rig frame changes from camera {rig_cameras[0]} to "
+            f"{captures.cameras[0]}: poses already in {args.dataset} (gt.json, "
+            "annotation.json) stay in the old frame",
+            file=sys.stderr,
+        )
+    return captures
 
-    found = _detect(captures, board, old_rig["sizes"], ds_yaml, quiet=args.quiet)
-    flipped = [c for c, m in zip(captures.cameras, found.mirrored) if m]
-    if not args.json:
-        for line in _capture_lines(captures, found):
-            print(line)
 
+def _calibrate(args: argparse.Namespace, inputs: _Inputs) -> Calibration:
+    """The calibration, its distortion model from --dist-coeffs (auto: the held-out choice)."""
     from annotator.calibration.model_choice import CANDIDATES, calibrate_and_assess
     from annotator.calibration.solve import CalibrationOptions
 
     auto = args.dist_coeffs == "auto"
-    cal = calibrate_and_assess(
-        found.views,
+    captures = inputs.captures
+    return calibrate_and_assess(
+        inputs.found.views,
         cameras=captures.cameras,
-        sizes=found.sizes,
+        sizes=inputs.found.sizes,
         shots=captures.shots,
-        board=board,
+        board=inputs.board,
         options=CalibrationOptions(
             min_shots=args.min_shots, dist_coeffs=5 if auto else int(args.dist_coeffs)
         ),
         candidates=CANDIDATES if auto else (int(args.dist_coeffs),),
         folds=args.folds,
         where={c: captures.folder(c) for c in captures.cameras},
-    )
-    return _output(
-        args, cal, board, captures, report_dir, ds_yaml, old_text, old_doc, depth, flipped
     )
 
 
@@ -378,67 +445,90 @@ def _board_not_found(
     )
 
 
-def _output(
-    args: argparse.Namespace,
-    cal: Calibration,
-    board: BoardSpec,
-    captures: Captures,
-    report_dir: Path,
-    ds_yaml: Path | None,
-    old_text: str | None,
-    old_doc: dict[str, Any] | None,
-    depth: DepthSpec | None,
-    flipped: list[str],
-) -> int:
+def _output(args: argparse.Namespace, cal: Calibration, inputs: _Inputs, target: _Target) -> int:
     """Write the report, show the diff, write dataset.yaml, print the summary."""
-    from annotator.calibration.report import report_dict, summary_lines, write_report
-    from annotator.calibration.rig_yaml import (
-        keep_other_fields,
-        rig_mapping,
-        rig_yaml_text,
-        updated_text,
-    )
-    from annotator.io.atomic import write_text
-    from annotator.io.documents import unified_diff
+    from annotator.calibration.outputs import write_report_folder
+    from annotator.calibration.report import report_dict
 
-    rig = keep_other_fields(rig_mapping(cal.rig_cameras, depth, flipped), old_doc)
-    write_report(report_dir, cal, board, captures=captures, flipped=flipped)
-    write_text(report_dir / "rig.yaml", rig_yaml_text(rig))
-    result: dict[str, Any] = report_dict(cal, board, captures=captures, flipped=flipped)
-    result["report"] = str(report_dir)
-    status = 0
-    diff = ""
-    written = False
-    if ds_yaml is not None:
-        new_text = updated_text(old_text, rig, name=ds_yaml.parent.resolve().name)
-        diff = unified_diff(old_text, new_text, ds_yaml, label="calibrated")
-        if not args.json:
-            for line in summary_lines(cal):
-                print(line)
-            print(diff if diff else f"{ds_yaml} already has this rig: nothing to write", end="")
-            if diff and not diff.endswith("\n"):
-                print()
-        if diff and not args.dry_run:
-            if args.yes or not sys.stdin.isatty() or confirm(ds_yaml):
-                write_text(ds_yaml, new_text)
-                written = True
-            else:
-                status = 1
-        result.update(dataset_yaml=str(ds_yaml), diff=diff, written=written)
+    rig = write_report_folder(
+        inputs.report_dir,
+        cal,
+        inputs.board,
+        captures=inputs.captures,
+        depth=inputs.depth,
+        flipped=inputs.flipped,
+        old_doc=target.old_doc,
+    )
+    result: dict[str, Any] = report_dict(
+        cal, inputs.board, captures=inputs.captures, flipped=inputs.flipped
+    )
+    result["report"] = str(inputs.report_dir)
+    written = None
+    if target.path is not None:
+        written = _update_dataset(args, cal, target, rig)
+        result.update(written.fields())
     elif not args.json:
-        for line in summary_lines(cal):
-            print(line)
+        _print_summary(cal)
     if args.json:
         print(json.dumps(result, indent=1))
     else:
-        what = (
-            f"wrote the rig into {ds_yaml}"
-            if written
-            else "dataset.yaml not written"
-            if ds_yaml is not None and diff
-            else "dataset.yaml unchanged"
-            if ds_yaml is not None
-            else f"rig section in {report_dir / 'rig.yaml'} (use --dataset DS to write it)"
+        print(
+            f"calibrate: RMS {cal.rms_px:.3f} px; report in {inputs.report_dir}; "
+            + _what_became(written, inputs.report_dir)
         )
-        print(f"calibrate: RMS {cal.rms_px:.3f} px; report in {report_dir}; {what}")
-    return status
+    return 1 if written is not None and written.declined else 0
+
+
+@dataclass(frozen=True)
+class _Written:
+    """What became of dataset.yaml: its diff, and whether it was written or the user
+    declined."""
+
+    path: Path
+    diff: str
+    written: bool
+    declined: bool
+
+    def fields(self) -> dict[str, Any]:
+        """The --json fields about it."""
+        return {"dataset_yaml": str(self.path), "diff": self.diff, "written": self.written}
+
+
+def _update_dataset(
+    args: argparse.Namespace, cal: Calibration, target: _Target, rig: dict[str, Any]
+) -> _Written:
+    """Show the summary and the diff of dataset.yaml, then write it (asking first on a
+    terminal, unless --yes; never with --dry-run)."""
+    from annotator.calibration.outputs import dataset_update
+    from annotator.io.atomic import write_text
+
+    assert target.path is not None
+    update = dataset_update(target.path, target.old_text, rig)
+    diff = update.diff
+    if not args.json:
+        _print_summary(cal)
+        print(diff if diff else f"{update.path} already has this rig: nothing to write", end="")
+        if diff and not diff.endswith("\n"):
+            print()
+    if not diff or args.dry_run:
+        return _Written(update.path, diff, written=False, declined=False)
+    if args.yes or not sys.stdin.isatty() or confirm(update.path):
+        write_text(update.path, update.text)
+        return _Written(update.path, diff, written=True, declined=False)
+    return _Written(update.path, diff, written=False, declined=True)
+
+
+def _print_summary(cal: Calibration) -> None:
+    from annotator.calibration.report import summary_lines
+
+    for line in summary_lines(cal):
+        print(line)
+
+
+def _what_became(written: _Written | None, report_dir: Path) -> str:
+    """The end of the last line: where the rig went."""
+    if written is None:
+        return f"rig section in {report_dir / 'rig.yaml'} (use --dataset DS to write it)"
+    if written.written:
+        return f"wrote the rig into {written.path}"
+    return "dataset.yaml not written" if written.diff else "dataset.yaml unchanged"

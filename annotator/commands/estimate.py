@@ -15,6 +15,7 @@ from pathlib import Path
 
 from annotator.commands import add_ray_option, add_workers_option, finish_batch, whole
 from annotator.dataset import load_dataset, require_meshes
+from annotator.dataset.model import SCENES_DIR
 from annotator.errors import UserError
 from annotator.runner import run_batch
 
@@ -74,7 +75,7 @@ def run(args: argparse.Namespace) -> int:
         )
     scenes = [s for s in ds.scenes() if fnmatch.fnmatch(s.id, args.scenes)]
     if not scenes:
-        raise UserError(f"no scene matches {args.scenes!r}", path=ds.root / "scenes")
+        raise UserError(f"no scene matches {args.scenes!r}", path=ds.root / SCENES_DIR)
     require_meshes(ds)
     ds.background_depth  # noqa: B018  (an unreadable background is a dataset error: now)
     settings = PPFSettings(

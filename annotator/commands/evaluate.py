@@ -25,6 +25,7 @@ if TYPE_CHECKING:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    # The order of the calls is the order of the usage line, which argparse errors print.
     parser.add_argument(
         "gt", help="ground truth: one of our datasets, a BOP dataset, or a Siléane object folder"
     )
@@ -34,13 +35,22 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "(metres for a Siléane folder, mm otherwise); omitted on our datasets: the "
         "annotation.json poses are scored against gt.json",
     )
-    parser.add_argument(
+    _add_matching_options(parser)
+    _add_object_options(parser)
+    _add_twin_options(parser)
+    _add_report_options(parser)
+
+
+def _add_matching_options(parser: argparse.ArgumentParser) -> None:
+    """Which instances are to be found, and when a result finds one."""
+    group = parser.add_argument_group("matching")
+    group.add_argument(
         "--max-occlusion",
         type=number(low=0, high=1),
         default=0.5,
         help="instances to find have at most this occlusion rate (default 0.5, inclusive)",
     )
-    parser.add_argument(
+    group.add_argument(
         "-n",
         "--max-results",
         type=whole(low=1),
@@ -48,7 +58,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=[1, 3],
         help="AP_n for each n: at most n results per scene (default 1 3)",
     )
-    g = parser.add_mutually_exclusive_group()
+    g = group.add_mutually_exclusive_group()
     g.add_argument(
         "--threshold", type=number(low=0, above=True), help="match threshold in mm (inclusive)"
     )
@@ -58,34 +68,49 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="threshold as a fraction of the diameter (default: the dataset's own threshold "
         "if it has one, as the paper's poseutils.json, else 0.1)",
     )
-    parser.add_argument(
+    group.add_argument(
         "--only-scenes-with-results",
         action="store_true",
         help="score only the scenes the results mention, as the authors' code does "
         "(default: a ground-truth scene without results is one where nothing was found)",
     )
-    parser.add_argument("--symmetry", help="symmetry class for a Siléane folder with only mesh.ply")
-    parser.add_argument(
+
+
+def _add_object_options(parser: argparse.ArgumentParser) -> None:
+    """The objects: a symmetry where the ground truth lacks one, a row for each."""
+    group = parser.add_argument_group("objects")
+    group.add_argument("--symmetry", help="symmetry class for a Siléane folder with only mesh.ply")
+    group.add_argument(
         "--per-object",
         action="store_true",
         help="one row per object (default: only when there are several)",
     )
-    parser.add_argument(
+
+
+def _add_twin_options(parser: argparse.ArgumentParser) -> None:
+    """The synthetic twin, scored beside the real data."""
+    group = parser.add_argument_group("twin")
+    group.add_argument(
         "--twin",
         metavar="TWIN",
         help="the synthetic twin of GT (`annotator synth --twin`): scored too, with "
         "--twin-results, and printed beside it, as the paper's table compares real and "
         "simulated data",
     )
-    parser.add_argument("--twin-results", metavar="RESULTS", help="results on the twin's scenes")
-    parser.add_argument(
+    group.add_argument("--twin-results", metavar="RESULTS", help="results on the twin's scenes")
+
+
+def _add_report_options(parser: argparse.ArgumentParser) -> None:
+    """What else is computed and where the report goes."""
+    group = parser.add_argument_group("report")
+    group.add_argument(
         "--bop19",
         action="store_true",
         help="also BOP's average recall (VSD when the depth images are there, MSSD, MSPD), "
         "as bop_toolkit's eval_bop19_pose.py computes it; BOP ground truth and a result CSV",
     )
-    parser.add_argument("--json", metavar="OUT", help="write the full report as JSON")
-    parser.add_argument("--plot", metavar="OUT.png", help="draw the mean precision/recall curves")
+    group.add_argument("--json", metavar="OUT", help="write the full report as JSON")
+    group.add_argument("--plot", metavar="OUT.png", help="draw the mean precision/recall curves")
 
 
 def run(args: argparse.Namespace) -> int:

@@ -16,15 +16,11 @@ import argparse
 import json
 from pathlib import Path
 
-import trimesh
-
 from annotator.commands import number, whole
 from annotator.dataset.model import Instance, Symmetry
-from annotator.dataset.write import write_object_yaml
 from annotator.errors import UserError
 from annotator.geometry.mesh import load_mesh
-from annotator.io.atomic import atomic_folder
-from annotator.io.output_folder import check_output_folder, write_manifest
+from annotator.io.output_folder import check_output_folder
 from annotator.markers.dictionary import (
     custom_dictionary,
     dictionary,
@@ -34,9 +30,8 @@ from annotator.markers.dictionary import (
     write_dictionary,
 )
 from annotator.markers.layout import assign_ids, place_markers
-from annotator.markers.sheets import SheetMarker, render_pages, write_sheets
-from annotator.markers.textured import write_textured_obj
-from annotator.parts import PART_NAMES, build_part
+from annotator.parts import PART_NAMES, Part, build_part
+from annotator.parts.marking import MarkedPart, write_marked_part
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -114,22 +109,32 @@ def run(args: argparse.Namespace) -> int:
             "--instances >= 1, --first-id >= 0, --dpi in 50..2400 and --flatness > 0 are required"
         )
     n_dict = dictionary_size(args.dictionary)
+    part = _part(args, out)
+    marked = _mark(args, part, n_dict)
+    write_marked_part(out, marked, dpi=args.dpi)
+    _print_summary(args, marked, out)
+    return 0
+
+
+def _part(args: argparse.Namespace, out: Path) -> Part:
+    """PART: a built-in part, or a mesh file (which OUT must not hold) with --symmetry; OUT
+    checked before the part is built or read."""
     if args.part in PART_NAMES:
         check_output_folder(out, command="markers", overwrite=args.overwrite)
-        part = build_part(args.part)
-        mesh, symmetry, name = part.mesh, part.symmetry, part.name
-        size = args.size or part.marker_size
-    else:
-        path = Path(args.part)
-        if path.suffix == "" and not path.exists():
-            build_part(args.part)  # a mistyped part name: UserError listing the known ones
-        check_output_folder(out, command="markers", overwrite=args.overwrite, protect=[path])
-        mesh = load_mesh(path)
-        symmetry = Symmetry(args.symmetry or "none")
-        name = path.stem
-        size = args.size or 10.0
+        return build_part(args.part)
+    path = Path(args.part)
+    if path.suffix == "" and not path.exists():
+        build_part(args.part)  # a mistyped part name: UserError listing the known ones
+    check_output_folder(out, command="markers", overwrite=args.overwrite, protect=[path])
+    mesh = load_mesh(path)
+    return Part(path.stem, mesh, Symmetry(args.symmetry or "none"), marker_size=10.0)
+
+
+def _mark(args: argparse.Namespace, part: Part, n_dict: int) -> MarkedPart:
+    """The sites on the part and the instances' ids, which must fit in the dictionary."""
+    size = args.size or part.marker_size
     layout = place_markers(
-        mesh, size=size, max_sites=args.max_sites, flatness_tol=args.flatness, seed=args.seed
+        part.mesh, size=size, max_sites=args.max_sites, flatness_tol=args.flatness, seed=args.seed
     )
     if len(layout.corners) == 0:
         raise UserError(
@@ -142,36 +147,19 @@ def run(args: argparse.Namespace) -> int:
             f"but {args.dictionary} has {n_dict}: use fewer instances, --max-sites or a larger dictionary"
         )
     instances = [Instance(f"{k + 1:02d}", tuple(i)) for k, i in enumerate(ids)]
-    with atomic_folder(out) as tmp:
-        write_manifest(tmp, command="markers")
-        trimesh.Trimesh(mesh.vertices, mesh.faces, process=False).export(tmp / "model.ply")
-        write_object_yaml(
-            tmp, mesh_file="model.ply", symmetry=symmetry, markers=layout.sites, instances=instances
-        )
-        labels = [
-            SheetMarker(m, f"{m} {name}/{inst.name} s{k}")
-            for inst in instances
-            for k, m in enumerate(inst.marker_ids)
-        ]
-        (tmp / "sheets").mkdir()
-        write_sheets(
-            tmp / "sheets",
-            render_pages(args.dictionary, labels, size_mm=size, dpi=args.dpi),
-            dpi=args.dpi,
-        )
-        (tmp / "textured").mkdir()
-        for inst in instances:
-            stem = name if len(instances) == 1 or inst is instances[0] else f"{name}_{inst.name}"
-            write_textured_obj(
-                tmp / "textured", stem, mesh, layout.corners, inst.marker_ids, args.dictionary
-            )
+    return MarkedPart(part, layout, instances, size, args.dictionary)
+
+
+def _print_summary(args: argparse.Namespace, marked: MarkedPart, out: Path) -> None:
+    name, size, layout = marked.part.name, marked.size_mm, marked.layout
+    first, last = marked.instances[0].marker_ids[0], marked.instances[-1].marker_ids[-1]
     summary = {
         "part": name,
         "sites": len(layout.corners),
         "min_facing": layout.min_facing,
         "size_mm": size,
         "instances": args.instances,
-        "ids": [ids[0][0], ids[-1][-1]],
+        "ids": [first, last],
         "out": str(out),
     }
     if args.json:
@@ -180,9 +168,8 @@ def run(args: argparse.Namespace) -> int:
         print(
             f"markers: {summary['sites']} sites of {size:g} mm on {name}; from any direction at least "
             f"{layout.min_facing} face the viewer (within 60 degrees); {args.instances} instances, ids "
-            f"{ids[0][0]}..{ids[-1][-1]}; written to {out} (object.yaml, sheets/, textured/)"
+            f"{first}..{last}; written to {out} (object.yaml, sheets/, textured/)"
         )
-    return 0
 
 
 def _write_dictionary(args: argparse.Namespace) -> int:

@@ -12,9 +12,10 @@ import fnmatch
 
 from annotator.commands import add_ray_option, add_workers_option, finish_batch, number
 from annotator.dataset import load_dataset
+from annotator.dataset.model import SCENES_DIR
 from annotator.errors import UserError
 from annotator.occlusion import DEPTH_TOLERANCE_MM
-from annotator.occlusion.job import VisibilityJob
+from annotator.occlusion.job import VISIBILITY_FILE, VisibilityJob
 from annotator.runner import run_batch
 
 
@@ -39,11 +40,11 @@ def run(args: argparse.Namespace) -> int:
     ds = load_dataset(args.dataset)
     scenes = [s for s in ds.scenes() if fnmatch.fnmatch(s.id, args.scenes)]
     if not scenes:
-        raise UserError(f"no scene matches {args.scenes!r}", path=ds.root / "scenes")
+        raise UserError(f"no scene matches {args.scenes!r}", path=ds.root / SCENES_DIR)
 
     def fresh(s) -> bool:
         src = s.annotation_path if args.poses == "annotation" else s.gt_path
-        v = s.path / "visibility.json"
+        v = s.path / VISIBILITY_FILE
         return v.exists() and src.exists() and v.stat().st_mtime >= src.stat().st_mtime
 
     todo = [s.id for s in scenes if args.force or not fresh(s)]

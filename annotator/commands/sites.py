@@ -7,18 +7,21 @@ The work is in :mod:`annotator.sites`; this module reads options, prints and ask
 from __future__ import annotations
 
 import argparse
-import fnmatch
 import json
 import sys
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from annotator.commands import add_workers_option, confirm, number
-from annotator.dataset import load_dataset, require_meshes
+from annotator.dataset import load_dataset
+from annotator.dataset.model import SCENES_DIR
 from annotator.errors import UserError
 from annotator.io.atomic import write_text
-from annotator.io.documents import unified_diff
-from annotator.runner import run_batch
+
+if TYPE_CHECKING:  # imported when the command runs, so that `annotator --help` stays fast
+    from annotator.sites.measure import InstanceSites
+    from annotator.sites.survey import SitesSurvey
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -47,95 +50,88 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from annotator.sites.measure import DetectJob, measure_sites, updated_object_yaml
-    from annotator.sites.solve import SiteSettings
+    from annotator.sites.survey import annotated_scenes, survey_sites
 
     ds = load_dataset(args.dataset)
-    scenes = [
-        s for s in ds.scenes() if fnmatch.fnmatch(s.id, args.scenes) and s.annotation_path.exists()
-    ]
+    scenes = annotated_scenes(ds, args.scenes)
     if not scenes:
         raise UserError(
             "no scene has an annotation.json: run `annotator annotate "
             f"{args.dataset}` first (sites are measured from annotated scenes)",
-            path=ds.root / "scenes",
+            path=ds.root / SCENES_DIR,
         )
-    require_meshes(ds)
-    report = run_batch(
-        DetectJob(str(ds.root)),
-        [s.id for s in scenes],
-        workers=args.workers,
-        desc="sites: markers",
-        quiet=args.quiet,
+    survey = survey_sites(
+        ds, scenes, max_move_mm=args.max_move, workers=args.workers, quiet=args.quiet
     )
-    detections = {sid: r["markers"] for sid, r in report.done.items()}
-    measured, spread = measure_sites(
-        ds,
-        [s for s in scenes if s.id in detections],
-        detections,
-        settings=SiteSettings(max_move_mm=args.max_move),
-    )
-    by_object: dict[str, list] = {}
-    for m in measured:
-        by_object.setdefault(m.object, []).append(m)
-    diffs = {}
-    for name, ms in by_object.items():
-        path = ds.objects[name].folder / "object.yaml"
-        old, new = updated_object_yaml(path, ms)
-        if old != new:
-            diffs[path] = (new, unified_diff(old, new, path, label="measured sites"))
-    written = []
     if not args.json:
-        report.print_failures()
-        for m in measured:
-            print("\n".join(_lines(m)))
-        for _, diff in diffs.values():
-            print(diff, end="" if diff.endswith("\n") else "\n")
-    status = 1 if report.failed else 0
-    if diffs and not args.dry_run:
-        asking = not args.yes and sys.stdin.isatty()
-        for path, (new, _) in diffs.items():
-            if not asking or confirm(path):
-                write_text(path, new)
-                written.append(str(path))
-            else:
-                status = 1
-    flagged = sum(len(m.flags) for m in measured)
+        _print_report(survey)
+    written, declined = _write(args, survey)
     if args.json:
-        print(
-            json.dumps(
-                {
-                    "scenes": len(scenes),
-                    "glue_spread": None
-                    if spread is None
-                    else {"mm": round(spread[0], 4), "deg": round(spread[1], 3)},
-                    "instances": [m.to_json() for m in measured],
-                    "flagged_markers": flagged,
-                    "written": written,
-                    "failures": dict(sorted(report.failed.items())),
-                },
-                indent=1,
-            )
-        )
+        print(json.dumps(_json(survey, written), indent=1))
     else:
-        told = (
-            ""
-            if spread is None
-            else (f" (gluing moved them by {spread[0]:.2f} mm and {spread[1]:.1f} deg, 1-sigma)")
-        )
-        print(
-            f"sites: {len(measured)} instances measured from {len(report.done)} scenes{told}, "
-            f"{flagged} markers flagged; "
-            + (
-                f"wrote {len(written)} object.yaml; run `annotator annotate {args.dataset}` again"
-                if written
-                else "nothing written" + (" (--dry-run)" if args.dry_run and diffs else "")
-            )
-        )
-    return status
+        print(_last_line(args, survey, written))
+    return 1 if survey.report.failed or declined else 0
 
 
-def _lines(m) -> list[str]:  # noqa: ANN001 - InstanceSites, imported lazily
+def _print_report(survey: SitesSurvey) -> None:
+    """The failed scenes, every instance's table, the diffs."""
+    survey.report.print_failures()
+    for m in survey.measured:
+        print("\n".join(_lines(m)))
+    for update in survey.updates:
+        print(update.diff, end="" if update.diff.endswith("\n") else "\n")
+
+
+def _write(args: argparse.Namespace, survey: SitesSurvey) -> tuple[list[str], bool]:
+    """Write the object.yaml files (asking about each on a terminal, unless --yes; none with
+    --dry-run): the paths written, and whether the user declined any."""
+    written: list[str] = []
+    declined = False
+    if not survey.updates or args.dry_run:
+        return written, declined
+    asking = not args.yes and sys.stdin.isatty()
+    for update in survey.updates:
+        if not asking or confirm(update.path):
+            write_text(update.path, update.text)
+            written.append(str(update.path))
+        else:
+            declined = True
+    return written, declined
+
+
+def _json(survey: SitesSurvey, written: list[str]) -> dict[str, Any]:
+    spread = survey.spread
+    return {
+        "scenes": len(survey.scenes),
+        "glue_spread": None
+        if spread is None
+        else {"mm": round(spread[0], 4), "deg": round(spread[1], 3)},
+        "instances": [m.to_json() for m in survey.measured],
+        "flagged_markers": survey.flagged,
+        "written": written,
+        "failures": dict(sorted(survey.report.failed.items())),
+    }
+
+
+def _last_line(args: argparse.Namespace, survey: SitesSurvey, written: list[str]) -> str:
+    spread = survey.spread
+    told = (
+        ""
+        if spread is None
+        else (f" (gluing moved them by {spread[0]:.2f} mm and {spread[1]:.1f} deg, 1-sigma)")
+    )
+    return (
+        f"sites: {len(survey.measured)} instances measured from {len(survey.report.done)} "
+        f"scenes{told}, {survey.flagged} markers flagged; "
+        + (
+            f"wrote {len(written)} object.yaml; run `annotator annotate {args.dataset}` again"
+            if written
+            else "nothing written" + (" (--dry-run)" if args.dry_run and survey.updates else "")
+        )
+    )
+
+
+def _lines(m: InstanceSites) -> list[str]:
     sol = m.solution
     head = (
         f"{m.key}: {len(sol.poses)} scenes, {sol.used} marker views used"

@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import Any
 
 from annotator.commands import add_ray_option, add_workers_option, finish_batch, number, whole
+from annotator.dataset.model import SCENES_DIR
 from annotator.errors import UserError
 from annotator.io.atomic import atomic_folder
 from annotator.io.output_folder import check_output_folder, write_manifest
@@ -24,47 +25,63 @@ from annotator.synthesis.generate import (
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    # The order of the calls is the order of the usage line, which argparse errors print.
     parser.add_argument(
         "out", help="output dataset folder (new or empty; an earlier synth's with --overwrite)"
     )
-    parser.add_argument(
+    _add_scene_options(parser)
+    add_workers_option(parser)
+    add_ray_option(parser)
+    _add_rendering_options(parser)
+    _add_calibration_options(parser)
+    _add_twin_options(parser)
+    _add_output_options(parser)
+
+
+def _add_scene_options(parser: argparse.ArgumentParser) -> None:
+    """What the scenes hold, and the seed that makes them."""
+    group = parser.add_argument_group("scenes")
+    group.add_argument(
         "--parts",
         default="bracket,cylinder",
         help=f"comma-separated built-in parts ({', '.join(PART_NAMES)})",
     )
-    parser.add_argument(
+    group.add_argument(
         "--scenes", type=whole(low=1), default=10, help="number of scenes (default 10)"
     )
-    parser.add_argument(
+    group.add_argument(
         "--instances", default="8-20", metavar="MIN-MAX", help="instances per scene (default 8-20)"
     )
-    parser.add_argument(
+    group.add_argument(
         "--seed",
         type=whole(low=0),
         default=0,
         help="random seed: same seed, same dataset (default 0)",
     )
-    add_workers_option(parser)
-    add_ray_option(parser)
-    parser.add_argument(
+
+
+def _add_rendering_options(parser: argparse.ArgumentParser) -> None:
+    """The images: their size, clutter, sensor noise, glued markers, depth maps."""
+    group = parser.add_argument_group("rendering")
+    group.add_argument(
         "--size", default="1280x1024", metavar="WxH", help="image size (default 1280x1024)"
     )
-    parser.add_argument(
+    group.add_argument(
         "--clutter",
         type=whole(low=0),
         default=0,
         help="parts without markers per scene (default 0)",
     )
-    parser.add_argument(
+    group.add_argument(
         "--noise",
         type=number(low=0),
         default=2.0,
         help="image noise sigma, grey levels (default 2)",
     )
-    parser.add_argument(
+    group.add_argument(
         "--blur", type=number(low=0), default=0.6, help="image blur sigma, px (default 0.6)"
     )
-    parser.add_argument(
+    group.add_argument(
         "--glue",
         type=_glue,
         default=(0.0, 0.0),
@@ -73,15 +90,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "N(0, MM) along both axes and turned by N(0, DEG) about its normal, the same in every "
         f"scene; the true sites go to OUT/{GLUED_SITES} (default 0,0: exactly on the layout)",
     )
-    parser.add_argument("--no-depth", action="store_true", help="skip the active-stereo depth maps")
-    parser.add_argument(
+    group.add_argument("--no-depth", action="store_true", help="skip the active-stereo depth maps")
+
+
+def _add_calibration_options(parser: argparse.ArgumentParser) -> None:
+    """``--calibration``: board shots instead of scenes, and how the board is seen."""
+    calib = parser.add_argument_group("--calibration", "the board shots")
+    calib.add_argument(
         "--calibration",
         action="store_true",
         help="instead of scenes, render a ChArUco board in --scenes random poses (use 30) seen "
         "by the rig, into OUT/<camera>/<shot>.png with board.yaml and truth.yaml "
         "(for `annotator calibrate`)",
     )
-    calib = parser.add_argument_group("--calibration", "the board shots")
     calib.add_argument(
         "--board-kind",
         choices=("charuco", "chessboard"),
@@ -121,27 +142,37 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="one video per camera (OUT/<camera>.mkv, lossless) with timestamps files, "
         "instead of image folders",
     )
-    parser.add_argument(
+
+
+def _add_twin_options(parser: argparse.ArgumentParser) -> None:
+    """``--twin``: the synthetic twins of an annotated dataset instead of new scenes."""
+    group = parser.add_argument_group("--twin", "synthetic twins of annotated scenes")
+    group.add_argument(
         "--twin",
         metavar="DATASET",
         help="instead of new scenes, the synthetic twin of every accepted scene of DATASET: its "
         "rig, its annotated poses, its background, the same sensor simulation (paper section 5)",
     )
-    parser.add_argument(
+    group.add_argument(
         "--include-pending",
         action="store_true",
         help="--twin: also the annotated scenes not reviewed yet",
     )
-    parser.add_argument(
+    group.add_argument(
         "--drop-rejected-instances",
         action="store_true",
         help="--twin: twin accepted scenes with rejected instances, without them",
     )
-    parser.add_argument(
+
+
+def _add_output_options(parser: argparse.ArgumentParser) -> None:
+    """Where the output goes and what is printed."""
+    group = parser.add_argument_group("output")
+    group.add_argument(
         "--overwrite", action="store_true", help="replace OUT if an earlier synth wrote it"
     )
-    parser.add_argument("--json", action="store_true", help="print the summary as JSON")
-    parser.add_argument("--quiet", action="store_true", help="no progress bar")
+    group.add_argument("--json", action="store_true", help="print the summary as JSON")
+    group.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
 def _glue(text: str) -> tuple[float, float]:
@@ -213,7 +244,7 @@ def run(args: argparse.Namespace) -> int:
             ray_wait=args.ray_wait,
         )
         for sid in report.failed:
-            shutil.rmtree(tmp / "scenes" / sid, ignore_errors=True)
+            shutil.rmtree(tmp / SCENES_DIR / sid, ignore_errors=True)
     summary = {
         "out": str(out),
         "scenes": len(report.done),

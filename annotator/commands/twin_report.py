@@ -12,6 +12,7 @@ import argparse
 import json
 import sys
 from pathlib import Path
+from typing import Any
 
 from annotator.commands import number
 from annotator.errors import UserError
@@ -37,67 +38,30 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    import numpy as np
-
-    from annotator.dataset import load_dataset, read_poses
-    from annotator.io.images import write_png
-    from annotator.twins.report import compare_scene, histogram_png, overlay
+    from annotator.dataset import load_dataset
+    from annotator.twins.comparison import compare_twin
 
     if args.tolerance <= 0 or not 0 < args.max_disagreement <= 1:
         raise UserError("--tolerance must be positive and --max-disagreement in (0, 1]")
-    ds = load_dataset(args.dataset)
-    twin = load_dataset(args.twin)
-    if ds.rig.depth is None:
-        raise UserError("the dataset has no depth maps to compare (rig.depth)", path=ds.root)
-    depth_cam = ds.rig.depth_camera
-    assert depth_cam is not None  # rig.depth is set
-    twins = {s.id: s for s in twin.scenes() if s.gt_path.exists()}
-    if not twins:
-        raise UserError("no twin scene (run `annotator synth --twin` first)", path=twin.root)
-    report_dir = Path(args.report) if args.report else twin.root / "report"
-    rows, diffs = [], []
-    for sid, tsc in sorted(twins.items()):
-        try:
-            real_scene = ds.scene(sid)
-        except KeyError:
-            print(f"warning: twin scene {sid} has no scene in {ds.root}", file=sys.stderr)
-            continue
-        real = real_scene.read_depth(ds.rig)
-        sim = tsc.read_depth(twin.rig)
-        if real is None or sim is None:
-            print(f"warning: scene {sid} has no depth map to compare", file=sys.stderr)
-            continue
-        poses = read_poses(tsc.gt_path)
-        comp, front = compare_scene(ds, sid, real, sim, poses, tolerance_mm=args.tolerance)
-        rows.append(comp)
-        diffs.append(comp.part_diffs)
-        img = real_scene.read_image(depth_cam)
-        write_png(report_dir / f"{sid}.png", overlay(img, front, comp, args.max_disagreement, 2))
-    if not rows:
-        raise UserError("no scene with depth in both datasets", path=twin.root)
-    all_diffs = np.concatenate(diffs) if diffs else np.zeros(0)
-    histogram_png(all_diffs, report_dir / "histogram.png")
-    lim = args.max_disagreement
-    doc = {
-        "tolerance_mm": args.tolerance,
-        "max_disagreement": lim,
-        "scenes": [r.to_json(lim) for r in rows],
-        "overall": {
-            "valid_real": round(float(np.mean([r.valid_real for r in rows])), 4),
-            "valid_twin": round(float(np.mean([r.valid_twin for r in rows])), 4),
-            "median_abs_mm": round(float(np.median(np.abs(all_diffs))), 3)
-            if len(all_diffs)
-            else None,
-            "p95_abs_mm": round(float(np.percentile(np.abs(all_diffs), 95)), 3)
-            if len(all_diffs)
-            else None,
-            "instances_disagreeing": sum(i.disagrees(lim) for r in rows for i in r.instances),
-        },
-        "pictures": str(report_dir),
-    }
+    result = compare_twin(
+        load_dataset(args.dataset),
+        load_dataset(args.twin),
+        tolerance_mm=args.tolerance,
+        max_disagreement=args.max_disagreement,
+        pictures=Path(args.report) if args.report else None,
+        warn=lambda line: print(line, file=sys.stderr),
+    )
+    doc = result.to_json()
     if args.json:
         print(json.dumps(doc, indent=1))
         return 0
+    _print_table(doc, args.tolerance)
+    print(f"pictures: {result.pictures} (histogram.png, <scene>.png: red = disagrees)")
+    return 0
+
+
+def _print_table(doc: dict[str, Any], tolerance: float) -> None:
+    """One row per scene and one for all of them."""
     print(
         f"{'scene':<12} {'valid real':>10} {'valid twin':>10} {'|d| median':>10} {'|d| p95':>8}  disagreeing instances"
     )
@@ -112,8 +76,6 @@ def run(args: argparse.Namespace) -> int:
     print(
         f"{'all':<12} {o['valid_real']:>10.3f} {o['valid_twin']:>10.3f} "
         f"{(o['median_abs_mm'] or 0):>7.2f} mm {(o['p95_abs_mm'] or 0):>8.2f}  "
-        f"{o['instances_disagreeing']} instance(s) disagree (> {lim:.0%} of pixels beyond "
-        f"{args.tolerance:g} mm)"
+        f"{o['instances_disagreeing']} instance(s) disagree (> {doc['max_disagreement']:.0%} of "
+        f"pixels beyond {tolerance:g} mm)"
     )
-    print(f"pictures: {report_dir} (histogram.png, <scene>.png: red = disagrees)")
-    return 0

@@ -14,8 +14,9 @@ from pathlib import Path
 import numpy as np
 
 from annotator.dataset.load import Problem, read_dataset
-from annotator.dataset.model import Dataset
+from annotator.dataset.model import Dataset, ObjectModel
 from annotator.errors import UserError
+from annotator.geometry.mesh import Mesh
 
 SITE_TOLERANCE_MM = 0.5
 SIZE_TOLERANCE = 0.02  # relative
@@ -63,16 +64,8 @@ def _check_objects(ds: Dataset) -> list[Problem]:
     except UserError:  # already reported by the reader of dataset.yaml
         n_dict = None
     for obj in ds.objects.values():
-        yaml_path = obj.folder / "object.yaml"
-        for inst in obj.instances:
-            bad = [i for i in inst.marker_ids if n_dict is not None and i >= n_dict]
-            if bad and n_dict is not None:  # (bad is empty without n_dict)
-                out.append(
-                    Problem(
-                        yaml_path,
-                        f"instance {inst.name!r}: marker ids {bad} are outside {ds.dictionary} (0..{n_dict - 1})",
-                    )
-                )
+        if n_dict is not None:
+            out += _check_marker_ids(ds, obj, n_dict)
         if not obj.mesh_path.is_file():
             continue  # already reported by read_dataset
         try:
@@ -80,54 +73,82 @@ def _check_objects(ds: Dataset) -> list[Problem]:
         except UserError as exc:
             out.append(Problem(obj.mesh_path, exc.message))
             continue
-        if not mesh.is_watertight:
+        out += _check_mesh(obj.mesh_path, mesh)
+        if obj.markers is not None:
+            out += _check_sites(obj, mesh)
+    return out
+
+
+def _check_marker_ids(ds: Dataset, obj: ObjectModel, n_dict: int) -> list[Problem]:
+    """Every instance's marker ids lie in the dataset's dictionary of ``n_dict`` markers."""
+    out = []
+    for inst in obj.instances:
+        bad = [i for i in inst.marker_ids if i >= n_dict]
+        if bad:
             out.append(
                 Problem(
-                    obj.mesh_path,
-                    "mesh is not watertight (open edges): occlusion rates and surface moments "
-                    "assume a closed surface",
-                    warning=True,
+                    obj.folder / "object.yaml",
+                    f"instance {inst.name!r}: marker ids {bad} are outside {ds.dictionary} (0..{n_dict - 1})",
                 )
             )
-        elif mesh.signed_volume < 0:
+    return out
+
+
+def _check_mesh(path: Path, mesh: Mesh) -> list[Problem]:
+    """The mesh is closed (else a warning) and its faces turn outwards."""
+    if not mesh.is_watertight:
+        return [
+            Problem(
+                path,
+                "mesh is not watertight (open edges): occlusion rates and surface moments "
+                "assume a closed surface",
+                warning=True,
+            )
+        ]
+    if mesh.signed_volume < 0:
+        return [
+            Problem(
+                path,
+                f"mesh is inside out (signed volume {mesh.signed_volume:.0f} mm^3): its "
+                "faces must be counter-clockwise seen from outside; flip them",
+            )
+        ]
+    return []
+
+
+def _check_sites(obj: ObjectModel, mesh: Mesh) -> list[Problem]:
+    """Every marker site, the layout's and the instances' own, is a square of the markers'
+    size lying on the mesh surface."""
+    assert obj.markers is not None
+    yaml_path = obj.folder / "object.yaml"
+    size = obj.markers.size
+    sites = [(f"markers.sites[{k}]", c) for k, c in enumerate(obj.markers.corners)]
+    for inst in obj.instances:
+        if inst.sites is not None:
+            sites += [(f"instance {inst.name!r}: sites[{k}]", c) for k, c in enumerate(inst.sites)]
+    out = []
+    for where, c in sites:
+        sides = np.linalg.norm(np.roll(c, -1, axis=0) - c, axis=1)
+        diag = np.linalg.norm(c[2] - c[0]), np.linalg.norm(c[3] - c[1])
+        if (
+            np.any(np.abs(sides - size) > SIZE_TOLERANCE * size)
+            or abs(diag[0] - diag[1]) > SIZE_TOLERANCE * size
+        ):
             out.append(
                 Problem(
-                    obj.mesh_path,
-                    f"mesh is inside out (signed volume {mesh.signed_volume:.0f} mm^3): its "
-                    "faces must be counter-clockwise seen from outside; flip them",
+                    yaml_path,
+                    f"{where} is not a square of side {size:g} mm (sides {np.round(sides, 2).tolist()})",
                 )
             )
-        if obj.markers is None:
             continue
-        size = obj.markers.size
-        sites = [(f"markers.sites[{k}]", c) for k, c in enumerate(obj.markers.corners)]
-        for inst in obj.instances:
-            if inst.sites is not None:
-                sites += [
-                    (f"instance {inst.name!r}: sites[{k}]", c) for k, c in enumerate(inst.sites)
-                ]
-        for where, c in sites:
-            sides = np.linalg.norm(np.roll(c, -1, axis=0) - c, axis=1)
-            diag = np.linalg.norm(c[2] - c[0]), np.linalg.norm(c[3] - c[1])
-            if (
-                np.any(np.abs(sides - size) > SIZE_TOLERANCE * size)
-                or abs(diag[0] - diag[1]) > SIZE_TOLERANCE * size
-            ):
-                out.append(
-                    Problem(
-                        yaml_path,
-                        f"{where} is not a square of side {size:g} mm (sides {np.round(sides, 2).tolist()})",
-                    )
+        dist = mesh.distance_to_surface(np.concatenate([c, c.mean(axis=0, keepdims=True)]))
+        if dist.max() > SITE_TOLERANCE_MM:
+            out.append(
+                Problem(
+                    yaml_path,
+                    f"{where} is {dist.max():.2f} mm off the mesh surface (tolerance {SITE_TOLERANCE_MM} mm)",
                 )
-                continue
-            dist = mesh.distance_to_surface(np.concatenate([c, c.mean(axis=0, keepdims=True)]))
-            if dist.max() > SITE_TOLERANCE_MM:
-                out.append(
-                    Problem(
-                        yaml_path,
-                        f"{where} is {dist.max():.2f} mm off the mesh surface (tolerance {SITE_TOLERANCE_MM} mm)",
-                    )
-                )
+            )
     return out
 
 

@@ -18,6 +18,7 @@ import numpy as np
 from annotator.dataset.model import (
     FLIP_HORIZONTAL,
     FORMAT_VERSION,
+    SCENES_DIR,
     Dataset,
     DepthSpec,
     Instance,
@@ -113,7 +114,7 @@ def read_dataset(root: str | Path) -> tuple[Dataset | None, list[Problem]]:
         if obj is not None:
             objects[obj.name] = obj
     _check_marker_ids(objects, problems)
-    scenes = root / "scenes"
+    scenes = root / SCENES_DIR
     if (scenes.exists() or scenes.is_symlink()) and not scenes.is_dir():
         problems.append(Problem(scenes, "is not a folder (scenes/<scene_id>/ hold the scenes)"))
     if rig is None:
@@ -204,6 +205,16 @@ def _parse_dictionary(p: _Parser, name: str, root: Path) -> str:
     return resolved
 
 
+@dataclass(frozen=True)
+class _RigCameras:
+    """The rig's cameras that parsed, the mirrored ones, and the names of those with a
+    problem (each reported once: a depth section naming one adds no knock-on line)."""
+
+    cameras: list[Camera]
+    flipped: set[str]
+    broken: list[str]
+
+
 def _parse_rig(p: _Parser, rig: dict[str, Any] | None) -> Rig | None:
     if rig is None:
         return None
@@ -212,9 +223,19 @@ def _parse_rig(p: _Parser, rig: dict[str, Any] | None) -> Rig | None:
         if cams_doc is not None:
             p.problem("rig.cameras is empty")
         return None
-    cameras: list[Camera] = []
-    flipped: set[str] = set()
-    broken: list[str] = []  # names of cameras with a problem, reported once each
+    parsed = _parse_cameras(p, cams_doc)
+    depth = None
+    if "depth" in rig and rig["depth"] is not None:
+        depth = _parse_depth(p, rig["depth"], parsed)
+    if not parsed.cameras:
+        return None
+    return Rig(cameras=tuple(parsed.cameras), depth=depth, flipped=frozenset(parsed.flipped))
+
+
+def _parse_cameras(p: _Parser, cams_doc: list[Any]) -> _RigCameras:
+    """``rig.cameras``: each entry's fields, the first one the reference frame, unique
+    names, an optional horizontal flip."""
+    out = _RigCameras([], set(), [])
     for i, c in enumerate(cams_doc):
         where = f"rig.cameras[{i}]"
         if not isinstance(c, dict):
@@ -224,37 +245,15 @@ def _parse_rig(p: _Parser, rig: dict[str, Any] | None) -> Rig | None:
         if not name:
             p.problem(f"{where}.name is missing")
             continue
-        size = p.floats(c.get("size"), 2, f"{where}.size")
-        K = p.floats(c.get("K"), 9, f"{where}.K")
-        dist = p.floats(c.get("dist", [0, 0, 0, 0, 0]), (4, 5, 8, 12, 14), f"{where}.dist")
-        T = p.floats(c.get("rig_T_cam", np.eye(4).ravel().tolist()), 16, f"{where}.rig_T_cam")
-        ok = size is not None and K is not None and dist is not None and T is not None
-        if K is not None:
-            K = K.reshape(3, 3)
-            if K[0, 0] <= 0 or K[1, 1] <= 0 or K[1, 0] != 0 or np.any(K[2] != [0, 0, 1]):
-                p.problem(
-                    f"{where}.K is not a pinhole matrix [fx 0 cx 0 fy cy 0 0 1] with fx, fy > 0"
-                )
-                ok = False
-        if size is not None and (np.any(size <= 0) or np.any(size != np.round(size))):
-            p.problem(f"{where}.size must be two positive integers")
-            ok = False
-        if T is not None:
-            T = T.reshape(4, 4)
-            if not is_rotation(T[:3, :3], tol=1e-5) or np.any(np.abs(T[3] - [0, 0, 0, 1]) > 1e-9):
-                p.problem(
-                    f"{where}.rig_T_cam is not a rigid transform (rotation block not orthonormal or last row not 0 0 0 1)"
-                )
-                ok = False
-        if not ok:
-            broken.append(name)
+        camera = _parse_camera(p, c, name, where)
+        if camera is None:
+            out.broken.append(name)
             continue
-        assert size is not None and K is not None and dist is not None and T is not None  # ok
-        if i == 0 and not np.allclose(T, np.eye(4), atol=1e-9):
+        if i == 0 and not np.allclose(camera.rig_T_cam, np.eye(4), atol=1e-9):
             p.problem(
                 f"{where}.rig_T_cam must be the identity: the first camera is the reference frame"
             )
-        if any(cam.name == name for cam in cameras):
+        if any(cam.name == name for cam in out.cameras):
             p.problem(f"{where}: duplicate camera name {name!r}")
             continue
         flip = c.get("flip")
@@ -264,40 +263,65 @@ def _parse_rig(p: _Parser, rig: dict[str, Any] | None) -> Rig | None:
                 f"{flip!r}"
             )
         elif flip == FLIP_HORIZONTAL:
-            flipped.add(name)
-        cameras.append(
-            Camera(name=name, width=int(size[0]), height=int(size[1]), K=K, dist=dist, rig_T_cam=T)
-        )
-    depth = None
-    if "depth" in rig and rig["depth"] is not None:
-        d = rig["depth"]
-        if not isinstance(d, dict):
-            p.problem("rig.depth must be a mapping")
-        else:
-            cam = str(d.get("camera", cameras[0].name if cameras else ""))
-            scale = d.get("scale")
-            if (
-                not isinstance(scale, (int, float))
-                or isinstance(scale, bool)
-                or not 0 < scale < math.inf
-            ):
-                p.problem("rig.depth.scale is missing or not a positive number (mm per depth unit)")
-            elif cam in broken:
-                pass  # that camera's own problem is already reported: no knock-on line
-            elif cameras and cam not in [c.name for c in cameras]:
-                p.problem(f"rig.depth.camera {cam!r} is not a rig camera")
-            else:
-                bg = d.get("background")
-                if bg is not None and not isinstance(bg, str):
-                    p.problem("rig.depth.background must be a file name (the empty bin's depth)")
-                    bg = None
-                elif bg is not None and outside(p.path.parent, p.path.parent / bg):
-                    p.problem(f"rig.depth.background {bg!r} lies outside the dataset")
-                    bg = None
-                depth = DepthSpec(camera=cam, scale=float(scale), background=bg)
-    if not cameras:
+            out.flipped.add(name)
+        out.cameras.append(camera)
+    return out
+
+
+def _parse_camera(p: _Parser, c: dict[str, Any], name: str, where: str) -> Camera | None:
+    """One camera's size, K, dist and rig_T_cam; None if any of them has a problem (every
+    problem of the entry reported)."""
+    size = p.floats(c.get("size"), 2, f"{where}.size")
+    K = p.floats(c.get("K"), 9, f"{where}.K")
+    dist = p.floats(c.get("dist", [0, 0, 0, 0, 0]), (4, 5, 8, 12, 14), f"{where}.dist")
+    T = p.floats(c.get("rig_T_cam", np.eye(4).ravel().tolist()), 16, f"{where}.rig_T_cam")
+    ok = size is not None and K is not None and dist is not None and T is not None
+    if K is not None:
+        K = K.reshape(3, 3)
+        if K[0, 0] <= 0 or K[1, 1] <= 0 or K[1, 0] != 0 or np.any(K[2] != [0, 0, 1]):
+            p.problem(f"{where}.K is not a pinhole matrix [fx 0 cx 0 fy cy 0 0 1] with fx, fy > 0")
+            ok = False
+    if size is not None and (np.any(size <= 0) or np.any(size != np.round(size))):
+        p.problem(f"{where}.size must be two positive integers")
+        ok = False
+    if T is not None:
+        T = T.reshape(4, 4)
+        if not is_rotation(T[:3, :3], tol=1e-5) or np.any(np.abs(T[3] - [0, 0, 0, 1]) > 1e-9):
+            p.problem(
+                f"{where}.rig_T_cam is not a rigid transform (rotation block not orthonormal or last row not 0 0 0 1)"
+            )
+            ok = False
+    if not ok:
         return None
-    return Rig(cameras=tuple(cameras), depth=depth, flipped=frozenset(flipped))
+    assert size is not None and K is not None and dist is not None and T is not None  # ok
+    return Camera(name=name, width=int(size[0]), height=int(size[1]), K=K, dist=dist, rig_T_cam=T)
+
+
+def _parse_depth(p: _Parser, d: Any, parsed: _RigCameras) -> DepthSpec | None:
+    """``rig.depth``: the camera whose pixel grid the depth maps use (default the first),
+    their scale, an optional background file inside the dataset."""
+    if not isinstance(d, dict):
+        p.problem("rig.depth must be a mapping")
+        return None
+    cameras = parsed.cameras
+    cam = str(d.get("camera", cameras[0].name if cameras else ""))
+    scale = d.get("scale")
+    if not isinstance(scale, (int, float)) or isinstance(scale, bool) or not 0 < scale < math.inf:
+        p.problem("rig.depth.scale is missing or not a positive number (mm per depth unit)")
+        return None
+    if cam in parsed.broken:
+        return None  # that camera's own problem is already reported: no knock-on line
+    if cameras and cam not in [c.name for c in cameras]:
+        p.problem(f"rig.depth.camera {cam!r} is not a rig camera")
+        return None
+    bg = d.get("background")
+    if bg is not None and not isinstance(bg, str):
+        p.problem("rig.depth.background must be a file name (the empty bin's depth)")
+        bg = None
+    elif bg is not None and outside(p.path.parent, p.path.parent / bg):
+        p.problem(f"rig.depth.background {bg!r} lies outside the dataset")
+        bg = None
+    return DepthSpec(camera=cam, scale=float(scale), background=bg)
 
 
 def _parse_object(root: Path, name: str, problems: list[Problem]) -> ObjectModel | None:
@@ -312,6 +336,29 @@ def _parse_object(root: Path, name: str, problems: list[Problem]) -> ObjectModel
     if doc is None:
         return None
     p = _Parser(path, problems)
+    mesh_path = _mesh_path(p, doc, root, folder)
+    if mesh_path is None:
+        return None
+    symmetry = _parse_symmetry(p, doc.get("symmetry", {"class": "none"}))
+    markers = None
+    if "markers" in doc and doc["markers"] is not None:
+        markers = _parse_markers(p, doc["markers"])
+    n_sites = 0 if markers is None else markers.corners.shape[0]
+    instances = _parse_instances(p, p.get(doc, "instances", list, []), n_sites)
+    return ObjectModel(
+        name=name,
+        folder=folder,
+        mesh_path=mesh_path,
+        symmetry=symmetry,
+        markers=markers,
+        instances=tuple(instances),
+        raw=doc,
+    )
+
+
+def _mesh_path(p: _Parser, doc: dict[str, Any], root: Path, folder: Path) -> Path | None:
+    """The object's mesh file, relative to its folder and inside the dataset (None: no
+    object; a missing file is reported but the object stays)."""
     mesh_name = p.get(doc, "mesh", str, None)
     if mesh_name is None:
         return None
@@ -324,22 +371,28 @@ def _parse_object(root: Path, name: str, problems: list[Problem]) -> ObjectModel
         return None
     if not mesh_path.is_file():
         p.problem(f"mesh file {mesh_name!r} is missing")
-    symmetry = _parse_symmetry(p, doc.get("symmetry", {"class": "none"}))
-    markers = None
-    if "markers" in doc and doc["markers"] is not None:
-        m = doc["markers"]
-        size = m.get("size") if isinstance(m, dict) else None
-        if not isinstance(size, (int, float)) or not 0 < size < math.inf:
-            p.problem("markers.size must be a positive number (mm)")
-        sites = m.get("sites", []) if isinstance(m, dict) else []
-        corners = p.floats(
-            sites, len(sites) * 12 if isinstance(sites, list) and sites else 12, "markers.sites"
-        )
-        if corners is not None and isinstance(size, (int, float)) and 0 < size < math.inf:
-            markers = MarkerSites(size=float(size), corners=corners.reshape(-1, 4, 3))
+    return mesh_path
+
+
+def _parse_markers(p: _Parser, m: Any) -> MarkerSites | None:
+    """``markers``: the printed side and the sites' corners (None if either is wrong)."""
+    size = m.get("size") if isinstance(m, dict) else None
+    if not isinstance(size, (int, float)) or not 0 < size < math.inf:
+        p.problem("markers.size must be a positive number (mm)")
+    sites = m.get("sites", []) if isinstance(m, dict) else []
+    corners = p.floats(
+        sites, len(sites) * 12 if isinstance(sites, list) and sites else 12, "markers.sites"
+    )
+    if corners is not None and isinstance(size, (int, float)) and 0 < size < math.inf:
+        return MarkerSites(size=float(size), corners=corners.reshape(-1, 4, 3))
+    return None
+
+
+def _parse_instances(p: _Parser, docs: list[Any], n_sites: int) -> list[Instance]:
+    """``instances``: each with a name, its marker ids (at most one per site, none twice)
+    and optionally its own measured sites; names unique."""
     instances: list[Instance] = []
-    n_sites = 0 if markers is None else markers.corners.shape[0]
-    for i, inst in enumerate(p.get(doc, "instances", list, [])):
+    for i, inst in enumerate(docs):
         if not isinstance(inst, dict) or "name" not in inst:
             p.problem(f"instances[{i}] must have a name")
             continue
@@ -359,15 +412,7 @@ def _parse_object(root: Path, name: str, problems: list[Problem]) -> ObjectModel
         instances.append(Instance(name=str(inst["name"]), marker_ids=tuple(ids), sites=own))
     if len({i.name for i in instances}) != len(instances):
         p.problem("duplicate instance names")
-    return ObjectModel(
-        name=name,
-        folder=folder,
-        mesh_path=mesh_path,
-        symmetry=symmetry,
-        markers=markers,
-        instances=tuple(instances),
-        raw=doc,
-    )
+    return instances
 
 
 def _parse_symmetry(p: _Parser, doc: Any) -> Symmetry:

@@ -18,6 +18,9 @@ from annotator.symmetry.classes import SYMMETRY_CLASSES, Symmetry
 #: gt.json and annotation.json.
 FORMAT_VERSION = 1
 
+#: The folder of a dataset that holds one folder per scene (docs/FORMAT.md).
+SCENES_DIR = "scenes"
+
 __all__ = ["SYMMETRY_CLASSES", "Symmetry"]  # re-exported: object.yaml records use them
 
 
@@ -205,7 +208,7 @@ class Dataset:
 
     def scenes(self) -> list[Scene]:
         """Every scene folder, in sorted order."""
-        folder = self.root / "scenes"
+        folder = self.root / SCENES_DIR
         if not folder.is_dir():
             return []
         return [
@@ -217,7 +220,7 @@ class Dataset:
     def broken_scene_links(self) -> list[Path]:
         """Entries of ``scenes/`` that are symbolic links leading nowhere (dangling, or a
         loop): not scenes, but not to be passed over in silence either."""
-        folder = self.root / "scenes"
+        folder = self.root / SCENES_DIR
         if not folder.is_dir():
             return []
         return [
@@ -228,7 +231,7 @@ class Dataset:
 
     def scene(self, scene_id: str) -> Scene:
         """The scene called ``scene_id`` (KeyError if absent)."""
-        path = self.root / "scenes" / scene_id
+        path = self.root / SCENES_DIR / scene_id
         if not path.is_dir():
             raise KeyError(scene_id)
         return Scene(scene_id, path, self.rig.flipped)

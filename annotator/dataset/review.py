@@ -40,8 +40,8 @@ import hashlib
 import json
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from datetime import datetime, timezone
-from enum import Enum
+from datetime import UTC, datetime
+from enum import StrEnum
 from pathlib import Path
 from typing import Any, Protocol
 
@@ -57,7 +57,7 @@ from annotator.io.documents import read_json
 NO_POSE_REASON = "a part has no pose"
 
 
-class ReviewStatus(str, Enum):
+class ReviewStatus(StrEnum):
     """The state of a decision about a scene or an instance; the values are the JSON strings.
 
     It is a ``str``, so ``status == "accepted"`` and JSON encoding work as with plain strings.
@@ -68,11 +68,8 @@ class ReviewStatus(str, Enum):
     ACCEPTED = "accepted"
     REJECTED = "rejected"
 
-    def __str__(self) -> str:
-        return self.value
 
-
-#: Kept for callers written before :class:`ReviewStatus`.
+#: The JSON strings of a scene's and an instance's decision.
 SCENE_STATUSES = tuple(s.value for s in ReviewStatus)
 INSTANCE_STATUSES = (ReviewStatus.ACCEPTED.value, ReviewStatus.REJECTED.value)
 
@@ -173,7 +170,7 @@ class Review:
 
 def now_iso() -> str:
     """The current UTC time, ISO 8601, second precision."""
-    return datetime.now(timezone.utc).replace(microsecond=0).isoformat()
+    return datetime.now(UTC).replace(microsecond=0).isoformat()
 
 
 class Posed(Protocol):

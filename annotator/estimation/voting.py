@@ -52,15 +52,45 @@ def vote(
 ) -> Votes:
     """The votes of every ``reference_step``-th point of ``cloud`` (see the module
     docstring); ``max_pairs`` bounds the model pairs expanded at once (memory)."""
-    from scipy.spatial import cKDTree
-
-    pts, nrm = cloud.points, cloud.normals
+    pts = cloud.points
     if len(pts) < 2 or len(model.points) == 0:
         return Votes(np.zeros((0, 4, 4)), np.zeros(0))
     refs = np.arange(0, len(pts), max(1, int(reference_step)))
-    tree = cKDTree(pts)
+    pairs = _matched_pairs(model, cloud, refs)
+    Rs, ts = alignments(pts[refs], cloud.normals[refs])
+    alpha_s = pair_angles(Rs[pairs.ref], ts[pairs.ref], pts[pairs.other]).astype(np.float32)
+    best_cell, best_count = _best_cells(model, pairs, alpha_s, len(refs), max_pairs)
+    voted = best_count > 0
+    sample = best_cell[voted] // model.angle_bins
+    angle = (best_cell[voted] % model.angle_bins + 0.5) * model.angle_step
+    Rs, ts = Rs[voted], ts[voted]
+    Rx = rotations_about_x(angle)
+    Rm, tm = model.align_R[sample], model.align_t[sample]
+    # P = A_s^-1 R_x A_m, with A x = R x + t.
+    RsT = np.swapaxes(Rs, 1, 2)
+    R = RsT @ Rx @ Rm
+    t = np.einsum("nij,nj->ni", RsT @ Rx, tm) - np.einsum("nij,nj->ni", RsT, ts)
+    return Votes(stack_poses(R, t), best_count[voted])
+
+
+@dataclass(frozen=True)
+class _Pairs:
+    """Scene pairs whose feature is in the model: the reference (index into ``refs``), the
+    other point (index into the cloud), and the feature's position in the model's table."""
+
+    ref: np.ndarray
+    other: np.ndarray
+    pos: np.ndarray
+
+
+def _matched_pairs(model: PPFModel, cloud: OrientedCloud, refs: np.ndarray) -> _Pairs:
+    """Every pair of a reference point and another point within the model's largest
+    distance whose quantised feature the model has."""
+    from scipy.spatial import cKDTree
+
+    pts, nrm = cloud.points, cloud.normals
     pairs = cKDTree(pts[refs]).sparse_distance_matrix(
-        tree, model.max_distance, output_type="ndarray"
+        cKDTree(pts), model.max_distance, output_type="ndarray"
     )
     r_local, other = pairs["i"].astype(np.int64), pairs["j"].astype(np.int64)
     keep = refs[r_local] != other
@@ -74,21 +104,32 @@ def vote(
     pos = np.searchsorted(model.unique_keys, keys)
     pos = np.minimum(pos, len(model.unique_keys) - 1)
     found = model.unique_keys[pos] == keys
-    r_local, other, pos = r_local[found], other[found], pos[found]
-    Rs, ts = alignments(pts[refs], nrm[refs])
-    alpha_s = pair_angles(Rs[r_local], ts[r_local], pts[other]).astype(np.float32)
-    counts = model.counts[pos]
+    return _Pairs(r_local[found], other[found], pos[found])
+
+
+def _best_cells(
+    model: PPFModel, pairs: _Pairs, alpha_s: np.ndarray, n_refs: int, max_pairs: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """Per reference, the accumulator cell (model point x angle bin) with the most votes and
+    its count, accumulating chunks of whole references of at most ``max_pairs`` expanded
+    model pairs."""
+    counts = model.counts[pairs.pos]
     # Pairs are grouped by reference (the tree returns them so; sort to be sure), so that
     # chunks of whole references bound the expanded model pairs.
-    order = np.argsort(r_local, kind="stable")
-    r_local, pos, alpha_s, counts = r_local[order], pos[order], alpha_s[order], counts[order]
-    per_ref = np.bincount(r_local, weights=counts, minlength=len(refs))
+    order = np.argsort(pairs.ref, kind="stable")
+    r_local, pos, alpha_s, counts = (
+        pairs.ref[order],
+        pairs.pos[order],
+        alpha_s[order],
+        counts[order],
+    )
+    per_ref = np.bincount(r_local, weights=counts, minlength=n_refs)
     cells = len(model.points) * model.angle_bins
-    best_cell = np.zeros(len(refs), dtype=np.int64)
-    best_count = np.zeros(len(refs))
-    bounds = np.searchsorted(r_local, np.arange(len(refs) + 1))
+    best_cell = np.zeros(n_refs, dtype=np.int64)
+    best_count = np.zeros(n_refs)
+    bounds = np.searchsorted(r_local, np.arange(n_refs + 1))
     lo = 0
-    while lo < len(refs):
+    while lo < n_refs:
         # As many references as fit in max_pairs expanded model pairs (at least one).
         total = np.cumsum(per_ref[lo:])
         hi = lo + max(1, int(np.searchsorted(total, max_pairs, side="right")))
@@ -105,17 +146,7 @@ def vote(
             best_count[lo:hi],
         )
         lo = hi
-    voted = best_count > 0
-    sample = best_cell[voted] // model.angle_bins
-    angle = (best_cell[voted] % model.angle_bins + 0.5) * model.angle_step
-    Rs, ts = Rs[voted], ts[voted]
-    Rx = rotations_about_x(angle)
-    Rm, tm = model.align_R[sample], model.align_t[sample]
-    # P = A_s^-1 R_x A_m, with A x = R x + t.
-    RsT = np.swapaxes(Rs, 1, 2)
-    R = RsT @ Rx @ Rm
-    t = np.einsum("nij,nj->ni", RsT @ Rx, tm) - np.einsum("nij,nj->ni", RsT, ts)
-    return Votes(stack_poses(R, t), best_count[voted])
+    return best_cell, best_count
 
 
 def _accumulate(

@@ -44,6 +44,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -83,7 +84,23 @@ class SceneCurve:
 
     def thresholds(self) -> np.ndarray:
         """``+inf`` then every distinct score, descending: the scene's own curve."""
-        return np.concatenate([[np.inf], np.unique(self.scores)[::-1]])
+        return self.steps[0]
+
+    @cached_property
+    def steps(self) -> tuple[np.ndarray, np.ndarray]:
+        """The scene's own thresholds and the number of results kept at each (computed once:
+        every mean curve over the scene needs them)."""
+        own = _thresholds(self.scores)
+        return own, self.kept(own)
+
+
+def _thresholds(scores: np.ndarray) -> np.ndarray:
+    """``+inf`` then the distinct values of ``scores``, descending. (np.unique would do, but
+    it imports numpy.ma, a tenth of evaluate's start-up.)"""
+    s = np.sort(np.asarray(scores, float))[::-1]
+    distinct = np.ones(len(s), bool)
+    distinct[1:] = s[1:] != s[:-1]
+    return np.concatenate([[np.inf], s[distinct]])
 
 
 def scene_curve(
@@ -183,17 +200,16 @@ def mean_curve(
     """The mean precision and recall at ``+inf`` and every distinct score of any scene."""
     if not curves:
         return np.ones(1), np.ones(1)
-    all_scores = np.concatenate([c.scores for c in curves])
-    thresholds = np.concatenate([[np.inf], np.unique(all_scores)[::-1]])
+    thresholds = _thresholds(np.concatenate([c.scores for c in curves]))
     # A scene's point changes only at its own thresholds (a subset of all of them): add its
     # steps there and sum them up, instead of evaluating every scene at every threshold.
     ascending = -thresholds
     precision = np.zeros(len(thresholds))
     recall = np.zeros(len(thresholds))
     for c in curves:
-        own = c.thresholds()
+        own, kept = c.steps
         at = np.searchsorted(ascending, -own)
-        p, r = c.points(c.kept(own), max_results)
+        p, r = c.points(kept, max_results)
         precision[at] += np.diff(p, prepend=0.0)
         recall[at] += np.diff(r, prepend=0.0)
     return np.cumsum(precision) / len(curves), np.cumsum(recall) / len(curves)
@@ -203,7 +219,7 @@ def summarise(curves: Sequence[SceneCurve], *, max_results: Sequence[int] = ()) 
     """AP, AP_n, mean scene AP and best F1 over ``curves`` (see the module docstring)."""
     precision, recall = mean_curve(curves)
     ap_n = {int(n): average_precision(*mean_curve(curves, int(n))) for n in max_results}
-    scene_aps = [average_precision(*c.points(c.kept(c.thresholds()))) for c in curves]
+    scene_aps = [average_precision(*c.points(c.steps[1])) for c in curves]
     f1 = np.where(
         precision + recall > 0, 2 * precision * recall / np.maximum(precision + recall, 1e-300), 0
     )

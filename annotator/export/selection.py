@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 
 from annotator.dataset import Dataset, InstancePose, Scene
 from annotator.dataset.poses import read_poses
-from annotator.dataset.review import apply_edits, poses_fingerprint, read_review
+from annotator.dataset.review import ReviewStatus, apply_edits, poses_fingerprint, read_review
 from annotator.errors import UserError
 
 
@@ -57,7 +57,7 @@ def select_scenes(
         except UserError as exc:
             sel.skipped[scene.id] = f"error: {exc}"
             continue
-        status = "pending" if review is None else review.status
+        status = ReviewStatus.PENDING if review is None else review.status
         if (
             review is not None
             and poses_from == "annotation"
@@ -65,11 +65,11 @@ def select_scenes(
         ):
             sel.skipped[scene.id] = "stale review (annotation changed since)"
             continue
-        if status == "rejected":
-            sel.skipped[scene.id] = "rejected"
+        if status == ReviewStatus.REJECTED:
+            sel.skipped[scene.id] = str(status)
             continue
-        if status == "pending" and not include_pending:
-            sel.skipped[scene.id] = "pending"
+        if status == ReviewStatus.PENDING and not include_pending:
+            sel.skipped[scene.id] = str(status)
             continue
         if poses_from == "annotation":
             edits = apply_edits(poses, review)
@@ -77,7 +77,9 @@ def select_scenes(
                 sel.skipped[scene.id] = "stale pose edit (annotation changed since)"
                 continue
             poses = edits.poses
-        rejected = {k for k, v in (review.instances if review else {}).items() if v == "rejected"}
+        rejected = {
+            k for k, v in (review.instances if review else {}).items() if v == ReviewStatus.REJECTED
+        }
         if rejected and not drop_rejected_instances:
             sel.skipped[scene.id] = "has a rejected instance"
             continue

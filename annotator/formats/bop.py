@@ -87,6 +87,30 @@ def export(
 
 
 def read_ground_truth(path: Path, *, symmetry: str | None = None) -> GroundTruth:
+    notes: list[str] = []
+    spaces, names = _read_models(path, notes)
+    table: Table = {}
+    scenes: list[str] = []
+    counts = [0, 0]  # poses whose R had to be projected onto a rotation, poses
+    for scene_dir in sorted({p.parent for p in path.glob("*/*/scene_gt*.json")}):
+        scenes += _read_scene_gt(scene_dir, names, table, counts)
+    notes += projected_note(counts[0], counts[1], "the ground truth")
+    targets = read_targets(path, names)
+    if targets is not None:
+        source, pairs = targets
+        images = {scene for scene, _ in pairs}
+        scenes = [s for s in scenes if s in images]
+        notes.append(
+            f"targets from {source}: {len(images)} images, {len(pairs)} (image, object) pairs "
+            "to score; the dataset's other poses and any results for them are not scored"
+        )
+        return GroundTruth(spaces, table, scenes, NAME, "mm", names, notes=notes, targets=pairs)
+    return GroundTruth(spaces, table, scenes, NAME, "mm", names, notes=notes)
+
+
+def _read_models(path: Path, notes: list[str]) -> tuple[dict[str, Any], dict[int, str]]:
+    """Each object's pose space (from its mesh and models_info.json's symmetries) and name;
+    symmetries snapped or off the centre are said in ``notes``."""
     from annotator.geometry.mesh import load_mesh
     from annotator.symmetry import PoseSpace
     from annotator.symmetry.classes import symmetry_from_bop
@@ -96,7 +120,6 @@ def read_ground_truth(path: Path, *, symmetry: str | None = None) -> GroundTruth
     if not isinstance(info, dict):
         raise UserError("expected an object {obj_id: {...}}", path=info_path)
     spaces, names = {}, {}
-    notes: list[str] = []
     for key, entry in info.items():
         oid = int(key)
         name = f"obj_{oid:06d}"
@@ -113,47 +136,38 @@ def read_ground_truth(path: Path, *, symmetry: str | None = None) -> GroundTruth
             f"{info_path}: object {key}: {line}"
             for line in off_centre(entry, mesh.moments.centroid, float(spaces[name].diameter))
         ]
-    table: Table = {}
-    scenes = []
-    projected = total = 0
-    for scene_dir in sorted({p.parent for p in path.glob("*/*/scene_gt*.json")}):
-        sfx = evaluated_sensor(scene_dir)
-        gt = read_json(scene_dir / f"scene_gt{sfx}.json")
-        gi_path = scene_dir / f"scene_gt_info{sfx}.json"
-        gi = read_json(gi_path) if gi_path.exists() else {}
-        gt_path = scene_dir / f"scene_gt{sfx}.json"
-        for im_id, insts in gt.items():
-            key = f"{int(scene_dir.name)}/{int(im_id)}"
-            scenes.append(key)
-            infos = gi.get(im_id, [])
-            for k, inst in enumerate(insts):
-                name = names.get(int(inst["obj_id"]), f"obj_{int(inst['obj_id']):06d}")
-                vf = infos[k].get("visib_fract") if k < len(infos) else None
-                R, t = checked_pose(
-                    inst.get("cam_R_m2c"),
-                    inst.get("cam_t_m2c"),
-                    f"image {im_id}, entry {k}",
-                    gt_path,
-                )
-                total += 1
-                projected += not is_rotation(
-                    np.asarray(inst["cam_R_m2c"], float).reshape(3, 3), tol=1e-3
-                )
-                table.setdefault((key, name), PoseSet()).add(
-                    R, t, 1.0 - float(vf) if vf is not None else float("nan")
-                )
-    notes += projected_note(projected, total, "the ground truth")
-    targets = read_targets(path, names)
-    if targets is not None:
-        source, pairs = targets
-        images = {scene for scene, _ in pairs}
-        scenes = [s for s in scenes if s in images]
-        notes.append(
-            f"targets from {source}: {len(images)} images, {len(pairs)} (image, object) pairs "
-            "to score; the dataset's other poses and any results for them are not scored"
-        )
-        return GroundTruth(spaces, table, scenes, NAME, "mm", names, notes=notes, targets=pairs)
-    return GroundTruth(spaces, table, scenes, NAME, "mm", names, notes=notes)
+    return spaces, names
+
+
+def _read_scene_gt(
+    scene_dir: Path, names: dict[int, str], table: Table, counts: list[int]
+) -> list[str]:
+    """Add a scene folder's poses to ``table`` (``counts``: poses projected, poses); returns
+    its images' keys."""
+    sfx = evaluated_sensor(scene_dir)
+    gt_path = scene_dir / f"scene_gt{sfx}.json"
+    gt = read_json(gt_path)
+    gi_path = scene_dir / f"scene_gt_info{sfx}.json"
+    gi = read_json(gi_path) if gi_path.exists() else {}
+    keys = []
+    for im_id, insts in gt.items():
+        key = f"{int(scene_dir.name)}/{int(im_id)}"
+        keys.append(key)
+        infos = gi.get(im_id, [])
+        for k, inst in enumerate(insts):
+            name = names.get(int(inst["obj_id"]), f"obj_{int(inst['obj_id']):06d}")
+            vf = infos[k].get("visib_fract") if k < len(infos) else None
+            R, t = checked_pose(
+                inst.get("cam_R_m2c"), inst.get("cam_t_m2c"), f"image {im_id}, entry {k}", gt_path
+            )
+            counts[1] += 1
+            counts[0] += not is_rotation(
+                np.asarray(inst["cam_R_m2c"], float).reshape(3, 3), tol=1e-3
+            )
+            table.setdefault((key, name), PoseSet()).add(
+                R, t, 1.0 - float(vf) if vf is not None else float("nan")
+            )
+    return keys
 
 
 #: A listed symmetry whose axis misses the surface centroid by more than this fraction of the

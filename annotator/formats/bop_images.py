@@ -255,11 +255,9 @@ def _scene_images(
 ) -> list[BopImage]:
     sfx = evaluated_sensor(folder)
     gt_path = folder / f"scene_gt{sfx}.json"
-    gt, info, cams = (
-        _mapping(gt_path),
-        _mapping(folder / f"scene_gt_info{sfx}.json"),
-        _mapping(folder / f"scene_camera{sfx}.json"),
-    )
+    info_path = folder / f"scene_gt_info{sfx}.json"
+    cams_path = folder / f"scene_camera{sfx}.json"
+    gt, info, cams = _mapping(gt_path), _mapping(info_path), _mapping(cams_path)
     width, height = _image_size(folder, sfx)
     out = []
     for im_key in sorted(gt, key=int):
@@ -267,15 +265,8 @@ def _scene_images(
         insts = gt[im_key] or []
         if not isinstance(insts, list):
             raise UserError(f"image {im_key}: expected a list of poses", path=gt_path)
-        infos = info.get(im_key) or []
         obj_ids = np.array([int(g.get("obj_id", -1)) for g in insts], int)
-        try:
-            visib = np.array([float(infos[k]["visib_fract"]) for k in range(len(insts))])
-        except (IndexError, KeyError, TypeError, ValueError):
-            raise UserError(
-                f"image {im_key}: every pose needs a visib_fract",
-                path=folder / f"scene_gt_info{sfx}.json",
-            ) from None
+        visib = _visible_fractions(info.get(im_key) or [], len(insts), im_key, info_path)
         if targets is None:
             wanted: dict[int, int] = {}
             for oid in obj_ids[visib >= 0.1]:
@@ -287,43 +278,42 @@ def _scene_images(
         unknown = [o for o in wanted if o not in objects]
         if unknown:
             raise UserError(f"image {im_key}: object {unknown[0]} is not in models_info.json")
-        if insts:
-
-            def where(k: int, im: str = im_key) -> str:
-                return f"image {im}, entry {k}"
-
-            R, t, _ = checked_poses(
-                [g.get("cam_R_m2c") for g in insts],
-                [g.get("cam_t_m2c") for g in insts],
-                where,
-                gt_path,
-            )
-            R = np.asarray([g["cam_R_m2c"] for g in insts], float).reshape(-1, 3, 3)  # as written
-        else:
-            R, t = np.zeros((0, 3, 3)), np.zeros((0, 3))
+        R, t = _poses_as_written(insts, im_key, gt_path)
         cam = cams.get(im_key) or {}
-        try:
-            K = np.asarray(cam["cam_K"], float).reshape(3, 3)
-        except (KeyError, TypeError, ValueError):
-            raise UserError(
-                f"image {im_key}: cam_K must be 9 numbers", path=folder / f"scene_camera{sfx}.json"
-            ) from None
-        out.append(
-            BopImage(
-                scene_id,
-                im_id,
-                K,
-                width,
-                height,
-                obj_ids,
-                R,
-                t,
-                visib,
-                wanted,
-                _depth_reader(folder, sfx, im_id, cam),
-            )
-        )
+        K = _camera_matrix(cam, im_key, cams_path)
+        depth = _depth_reader(folder, sfx, im_id, cam)
+        out.append(BopImage(scene_id, im_id, K, width, height, obj_ids, R, t, visib, wanted, depth))
     return out
+
+
+def _visible_fractions(infos: Any, n: int, im_key: str, path: Path) -> np.ndarray:
+    """The ``visib_fract`` of each of an image's ``n`` poses."""
+    try:
+        return np.array([float(infos[k]["visib_fract"]) for k in range(n)])
+    except (IndexError, KeyError, TypeError, ValueError):
+        raise UserError(f"image {im_key}: every pose needs a visib_fract", path=path) from None
+
+
+def _poses_as_written(insts: list[Any], im_key: str, path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """An image's poses, checked (finite, near-rotations), with R as written: bop_toolkit
+    scores a rotation that is not quite orthonormal as it is, and so does this."""
+    if not insts:
+        return np.zeros((0, 3, 3)), np.zeros((0, 3))
+
+    def where(k: int) -> str:
+        return f"image {im_key}, entry {k}"
+
+    _, t, _ = checked_poses(
+        [g.get("cam_R_m2c") for g in insts], [g.get("cam_t_m2c") for g in insts], where, path
+    )
+    return np.asarray([g["cam_R_m2c"] for g in insts], float).reshape(-1, 3, 3), t
+
+
+def _camera_matrix(cam: dict[str, Any], im_key: str, path: Path) -> np.ndarray:
+    try:
+        return np.asarray(cam["cam_K"], float).reshape(3, 3)
+    except (KeyError, TypeError, ValueError):
+        raise UserError(f"image {im_key}: cam_K must be 9 numbers", path=path) from None
 
 
 def _mapping(path: Path) -> dict[str, Any]:

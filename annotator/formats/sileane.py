@@ -152,11 +152,6 @@ def export(
     returns the scenes left out because an input was unreadable (scene id -> reason)."""
     from annotator.export.inputs import read_scene_inputs
     from annotator.export.undistort import pinhole_rig
-    from annotator.geometry.mesh import Mesh
-    from annotator.io.atomic import write_json, write_text
-    from annotator.io.images import write_png
-    from annotator.io.ply import write_ply
-    from annotator.occlusion import scene_visibility
 
     rig = pinhole_rig(ds.rig)
     ref = rig.cameras[0]
@@ -168,13 +163,36 @@ def export(
             inputs[item.scene.id] = read_scene_inputs(ds, item.scene, [ref.name], depth=with_depth)
         except UserError as exc:
             failed[item.scene.id] = str(exc)
-    finite = [
-        d[np.isfinite(d)]
-        for d in (i.depth for i in inputs.values())
-        if d is not None and np.isfinite(d).any()
-    ]
-    clip_start = (min(float(f.min()) for f in finite) - 50.0) / M if finite else 0.1
-    clip_end = (max(float(f.max()) for f in finite) + 50.0) / M if finite else 2.0
+    clip = _clip_range([i.depth for i in inputs.values()])
+    frames = _write_objects(ds, out, ref.K, clip)
+    for item in selected:
+        if item.scene.id in inputs:
+            _write_scene(ds, rig, item, inputs[item.scene.id], out, frames, clip)
+        if progress:
+            progress()
+    return failed
+
+
+def _clip_range(depths: Sequence[np.ndarray | None]) -> tuple[float, float]:
+    """The depth range (m) the 16-bit depth images encode: every measured depth, 50 mm
+    either side (0.1-2 m without depth)."""
+    finite = [d[np.isfinite(d)] for d in depths if d is not None and np.isfinite(d).any()]
+    if not finite:
+        return 0.1, 2.0
+    lo = min(float(f.min()) for f in finite)
+    hi = max(float(f.max()) for f in finite)
+    return (lo - 50.0) / M, (hi + 50.0) / M
+
+
+def _write_objects(
+    ds: Any, out: Path, K: np.ndarray, clip: tuple[float, float]
+) -> dict[str, np.ndarray]:
+    """Each object's folder: its mesh in the canonical frame (m), its poseutils.json and
+    the camera's parameters; returns each object's ``model_T_canonical``."""
+    from annotator.geometry.mesh import Mesh
+    from annotator.io.atomic import write_json, write_text
+    from annotator.io.ply import write_ply
+
     frames = {}
     for name, obj in ds.objects.items():
         space = PoseSpace.from_moments(obj.mesh.moments, obj.symmetry)
@@ -186,55 +204,64 @@ def export(
             folder / "poseutils.json",
             poseutils_to_json(space, threshold_mm=MATCH_THRESHOLD_FRACTION * space.diameter),
         )
-        K = ref.K
         write_text(
             folder / "camera_params.txt",
             f"fu\t{K[0, 0]:.6f}\nfv\t{K[1, 1]:.6f}\ncu\t{K[0, 2]:.6f}\ncv\t{K[1, 2]:.6f}\n"
-            f"clip_start\t{clip_start:.6f}\nclip_end\t{clip_end:.6f}\n"
+            f"clip_start\t{clip[0]:.6f}\nclip_end\t{clip[1]:.6f}\n"
             "location\t0.0\t0.0\t0.0\nrotation\t1.0\t0.0\t0.0\t0.0\n",
         )
-    for item in selected:
-        sid = item.scene.id
-        if sid not in inputs:
-            if progress:
-                progress()
-            continue
-        depth = inputs[sid].depth
-        meshes = [ds.objects[p.object].mesh for p in item.poses]
-        vis = scene_visibility(
-            rig, meshes, [p.T for p in item.poses], depth=depth, cameras=[ref.name], masks=True
-        )
-        img = inputs[sid].images[ref.name]
-        for name in ds.objects:
-            folder = out / name
-            write_png(folder / "rgb" / f"{sid}.PNG", img)
-            if depth is not None:
-                z = depth / M
-                enc = np.clip((z - clip_start) / (clip_end - clip_start), 0, 1) * 65535
-                enc = np.where(np.isfinite(z), np.round(enc), 65535).astype(np.uint16)
-                write_png(folder / "depth" / f"{sid}.PNG", enc)
-            seg = np.full((ref.height, ref.width), NO_SEGMENT, np.uint8)
-            gt: list[dict[str, Any]] = []
-            for p, v in zip(item.poses, vis):
-                if p.object != name:
-                    continue
-                seg_id = len(gt)
-                seg[v.cameras[0].mask_visib] = seg_id
-                T = p.T @ frames[name]
-                gt.append(
-                    {
-                        "R": T[:3, :3].tolist(),
-                        "t": (T[:3, 3] / M).tolist(),
-                        "occlusion_rate": float(v.occlusion),
-                        "segmentation_id": seg_id,
-                        "instance": p.instance,
-                    }
-                )
-            write_png(folder / "segmentation" / f"{sid}.PNG", seg)
-            write_json(folder / "gt" / f"{sid}.json", gt)
-        if progress:
-            progress()
-    return failed
+    return frames
+
+
+def _write_scene(
+    ds: Any,
+    rig: Any,
+    item: Any,
+    inputs: Any,
+    out: Path,
+    frames: dict[str, np.ndarray],
+    clip: tuple[float, float],
+) -> None:
+    """One scene in every object's folder: the image, the encoded depth, the segmentation
+    of that object's instances and their poses in its canonical frame."""
+    from annotator.io.atomic import write_json
+    from annotator.io.images import write_png
+    from annotator.occlusion import scene_visibility
+
+    ref = rig.cameras[0]
+    sid = item.scene.id
+    depth = inputs.depth
+    meshes = [ds.objects[p.object].mesh for p in item.poses]
+    vis = scene_visibility(
+        rig, meshes, [p.T for p in item.poses], depth=depth, cameras=[ref.name], masks=True
+    )
+    for name in ds.objects:
+        folder = out / name
+        write_png(folder / "rgb" / f"{sid}.PNG", inputs.images[ref.name])
+        if depth is not None:
+            z = depth / M
+            enc = np.clip((z - clip[0]) / (clip[1] - clip[0]), 0, 1) * 65535
+            enc = np.where(np.isfinite(z), np.round(enc), 65535).astype(np.uint16)
+            write_png(folder / "depth" / f"{sid}.PNG", enc)
+        seg = np.full((ref.height, ref.width), NO_SEGMENT, np.uint8)
+        gt: list[dict[str, Any]] = []
+        for p, v in zip(item.poses, vis):
+            if p.object != name:
+                continue
+            seg_id = len(gt)
+            seg[v.cameras[0].mask_visib] = seg_id
+            T = p.T @ frames[name]
+            gt.append(
+                {
+                    "R": T[:3, :3].tolist(),
+                    "t": (T[:3, 3] / M).tolist(),
+                    "occlusion_rate": float(v.occlusion),
+                    "segmentation_id": seg_id,
+                    "instance": p.instance,
+                }
+            )
+        write_png(folder / "segmentation" / f"{sid}.PNG", seg)
+        write_json(folder / "gt" / f"{sid}.json", gt)
 
 
 # ------------------------------------------------------------------------- ground truth

@@ -12,7 +12,16 @@ Conventions, stated once for the whole project (they follow docs/FORMAT.md):
   distortion in OpenCV's order and model.
 - Marker corners follow OpenCV ArUco order: top-left, top-right, bottom-right, bottom-left
   as seen from outside the object.
+- Pixel boxes come in two conventions, each with its own name: :data:`Rect` ``(x0, y0, x1,
+  y1)``, end exclusive (what is cast over, unexplained-depth regions), and :data:`XYWH`
+  ``(x, y, width, height)`` (what BOP writes).
 """
 
 #: Millimetres per metre: the one conversion between our lengths and metric libraries'.
 MM_PER_M = 1000.0
+
+#: A pixel rectangle ``(x0, y0, x1, y1)``, end exclusive.
+Rect = tuple[int, int, int, int]
+
+#: A box as BOP writes it: ``(x, y, width, height)`` of the pixels it covers.
+XYWH = tuple[int, int, int, int]

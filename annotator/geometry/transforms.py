@@ -63,7 +63,18 @@ def rotvec_to_matrix(rotvec: np.ndarray) -> np.ndarray:
 def matrix_to_rotvec(R: np.ndarray) -> np.ndarray:
     """Rotation matrices (..., 3, 3) to rotation vectors (..., 3), angles in [0, pi], through
     the quaternion (Shepperd: from its largest component, for accuracy)."""
-    R = np.asarray(R, dtype=float)
+    q = _quaternion(np.asarray(R, dtype=float))
+    v = q[..., :3]
+    s = np.linalg.norm(v, axis=-1)
+    angle = 2.0 * np.arctan2(s, q[..., 3])
+    with np.errstate(invalid="ignore", divide="ignore"):
+        scale = np.where(s < 1e-12, 2.0, angle / s)
+    return v * scale[..., None]
+
+
+def _quaternion(R: np.ndarray) -> np.ndarray:
+    """Unit quaternions (..., 4) ``(x, y, z, w)`` with ``w >= 0`` of rotation matrices
+    (..., 3, 3), each from the candidate of its largest component (Shepperd's method)."""
     r = {(i, j): R[..., i, j] for i in range(3) for j in range(3)}
     tr = r[0, 0] + r[1, 1] + r[2, 2]
     big = np.stack(
@@ -71,57 +82,19 @@ def matrix_to_rotvec(R: np.ndarray) -> np.ndarray:
     )
     h = np.sqrt(np.maximum(big, 1e-300)) / 2.0  # each candidate's largest component
     d = 4.0 * h
-    candidates = np.stack(  # (x, y, z, w) from x, from y, from z, from w
-        [
-            np.stack(
-                [
-                    h[..., 0],
-                    (r[0, 1] + r[1, 0]) / d[..., 0],
-                    (r[0, 2] + r[2, 0]) / d[..., 0],
-                    (r[2, 1] - r[1, 2]) / d[..., 0],
-                ],
-                -1,
-            ),
-            np.stack(
-                [
-                    (r[0, 1] + r[1, 0]) / d[..., 1],
-                    h[..., 1],
-                    (r[1, 2] + r[2, 1]) / d[..., 1],
-                    (r[0, 2] - r[2, 0]) / d[..., 1],
-                ],
-                -1,
-            ),
-            np.stack(
-                [
-                    (r[0, 2] + r[2, 0]) / d[..., 2],
-                    (r[1, 2] + r[2, 1]) / d[..., 2],
-                    h[..., 2],
-                    (r[1, 0] - r[0, 1]) / d[..., 2],
-                ],
-                -1,
-            ),
-            np.stack(
-                [
-                    (r[2, 1] - r[1, 2]) / d[..., 3],
-                    (r[0, 2] - r[2, 0]) / d[..., 3],
-                    (r[1, 0] - r[0, 1]) / d[..., 3],
-                    h[..., 3],
-                ],
-                -1,
-            ),
-        ],
-        -2,
+    xy, xz, yz = r[0, 1] + r[1, 0], r[0, 2] + r[2, 0], r[1, 2] + r[2, 1]
+    wx, wy, wz = r[2, 1] - r[1, 2], r[0, 2] - r[2, 0], r[1, 0] - r[0, 1]
+    rows = (  # (x, y, z, w) from x, from y, from z, from w
+        (h[..., 0], xy / d[..., 0], xz / d[..., 0], wx / d[..., 0]),
+        (xy / d[..., 1], h[..., 1], yz / d[..., 1], wy / d[..., 1]),
+        (xz / d[..., 2], yz / d[..., 2], h[..., 2], wz / d[..., 2]),
+        (wx / d[..., 3], wy / d[..., 3], wz / d[..., 3], h[..., 3]),
     )
+    candidates = np.stack([np.stack(row, -1) for row in rows], -2)
     pick = np.argmax(big, axis=-1)[..., None, None]
     q = np.take_along_axis(candidates, pick, axis=-2)[..., 0, :]
     q = q / np.linalg.norm(q, axis=-1, keepdims=True)
-    q = np.where(q[..., 3:4] < 0, -q, q)  # w >= 0: angles up to pi
-    v = q[..., :3]
-    s = np.linalg.norm(v, axis=-1)
-    angle = 2.0 * np.arctan2(s, q[..., 3])
-    with np.errstate(invalid="ignore", divide="ignore"):
-        scale = np.where(s < 1e-12, 2.0, angle / s)
-    return v * scale[..., None]
+    return np.where(q[..., 3:4] < 0, -q, q)  # w >= 0: angles up to pi
 
 
 def axis_angle(axis: np.ndarray, angle: float) -> np.ndarray:

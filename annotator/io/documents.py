@@ -20,10 +20,9 @@ from __future__ import annotations
 import difflib
 import json
 import math
+import re
 from pathlib import Path
 from typing import Any
-
-import yaml
 
 from annotator.errors import UserError
 
@@ -58,8 +57,31 @@ def parse_json(text: str, path: str | Path) -> Any:
         raise UserError(f"not valid JSON ({exc})", path=path) from None
     except RecursionError:
         raise _too_deep(path) from None
-    check_nesting(doc, path)
+    if _json_depth(text) > MAX_NESTING:
+        raise _too_deep(path)
     return doc
+
+
+#: A JSON string, escapes included (unrolled, so that long strings are matched fast).
+_JSON_STRING = re.compile(r'"[^"\\]*(?:\\.[^"\\]*)*"')
+_NOT_BRACKET = re.compile(r"[^\[\]{}]+")
+#: A list or object with no list or object inside, once everything but brackets is gone.
+_INNERMOST = re.compile(r"\[\]|\{\}")
+
+
+def _json_depth(text: str) -> int:
+    """How deep the lists and objects of a valid JSON text nest (up to one past
+    :data:`MAX_NESTING`): only the brackets outside strings are kept, then each pass removes
+    the innermost pairs. A walk over the parsed document would visit every number."""
+    rest = _JSON_STRING.sub("", text) if '"' in text else text
+    rest = _NOT_BRACKET.sub("", rest)
+    depth = 0
+    while rest and depth <= MAX_NESTING:
+        rest, n = _INNERMOST.subn("", rest)
+        if n == 0:
+            break
+        depth += 1
+    return depth
 
 
 def read_json(path: str | Path) -> Any:
@@ -73,7 +95,11 @@ def parse_yaml(text: str, path: str | Path) -> Any:
     Raises:
         UserError: naming ``path``, with the line and column of a syntax error.
     """
+    import yaml  # here: JSON readers (evaluate, export) need not pay for it
+
     try:
+        # The pure-Python loader, not libyaml's: the two accept different documents (tabs,
+        # directives) and word their errors differently, and not every PyYAML has libyaml.
         doc = yaml.safe_load(text.removeprefix(_BOM))
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None) or getattr(exc, "context_mark", None)
@@ -81,7 +107,9 @@ def parse_yaml(text: str, path: str | Path) -> Any:
         what = "; ".join(
             str(x) for x in (getattr(exc, "context", None), getattr(exc, "problem", None)) if x
         )
-        raise UserError(f"not valid YAML{where} ({what or type(exc).__name__})", path=path) from None
+        raise UserError(
+            f"not valid YAML{where} ({what or type(exc).__name__})", path=path
+        ) from None
     except RecursionError:
         raise _too_deep(path) from None
     check_nesting(doc, path)

@@ -18,6 +18,7 @@ facets are tried first, centred, then the rest of the surface in a seeded random
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -109,45 +110,19 @@ def place_markers(
     """
     gap = size / 10 if gap is None else gap
     rng = np.random.default_rng(seed)
-    scene = o3d.t.geometry.RaycastingScene()
-    scene.add_triangles(
-        o3d.core.Tensor(mesh.vertices.astype(np.float32)),
-        o3d.core.Tensor(mesh.faces.astype(np.uint32)),
-    )
-    centres, normals = _candidates(mesh, size, rng)
-    u = np.linspace(-0.5, 0.5, 5) * size
-    grid = np.stack(np.meshgrid(u, u), axis=-1).reshape(-1, 2)
+    fit = _SiteFit(mesh, _raycasting_scene(mesh), size, flatness_tol, max_normal_deg)
     radius = size / np.sqrt(2)
     kept_c: list[np.ndarray] = []
     kept: list[np.ndarray] = []
     kept_n: list[np.ndarray] = []
-    cos_tol = np.cos(np.radians(max_normal_deg))
-    for c, n in zip(centres, normals):
+    for c, n in zip(*_candidates(mesh, size, rng)):
         if kept_c and np.min(np.linalg.norm(np.asarray(kept_c) - c, axis=1)) < 2 * radius + gap:
             continue
-        ref = np.array([0.0, 0.0, 1.0]) if abs(n[2]) < 0.9 else np.array([1.0, 0.0, 0.0])
-        right = np.cross(ref, n)
-        corners = square_corners(c, n, right, size)
-        r = (corners[1] - corners[0]) / size
-        d = (corners[3] - corners[0]) / size
-        pts = c + grid[:, :1] * r + grid[:, 1:] * d
-        q = scene.compute_closest_points(o3d.core.Tensor(pts.astype(np.float32)))
-        closest = q["points"].numpy()
-        if np.max(np.linalg.norm(closest - pts, axis=1)) > flatness_tol:
-            continue
-        face_n = mesh.face_normals[q["primitive_ids"].numpy()]
-        if np.min(face_n @ n) < cos_tol:
-            continue
-        # On a curved patch, glue the corners to the surface (the printed square bends onto it).
-        on_surface = scene.compute_closest_points(o3d.core.Tensor(corners.astype(np.float32)))[
-            "points"
-        ].numpy()
-        moved = on_surface - corners
-        sideways = moved - np.outer(moved @ n, n)
-        if np.linalg.norm(sideways, axis=1).max() > 0.1:  # a corner slid off the patch (an edge)
+        corners = fit.corners(c, n)
+        if corners is None:
             continue
         kept_c.append(c)
-        kept.append(on_surface.astype(np.float64))
+        kept.append(corners)
         kept_n.append(n)
     corners = np.asarray(kept).reshape(-1, 4, 3)
     nrm = np.asarray(kept_n).reshape(-1, 3)
@@ -157,6 +132,58 @@ def place_markers(
         corners, nrm = corners[keep], nrm[keep]
     min_facing = int(facing_counts(nrm, dirs).min())
     return MarkerLayout(size=size, corners=corners, normals=nrm, min_facing=min_facing)
+
+
+def _raycasting_scene(mesh: Mesh) -> Any:
+    """open3d's scene of the part, for closest points on its surface."""
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(
+        o3d.core.Tensor(mesh.vertices.astype(np.float32)),
+        o3d.core.Tensor(mesh.faces.astype(np.uint32)),
+    )
+    return scene
+
+
+class _SiteFit:
+    """Whether a square site fits the surface at a candidate centre and normal."""
+
+    def __init__(
+        self, mesh: Mesh, scene: Any, size: float, flatness_tol: float, max_normal_deg: float
+    ) -> None:
+        self.mesh = mesh
+        self.scene = scene
+        self.size = size
+        self.flatness_tol = flatness_tol
+        self.cos_tol = np.cos(np.radians(max_normal_deg))
+        u = np.linspace(-0.5, 0.5, 5) * size
+        # Sampled across the square, not only at its corners: a bump in its middle shows.
+        self.grid = np.stack(np.meshgrid(u, u), axis=-1).reshape(-1, 2)
+
+    def corners(self, c: np.ndarray, n: np.ndarray) -> np.ndarray | None:
+        """The (4, 3) corners of the site at ``c`` facing ``n``, glued to the surface; None if
+        the surface under it is not flat enough, turns away, or ends under a corner."""
+        size, scene = self.size, self.scene
+        ref = np.array([0.0, 0.0, 1.0]) if abs(n[2]) < 0.9 else np.array([1.0, 0.0, 0.0])
+        corners = square_corners(c, n, np.cross(ref, n), size)
+        r = (corners[1] - corners[0]) / size
+        d = (corners[3] - corners[0]) / size
+        pts = c + self.grid[:, :1] * r + self.grid[:, 1:] * d
+        q = scene.compute_closest_points(o3d.core.Tensor(pts.astype(np.float32)))
+        closest = q["points"].numpy()
+        if np.max(np.linalg.norm(closest - pts, axis=1)) > self.flatness_tol:
+            return None
+        face_n = self.mesh.face_normals[q["primitive_ids"].numpy()]
+        if np.min(face_n @ n) < self.cos_tol:
+            return None
+        # On a curved patch, glue the corners to the surface (the printed square bends onto it).
+        on_surface = scene.compute_closest_points(o3d.core.Tensor(corners.astype(np.float32)))[
+            "points"
+        ].numpy()
+        moved = on_surface - corners
+        sideways = moved - np.outer(moved @ n, n)
+        if np.linalg.norm(sideways, axis=1).max() > 0.1:  # a corner slid off the patch (an edge)
+            return None
+        return on_surface.astype(np.float64)
 
 
 def _spread(normals: np.ndarray, dirs: np.ndarray, k: int, *, target: int = 4) -> np.ndarray:

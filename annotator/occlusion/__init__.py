@@ -36,20 +36,16 @@ from dataclasses import dataclass
 import numpy as np
 
 from annotator.dataset.model import Rig
+from annotator.geometry import XYWH, Rect
 from annotator.geometry.camera import Camera
 from annotator.geometry.mesh import Mesh
 from annotator.rendering.raycast import (
     Hits,
     PlacedMesh,
-    Rect,
     cast_separately,
     nearest,
     projected_bbox,
 )
-
-#: A box as BOP writes it: ``(x, y, width, height)`` of the pixels it covers. The rectangles
-#: cast over are :data:`annotator.rendering.raycast.Rect`, ``(x0, y0, x1, y1)`` end exclusive.
-XYWH = tuple[int, int, int, int]
 
 #: How much closer (mm) a measurement must be than the rendered part to hide a pixel of it:
 #: several times the sensor noise.
@@ -119,6 +115,7 @@ def scene_visibility(
     *,
     depth: np.ndarray | None = None,
     depth_tolerance: float = DEPTH_TOLERANCE_MM,
+    agreement_tolerance: float = AGREEMENT_TOLERANCE_MM,
     cameras: Sequence[str] | None = None,
     masks: bool = False,
     step: int = 1,
@@ -130,6 +127,8 @@ def scene_visibility(
     Args:
         depth: The depth camera's measured depth map (mm, NaN where nothing was measured).
         depth_tolerance: How much closer (mm) a measurement must be to hide a pixel.
+        agreement_tolerance: Measured and rendered depth agree within
+            ``max(agreement_tolerance, 1% of the depth)`` (mm).
         cameras: Names of the cameras to process (default: all, the reference camera first).
         masks: Also return full-image masks (requires ``step=1``).
         step: Cast every ``step``-th pixel only (see the module's docstring).
@@ -145,6 +144,7 @@ def scene_visibility(
     names = list(cameras) if cameras is not None else [c.name for c in rig.cameras]
     per_instance: list[list[CameraVisibility]] = [[] for _ in meshes]
     depth_cam = rig.depth.camera if rig.depth is not None else None
+    tolerances = (depth_tolerance, agreement_tolerance)
     for name in names:
         cam = rig.camera(name)
         done = casts.get(name) if casts is not None and step == 1 else None
@@ -155,7 +155,7 @@ def scene_visibility(
         size = cam.size if masks else None
         for k, box in enumerate(boxes):
             cast = _InstanceCast(name, box, alone[k], front, k)
-            per_instance[k].append(_visibility(cast, measured, depth_tolerance, step, size))
+            per_instance[k].append(_visibility(cast, measured, tolerances, step, size))
     out = []
     for cams_vis in per_instance:
         ref = cams_vis[0]
@@ -203,13 +203,15 @@ class _InstanceCast:
 def _visibility(
     cast: _InstanceCast,
     measured: np.ndarray | None,
-    depth_tolerance: float,
+    tolerances: tuple[float, float],
     step: int,
     size: tuple[int, int] | None,
 ) -> CameraVisibility:
     """The instance's counts, boxes, occlusion and depth agreement in one camera (pixel
     counts are samples times ``step**2``), and with ``size`` (width, height) its full-image
-    masks: the silhouette and its visible part, with the depth test in the depth camera."""
+    masks: the silhouette and its visible part, with the depth test in the depth camera.
+    ``tolerances``: how much closer a measurement hides a pixel, and within how much it
+    agrees (mm)."""
     use_depth = measured is not None
     empty = None if size is None else np.zeros((size[1], size[0]), bool)
     if cast.box is None or cast.alone is None:
@@ -237,14 +239,15 @@ def _visibility(
     m_dep = m_vis
     if measured is not None:
         meas = measured[y0:y1, x0:x1]
-        m_dep = m_vis & ~(np.isfinite(meas) & (meas < rend - depth_tolerance))
+        hide, agree = tolerances
+        m_dep = m_vis & ~(np.isfinite(meas) & (meas < rend - hide))
         vis.px_visib_depth = area * int(m_dep.sum())
         vis.occlusion_depth = 1.0 - vis.px_visib_depth / px_all if px_all else 1.0
         seen = m_vis & np.isfinite(meas)
         vis.depth_pixels = area * int(seen.sum())
         if vis.depth_pixels:
             diff = np.abs(meas[seen] - rend[seen])
-            tol = np.maximum(AGREEMENT_TOLERANCE_MM, 0.01 * rend[seen])
+            tol = np.maximum(agree, 0.01 * rend[seen])
             vis.depth_agreement = float(np.mean(diff < tol))
             vis.depth_median_abs_mm = float(np.median(diff))
     if empty is not None:

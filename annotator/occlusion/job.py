@@ -4,13 +4,18 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
-from annotator.dataset import cached_dataset, read_poses
+from annotator.dataset import Scene, cached_dataset, read_poses
+from annotator.dataset.model import SCENES_DIR
 from annotator.errors import UserError
 from annotator.io.atomic import write_json
 from annotator.occlusion import scene_visibility
 from annotator.runner.bundle import description_files
+
+#: What the job writes in each scene folder.
+VISIBILITY_FILE = "visibility.json"
 
 
 @dataclass(frozen=True)
@@ -36,12 +41,13 @@ class VisibilityJob:
 
     def scene_files(self, scene_id: str) -> list[str]:
         """The poses (annotation.json or gt.json) and the depth map."""
-        src = "annotation.json" if self.poses == "annotation" else "gt.json"
-        return [f"scenes/{scene_id}/{src}", f"scenes/{scene_id}/depth.png"]
+        scene = Scene(scene_id, Path(SCENES_DIR) / scene_id)
+        src = scene.annotation_path if self.poses == "annotation" else scene.gt_path
+        return [src.as_posix(), scene.depth_path.as_posix()]
 
     def output_files(self, scene_id: str) -> list[str]:
         """visibility.json."""
-        return [f"scenes/{scene_id}/visibility.json"]
+        return [(Path(SCENES_DIR) / scene_id / VISIBILITY_FILE).as_posix()]
 
     def __call__(self, scene_id: str) -> dict[str, Any]:
         ds = cached_dataset(self.root)
@@ -80,5 +86,5 @@ class VisibilityJob:
                     "cameras": cams,
                 }
             )
-        write_json(scene.path / "visibility.json", out)
+        write_json(scene.path / VISIBILITY_FILE, out)
         return {"instances": len(poses)}

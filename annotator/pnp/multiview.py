@@ -182,14 +182,14 @@ def refine_pose(
     """
     x = np.stack([o.image_corners for o in obs])
     T = np.array(T0, dtype=float)
-    r, J = _residuals_jacobian(cameras, obs, T, x)
+    r, J = residuals_jacobian(cameras, obs, T, x)
     cost = r @ r
     damping = 1e-3
     for _ in range(max_iterations):
         JtJ, g = J.T @ J, J.T @ r
         step = np.linalg.solve(JtJ + damping * np.diag(np.diag(JtJ) + 1e-12), -g)
         T_new = _perturb(T, step)
-        r_new, J_new = _residuals_jacobian(cameras, obs, T_new, x)
+        r_new, J_new = residuals_jacobian(cameras, obs, T_new, x)
         cost_new = r_new @ r_new
         if cost_new < cost:
             done = cost - cost_new < 1e-12 * max(cost, 1e-12) or np.abs(step).max() < 1e-10
@@ -217,7 +217,7 @@ def _perturb(T: np.ndarray, d: np.ndarray) -> np.ndarray:
     return make_transform(rotvec_to_matrix(d[:3]) @ T[:3, :3], T[:3, 3] + d[3:])
 
 
-def _residuals_jacobian(
+def residuals_jacobian(
     cameras: Sequence[Camera], obs: Sequence[Observation], T: np.ndarray, x: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
     """Stacked corner residuals (projected - detected, (8 len(obs),)) and their Jacobian

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from annotator.geometry import Rect
 from annotator.geometry.camera import Camera
 from annotator.geometry.mesh import Mesh
 from annotator.geometry.open3d_lib import o3d
@@ -155,9 +156,6 @@ class RayScene:
             barycentric=res["primitive_uvs"].numpy().astype(np.float32).reshape(*shape, 2),
         )
 
-
-#: A pixel rectangle ``(x0, y0, x1, y1)``, end exclusive.
-Rect = tuple[int, int, int, int]
 
 _MODEL_SCENES: dict[bytes, RayScene] = {}
 

@@ -21,6 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from annotator.dataset import Dataset
+from annotator.dataset.annotation import MarkerUse
 from annotator.detection.aruco import ImageReading
 from annotator.geometry.camera import Camera
 from annotator.geometry.mesh import Mesh
@@ -206,19 +207,14 @@ def used_observations(
     cameras: Sequence[Camera],
     mesh: Mesh,
     obs: Sequence[Observation],
-    used: dict[str, dict[str, list[int]]] | None,
+    used: dict[str, MarkerUse] | None,
 ) -> list[Observation]:
     """The observations a refinement may rely on: those ``annotate`` used (``used``:
     annotation.json's ``markers``), or, for an instance it did not pose, those the best
     supported candidate explains (a misread or stray marker must not pull the pose)."""
     if used:
         names = [c.name for c in cameras]
-        keep = {
-            (names.index(c), int(i))
-            for c, m in used.items()
-            if c in names
-            for i in m.get("used", [])
-        }
+        keep = {(names.index(c), int(i)) for c, m in used.items() if c in names for i in m.used}
         return [o for o in obs if (o.camera, o.marker_id) in keep]
     best = alternatives(cameras, mesh, obs, limit=1)
     if not best:

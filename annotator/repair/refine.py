@@ -29,7 +29,7 @@ from annotator.estimation.model import surface_samples
 from annotator.geometry.camera import Camera
 from annotator.geometry.mesh import Mesh
 from annotator.geometry.transforms import make_transform, rotvec_to_matrix
-from annotator.pnp.multiview import Observation, _residuals_jacobian, reprojection_errors
+from annotator.pnp.multiview import Observation, reprojection_errors, residuals_jacobian
 from annotator.rendering.raycast import PlacedMesh, cast_alone, clip_region, projected_bbox
 
 #: The model's surface samples are about this far apart (mm): well below the depth's own
@@ -323,61 +323,12 @@ def refine_instance(
             term = _DepthTerm(mesh, pts, depth_camera.rig_T_cam[:3, 3])
     before = residuals_at(T0, term, cameras, obs, settings)
     if term is None and not obs:
-        return Refinement(
-            T0,
-            T0,
-            False,
-            0,
-            before,
-            before,
-            "no measured depth and no marker on it",
-            time.perf_counter() - started,
-        )
-    x = np.stack([o.image_corners for o in obs]) if obs else None
-    T = T0.copy()
-    done = False
-    k = 0
-    for k in range(1, settings.iterations + 1):
-        frac = min(1.0, (k - 1) / max(settings.gate_iterations - 1, 1))
-        gate = settings.start_gate_mm + (settings.end_gate_mm - settings.start_gate_mm) * frac
-        H = np.zeros((6, 6))
-        g = np.zeros(6)
-        jacobians = []
-        if term is not None:
-            r, J, _ = term.residuals(T, gate)
-            if len(r):
-                w = _huber(r, 1.5 * settings.depth_sigma_mm) / settings.depth_sigma_mm**2
-                H += J.T @ (J * w[:, None])
-                g += J.T @ (r * w)
-                jacobians.append(J)
-        if obs:
-            r, J = _residuals_jacobian(cameras, obs, T, x)
-            w = _huber(r, 3.0 * settings.marker_sigma_px) / settings.marker_sigma_px**2
-            H += J.T @ (J * w[:, None])
-            g += J.T @ (r * w)
-            jacobians.append(J)
-        if not np.any(H):
-            break
-        step = _solve(H, g)
-        T = _perturb(T, step)
-        # Converged when the step moves the residuals (mm, px) by a few hundredths RMS: a
-        # motion the data hardly sees (a faceted cylinder turning about its axis, snapping
-        # from facet to facet) does not count.
-        moved = max(float(np.sqrt(np.mean((J @ step) ** 2))) for J in jacobians)
-        if moved < settings.converged_moves and frac >= 1.0:
-            done = True
-            break
+        why = "no measured depth and no marker on it"
+        return Refinement(T0, T0, False, 0, before, before, why, time.perf_counter() - started)
+    markers = _MarkerTerm(cameras, obs, np.stack([o.image_corners for o in obs])) if obs else None
+    T, k, done = _gauss_newton(T0, term, markers, settings)
     after = residuals_at(T, term, cameras, obs, settings)
-    why = ""
-    if not done:
-        why = f"no convergence in {settings.iterations} iterations"
-    elif term is not None and (after.depth_inliers or 0.0) < settings.min_inlier_fraction:
-        why = (
-            f"only {100 * (after.depth_inliers or 0):.0f}% of the measured points on the "
-            "refined surface"
-        )
-    elif obs and not (after.marker_rms_px or 0.0) <= settings.max_marker_px:
-        why = f"the markers reproject {after.marker_rms_px:.1f} px off"
+    why = _why_not_kept(done, term is not None, bool(obs), after, settings)
     converged = not why
     return Refinement(
         T if converged else T0,
@@ -389,3 +340,85 @@ def refine_instance(
         why,
         time.perf_counter() - started,
     )
+
+
+@dataclass(frozen=True)
+class _MarkerTerm:
+    """The reprojection errors of an instance's markers (px), as the pose changes."""
+
+    cameras: Sequence[Camera]
+    observations: list[Observation]
+    corners: np.ndarray  # the observations' image corners, stacked
+
+    def residuals(self, T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return residuals_jacobian(self.cameras, self.observations, T, self.corners)
+
+
+def _gauss_newton(
+    T0: np.ndarray,
+    term: _DepthTerm | None,
+    markers: _MarkerTerm | None,
+    settings: RefineSettings,
+) -> tuple[np.ndarray, int, bool]:
+    """Iterate from ``T0``: the pose reached, the iterations made, and whether it converged."""
+    T = T0.copy()
+    k = 0
+    for k in range(1, settings.iterations + 1):
+        frac = min(1.0, (k - 1) / max(settings.gate_iterations - 1, 1))
+        gate = settings.start_gate_mm + (settings.end_gate_mm - settings.start_gate_mm) * frac
+        H, g, jacobians = _normal_equations(T, term, markers, gate, settings)
+        if not np.any(H):
+            return T, k, False
+        step = _solve(H, g)
+        T = _perturb(T, step)
+        # Converged when the step moves the residuals (mm, px) by a few hundredths RMS: a
+        # motion the data hardly sees (a faceted cylinder turning about its axis, snapping
+        # from facet to facet) does not count.
+        moved = max(float(np.sqrt(np.mean((J @ step) ** 2))) for J in jacobians)
+        if moved < settings.converged_moves and frac >= 1.0:
+            return T, k, True
+    return T, k, False
+
+
+def _normal_equations(
+    T: np.ndarray,
+    term: _DepthTerm | None,
+    markers: _MarkerTerm | None,
+    gate: float,
+    settings: RefineSettings,
+) -> tuple[np.ndarray, np.ndarray, list[np.ndarray]]:
+    """The Huber-weighted Gauss-Newton system ``H step = g`` of the depth and marker terms
+    at ``T``, and the Jacobian of each term that has residuals."""
+    H = np.zeros((6, 6))
+    g = np.zeros(6)
+    jacobians = []
+    if term is not None:
+        r, J, _ = term.residuals(T, gate)
+        if len(r):
+            w = _huber(r, 1.5 * settings.depth_sigma_mm) / settings.depth_sigma_mm**2
+            H += J.T @ (J * w[:, None])
+            g += J.T @ (r * w)
+            jacobians.append(J)
+    if markers is not None:
+        r, J = markers.residuals(T)
+        w = _huber(r, 3.0 * settings.marker_sigma_px) / settings.marker_sigma_px**2
+        H += J.T @ (J * w[:, None])
+        g += J.T @ (r * w)
+        jacobians.append(J)
+    return H, g, jacobians
+
+
+def _why_not_kept(
+    done: bool, has_depth: bool, has_markers: bool, after: Residuals, settings: RefineSettings
+) -> str:
+    """Why the refined pose is not kept ("" when it is)."""
+    if not done:
+        return f"no convergence in {settings.iterations} iterations"
+    if has_depth and (after.depth_inliers or 0.0) < settings.min_inlier_fraction:
+        return (
+            f"only {100 * (after.depth_inliers or 0):.0f}% of the measured points on the "
+            "refined surface"
+        )
+    if has_markers and not (after.marker_rms_px or 0.0) <= settings.max_marker_px:
+        return f"the markers reproject {after.marker_rms_px:.1f} px off"
+    return ""

@@ -16,15 +16,14 @@ from collections.abc import Callable, Sequence
 from typing import Any
 
 from annotator.runner.job import RAY_WAIT_S, DistributableJob
-from annotator.runner.local import available_cpus, kill_workers, run_local
 from annotator.runner.report import BatchReport
+from annotator.runner.threads import available_cpus
 
 __all__ = [
     "RAY_WAIT_S",
     "BatchReport",
     "DistributableJob",
     "available_cpus",
-    "kill_workers",
     "run_batch",
 ]
 
@@ -44,10 +43,14 @@ def run_batch(
     as tasks on that Ray cluster, ``workers`` then ignored; ``job`` must then declare its
     files (:class:`DistributableJob`), and ``ray_wait`` bounds the wait (s) for a cluster
     that has no CPU for the tasks (default :data:`RAY_WAIT_S`)."""
+    # The backends are imported when a batch runs: multiprocessing and Ray cost the start-up
+    # of the commands that only read and print.
     if ray_address is not None:
         from annotator.runner.ray_cluster import run_on_ray
 
         return run_on_ray(
             job, scene_ids, address=ray_address, desc=desc, quiet=quiet, wait_s=ray_wait
         )
+    from annotator.runner.local import run_local
+
     return run_local(job, scene_ids, workers=workers, desc=desc, quiet=quiet)

@@ -148,19 +148,9 @@ def _stop_workers(pool: ProcessPoolExecutor) -> None:
     pool.shutdown(wait=True)
 
 
-def available_cpus() -> int:
-    """Cores this process may run on (the default number of workers)."""
-    try:
-        return len(os.sched_getaffinity(0))
-    except AttributeError:  # not on Linux
-        return os.cpu_count() or 1
-
-
 def _fork_context() -> multiprocessing.context.BaseContext | None:
     """Fork on Linux (workers inherit the prepared parent); the platform's default elsewhere
     (fork is unsafe on macOS)."""
     if sys.platform.startswith("linux"):
         return multiprocessing.get_context("fork")
     return None
-
-

@@ -42,6 +42,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from annotator.dataset.model import SCENES_DIR
 from annotator.errors import UserError
 from annotator.io.atomic import remove_if_abandoned, temporary_folder
 from annotator.runner.bundle import (
@@ -383,7 +384,7 @@ def _scene_task(
         if separate:  # empty: everything in it is this scene's output
             shutil.rmtree(out, ignore_errors=True)
         materialise(root, inputs)
-        (root / "scenes" / scene_id).mkdir(parents=True, exist_ok=True)
+        (root / SCENES_DIR / scene_id).mkdir(parents=True, exist_ok=True)
         changes: dict[str, str] = {"root": str(root)}
         if separate:
             changes["out"] = str(out)
@@ -399,7 +400,7 @@ def _scene_task(
             for rel in inputs:
                 if rel not in keep:
                     relative(root, rel).unlink(missing_ok=True)
-            shutil.rmtree(root / "scenes", ignore_errors=True)
+            shutil.rmtree(root / SCENES_DIR, ignore_errors=True)
             if separate and out is not None:
                 shutil.rmtree(out, ignore_errors=True)
     return TaskOutcome(scene_id, result, None, False, outputs)

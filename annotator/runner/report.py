@@ -6,9 +6,10 @@ from __future__ import annotations
 import sys
 import traceback
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from tqdm import tqdm
+if TYPE_CHECKING:
+    from tqdm import tqdm
 
 
 @dataclass
@@ -35,6 +36,9 @@ def describe_failure(exc: BaseException) -> str:
 def progress_bar(total: int, desc: str, quiet: bool) -> tqdm:
     """The batch progress bar: scenes finished (done or failed), on stderr when it is a
     terminal."""
+    # Imported here: tqdm costs every command's start-up, and only batches draw a bar.
+    from tqdm import tqdm
+
     return tqdm(
         total=total,
         desc=desc,
@@ -44,9 +48,7 @@ def progress_bar(total: int, desc: str, quiet: bool) -> tqdm:
     )
 
 
-def record(
-    report: BatchReport, sid: str, result: dict[str, Any] | None, error: str | None
-) -> None:
+def record(report: BatchReport, sid: str, result: dict[str, Any] | None, error: str | None) -> None:
     if error is not None:
         report.failed[sid] = error
     else:

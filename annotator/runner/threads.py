@@ -7,8 +7,17 @@ the commands that only read and print import the runner too, and open3d costs a 
 
 from __future__ import annotations
 
+import os
 from collections.abc import Iterator
 from contextlib import contextmanager
+
+
+def available_cpus() -> int:
+    """Cores this process may run on (the default number of workers)."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        return os.cpu_count() or 1
 
 
 def one_thread() -> None:

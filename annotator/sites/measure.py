@@ -31,7 +31,7 @@ from typing import Any
 import numpy as np
 from scipy import ndimage
 
-from annotator.annotation.scene import render_poses
+from annotator.annotation.visibility import render_poses
 from annotator.dataset import Dataset, Scene, cached_dataset
 from annotator.dataset.annotation import SceneAnnotation
 from annotator.dataset.write import sites_to_yaml
@@ -232,7 +232,7 @@ def _gather_scene(
             # Those annotate rejected too: a sticker glued a millimetre or two off is
             # rejected by its consensus, and is just what must be measured. The solve leaves
             # out whatever does not fit the pose at all.
-            for mid in set(uses.get("used", [])) | set(uses.get("rejected", [])):
+            for mid in set(uses.used) | set(uses.rejected):
                 seen = by_id.get((j, mid))
                 if mid in ids and seen is not None:
                     data.markers.append(MarkerView(view, j, ids.index(mid), seen))

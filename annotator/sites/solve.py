@@ -143,18 +143,7 @@ def solve_sites(
     marks = _inliers(cameras, data, settings)
     sites = sorted({m.site for m in marks})
     if not marks:
-        zeros = np.zeros((len(layout), 3))
-        return SiteSolution(
-            zeros,
-            zeros * np.nan,
-            np.zeros(len(layout), int),
-            list(data.poses),
-            0.0,
-            0.0,
-            0,
-            len(data.markers),
-            [],
-        )
+        return _nothing_seen(len(layout), data)
     problem = _Problem(cameras, layout, data.poses, marks, sites, settings)
     x = np.zeros(problem.n_params)
     rms_before = problem.corner_rms(x)
@@ -162,27 +151,14 @@ def solve_sites(
         x[problem.first_site :] = (np.asarray(start, float)[sites].ravel()) / problem.scale[
             problem.first_site :
         ]
-    # With depth, its point pairs are found again between rounds, as in ICP.
-    has_depth = mesh_closest is not None and any(len(p) for p in data.depth_points)
-    for _ in range(settings.rounds if has_depth else 1):
-        result = _least_squares(problem, x, data if has_depth else None, mesh_closest)
-        x = result.x
+    result = _solve_rounds(problem, x, data, mesh_closest)
+    x = result.x
     J = _jacobian(result)
     unobservable = unobservable_directions(problem, x, J[problem.data_rows(J.shape[0])], settings)
-    corrections = np.zeros((len(layout), 3))
-    std = np.full((len(layout), 3), np.nan)
+    corrections, std = _corrections_and_std(problem, x, J, len(layout))
     seen = np.zeros(len(layout), int)
     for _, site in {(m.view, m.site) for m in marks}:
         seen[site] += 1
-    # The corners' real noise, from the residuals (robustly), rather than the assumed one:
-    # the uncertainties reported are then those the data support.
-    noise = 1.4826 * float(np.median(np.abs(problem.projections(x) - problem.detected)))
-    cov = _covariance(J) * (max(noise, 0.02) / settings.sigma_px) ** 2
-    if sites:
-        corrections[sites] = problem.site_params(x)
-        variance = np.maximum(np.diag(cov)[problem.first_site :], 0)
-        block = (np.sqrt(variance) * problem.scale[problem.first_site :]).reshape(-1, 3)
-        std[sites] = block
     return SiteSolution(
         corrections=corrections,
         std=std,
@@ -194,6 +170,53 @@ def solve_sites(
         left_out=len(data.markers) - len(marks),
         unobservable=unobservable,
     )
+
+
+def _nothing_seen(n_sites: int, data: InstanceData) -> SiteSolution:
+    """The solution when no marker view fits: the layout and the annotated poses kept."""
+    zeros = np.zeros((n_sites, 3))
+    return SiteSolution(
+        zeros,
+        zeros * np.nan,
+        np.zeros(n_sites, int),
+        list(data.poses),
+        0.0,
+        0.0,
+        0,
+        len(data.markers),
+        [],
+    )
+
+
+def _solve_rounds(
+    problem: _Problem, x: np.ndarray, data: InstanceData, mesh_closest: ClosestPoints | None
+) -> Any:
+    """The robust solve from ``x``; with depth, its point pairs are found again between
+    rounds, as in ICP."""
+    has_depth = mesh_closest is not None and any(len(p) for p in data.depth_points)
+    for _ in range(problem.settings.rounds if has_depth else 1):
+        result = _least_squares(problem, x, data if has_depth else None, mesh_closest)
+        x = result.x
+    return result
+
+
+def _corrections_and_std(
+    problem: _Problem, x: np.ndarray, J: np.ndarray, n_sites: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """(n_sites, 3) corrections (zero where unseen) and their standard deviations (NaN
+    where unseen)."""
+    corrections = np.zeros((n_sites, 3))
+    std = np.full((n_sites, 3), np.nan)
+    # The corners' real noise, from the residuals (robustly), rather than the assumed one:
+    # the uncertainties reported are then those the data support.
+    noise = 1.4826 * float(np.median(np.abs(problem.projections(x) - problem.detected)))
+    cov = _covariance(J) * (max(noise, 0.02) / problem.settings.sigma_px) ** 2
+    if problem.sites:
+        first = problem.first_site
+        corrections[problem.sites] = problem.site_params(x)
+        variance = np.maximum(np.diag(cov)[first:], 0)
+        std[problem.sites] = (np.sqrt(variance) * problem.scale[first:]).reshape(-1, 3)
+    return corrections, std
 
 
 class ClosestPoints:

@@ -180,18 +180,7 @@ def symmetry_from_bop(
     disc = entry.get("symmetries_discrete") or []
     if not isinstance(cont, list) or not isinstance(disc, list):
         raise ValueError("symmetries_continuous and symmetries_discrete must be lists")
-    rotations = []
-    for k, s in enumerate(disc):
-        try:
-            M = np.asarray(s, float).reshape(4, 4)
-        except (TypeError, ValueError):
-            raise ValueError(f"symmetries_discrete[{k}] must be 16 numbers") from None
-        R = M[:3, :3]
-        if not (np.all(np.isfinite(R)) and np.allclose(R @ R.T, np.eye(3), atol=1e-3)):
-            raise ValueError(f"symmetries_discrete[{k}] is not a rotation")
-        if np.linalg.det(R) < 0:
-            raise ValueError(f"symmetries_discrete[{k}] is a reflection (improper symmetry)")
-        rotations.append(R)
+    rotations = [_bop_rotation(s, k) for k, s in enumerate(disc)]
     axes = []
     for k, c in enumerate(cont):
         if not isinstance(c, dict):
@@ -203,6 +192,34 @@ def symmetry_from_bop(
         axis = axes[0]
         flip = any(float(axis @ R @ axis) < 0 for R in rotations)
         return Symmetry("revolution_flip" if flip else "revolution", axis=axis)
+    gens = _generators(rotations, snapped)
+    if not gens:
+        return Symmetry()
+    sym = Symmetry("finite", generators=tuple(gens))
+    _check_closed(sym, rotations, tol)
+    return sym
+
+
+def _bop_rotation(element: Any, k: int) -> np.ndarray:
+    """The rotation of ``symmetries_discrete[k]``; ValueError if it is not a proper one."""
+    try:
+        M = np.asarray(element, float).reshape(4, 4)
+    except (TypeError, ValueError):
+        raise ValueError(f"symmetries_discrete[{k}] must be 16 numbers") from None
+    R = M[:3, :3]
+    if not (np.all(np.isfinite(R)) and np.allclose(R @ R.T, np.eye(3), atol=1e-3)):
+        raise ValueError(f"symmetries_discrete[{k}] is not a rotation")
+    if np.linalg.det(R) < 0:
+        raise ValueError(f"symmetries_discrete[{k}] is a reflection (improper symmetry)")
+    return R
+
+
+def _generators(
+    rotations: list[np.ndarray], snapped: list[str] | None
+) -> list[tuple[np.ndarray, int]]:
+    """One (axis, order) generator per axis of the listed rotations, each rotation taken as
+    the generator of its own cyclic subgroup; a rotation snapped to a turn of finite order
+    is replaced in ``rotations`` by that turn, and said in ``snapped``."""
     gens: list[tuple[np.ndarray, int]] = []
     for k, R in enumerate(rotations):
         rv = matrix_to_rotvec(R)
@@ -214,26 +231,31 @@ def symmetry_from_bop(
         if abs(exact - angle) > EXACT_RAD:
             rotations[k] = axis_angle(axis, exact)
             if snapped is not None:
-                named = (
-                    "the half turn"
-                    if order == 2
-                    else f"a turn of {np.degrees(exact):g} deg (order {order})"
-                )
-                snapped.append(
-                    f"symmetry {np.degrees(angle):.1f} deg about "
-                    f"({', '.join(f'{v:.3f}' for v in axis)}) taken as {named}"
-                )
+                snapped.append(_snapped_line(angle, axis, order, exact))
         # Elements about one axis generate one cyclic group, of the lcm of their orders: one
         # exact generator for it keeps the closure free of rounding noise.
-        for k, (a, o) in enumerate(gens):
+        for j, (a, o) in enumerate(gens):
             if abs(float(a @ axis)) > 1.0 - 1e-6:
-                gens[k] = (a, math.lcm(o, order))
+                gens[j] = (a, math.lcm(o, order))
                 break
         else:
             gens.append((axis, order))
-    if not gens:
-        return Symmetry()
-    sym = Symmetry("finite", generators=tuple(gens))
+    return gens
+
+
+def _snapped_line(angle: float, axis: np.ndarray, order: int, exact: float) -> str:
+    named = (
+        "the half turn" if order == 2 else f"a turn of {np.degrees(exact):g} deg (order {order})"
+    )
+    return (
+        f"symmetry {np.degrees(angle):.1f} deg about "
+        f"({', '.join(f'{v:.3f}' for v in axis)}) taken as {named}"
+    )
+
+
+def _check_closed(sym: Symmetry, rotations: list[np.ndarray], tol: float) -> None:
+    """ValueError unless the group ``sym`` generates is exactly the listed rotations plus
+    the identity."""
     try:
         group = group_of(sym)
     except ValueError:
@@ -250,7 +272,6 @@ def symmetry_from_bop(
             f"symmetries_discrete lists {len(listed) - 1} distinct rotations, which with the "
             "identity do not form a group"
         )
-    return sym
 
 
 def _snap(angle: float, what: str, axis: np.ndarray) -> tuple[int, float]:

@@ -112,52 +112,93 @@ def find_modes(
     >>> find_modes(votes, np.ones(80), rigid, bandwidth=10.0).weights.tolist()
     [20.0, 20.0, 20.0, 20.0]
     """
-    from scipy.spatial import cKDTree
-
     space, R, t, w = poses_and_values(poses, weights, part, "weights")
+    _check_arguments(w, bandwidth, seeds)
     n = len(R)
+    if n == 0:
+        return Modes(np.zeros((0, 4, 4)), np.zeros(0), np.zeros(0, dtype=int))
+    votes = _Votes.of(space, R, t, w)
+    T = np.asarray(stack_poses(R, t))
+    start = filter_duplicates(T, w, space, 0.5 * bandwidth) if seeds == "cover" else np.arange(n)
+    tol = bandwidth * 1e-3 if tolerance is None else float(tolerance)
+    seed_R = R[start].copy()  # the rotation a spherical part's estimate keeps
+    current = _shift(votes, votes.reps[start, 0].copy(), seed_R, bandwidth, max_iterations, tol)
+    _, density = _neighbour_means(space, votes.tree, votes.flat, votes.owner, w, current, bandwidth)
+    estimates = nearest_poses(space, current, fallback_R=seed_R)
+    mode_poses = estimates[filter_duplicates(estimates, density, space, bandwidth)]
+    return _assign(votes, mode_poses, bandwidth)
+
+
+def _check_arguments(w: np.ndarray, bandwidth: float, seeds: str) -> None:
     if not bandwidth > 0:
         raise ValueError(f"bandwidth must be a positive distance, got {bandwidth!r}")
     if np.any(w < 0) or not np.all(np.isfinite(w)):
         raise ValueError("weights must be finite and non-negative")
     if seeds not in ("cover", "all"):
         raise ValueError(f"seeds must be 'cover' or 'all', got {seeds!r}")
-    if n == 0:
-        return Modes(np.zeros((0, 4, 4)), np.zeros(0), np.zeros(0, dtype=int))
-    tol = bandwidth * 1e-3 if tolerance is None else float(tolerance)
-    reps = space.representatives(R, t)  # (N, G, dim)
-    flat = reps.reshape(-1, space.dim)
-    owner = np.repeat(np.arange(n), space.count)
-    tree = cKDTree(flat)
-    T = np.asarray(stack_poses(R, t))
-    start = filter_duplicates(T, w, space, 0.5 * bandwidth) if seeds == "cover" else np.arange(n)
-    current = reps[start, 0].copy()
-    seed_R = R[start].copy()  # the rotation a spherical part's estimate keeps
-    density = np.zeros(len(start))
-    active = np.arange(len(start))
+
+
+@dataclass(frozen=True)
+class _Votes:
+    """The votes in the pose space: their representatives (N, G, dim), flattened with the
+    vote each belongs to, in a KD-tree; and their weights."""
+
+    space: Any
+    reps: np.ndarray
+    flat: np.ndarray
+    owner: np.ndarray
+    tree: Any
+    w: np.ndarray
+
+    @classmethod
+    def of(cls, space: Any, R: np.ndarray, t: np.ndarray, w: np.ndarray) -> _Votes:
+        from scipy.spatial import cKDTree
+
+        reps = space.representatives(R, t)
+        flat = reps.reshape(-1, space.dim)
+        owner = np.repeat(np.arange(len(R)), space.count)
+        return cls(space, reps, flat, owner, cKDTree(flat), w)
+
+
+def _shift(
+    votes: _Votes,
+    current: np.ndarray,
+    seed_R: np.ndarray,
+    bandwidth: float,
+    max_iterations: int,
+    tol: float,
+) -> np.ndarray:
+    """Mean-shift the seeds (their first representatives, (S, dim)) until each moves less
+    than ``tol`` in a step, or ``max_iterations``: the converged representatives."""
+    space = votes.space
+    active = np.arange(len(current))
     for _ in range(max_iterations):
         if not len(active):
             break
-        mean, mass = _neighbour_means(space, tree, flat, owner, w, current[active], bandwidth)
+        mean, mass = _neighbour_means(
+            space, votes.tree, votes.flat, votes.owner, votes.w, current[active], bandwidth
+        )
         moved = nearest_poses(space, mean, fallback_R=seed_R[active])
         new = space.representatives(moved[:, :3, :3], moved[:, :3, 3])[:, 0]
         lost = mass <= 0  # no vote in reach: stay (cannot happen from a vote, kept for safety)
         new[lost] = current[active][lost]
         shift = np.linalg.norm(new - current[active], axis=1)
         current[active] = new
-        density[active] = mass
         active = active[shift >= tol]
-    _, density = _neighbour_means(space, tree, flat, owner, w, current, bandwidth)
-    estimates = nearest_poses(space, current, fallback_R=seed_R)
-    keep = filter_duplicates(estimates, density, space, bandwidth)
-    mode_poses = estimates[keep]
-    # Assignment: each vote to its nearest mode within the bandwidth.
+    return current
+
+
+def _assign(votes: _Votes, mode_poses: np.ndarray, bandwidth: float) -> Modes:
+    """Each vote to its nearest mode within the bandwidth; the modes, heaviest first."""
+    from scipy.spatial import cKDTree
+
+    space, w = votes.space, votes.w
     mode_reps = space.representatives(mode_poses[:, :3, :3], mode_poses[:, :3, 3])
     mode_tree = cKDTree(mode_reps.reshape(-1, space.dim))
     mode_owner = np.repeat(np.arange(len(mode_poses)), space.count)
-    d, j = mode_tree.query(reps[:, 0], k=1, distance_upper_bound=bandwidth)
+    d, j = mode_tree.query(votes.reps[:, 0], k=1, distance_upper_bound=bandwidth)
     found = np.isfinite(d)
-    labels = np.full(n, -1, dtype=int)
+    labels = np.full(len(w), -1, dtype=int)
     labels[found] = mode_owner[j[found]]
     mode_w = np.bincount(labels[found], weights=w[found], minlength=len(mode_poses))
     order = np.argsort(-mode_w, kind="stable")

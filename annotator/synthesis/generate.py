@@ -14,9 +14,9 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from annotator.dataset.model import FORMAT_VERSION, Instance, Rig
+from annotator.dataset.model import FORMAT_VERSION, SCENES_DIR, Instance, Rig
 from annotator.dataset.poses import InstancePose, write_poses
-from annotator.dataset.write import sites_to_yaml, write_dataset_yaml, write_object_yaml
+from annotator.dataset.write import sites_to_yaml, write_dataset_yaml
 from annotator.errors import UserError
 from annotator.geometry.camera import Camera
 from annotator.geometry.mesh import Mesh
@@ -28,10 +28,17 @@ from annotator.markers.layout import MarkerLayout, assign_ids, place_markers
 from annotator.markers.texture import dictionary_size, marker_bits
 from annotator.occlusion import scene_visibility
 from annotator.parts import Part, build_part
+from annotator.parts.marking import write_object_files
 from annotator.rendering.raycast import Hits, PlacedMesh, Rect
 from annotator.synthesis.physics import Bin, drop_parts
 from annotator.synthesis.rig import RigSetup, make_rig
-from annotator.synthesis.shading import Surface, finish_image, render_intensity, render_view
+from annotator.synthesis.shading import (
+    Surface,
+    View,
+    finish_image,
+    render_intensity,
+    render_view,
+)
 from annotator.synthesis.stereo import ShadowMap, dot_pattern, pattern_image, stereo_depth
 
 DICTIONARY = "DICT_4X4_1000"
@@ -132,16 +139,7 @@ def write_dataset_files(plan: DatasetPlan, root: Path) -> None:
     for part, layout, insts in zip(plan.parts, plan.layouts, plan.instances):
         folder = root / "objects" / part.name
         folder.mkdir(parents=True, exist_ok=True)
-        trimesh.Trimesh(part.mesh.vertices, part.mesh.faces, process=False).export(
-            folder / "model.ply"
-        )
-        write_object_yaml(
-            folder,
-            mesh_file="model.ply",
-            symmetry=part.symmetry,
-            markers=layout.sites,
-            instances=insts,
-        )
+        write_object_files(folder, part, layout.sites, insts)
     if plan.config.glue != (0.0, 0.0):
         write_json(
             root / GLUED_SITES,
@@ -201,69 +199,35 @@ def _setting(plan: DatasetPlan) -> list[Surface]:
     return surfaces
 
 
+@dataclass(frozen=True)
+class _BinContents:
+    """What lies in a scene's bin: the instances (part index, copy index) and the clutter's
+    parts, the meshes dropped in that order, and each one's pose (None: fell out)."""
+
+    chosen: list[tuple[int, int]]
+    meshes: list[Mesh]
+    world_T: list[np.ndarray | None]
+
+
 def make_scene(
     plan: DatasetPlan, index: int, folder: Path
 ) -> tuple[list[InstancePose], SceneTiming]:
     """Simulate, render and write scene ``index`` into ``folder``; return its true poses."""
-    cfg = plan.config
-    rng = np.random.default_rng([cfg.seed, index])
+    # One generator for the whole scene, drawn in a fixed order: the same seed and index
+    # make the same scene.
+    rng = np.random.default_rng([plan.config.seed, index])
     timing = SceneTiming()
-    n = int(rng.integers(cfg.instances[0], cfg.instances[1] + 1))
-    # Which physical instances are in the bin: a random part per instance, distinct copies.
-    chosen: list[tuple[int, int]] = []
-    counts = [0] * len(plan.parts)
-    for p in rng.integers(0, len(plan.parts), size=n):
-        chosen.append((int(p), counts[p]))
-        counts[p] += 1
-    clutter = [int(p) for p in rng.integers(0, len(plan.parts), size=cfg.clutter)]
-    meshes = [plan.parts[p].mesh for p, _ in chosen] + [plan.parts[p].mesh for p in clutter]
     t0 = time.perf_counter()
-    world_T = drop_parts(meshes, bin=plan.bin, rng=rng)
+    contents = _fill_bin(plan, rng)
     timing.physics = time.perf_counter() - t0
-
-    surfaces = _setting(plan)
-    fixed = len(surfaces)
-    poses: list[InstancePose] = []
-    for k, (p, copy) in enumerate(chosen):
-        T = world_T[k]
-        if T is None:
-            continue
-        inst = plan.instances[p][copy]
-        bits = np.stack([marker_bits(DICTIONARY, m) for m in inst.marker_ids])
-        corners = plan.glued[p][copy][: len(inst.marker_ids)]
-        surfaces.append(Surface(plan.parts[p].mesh, T, 0.8, corners, bits))
-        cam_T = plan.setup.ref_T_world @ T
-        poses.append(InstancePose(plan.parts[p].name, inst.name, cam_T[:3, :3], cam_T[:3, 3]))
-    for k in range(len(chosen), len(meshes)):
-        T = world_T[k]
-        if T is not None:
-            surfaces.append(Surface(meshes[k], T, 0.7))
-
+    staged = _stage(plan, contents)
+    poses = staged.poses
     t0 = time.perf_counter()
-    views = []
-    for cam, world_T_cam in zip(plan.setup.rig.cameras, plan.setup.world_T_cams):
-        img, view = render_intensity(
-            cam, invert(world_T_cam), surfaces, supersample=cfg.supersample, fixed=fixed
-        )
-        write_png(
-            folder / f"{cam.name}.png", finish_image(img, blur=cfg.blur, noise=cfg.noise, rng=rng)
-        )
-        views.append(view)
+    views = _write_images(plan, staged, folder, rng)
     timing.rendering = time.perf_counter() - t0
-
-    if cfg.depth:
-        depth_spec = plan.setup.rig.depth
-        assert depth_spec is not None  # make_rig always gives the rig a depth camera
+    if plan.config.depth:
         t0 = time.perf_counter()
-        depth = simulate_depth(
-            plan.setup, surfaces, views, rng, pattern_seed=plan.config.seed + 7, fixed=fixed
-        )
-        write_png(folder / "depth.png", encode_depth(depth, depth_spec.scale))
-        # The exact depth of everything (parts, bin, clutter), for comparison with the sensor's.
-        write_png(
-            folder / "depth_ideal.png",
-            encode_depth(views[0].hits.depth, depth_spec.scale),
-        )
+        _write_depth(plan, staged, views, folder, rng)
         timing.depth = time.perf_counter() - t0
     t0 = time.perf_counter()
     meshes = [plan.parts[plan.config.parts.index(p.object)].mesh for p in poses]
@@ -273,6 +237,94 @@ def make_scene(
     timing.occlusion = time.perf_counter() - t0
     write_poses(folder / "gt.json", poses, format=FORMAT_VERSION)
     return poses, timing
+
+
+def _fill_bin(plan: DatasetPlan, rng: np.random.Generator) -> _BinContents:
+    """Which physical instances are in the bin (a random part per instance, distinct
+    copies) and the clutter, dropped into it."""
+    cfg = plan.config
+    n = int(rng.integers(cfg.instances[0], cfg.instances[1] + 1))
+    chosen: list[tuple[int, int]] = []
+    counts = [0] * len(plan.parts)
+    for p in rng.integers(0, len(plan.parts), size=n):
+        chosen.append((int(p), counts[p]))
+        counts[p] += 1
+    clutter = [int(p) for p in rng.integers(0, len(plan.parts), size=cfg.clutter)]
+    meshes = [plan.parts[p].mesh for p, _ in chosen] + [plan.parts[p].mesh for p in clutter]
+    return _BinContents(chosen, meshes, drop_parts(meshes, bin=plan.bin, rng=rng))
+
+
+@dataclass(frozen=True)
+class _Staged:
+    """A scene ready to render: its surfaces (the first ``fixed`` of them the setting, then
+    the instances with their markers, then the clutter) and the instances' true poses in
+    the reference camera."""
+
+    surfaces: list[Surface]
+    fixed: int
+    poses: list[InstancePose]
+
+
+def _stage(plan: DatasetPlan, contents: _BinContents) -> _Staged:
+    """The surfaces of the setting and of everything that stayed in the bin."""
+    surfaces = _setting(plan)
+    fixed = len(surfaces)
+    poses: list[InstancePose] = []
+    for k, (p, copy) in enumerate(contents.chosen):
+        T = contents.world_T[k]
+        if T is None:
+            continue
+        inst = plan.instances[p][copy]
+        bits = np.stack([marker_bits(DICTIONARY, m) for m in inst.marker_ids])
+        corners = plan.glued[p][copy][: len(inst.marker_ids)]
+        surfaces.append(Surface(plan.parts[p].mesh, T, 0.8, corners, bits))
+        cam_T = plan.setup.ref_T_world @ T
+        poses.append(InstancePose(plan.parts[p].name, inst.name, cam_T[:3, :3], cam_T[:3, 3]))
+    for k in range(len(contents.chosen), len(contents.meshes)):
+        T = contents.world_T[k]
+        if T is not None:
+            surfaces.append(Surface(contents.meshes[k], T, 0.7))
+    return _Staged(surfaces, fixed, poses)
+
+
+def _write_images(
+    plan: DatasetPlan, staged: _Staged, folder: Path, rng: np.random.Generator
+) -> list[View]:
+    """Each camera's image, blurred and noisy, into ``folder``; the views rendered."""
+    cfg = plan.config
+    views = []
+    for cam, world_T_cam in zip(plan.setup.rig.cameras, plan.setup.world_T_cams):
+        img, view = render_intensity(
+            cam,
+            invert(world_T_cam),
+            staged.surfaces,
+            supersample=cfg.supersample,
+            fixed=staged.fixed,
+        )
+        write_png(
+            folder / f"{cam.name}.png", finish_image(img, blur=cfg.blur, noise=cfg.noise, rng=rng)
+        )
+        views.append(view)
+    return views
+
+
+def _write_depth(
+    plan: DatasetPlan, staged: _Staged, views: list[View], folder: Path, rng: np.random.Generator
+) -> None:
+    """The simulated sensor's depth map, and the exact one."""
+    depth_spec = plan.setup.rig.depth
+    assert depth_spec is not None  # make_rig always gives the rig a depth camera
+    depth = simulate_depth(
+        plan.setup,
+        staged.surfaces,
+        views,
+        rng,
+        pattern_seed=plan.config.seed + 7,
+        fixed=staged.fixed,
+    )
+    write_png(folder / "depth.png", encode_depth(depth, depth_spec.scale))
+    # The exact depth of everything (parts, bin, clutter), for comparison with the sensor's.
+    write_png(folder / "depth_ideal.png", encode_depth(views[0].hits.depth, depth_spec.scale))
 
 
 def add_true_occlusion(
@@ -364,7 +416,7 @@ class SceneJob:
 
     def __call__(self, scene_id: str) -> dict:
         plan = _plan(self.config)
-        folder = Path(self.root) / "scenes" / scene_id
+        folder = Path(self.root) / SCENES_DIR / scene_id
         folder.mkdir(parents=True, exist_ok=True)
         poses, timing = make_scene(plan, int(scene_id), folder)
         return {"instances": len(poses), **timing.__dict__}

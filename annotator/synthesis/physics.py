@@ -57,41 +57,14 @@ def drop_parts(
     spec = mujoco.MjSpec()
     spec.option.timestep = timestep
     spec.option.gravity = [0.0, 0.0, -9.81]
-    for k, (centre, size) in enumerate(bin.meshes()):
-        g = spec.worldbody.add_geom()
-        g.name = f"bin{k}"
-        g.type = mujoco.mjtGeom.mjGEOM_BOX
-        g.size = size / 2000.0
-        g.pos = centre / MM_PER_M
-        g.friction = [0.6, 0.005, 0.0001]
-    ix, iy = bin.inner
-    margin = 0.3
+    _add_bin(spec, bin)
     for k, mesh in enumerate(meshes):
-        m = spec.add_mesh()
-        m.name = f"mesh{k}"
-        m.uservert = (mesh.vertices / MM_PER_M).astype(np.float32).ravel().tolist()
-        m.userface = mesh.faces.astype(np.int32).ravel().tolist()
-        body = spec.worldbody.add_body()
-        body.name = f"part{k}"
-        r = mesh.moments.radius
-        body.pos = [
-            rng.uniform(-ix / 2 * (1 - margin), ix / 2 * (1 - margin)) / MM_PER_M,
-            rng.uniform(-iy / 2 * (1 - margin), iy / 2 * (1 - margin)) / MM_PER_M,
-            (bin.height + r + (k // 3) * 1.6 * r) / MM_PER_M,
-        ]
-        q = Rotation.random(random_state=rng).as_quat()  # x, y, z, w
-        body.quat = [q[3], q[0], q[1], q[2]]
-        j = body.add_freejoint()
-        j.damping = [0.002, 0.0, 0.0]
-        g = body.add_geom()
-        g.type = mujoco.mjtGeom.mjGEOM_MESH
-        g.meshname = m.name
-        g.density = 1200.0
-        g.friction = [0.6, 0.005, 0.0001]
+        _add_part(spec, k, mesh, bin, rng)
     model = spec.compile()
     data = mujoco.MjData(model)
     for _ in range(int(round(duration / timestep))):
         mujoco.mj_step(model, data)
+    ix, iy = bin.inner
     poses: list[np.ndarray | None] = []
     for k in range(len(meshes)):
         bid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, f"part{k}")
@@ -101,3 +74,42 @@ def drop_parts(
         inside = abs(t[0]) < ix / 2 and abs(t[1]) < iy / 2 and -1.0 < t[2] < bin.height * 3
         poses.append(make_transform(R, t) if inside else None)
     return poses
+
+
+def _add_bin(spec: mujoco.MjSpec, bin: Bin) -> None:
+    """The bin's floor and walls, fixed boxes in the world."""
+    for k, (centre, size) in enumerate(bin.meshes()):
+        g = spec.worldbody.add_geom()
+        g.name = f"bin{k}"
+        g.type = mujoco.mjtGeom.mjGEOM_BOX
+        g.size = size / 2000.0
+        g.pos = centre / MM_PER_M
+        g.friction = [0.6, 0.005, 0.0001]
+
+
+def _add_part(spec: mujoco.MjSpec, k: int, mesh: Mesh, bin: Bin, rng: np.random.Generator) -> None:
+    """Part ``k``, free, at a random pose above the bin (every third one a layer higher, so
+    that parts dropped together do not start interpenetrating)."""
+    ix, iy = bin.inner
+    margin = 0.3
+    m = spec.add_mesh()
+    m.name = f"mesh{k}"
+    m.uservert = (mesh.vertices / MM_PER_M).astype(np.float32).ravel().tolist()
+    m.userface = mesh.faces.astype(np.int32).ravel().tolist()
+    body = spec.worldbody.add_body()
+    body.name = f"part{k}"
+    r = mesh.moments.radius
+    body.pos = [
+        rng.uniform(-ix / 2 * (1 - margin), ix / 2 * (1 - margin)) / MM_PER_M,
+        rng.uniform(-iy / 2 * (1 - margin), iy / 2 * (1 - margin)) / MM_PER_M,
+        (bin.height + r + (k // 3) * 1.6 * r) / MM_PER_M,
+    ]
+    q = Rotation.random(random_state=rng).as_quat()  # x, y, z, w
+    body.quat = [q[3], q[0], q[1], q[2]]
+    j = body.add_freejoint()
+    j.damping = [0.002, 0.0, 0.0]
+    g = body.add_geom()
+    g.type = mujoco.mjtGeom.mjGEOM_MESH
+    g.meshname = m.name
+    g.density = 1200.0
+    g.friction = [0.6, 0.005, 0.0001]

@@ -212,8 +212,29 @@ def _face_sites(mesh: Mesh, sites: np.ndarray) -> FaceSites:
     per_face = np.bincount(face, minlength=len(mesh.faces))
     grid = np.where(per_face > 1, GRID, np.minimum(per_face, 1)).astype(np.int32)
     cell_offset = (np.cumsum(grid**2) - grid**2).astype(np.int32)
-    # Each candidate's (s, t, d) range over each cell of its face's grid (one cell if alone).
+    cell_of, cand_of = _cell_candidates(face, affine, grid, cell_offset)
     cell_count = np.zeros(int((grid**2).sum()), np.int32)
+    np.add.at(cell_count, cell_of, 1)
+    first = (np.cumsum(cell_count) - cell_count).astype(np.int32)
+    if len(_FACE_SITES) > 256:
+        _FACE_SITES.clear()
+    cached = _FACE_SITES[key] = FaceSites(
+        grid,
+        cell_offset,
+        cell_count,
+        first,
+        site[cand_of].astype(np.int32),
+        affine[cand_of].astype(np.float32),
+    )
+    return cached
+
+
+def _cell_candidates(
+    face: np.ndarray, affine: np.ndarray, grid: np.ndarray, cell_offset: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Which candidates (``face``: the face of each, ``affine``: its (s, t, d) over the
+    face) reach into which cells of their face's grid (``grid`` cells per side, the face's
+    first cell at ``cell_offset``): (cell, candidate) pairs, by cell, then candidate."""
     rows: list[tuple[np.ndarray, np.ndarray]] = []  # (cell, candidate)
     for g in (1, GRID):
         cand = np.flatnonzero(grid[face] == g)
@@ -235,20 +256,7 @@ def _face_sites(mesh: Mesh, sites: np.ndarray) -> FaceSites:
     cell_of = np.concatenate([r[0] for r in rows]) if rows else np.zeros(0, np.int64)
     cand_of = np.concatenate([r[1] for r in rows]) if rows else np.zeros(0, np.int64)
     order = np.lexsort((cand_of, cell_of))  # by cell, then the face's candidate order
-    cell_of, cand_of = cell_of[order], cand_of[order]
-    np.add.at(cell_count, cell_of, 1)
-    first = (np.cumsum(cell_count) - cell_count).astype(np.int32)
-    if len(_FACE_SITES) > 256:
-        _FACE_SITES.clear()
-    cached = _FACE_SITES[key] = FaceSites(
-        grid,
-        cell_offset,
-        cell_count,
-        first,
-        site[cand_of].astype(np.int32),
-        affine[cand_of].astype(np.float32),
-    )
-    return cached
+    return cell_of[order], cand_of[order]
 
 
 def _reaches(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:

@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from annotator.dataset import Dataset, InstancePose, Scene
-from annotator.dataset.model import FORMAT_VERSION, orient_image
+from annotator.dataset.model import FORMAT_VERSION, SCENES_DIR, orient_image
 from annotator.geometry.mesh import Mesh
 from annotator.io.images import encode_depth, write_png
 from annotator.markers.dictionary import is_predefined
@@ -172,13 +172,13 @@ def make_twin_scene(
         ref = [c.name for c in ds.rig.cameras].index(ds.rig.depth.camera)
         if ref != 0:
             raise ValueError("twins simulate depth on the reference camera's grid only")
-        write_png(out / "depth.png", encode_depth(depth, ds.rig.depth.scale))
+        write_png(Scene("", out).depth_path, encode_depth(depth, ds.rig.depth.scale))
         write_png(out / "depth_ideal.png", encode_depth(views[0].hits.depth, ds.rig.depth.scale))
     truth = [InstancePose(p.object, p.instance, p.R, p.t) for p in poses]
     meshes = [ds.objects[p.object].mesh for p in truth]
     casts = {cam.name: view.own for cam, view in zip(ds.rig.cameras, views)}
     add_true_occlusion(ds.rig, truth, meshes, views[0].hits.depth, casts=casts)
-    write_poses(out / "gt.json", truth, format=FORMAT_VERSION)
+    write_poses(Scene("", out).gt_path, truth, format=FORMAT_VERSION)
 
 
 @dataclass(frozen=True)
@@ -228,7 +228,7 @@ class TwinJob:
             InstancePose(o, i, np.asarray(R, float).reshape(3, 3), np.asarray(t, float))
             for o, i, R, t in self.poses[scene_id]
         ]
-        folder = Path(self.out) / "scenes" / scene_id
+        folder = Path(self.out) / SCENES_DIR / scene_id
         folder.mkdir(parents=True, exist_ok=True)
         make_twin_scene(ds, ds.scene(scene_id), poses, folder, settings=self.settings)
         return {"instances": len(poses)}

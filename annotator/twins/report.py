@@ -74,7 +74,7 @@ def compare_scene(
 ) -> tuple[SceneComparison, np.ndarray]:
     """Compare depth maps (mm, NaN = none) of a scene and its twin; also returns the index of
     the nearest instance at every ``step``-th pixel (-1 where none), for pictures."""
-    from annotator.annotation.scene import render_poses
+    from annotator.annotation.visibility import render_poses
 
     renders = render_poses(ds, poses, step=step)
     cam = ds.rig.depth_camera

@@ -1,12 +1,15 @@
 """Driving the review page from headless Chromium, as the browser tests and
 ``benchmarks/bench_viewer.py`` do: Debian's Chromium through Playwright, against a viewer on
-127.0.0.1 at a free port.
+127.0.0.1 at a free port (:func:`free_port`, the one :mod:`viewer.served` uses too).
 """
 
 from __future__ import annotations
 
-import socket
 from typing import Any
+
+from viewer.served import free_port
+
+__all__ = ["CHROMIUM", "CHROMIUM_ARGS", "free_port", "launch_chromium"]
 
 #: Debian's Chromium (``apt-get install chromium``); Playwright downloads no browser here.
 CHROMIUM = "/usr/bin/chromium"
@@ -26,10 +29,3 @@ CHROMIUM_ARGS = (
 def launch_chromium(playwright: Any) -> Any:
     """A headless Chromium browser from a running ``sync_playwright()`` context."""
     return playwright.chromium.launch(executable_path=CHROMIUM, args=list(CHROMIUM_ARGS))
-
-
-def free_port() -> int:
-    """A TCP port on 127.0.0.1 that nothing listens on right now."""
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]

@@ -1,0 +1,116 @@
+"""Marker recovery: once an instance is posed, each of its markers that should be visible in
+a camera where it was not read is looked for among the unread candidate squares.
+
+A square within 2.5 px (or 12% of its side) of the projected marker, whose bits differ from
+the marker's in at most :data:`RECOVER_MAX_BIT_ERRORS`, is *recovered*: it joins the
+instance's observations as a soft reading, held to the support of the others by the
+consensus (:mod:`annotator.annotation.consensus`).
+"""
+
+from __future__ import annotations
+
+import functools
+
+import numpy as np
+
+from annotator.dataset import Dataset
+from annotator.detection import MarkerDetector
+from annotator.detection.aruco import ImageReading
+from annotator.geometry.camera import Camera
+from annotator.markers.texture import marker_bits
+from annotator.pnp import Observation
+
+#: Markers are looked for when seen within 75 degrees of face-on.
+RECOVER_COS = float(np.cos(np.radians(75.0)))
+#: At most this many of a marker's inner bits may differ from what was read.
+RECOVER_MAX_BIT_ERRORS = 2
+
+
+def recover_markers(
+    ds: Dataset,
+    obj: str,
+    inst: str,
+    T: np.ndarray,
+    obs: list[Observation],
+    readings: list[ImageReading],
+    grays: list[np.ndarray],
+    detector: MarkerDetector,
+) -> bool:
+    """Add to ``obs`` the markers of instance ``obj/inst``, posed at ``T`` (rig frame), found
+    among the unread candidate squares where the pose puts them; True if any was."""
+    seen = {(o.camera, o.marker_id) for o in obs}
+    added = False
+    for j, (cam, reading) in enumerate(zip(ds.rig.cameras, readings)):
+        if len(reading.unread) == 0:
+            continue
+        read = {mid for c, mid in seen if c == j}
+        for mid, X, corners in _found_in(ds, obj, inst, T, cam, reading, read):
+            obs.append(
+                Observation(j, mid, X, detector.refine(grays[j], corners[None])[0], soft=True)
+            )
+            seen.add((j, mid))
+            added = True
+    return added
+
+
+def _found_in(
+    ds: Dataset,
+    obj: str,
+    inst: str,
+    T: np.ndarray,
+    cam: Camera,
+    reading: ImageReading,
+    read: set[int],
+) -> list[tuple[int, np.ndarray, np.ndarray]]:
+    """(marker id, model corners, image corners) of the instance's markers facing ``cam``,
+    not among the ids already ``read``, that one of its unread squares matches."""
+    model = ds.objects[obj]
+    instance = model.instance(inst)
+    X_all = model.site_corners(inst)[: len(instance.marker_ids)]
+    cam_T = cam.cam_T_rig @ T
+    C_all = X_all @ cam_T[:3, :3].T + cam_T[:3, 3]  # (S, 4, 3), all sites at once
+    centres = reading.unread.mean(axis=1)
+    out = []
+    for site in np.flatnonzero(_facing(C_all)):
+        mid = instance.marker_ids[site]
+        if mid in read:
+            continue
+        uv = cam.project(C_all[site])
+        match = _matching_square(ds.dictionary, mid, uv, reading, centres)
+        if match is not None:
+            out.append((mid, X_all[site], match))
+    return out
+
+
+def _facing(C_all: np.ndarray) -> np.ndarray:
+    """Which sites (corners in the camera frame, (S, 4, 3)) are in front of the camera and
+    seen within 75 degrees of face-on."""
+    normal = np.cross(C_all[:, 3] - C_all[:, 0], C_all[:, 1] - C_all[:, 0])
+    centre = C_all.mean(axis=1)
+    cos = -(normal * centre).sum(1)
+    limit = RECOVER_COS * np.linalg.norm(normal, axis=1) * np.linalg.norm(centre, axis=1)
+    return (C_all[..., 2].min(axis=1) > 0) & (cos >= limit)
+
+
+def _matching_square(
+    dictionary: str, mid: int, uv: np.ndarray, reading: ImageReading, centres: np.ndarray
+) -> np.ndarray | None:
+    """The unread square (its corners in the marker's order) near the projected corners
+    ``uv`` whose bits are marker ``mid``'s, or None."""
+    side = float(np.linalg.norm(uv - np.roll(uv, 1, axis=0), axis=1).mean())
+    near = np.flatnonzero(np.linalg.norm(centres - uv.mean(axis=0), axis=1) < 0.35 * side)
+    for k in near:
+        quads = [np.roll(reading.unread[k], m, axis=0) for m in range(4)]
+        m = int(np.argmin([np.abs(q - uv).max() for q in quads]))
+        if np.linalg.norm(quads[m] - uv, axis=1).max() > max(2.5, 0.12 * side):
+            continue
+        expected = np.rot90(_inner_bits(dictionary, mid), m)
+        if int(np.sum(reading.unread_bits[k] != expected)) <= RECOVER_MAX_BIT_ERRORS:
+            return quads[m]
+    return None
+
+
+@functools.lru_cache(maxsize=4096)
+def _inner_bits(dictionary: str, marker_id: int) -> np.ndarray:
+    """The marker's inner bits (True = white), rows and columns as printed."""
+    return marker_bits(dictionary, marker_id)[1:-1, 1:-1] > 127

@@ -1,0 +1,88 @@
+"""Sites measured over a dataset's annotated scenes, the whole ``annotator sites`` run short
+of printing and asking: the markers read in every scene (one batch job per scene), the sites
+solved from them (:func:`~annotator.sites.measure.measure_sites`), and each object.yaml's new
+text with its diff."""
+
+from __future__ import annotations
+
+import fnmatch
+from dataclasses import dataclass
+from pathlib import Path
+
+from annotator.dataset import Dataset, Scene, require_meshes
+from annotator.io.documents import unified_diff
+from annotator.runner import BatchReport, run_batch
+from annotator.sites.measure import DetectJob, InstanceSites, measure_sites, updated_object_yaml
+from annotator.sites.solve import SiteSettings
+
+
+@dataclass(frozen=True)
+class ObjectUpdate:
+    """One object.yaml with its instances' measured sites: its new text and the diff."""
+
+    path: Path
+    text: str
+    diff: str
+
+
+@dataclass(frozen=True)
+class SitesSurvey:
+    """The measurement: the scenes it used, the batch's outcome per scene, the instances
+    measured, the gluing spread (mm, degrees; None if no marker was seen), and the
+    object.yaml files that change."""
+
+    scenes: list[Scene]
+    report: BatchReport
+    measured: list[InstanceSites]
+    spread: tuple[float, float] | None
+    updates: list[ObjectUpdate]
+
+    @property
+    def flagged(self) -> int:
+        """Markers flagged, over every instance."""
+        return sum(len(m.flags) for m in self.measured)
+
+
+def annotated_scenes(ds: Dataset, pattern: str) -> list[Scene]:
+    """The scenes whose id matches ``pattern`` (fnmatch) and that carry an annotation.json."""
+    return [s for s in ds.scenes() if fnmatch.fnmatch(s.id, pattern) and s.annotation_path.exists()]
+
+
+def survey_sites(
+    ds: Dataset, scenes: list[Scene], *, max_move_mm: float, workers: int, quiet: bool
+) -> SitesSurvey:
+    """Read the markers of ``scenes`` (annotated), measure every instance's sites, and the
+    new text of each object.yaml whose sites change."""
+    require_meshes(ds)
+    report = run_batch(
+        DetectJob(str(ds.root)),
+        [s.id for s in scenes],
+        workers=workers,
+        desc="sites: markers",
+        quiet=quiet,
+    )
+    detections = {sid: r["markers"] for sid, r in report.done.items()}
+    measured, spread = measure_sites(
+        ds,
+        [s for s in scenes if s.id in detections],
+        detections,
+        settings=SiteSettings(max_move_mm=max_move_mm),
+    )
+    return SitesSurvey(scenes, report, measured, spread, object_updates(ds, measured))
+
+
+def object_updates(ds: Dataset, measured: list[InstanceSites]) -> list[ObjectUpdate]:
+    """The object.yaml files that the ``measured`` sites change, in the order their objects
+    were first measured."""
+    by_object: dict[str, list[InstanceSites]] = {}
+    for m in measured:
+        by_object.setdefault(m.object, []).append(m)
+    updates = []
+    for name, ms in by_object.items():
+        path = ds.objects[name].folder / "object.yaml"
+        old, new = updated_object_yaml(path, ms)
+        if old != new:
+            updates.append(
+                ObjectUpdate(path, new, unified_diff(old, new, path, label="measured sites"))
+            )
+    return updates
