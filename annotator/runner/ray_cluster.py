@@ -350,10 +350,19 @@ class _Driver:
         return True
 
     def cancel(self) -> None:
-        """Cancel every outstanding task, killing the workers that run one."""
-        for ref in self.pending:
-            with contextlib.suppress(Exception):
-                self.ray.cancel(ref, force=True)
+        """Cancel every outstanding task, killing the workers that run one. Tasks already
+        finished are left alone: force-cancelling a task as it completes can trip an internal
+        check of Ray's core worker, which then ends this process."""
+        refs = list(self.pending)
+        finished: set[Any] = set()
+        with contextlib.suppress(Exception):
+            finished = set(
+                self.ray.wait(refs, num_returns=len(refs), timeout=0, fetch_local=False)[0]
+            )
+        for ref in refs:
+            if ref not in finished:
+                with contextlib.suppress(Exception):
+                    self.ray.cancel(ref, force=True)
         self.pending.clear()
 
 
