@@ -177,3 +177,17 @@ def test_warnings_old_and_new_forms_flag_the_scene(sample_copy) -> None:
     (r,) = depth_regions(info.warnings)
     assert r.box == (10, 20, 60, 90) and r.pixels == 812 and r.depth_mm == (431.0, 447.5)
     assert "812 px" in r.describe() and "431-448 mm" in r.describe()
+
+
+def test_a_region_with_malformed_figures_is_still_shown() -> None:
+    from annotator.dataset.annotation import SceneWarning
+
+    w = SceneWarning.from_json(
+        {
+            "kind": "unexplained_depth",
+            "message": "m",
+            "regions": [{"box": [1, 2, 3, 4], "depth_mm": ["a", 3], "unread_markers": ["x"]}],
+        }
+    )
+    (r,) = depth_regions([w])
+    assert r.depth_mm is None and r.unread_markers == () and r.describe() == "x 1-3, y 2-4"

@@ -30,7 +30,6 @@ from typing import Any, overload
 import cv2
 import numpy as np
 
-from annotator.annotation.unexplained import UNEXPLAINED_MASK
 from annotator.dataset import Dataset, Scene
 from annotator.dataset.annotation import InstanceAnnotation
 from annotator.geometry import MM_PER_M
@@ -199,7 +198,7 @@ def _nbytes(value: Any) -> int:
 
 
 def _read_unexplained(scene: Scene, shape: tuple[int, int], prep: Prepared) -> np.ndarray | None:
-    path = scene.path / UNEXPLAINED_MASK
+    path = scene.unexplained_path
     if not path.exists():
         return None
     try:

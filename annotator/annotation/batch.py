@@ -13,7 +13,6 @@ from typing import Any
 
 from annotator.annotation.scene import annotate_scene
 from annotator.annotation.settings import Settings
-from annotator.annotation.unexplained import UNEXPLAINED_MASK
 from annotator.dataset import Dataset, Scene, cached_dataset, require_meshes
 from annotator.dataset.annotation import WarningKind
 from annotator.dataset.check import BROKEN_LINK
@@ -98,14 +97,14 @@ class AnnotateJob:
 
     def scene_files(self, scene_id: str) -> list[str]:
         """The scene's images and depth map."""
-        scene = _relative_scene(scene_id)
+        scene = Scene.relative(scene_id)
         paths = [scene.image_path(c) for c in cached_dataset(self.root).rig.cameras]
         return [p.as_posix() for p in [*paths, scene.depth_path]]
 
     def output_files(self, scene_id: str) -> list[str]:
         """The mask (or its deletion) and annotation.json, in the order they are written."""
-        scene = _relative_scene(scene_id)
-        return [(scene.path / UNEXPLAINED_MASK).as_posix(), scene.annotation_path.as_posix()]
+        scene = Scene.relative(scene_id)
+        return [scene.unexplained_path.as_posix(), scene.annotation_path.as_posix()]
 
     def __call__(self, scene_id: str) -> dict[str, Any]:
         ds, detector = _context(self.root)
@@ -116,7 +115,7 @@ class AnnotateJob:
             raise UserError("no marker of any known instance detected", path=scene.path)
         ann.created_at = now_iso()
         ann.description_digest = self.digest
-        mask_path = scene.path / UNEXPLAINED_MASK
+        mask_path = scene.unexplained_path
         if ann.unexplained_mask is not None and result.unexplained is not None:
             write_png(mask_path, result.unexplained)
         ann.write(scene.annotation_path)
@@ -204,8 +203,3 @@ def annotate_dataset(
         if fnmatch.fnmatch(link.name, scenes):
             report.failed[link.name] = f"{link}: {BROKEN_LINK}"
     return AnnotateSummary(len(chosen), report, len(chosen) - len(todo))
-
-
-def _relative_scene(scene_id: str) -> Scene:
-    """The scene, its paths relative to the dataset's root (what a Ray task ships)."""
-    return Scene(scene_id, Path(SCENES_DIR) / scene_id)

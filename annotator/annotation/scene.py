@@ -21,7 +21,7 @@ from annotator.annotation.completeness import exposure, quality_warnings
 from annotator.annotation.consensus import flag_overlaps, pose_instance
 from annotator.annotation.recovery import recover_markers
 from annotator.annotation.settings import Settings
-from annotator.annotation.unexplained import UNEXPLAINED_MASK, unexplained_depth
+from annotator.annotation.unexplained import unexplained_depth
 from annotator.annotation.visibility import Renders, add_visibility
 from annotator.dataset import Dataset, Scene
 from annotator.dataset.annotation import (
@@ -32,6 +32,7 @@ from annotator.dataset.annotation import (
     SceneWarning,
     WarningKind,
 )
+from annotator.dataset.model import UNEXPLAINED_MASK
 from annotator.detection import MarkerDetector
 from annotator.detection.aruco import ImageReading
 from annotator.io.images import to_gray8

@@ -23,9 +23,6 @@ from annotator.dataset.annotation import DepthRegion, SceneWarning, WarningKind
 from annotator.geometry.camera import Camera
 from annotator.geometry.mesh import Mesh
 
-#: File name of the unexplained-depth mask, beside annotation.json.
-UNEXPLAINED_MASK = "unexplained.png"
-
 
 def unexplained_depth(
     ds: Dataset,

@@ -174,8 +174,8 @@ class Occlusion:
 
 
 def _optional(record: Any, doc: Any) -> Any:
-    """``record.from_json(doc)`` for a mapping; None for None. (read_pose_file has checked
-    the numbers; a value that is neither is kept among the instance's unknown fields.)"""
+    """``record.from_json(doc)`` for a mapping; None for None (read_pose_file has checked
+    that these fields are mappings, and their numbers)."""
     return None if doc is None else record.from_json(doc)
 
 
@@ -343,22 +343,25 @@ class DepthRegion:
         if len(box) != 4:
             return None
         pixels = doc.get("pixels")
-        try:
-            depth = doc.get("depth_mm")
-            depth_mm = None if depth is None else (depth[0], depth[1])
-        except (TypeError, IndexError, KeyError):
-            depth_mm = None
-        try:
-            unread = tuple((x, y) for x, y in doc.get("unread_markers") or ())
-        except (TypeError, ValueError):
-            unread = ()
+        depth_mm = _pair(doc.get("depth_mm"))
+        unread = doc.get("unread_markers")
+        points = [_pair(p) for p in unread] if isinstance(unread, list) else []
         return cls(
             (box[0], box[1], box[2], box[3]),
             pixels if isinstance(pixels, int) and not isinstance(pixels, bool) else None,
             depth_mm,
-            unread,
+            tuple(p for p in points if p is not None),
             _extra(doc, ("box", "pixels", "depth_mm", "unread_markers")),
         )
+
+
+def _pair(value: Any) -> tuple[float, float] | None:
+    """Two numbers as read, or None for anything else (the viewer formats them)."""
+    if not isinstance(value, (list, tuple)) or len(value) != 2:
+        return None
+    if not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value):
+        return None
+    return (value[0], value[1])
 
 
 @dataclass(frozen=True)

@@ -21,6 +21,10 @@ FORMAT_VERSION = 1
 #: The folder of a dataset that holds one folder per scene (docs/FORMAT.md).
 SCENES_DIR = "scenes"
 
+#: The unexplained-depth mask beside a scene's annotation.json (annotate writes it, and names
+#: it in annotation.json's ``unexplained_mask``).
+UNEXPLAINED_MASK = "unexplained.png"
+
 __all__ = ["SYMMETRY_CLASSES", "Symmetry"]  # re-exported: object.yaml records use them
 
 
@@ -162,6 +166,15 @@ class Scene:
     @property
     def review_path(self) -> Path:
         return self.path / "review.json"
+
+    @property
+    def unexplained_path(self) -> Path:
+        return self.path / UNEXPLAINED_MASK
+
+    @classmethod
+    def relative(cls, scene_id: str) -> Scene:
+        """The scene with its paths relative to the dataset's root (what a Ray task ships)."""
+        return cls(scene_id, Path(SCENES_DIR) / scene_id)
 
     def read_image(self, camera: Camera) -> np.ndarray:
         """The camera's intensity image, as stored but flipped back for a mirrored camera

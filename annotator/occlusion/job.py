@@ -4,11 +4,9 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 from annotator.dataset import Scene, cached_dataset, read_poses
-from annotator.dataset.model import SCENES_DIR
 from annotator.errors import UserError
 from annotator.io.atomic import write_json
 from annotator.occlusion import scene_visibility
@@ -41,13 +39,13 @@ class VisibilityJob:
 
     def scene_files(self, scene_id: str) -> list[str]:
         """The poses (annotation.json or gt.json) and the depth map."""
-        scene = Scene(scene_id, Path(SCENES_DIR) / scene_id)
+        scene = Scene.relative(scene_id)
         src = scene.annotation_path if self.poses == "annotation" else scene.gt_path
         return [src.as_posix(), scene.depth_path.as_posix()]
 
     def output_files(self, scene_id: str) -> list[str]:
         """visibility.json."""
-        return [(Path(SCENES_DIR) / scene_id / VISIBILITY_FILE).as_posix()]
+        return [(Scene.relative(scene_id).path / VISIBILITY_FILE).as_posix()]
 
     def __call__(self, scene_id: str) -> dict[str, Any]:
         ds = cached_dataset(self.root)
