@@ -8,6 +8,7 @@ answer, then checks what the user sees.
 from __future__ import annotations
 
 import json
+import math
 import os
 from pathlib import Path
 
@@ -18,8 +19,9 @@ import yaml
 from annotator.cli import main
 from annotator.dataset import load_dataset, read_poses
 from annotator.dataset.review import Review, now_iso, poses_fingerprint, write_review
+from annotator.errors import UserError
 from annotator.evaluation.metrics import scene_curve
-from annotator.io.documents import MAX_NESTING
+from annotator.io.documents import MAX_NESTING, json_depth, parse_json
 
 
 def _one_line(capsys) -> str:
@@ -135,6 +137,33 @@ def test_deeply_nested_json_is_one_line_and_annotate_goes_on(sample_copy, capsys
     code = main(["annotate", str(sample_copy), "--scenes", "000000", "--quiet", "--workers", "1"])
     assert code == 0, capsys.readouterr().err
     assert read_poses(scenes / "000000" / "annotation.json")
+
+
+@pytest.mark.parametrize(
+    ("text", "depth"),
+    [
+        ("[]", 1),
+        ('[[1, 2], {"a": [3]}]', 3),
+        ('"[[["', 0),  # brackets inside a string do not nest
+        (r'["a\\", ["\"]"]]', 2),  # an escaped backslash ends the string; \" does not
+        (r'{"k\"[": [[[]]]}', 4),
+        ('["é[", {}]', 2),
+    ],
+)
+def test_nesting_counts_brackets_outside_strings(text: str, depth: int) -> None:
+    assert json_depth(text) == depth
+    assert parse_json(text, "x.json") == json.loads(text)
+
+
+def test_json_the_fast_parser_refuses_is_read_as_the_standard_library_reads_it() -> None:
+    # NaN and Infinity are Python's JSON; the formats' checks then name them.
+    assert math.isnan(parse_json("[NaN]", "x.json")[0])
+    assert parse_json('{"t": -Infinity}', "x.json") == {"t": -math.inf}
+    with pytest.raises(UserError, match=r"x.json: not valid JSON \(Expecting value: line 1"):
+        parse_json("[1, ]", "x.json")
+    with pytest.raises(UserError, match=f"nested deeper than {MAX_NESTING}"):
+        parse_json(_deep_json(MAX_NESTING + 1), "x.json")
+    assert parse_json(_deep_json(MAX_NESTING), "x.json") is not None
 
 
 def test_deeply_nested_results_and_yaml_are_one_line(sample_copy, tmp_path, capsys) -> None:

@@ -117,7 +117,10 @@ def evaluate(gt: GroundTruth, results: Results, options: Options = Options()) ->
             )
     n = options.max_results
     per_object = {name: summarise(c, max_results=n) for name, c in curves.items()}
-    overall = summarise([c for cs in curves.values() for c in cs], max_results=n)
+    if len(per_object) == 1:
+        overall = next(iter(per_object.values()))  # the same curves: the same summary
+    else:
+        overall = summarise([c for cs in curves.values() for c in cs], max_results=n)
     unscored = [s for s in gt.scenes if s not in scenes]
     return Report(per_object, overall, thresholds, options, unscored)
 

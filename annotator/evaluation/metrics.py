@@ -76,11 +76,7 @@ class SceneCurve:
         k = np.asarray(kept, int)
         if max_results is not None:
             k = np.minimum(k, max_results)
-        tp, fp, fn = self.tp[k], self.fp[k], self.fn[k]
-        precision = np.where(tp + fp > 0, tp / np.maximum(tp + fp, 1), 1.0)
-        denom = tp + fn if max_results is None else np.minimum(max_results, tp + fn)
-        recall = np.where(denom > 0, tp / np.maximum(denom, 1), 1.0)
-        return precision, recall
+        return _precision_recall(self.tp[k], self.fp[k], self.fn[k], max_results)
 
     def thresholds(self) -> np.ndarray:
         """``+inf`` then every distinct score, descending: the scene's own curve."""
@@ -92,6 +88,16 @@ class SceneCurve:
         every mean curve over the scene needs them)."""
         own = _thresholds(self.scores)
         return own, self.kept(own)
+
+
+def _precision_recall(
+    tp: np.ndarray, fp: np.ndarray, fn: np.ndarray, max_results: int | None
+) -> tuple[np.ndarray, np.ndarray]:
+    """Precision and recall from counts (see the module docstring)."""
+    precision = np.where(tp + fp > 0, tp / np.maximum(tp + fp, 1), 1.0)
+    denom = tp + fn if max_results is None else np.minimum(max_results, tp + fn)
+    recall = np.where(denom > 0, tp / np.maximum(denom, 1), 1.0)
+    return precision, recall
 
 
 def _thresholds(scores: np.ndarray) -> np.ndarray:
@@ -198,28 +204,103 @@ def mean_curve(
     curves: Sequence[SceneCurve], max_results: int | None = None
 ) -> tuple[np.ndarray, np.ndarray]:
     """The mean precision and recall at ``+inf`` and every distinct score of any scene."""
-    if not curves:
-        return np.ones(1), np.ones(1)
-    thresholds = _thresholds(np.concatenate([c.scores for c in curves]))
-    # A scene's point changes only at its own thresholds (a subset of all of them): add its
-    # steps there and sum them up, instead of evaluating every scene at every threshold.
-    ascending = -thresholds
-    precision = np.zeros(len(thresholds))
-    recall = np.zeros(len(thresholds))
-    for c in curves:
-        own, kept = c.steps
-        at = np.searchsorted(ascending, -own)
-        p, r = c.points(kept, max_results)
-        precision[at] += np.diff(p, prepend=0.0)
-        recall[at] += np.diff(r, prepend=0.0)
-    return np.cumsum(precision) / len(curves), np.cumsum(recall) / len(curves)
+    return _Steps.of(curves).mean_curve(max_results)
+
+
+@dataclass(frozen=True)
+class _Steps:
+    """Every scene's own steps end to end, so that a mean curve is a few array operations
+    whatever the number of scenes.
+
+    Attributes:
+        tp, fp, fn: Every scene's counts, concatenated.
+        base: Per step, where its scene's counts start in ``tp``.
+        kept: Per step, the number of results its scene keeps there.
+        at: Per step, its index among the thresholds of all scenes.
+        first: Per step, True where a scene's steps start.
+        starts: Where each scene's steps start.
+        count: Number of thresholds of all scenes (``+inf`` included).
+        scenes: Number of scenes.
+    """
+
+    tp: np.ndarray
+    fp: np.ndarray
+    fn: np.ndarray
+    base: np.ndarray
+    kept: np.ndarray
+    at: np.ndarray
+    first: np.ndarray
+    starts: np.ndarray
+    count: int
+    scenes: int
+
+    @classmethod
+    def of(cls, curves: Sequence[SceneCurve]) -> _Steps:
+        thresholds = _thresholds(np.concatenate([c.scores for c in curves] or [np.zeros(0)]))
+        sizes = np.array([len(c.tp) for c in curves], int)
+        steps = np.array([len(c.steps[0]) for c in curves], int)
+        starts = np.cumsum(steps) - steps
+        first = np.zeros(int(steps.sum()), bool)
+        first[starts[steps > 0]] = True
+        own = np.concatenate([c.steps[0] for c in curves] or [np.zeros(0)])
+        kept = np.concatenate([c.steps[1] for c in curves] or [np.zeros(0, int)])
+        offsets = np.cumsum(sizes) - sizes
+
+        def counts(name: str) -> np.ndarray:
+            return np.concatenate([getattr(c, name) for c in curves] or [np.zeros(0, int)])
+
+        return cls(
+            tp=counts("tp"),
+            fp=counts("fp"),
+            fn=counts("fn"),
+            base=np.repeat(offsets, steps),
+            kept=kept.astype(int),
+            # A scene's point changes only at its own thresholds (a subset of all of them).
+            at=np.searchsorted(-thresholds, -own),
+            first=first,
+            starts=starts,
+            count=len(thresholds),
+            scenes=len(curves),
+        )
+
+    def points(self, max_results: int | None) -> tuple[np.ndarray, np.ndarray]:
+        """Every step's precision and recall."""
+        k = self.kept if max_results is None else np.minimum(self.kept, max_results)
+        k = self.base + k
+        return _precision_recall(self.tp[k], self.fp[k], self.fn[k], max_results)
+
+    def within(self, x: np.ndarray) -> np.ndarray:
+        """``x`` minus its previous step in the same scene (0 before a scene's first)."""
+        d = np.empty_like(x)
+        d[0:1] = x[0:1]
+        d[1:] = x[1:] - x[:-1]
+        d[self.first] = x[self.first]
+        return d
+
+    def mean_curve(self, max_results: int | None) -> tuple[np.ndarray, np.ndarray]:
+        """See :func:`mean_curve`: each scene's steps are added where they happen and
+        summed up, instead of evaluating every scene at every threshold."""
+        if not self.scenes:
+            return np.ones(1), np.ones(1)
+        p, r = self.points(max_results)
+        precision = np.bincount(self.at, weights=self.within(p), minlength=self.count)
+        recall = np.bincount(self.at, weights=self.within(r), minlength=self.count)
+        return np.cumsum(precision) / self.scenes, np.cumsum(recall) / self.scenes
+
+    def scene_aps(self) -> np.ndarray:
+        """Each scene's AP along its own curve (:func:`average_precision`)."""
+        if not self.scenes:
+            return np.zeros(0)
+        p, r = self.points(None)
+        return np.add.reduceat(p * self.within(r), self.starts)
 
 
 def summarise(curves: Sequence[SceneCurve], *, max_results: Sequence[int] = ()) -> Summary:
     """AP, AP_n, mean scene AP and best F1 over ``curves`` (see the module docstring)."""
-    precision, recall = mean_curve(curves)
-    ap_n = {int(n): average_precision(*mean_curve(curves, int(n))) for n in max_results}
-    scene_aps = [average_precision(*c.points(c.steps[1])) for c in curves]
+    steps = _Steps.of(curves)
+    precision, recall = steps.mean_curve(None)
+    ap_n = {int(n): average_precision(*steps.mean_curve(int(n))) for n in max_results}
+    scene_aps = steps.scene_aps()
     f1 = np.where(
         precision + recall > 0, 2 * precision * recall / np.maximum(precision + recall, 1e-300), 0
     )
@@ -228,7 +309,7 @@ def summarise(curves: Sequence[SceneCurve], *, max_results: Sequence[int] = ()) 
         ap_n=ap_n,
         # No scene (an object neither in the ground truth nor in the results): nothing to
         # find and nothing found, which the authors' conventions score 1, as the mean curve.
-        mean_scene_ap=float(np.mean(scene_aps)) if scene_aps else 1.0,
+        mean_scene_ap=float(np.mean(scene_aps)) if len(scene_aps) else 1.0,
         best_f1=float(f1.max()),
         precision=precision,
         recall=recall,

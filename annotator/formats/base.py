@@ -7,7 +7,7 @@ paper's format stores metres); the reader converts.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -32,12 +32,20 @@ class PoseSet:
     @classmethod
     def of(cls, R: np.ndarray, t: np.ndarray, values: np.ndarray) -> PoseSet:
         """Poses given as (N, 3, 3), (N, 3) and (N,) arrays."""
-        return cls(list(R), list(t), [float(v) for v in values])
+        poses = cls()
+        poses.extend(R, t, values)
+        return poses
 
     def add(self, R: np.ndarray, t: np.ndarray, value: float) -> None:
         self.R.append(R)
         self.t.append(t)
         self.values.append(value)
+
+    def extend(self, R: np.ndarray, t: np.ndarray, values: Sequence[float] | np.ndarray) -> None:
+        """Add (N, 3, 3), (N, 3) poses and their N values."""
+        self.R.extend(R)
+        self.t.extend(t)
+        self.values.extend(float(v) for v in values)
 
     def arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         n = len(self.R)
@@ -137,9 +145,17 @@ def near_rotation(R: np.ndarray) -> bool:
 def projected_rotations(R: np.ndarray) -> tuple[np.ndarray, int]:
     """(N, 3, 3) near-rotations with those not orthonormal to 1e-3 projected to the nearest
     rotation (SVD), and how many were."""
-    off = (np.abs(R @ np.swapaxes(R, 1, 2) - np.eye(3)).max(axis=(1, 2)) >= 1e-3) | (
-        np.abs(np.linalg.det(R) - 1.0) >= 1e-3
-    )
+    return _projected(R, *_orthonormality(R))
+
+
+def _orthonormality(R: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """max |R R^T - I| and det R of each of (N, 3, 3) matrices."""
+    return np.abs(R @ np.swapaxes(R, 1, 2) - np.eye(3)).max(axis=(1, 2)), np.linalg.det(R)
+
+
+def _projected(R: np.ndarray, error: np.ndarray, det: np.ndarray) -> tuple[np.ndarray, int]:
+    """:func:`projected_rotations` given :func:`_orthonormality` of ``R``."""
+    off = (error >= 1e-3) | (np.abs(det - 1.0) >= 1e-3)
     if off.any():
         U, _, Vt = np.linalg.svd(R[off])
         d = np.sign(np.linalg.det(U @ Vt))
@@ -170,22 +186,17 @@ def checked_poses(
         R = np.asarray(Rs, float).reshape(n, 3, 3)
         t = np.asarray(ts, float).reshape(n, 3) * scale
         finite = np.isfinite(R).all(axis=(1, 2)) & np.isfinite(t).all(axis=1)
-        R_ok = np.where(finite[:, None, None], R, np.eye(3))  # NaN would warn in det
-        ok = (
-            finite
-            & (
-                np.abs(R_ok @ np.swapaxes(R_ok, 1, 2) - np.eye(3)).max(axis=(1, 2))
-                <= ROTATION_BOUND
-            )
-            & (np.linalg.det(R_ok) > 0)
-        )
+        if not finite.all():
+            R = np.where(finite[:, None, None], R, np.eye(3))  # NaN would warn in det
+        error, det = _orthonormality(R)
+        ok = finite & (error <= ROTATION_BOUND) & (det > 0)
     except (TypeError, ValueError):
         ok = np.zeros(n, bool)
     if not ok.all():
         for i in np.flatnonzero(~ok):
             checked_pose(Rs[i], ts[i], where(int(i)), path, scale=scale)  # raises for the culprit
         raise AssertionError("unreachable: a pose failed the batch check but not its own")
-    R, projected = projected_rotations(R)
+    R, projected = _projected(R, error, det)
     return R, t, projected
 
 
@@ -213,6 +224,35 @@ def checked_score(value: Any, where: str, path: Path) -> float:
     return score
 
 
+def _objects_and_scores(
+    doc: list[Any], gt: GroundTruth, single: str | None, path: Path
+) -> tuple[list[str], list[float]]:
+    """The object and the score of each entry of a results list, checked."""
+    if single is not None and all(type(r) is dict and "object" not in r for r in doc):
+        objects = [single] * len(doc)  # the usual case, checked at once
+        try:
+            scores = [r["score"] for r in doc]
+            values = np.asarray(scores, float)
+            if np.isfinite(values).all() and all(type(v) in (int, float) for v in scores):
+                return objects, [float(v) for v in scores]
+        except (KeyError, TypeError, ValueError):
+            pass  # the entry-wise checks below name the culprit
+    objects, floats = [], []
+    for i, r in enumerate(doc):
+        where = f"entry {i}"
+        if not isinstance(r, dict):
+            raise UserError(f"{where}: expected an object {{R, t, score}}", path=path)
+        obj = str(r["object"]) if "object" in r else single
+        if obj not in gt.spaces:
+            what = f"unknown object {obj!r}" if obj else "'object' is required"
+            raise UserError(f"{where}: {what} (objects: {', '.join(gt.spaces)})", path=path)
+        if "score" not in r:
+            raise UserError(f"{where}: 'score' is missing", path=path)
+        objects.append(obj)
+        floats.append(checked_score(r["score"], where, path))
+    return objects, floats
+
+
 def read_json_lists(
     folder: Path,
     gt: GroundTruth,
@@ -238,22 +278,13 @@ def read_json_lists(
             unknown.append(f.stem)
             continue
         mentioned.add(key)
-        objects, scores = [], []
-        for i, r in enumerate(doc):
-            where = f"entry {i}"
-            if not isinstance(r, dict):
-                raise UserError(f"{where}: expected an object {{R, t, score}}", path=f)
-            obj = str(r["object"]) if "object" in r else single
-            if obj not in gt.spaces:
-                what = f"unknown object {obj!r}" if obj else "'object' is required"
-                raise UserError(f"{where}: {what} (objects: {', '.join(gt.spaces)})", path=f)
-            if "score" not in r:
-                raise UserError(f"{where}: 'score' is missing", path=f)
-            objects.append(obj)
-            scores.append(checked_score(r["score"], where, f))
+        objects, scores = _objects_and_scores(doc, gt, single, f)
         R, t, n = checked_entries(doc, f, scale=scale)
         projected += n
         total += len(R)
+        if single is not None:
+            table.setdefault((key, single), PoseSet()).extend(R, t, scores)
+            continue
         for i, obj in enumerate(objects):
             table.setdefault((key, obj), PoseSet()).add(R[i], t[i], scores[i])
     return Results(table, unknown, mentioned, projected_note(projected, total, "the results"))

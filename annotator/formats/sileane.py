@@ -37,6 +37,7 @@ in radius is taken to be in metres). Results: a folder of
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
@@ -290,9 +291,8 @@ def read_ground_truth(path: Path, *, symmetry: str | None = None) -> GroundTruth
             if not isinstance(inst, dict):
                 raise UserError(f"entry {i}: expected an object {{R, t, occlusion_rate}}", path=f)
         R, t, _ = checked_entries(doc, f, scale=M)
-        for i, inst in enumerate(doc):
-            occ = inst.get("occlusion_rate")
-            ps.add(R[i], t[i], float(occ) if isinstance(occ, (int, float)) else float("nan"))
+        occ = [inst.get("occlusion_rate") for inst in doc]
+        ps.extend(R, t, [o if isinstance(o, (int, float)) else math.nan for o in occ])
     return GroundTruth({name: space}, table, scenes, NAME, "m", {1: name}, thresholds)
 
 

@@ -24,6 +24,9 @@ import re
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+import orjson
+
 from annotator.errors import UserError
 
 #: The deepest nesting of lists and mappings a document may have.
@@ -50,38 +53,49 @@ def read_text(path: str | Path) -> str:
 
 def parse_json(text: str, path: str | Path) -> Any:
     """``text`` parsed as JSON, nested at most :data:`MAX_NESTING` deep, or a UserError
-    naming ``path``."""
+    naming ``path``.
+
+    orjson parses (several times faster on the float-heavy files of poses); a text it refuses
+    is parsed again by the standard library, which is what decides: it accepts what orjson
+    does not (NaN and Infinity, which the format's checks then name) and words the error of a
+    text that is not JSON."""
     try:
-        doc = json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise UserError(f"not valid JSON ({exc})", path=path) from None
-    except RecursionError:
-        raise _too_deep(path) from None
-    if _json_depth(text) > MAX_NESTING:
+        doc = orjson.loads(text)
+    except orjson.JSONDecodeError:
+        try:
+            doc = json.loads(text)
+        except json.JSONDecodeError as exc:
+            raise UserError(f"not valid JSON ({exc})", path=path) from None
+        except RecursionError:
+            raise _too_deep(path) from None
+    if json_depth(text) > MAX_NESTING:
         raise _too_deep(path)
     return doc
 
 
-#: A JSON string, escapes included (unrolled, so that long strings are matched fast).
-_JSON_STRING = re.compile(r'"[^"\\]*(?:\\.[^"\\]*)*"')
-_NOT_BRACKET = re.compile(r"[^\[\]{}]+")
-#: A list or object with no list or object inside, once everything but brackets is gone.
-_INNERMOST = re.compile(r"\[\]|\{\}")
+#: Every byte but the quote and the brackets, which are all that the nesting depends on.
+_NOT_STRUCTURE = bytes(b for b in range(256) if b not in b'"[]{}')
+#: A string, once escapes and everything but quotes and brackets are gone.
+_BARE_STRING = re.compile(rb'"[^"]*"')
+#: +1 for an opening bracket, -1 for a closing one, by byte.
+_STEP = np.zeros(256, np.int32)
+_STEP[[ord("["), ord("{")]] = 1
+_STEP[[ord("]"), ord("}")]] = -1
 
 
-def _json_depth(text: str) -> int:
-    """How deep the lists and objects of a valid JSON text nest (up to one past
-    :data:`MAX_NESTING`): only the brackets outside strings are kept, then each pass removes
-    the innermost pairs. A walk over the parsed document would visit every number."""
-    rest = _JSON_STRING.sub("", text) if '"' in text else text
-    rest = _NOT_BRACKET.sub("", rest)
-    depth = 0
-    while rest and depth <= MAX_NESTING:
-        rest, n = _INNERMOST.subn("", rest)
-        if n == 0:
-            break
-        depth += 1
-    return depth
+def json_depth(text: str) -> int:
+    """How deep the lists and objects of a valid JSON text nest. Escaped backslashes and
+    quotes are dropped first (they pair off from the left in valid JSON), then every byte
+    but quotes and brackets, then the strings: the depth is the highest count of brackets
+    open. A walk over the parsed document would visit every number."""
+    if "\\" in text:
+        text = text.replace("\\\\", "").replace('\\"', "")
+    rest = text.encode("utf-8", "surrogatepass").translate(None, _NOT_STRUCTURE)
+    if b'"' in rest:
+        rest = _BARE_STRING.sub(b"", rest)
+    if not rest:
+        return 0
+    return int(np.cumsum(_STEP[np.frombuffer(rest, np.uint8)]).max())
 
 
 def read_json(path: str | Path) -> Any:
@@ -97,10 +111,20 @@ def parse_yaml(text: str, path: str | Path) -> Any:
     """
     import yaml  # here: JSON readers (evaluate, export) need not pay for it
 
+    text = text.removeprefix(_BOM)
+    # libyaml parses ten times faster than the pure-Python loader. A text it refuses is
+    # parsed again by the pure-Python loader, which decides (and words the error with its
+    # line and column), as it does where PyYAML was built without libyaml.
+    fast = getattr(yaml, "CSafeLoader", None)
+    if fast is not None:
+        try:
+            doc = yaml.load(text, Loader=fast)  # CSafeLoader: a safe loader
+        except (yaml.YAMLError, RecursionError):
+            pass
+        else:
+            return _checked(doc, path)
     try:
-        # The pure-Python loader, not libyaml's: the two accept different documents (tabs,
-        # directives) and word their errors differently, and not every PyYAML has libyaml.
-        doc = yaml.safe_load(text.removeprefix(_BOM))
+        doc = yaml.safe_load(text)
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None) or getattr(exc, "context_mark", None)
         where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""
@@ -112,6 +136,10 @@ def parse_yaml(text: str, path: str | Path) -> Any:
         ) from None
     except RecursionError:
         raise _too_deep(path) from None
+    return _checked(doc, path)
+
+
+def _checked(doc: Any, path: str | Path) -> Any:
     check_nesting(doc, path)
     return doc
 

@@ -16,6 +16,7 @@ tests/test_symmetry.py.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -131,8 +132,10 @@ class PoseSpace:
         if n == 0 or m == 0:
             return np.zeros((n, m))
         if self.kind in ("none", "finite"):
-            M = np.einsum("aji,bjk->abik", R1, R2)  # R1^T R2 for every pair
-            sq = self._rotation_term(M.reshape(-1, 3, 3)).reshape(n, m)
+            # tr(R1^T R2 W) = <R1, R2 W> (Frobenius): one (N, 9) x (9, M G) product.
+            R2W = np.matmul(R2[:, None], self._W).reshape(m * len(self._W), 9)
+            best = (R1.reshape(n, 9) @ R2W.T).reshape(n, m, -1).max(axis=2)
+            sq = self._LL_trace2 - 2 * best
             dt = self._origin(R1, t1)[:, None] - self._origin(R2, t2)[None]
             return np.sqrt(np.clip(sq + np.einsum("abi,abi->ab", dt, dt), 0.0, None))
         a = self.representatives(R1, t1)[:, 0]
@@ -146,11 +149,20 @@ class PoseSpace:
 
     def _rotation_term(self, M: np.ndarray) -> np.ndarray:
         """``min_G ||R1' L - R2' G L||_F^2`` from ``M = R1^T R2`` (model axes), shape (N,):
-        ``2 tr(L L^T) - 2 max_G tr(M B G L L^T B^T)``, one (N, 9) x (9, G) product instead
-        of N x G differences of 12-D points."""
-        W = np.matmul(np.matmul(self.B, np.matmul(self.group, self.L @ self.L.T)), self.B.T)
-        best = (M.reshape(-1, 9) @ np.swapaxes(W, 1, 2).reshape(-1, 9).T).max(axis=1)
-        return 2 * np.trace(self.L @ self.L.T) - 2 * best
+        ``2 tr(L L^T) - 2 max_G tr(M W_G)``, one (N, 9) x (9, G) product instead of N x G
+        differences of 12-D points."""
+        best = (M.reshape(-1, 9) @ np.swapaxes(self._W, 1, 2).reshape(-1, 9).T).max(axis=1)
+        return self._LL_trace2 - 2 * best
+
+    @cached_property
+    def _W(self) -> np.ndarray:
+        """``W_G = B G L L^T B^T`` for each G of the group, (G, 3, 3)."""
+        return np.matmul(np.matmul(self.B, np.matmul(self.group, self.L @ self.L.T)), self.B.T)
+
+    @cached_property
+    def _LL_trace2(self) -> float:
+        """``2 tr(L L^T)``."""
+        return float(2 * np.trace(self.L @ self.L.T))
 
     def nearest(
         self, R_query: np.ndarray, t_query: np.ndarray, R_set: np.ndarray, t_set: np.ndarray
