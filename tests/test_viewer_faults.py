@@ -6,6 +6,7 @@ websocket frames."""
 from __future__ import annotations
 
 import contextlib
+import doctest
 import gc
 import shutil
 import subprocess
@@ -20,6 +21,7 @@ import pytest
 from headless import free_port
 from polling import wait_until
 
+import viewer.memory
 from annotator.cli import main
 from annotator.dataset.review import ReviewStatus
 from annotator.errors import UserError
@@ -27,7 +29,7 @@ from viewer import memory, startup
 from viewer.app import CACHE_BYTES, ReviewApp
 from viewer.cache import PrefetchCache
 from viewer.frames import conforms, why_malformed
-from viewer.memory import MAX_VIEWPORT, BytesLRU, clamp_viewport
+from viewer.memory import MAX_VIEWPORT, BytesLRU, clamp_viewport, picture_size
 from viewer.served import ReviewProcess
 from viewer.session import Session
 from viewer.state import ReviewState, SaveError
@@ -128,6 +130,18 @@ def test_canvas_sizes_are_clamped_to_an_8k_screen_keeping_their_aspect() -> None
     assert clamp_viewport(30000, 30000) == (4320, 4320)
     assert clamp_viewport(20000, 5000) == (7680, 1920)
     assert clamp_viewport(5000, 30000) == (1280, 7680)  # portrait: the long side 7680
+
+
+def test_a_canvas_at_a_lowered_pixel_ratio_keeps_its_pictures_full_size() -> None:
+    assert doctest.testmod(viewer.memory).failed == 0
+    shown = (916, 1000)
+    # viser's adaptive pixel ratio after the 3D camera moved on a software renderer: the
+    # sizes the page reported in the browser benchmark.
+    assert picture_size(801, 875, shown) == shown
+    assert picture_size(687, 750, shown) == shown
+    assert picture_size(1200, 1300, shown) == (1200, 1300)  # a larger window
+    assert picture_size(700, 1000, shown) == (700, 1000)  # narrower: a new shape
+    assert picture_size(40, 40, shown) is None
 
 
 def test_bytes_lru_is_bounded_by_bytes_and_keeps_the_last_put() -> None:

@@ -4,6 +4,8 @@ pixels, the zoom's one-pixel outline, picking an instance, unexplained depth in 
 
 from __future__ import annotations
 
+import dataclasses
+
 import cv2
 import numpy as np
 import pytest
@@ -12,8 +14,8 @@ from annotator.dataset import load_dataset, read_poses
 from annotator.dataset.annotation import DepthRegion
 from annotator.dataset.review import MissingPart, ReviewStatus
 from viewer.mosaic import Tile, compose, grid
-from viewer.overlays import prepare
-from viewer.pictures import picture_html
+from viewer.overlays import prepare, repose
+from viewer.pictures import picture_html, zoom_html
 from viewer.style import COLOURS, MISSING_COLOUR, UNEXPLAINED_COLOUR, Look
 from viewer.zoom import inner_outline, zoom
 
@@ -125,6 +127,61 @@ def test_the_zoom_crops_at_full_resolution_with_a_one_pixel_outline(scene) -> No
     t = z.tiles[0]
     found, x, y = z.locate(*t.to_picture(t.origin[0] + 10, t.origin[1] + 7))
     assert found == t and (x, y) == (t.origin[0] + 10, t.origin[1] + 7)
+
+
+def test_the_zoom_goes_to_the_page_in_layers_that_make_its_picture(scene) -> None:
+    """Each crop at its own pixels (grey ones as one channel), magnified by the browser, and
+    an SVG outline whose rectangles cover exactly the picture's outline."""
+    import base64
+    import re
+
+    _, _, _, prep = scene
+    key = prep.keys[1]
+    z = zoom(prep, key, Look(), 956, 1000)
+    html = zoom_html(z, layer=2)
+    urls = re.findall(r'<img alt="" src="data:image/png;base64,([^"]+)"', html)
+    assert len(urls) == len(z.parts) and "image-rendering:pixelated" in html
+    for url, part in zip(urls, z.parts):
+        back = cv2.imdecode(np.frombuffer(base64.b64decode(url), np.uint8), cv2.IMREAD_UNCHANGED)
+        if back.ndim == 2:  # grey: one channel
+            back = cv2.cvtColor(back, cv2.COLOR_GRAY2BGR)
+        assert np.array_equal(back, part.shown)
+    assert any(not p.panel.is_depth for p in z.parts)
+    # The outline's rectangles, drawn, are the picture's outline pixels exactly.
+    path = re.search(r'<path fill="rgb\(([0-9,]+)\)" d="([^"]*)"/></svg></div>$', html)
+    assert path is not None
+    assert tuple(map(int, path.group(1).split(","))) == tuple(_rgb(z.colour))
+    drawn = np.zeros((1000, 956), bool)
+    for x, y, w, h in re.findall(r"M(\d+) (\d+)h(\d+)v(\d+)h-\d+z", path.group(2)):
+        drawn[int(y) : int(y) + int(h), int(x) : int(x) + int(w)] = True
+    expected = np.zeros_like(drawn)
+    for part in z.parts:
+        t = part.tile
+        expected[t.y0 : t.y0 + t.height, t.x0 : t.x0 + t.width] = inner_outline(
+            np.repeat(np.repeat(part.mask, part.magnification, 0), part.magnification, 1)
+        )
+    assert drawn.sum() > 100 and np.array_equal(drawn, expected)
+    # Fill mode: the crops are tinted, no outline.
+    filled = zoom_html(zoom(prep, key, Look(), 956, 1000, fill=True))
+    assert "<path fill" not in filled.split("</svg>")[-2]
+
+
+def test_a_repaired_pose_keeps_the_zoom_crop_while_it_fits(scene) -> None:
+    ds, sc, poses, prep = scene
+    key = prep.keys[1]
+    z = zoom(prep, key, Look(), 956, 1000)
+    k = prep.keys.index(key)
+    moved = [dataclasses.replace(p, t=p.t + [1.0, 0.0, 0.0]) if p.key == key else p for p in poses]
+    new = repose(ds, prep, moved, key)
+    assert new.layers[0].boxes[k] != prep.layers[0].boxes[k]
+    again = zoom(new, key, Look(), 956, 1000, keep=z)
+    assert [(p.x0, p.y0) for p in again.parts] == [(p.x0, p.y0) for p in z.parts]
+    # The outline moved with the pose; a zoom of another instance is not kept.
+    assert not np.array_equal(again.image, z.image)
+    other = zoom(new, prep.keys[0], Look(), 956, 1000, keep=z)
+    assert [(p.x0, p.y0) for p in other.parts] == [
+        (p.x0, p.y0) for p in zoom(new, prep.keys[0], Look(), 956, 1000).parts
+    ]
 
 
 def test_unexplained_depth_is_red_on_depth_panels_only(sample_copy) -> None:

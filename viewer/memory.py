@@ -46,6 +46,33 @@ def clamp_viewport(width: int, height: int) -> tuple[int, int]:
     return max(1, int(width * scale)), max(1, int(height * scale))
 
 
+def picture_size(width: int, height: int, shown: tuple[int, int] | None) -> tuple[int, int] | None:
+    """The size to make a page's pictures when its canvas says it is ``width`` x ``height``
+    and the pictures are ``shown`` at that size (None: none yet), within 8K
+    (:func:`clamp_viewport`); None for a canvas too small to be one (under 64 pixels).
+
+    viser lowers the canvas's resolution while its 3D frames are slow (an adaptive pixel
+    ratio: after the 3D camera moves, on a software renderer) and says so. A picture made to
+    that would be scaled up by the browser: blurred, no longer pixel for pixel. So a size of
+    the same shape as the one shown (within 1 %) but smaller is taken for that and the one
+    shown is kept; a canvas of another shape, or larger, is a new one.
+
+    >>> picture_size(1400, 1000, None)
+    (1400, 1000)
+    >>> picture_size(1050, 750, (1400, 1000))  # the same canvas at 3/4 of its pixel ratio
+    (1400, 1000)
+    >>> picture_size(1200, 1000, (1400, 1000))  # a narrower canvas
+    (1200, 1000)
+    """
+    if width < 64 or height < 64:
+        return None
+    size = clamp_viewport(width, height)
+    if shown is not None and size[0] < shown[0] and size[1] < shown[1]:
+        if abs(size[0] * shown[1] - size[1] * shown[0]) <= 0.01 * shown[0] * shown[1]:
+            return shown
+    return size
+
+
 class BytesLRU(Generic[K, V]):
     """A least-recently-used mapping bounded by the bytes of its values (``weigh``), not
     their count. The entry put last is always kept, even alone over the bound: it is the

@@ -307,15 +307,15 @@ def _outline(
 
 def _disagreement(measured: np.ndarray, rendered: np.ndarray) -> np.ndarray:
     """Measured against rendered depth (mm) as a BGR picture: bright where they disagree."""
-    diff = np.abs(measured - rendered)
     show = np.isfinite(rendered) & np.isfinite(measured)
-    heat = np.nan_to_num(np.clip(diff / DISAGREEMENT_RANGE_MM * 255, 0, 255), nan=255.0).astype(
-        np.uint8
-    )
-    out = cv2.cvtColor(
-        (np.nan_to_num(measured, nan=0) > 0).astype(np.uint8) * 60, cv2.COLOR_GRAY2BGR
-    )
-    out[show] = cv2.applyColorMap(heat, cv2.COLORMAP_INFERNO)[show]
+    with np.errstate(invalid="ignore"):  # inf - inf where neither has depth: not shown
+        heat = np.abs(measured - rendered) * np.float32(255.0 / DISAGREEMENT_RANGE_MM)
+    heat = np.clip(heat, 0, 255, out=heat, where=show)
+    heat8 = np.where(show, heat, 0).astype(np.uint8)
+    with np.errstate(invalid="ignore"):  # NaN: no measurement, dark
+        measured_here = (measured > 0).astype(np.uint8) * np.uint8(60)
+    out = cv2.cvtColor(measured_here, cv2.COLOR_GRAY2BGR)
+    np.copyto(out, cv2.applyColorMap(heat8, cv2.COLORMAP_INFERNO), where=show[..., None])
     return out
 
 

@@ -15,8 +15,11 @@ element; CSS places them over the canvas:
 - ``image-rendering: pixelated``: a picture made to the canvas's size is shown pixel for
   pixel, and zoomed pixels stay square if the browser scales it.
 
-The mosaic is sent as JPEG; the zoom as PNG, since JPEG would smear its one-pixel outline
-(deflated fast with PNG's "up" filter, see :data:`_PNG`).
+The mosaic is sent as JPEG. The zoom is sent in layers (:func:`zoom_html`): each crop as
+a PNG of its camera pixels, magnified by the browser pixel for pixel, and the one-pixel
+outline, titles and marks as SVG over them, so that a repair, which changes the outline,
+sends a few kilobytes. The blinking rendered part is one PNG (deflated fast with PNG's "up"
+filter, see :data:`_PNG`): JPEG would smear its edges.
 Blinking is a CSS animation of the rendered part over the zoom: no message per blink.
 
 The HTML elements live in the control panel, so they vanish with it when the reviewer
@@ -28,12 +31,18 @@ canvas's background image, which the images cover exactly while they are there.
 from __future__ import annotations
 
 import base64
+import hashlib
+import html
 import threading
 from collections.abc import Callable
 
 import cv2
 import numpy as np
 import viser
+
+from viewer.mosaic import Tile
+from viewer.style import MISSING_COLOUR, UNEXPLAINED_COLOUR
+from viewer.zoom import Zoom, ZoomTile, outline_rects
 
 JPEG_QUALITY = 85
 BACKGROUND_DELAY = 0.2  # seconds
@@ -71,17 +80,138 @@ def _data_url(image: np.ndarray, exact: bool) -> str:
     return f"data:{mime};base64,{base64.b64encode(data.tobytes()).decode('ascii')}"
 
 
+def _over_canvas(w: int, h: int) -> str:
+    """CSS that lays an element of ``w`` x ``h`` picture pixels exactly over the canvas."""
+    return (
+        f"position:fixed;left:0;top:0;width:{w}px;height:{h}px;"
+        f"position-anchor:{_ANCHOR};left:anchor(left);top:anchor(top);"
+        "width:anchor-size(width);height:anchor-size(height);pointer-events:none;"
+    )
+
+
 def picture_html(image: np.ndarray, *, exact: bool = False, z: int = 0, blink: bool = False) -> str:
     """An ``<img>`` of ``image`` (RGB) covering the 3D canvas (see the module docstring)."""
     h, w = image.shape[:2]
     animation = f"animation:review-blink {BLINK_SECONDS}s steps(1,end) infinite;" if blink else ""
     return (
-        f'{_STYLE}<img alt="" src="{_data_url(image, exact)}" style="'
-        f"position:fixed;left:0;top:0;width:{w}px;height:{h}px;"
-        f"position-anchor:{_ANCHOR};left:anchor(left);top:anchor(top);"
-        "width:anchor-size(width);height:anchor-size(height);"
-        f'pointer-events:none;image-rendering:pixelated;z-index:{z};{animation}">'
+        f'{_STYLE}<img alt="" src="{_data_url(image, exact)}" style="{_over_canvas(w, h)}'
+        f'image-rendering:pixelated;z-index:{z};{animation}">'
     )
+
+
+def zoom_html(z: Zoom, *, layer: int = 0) -> str:
+    """The zoom ``z`` covering the 3D canvas, in layers: each crop as a PNG of its own
+    camera pixels, magnified by the browser pixel for pixel, and over them one SVG of the
+    outline (the rectangles of :func:`viewer.zoom.outline_rects`), the tiles' titles and
+    marks. What the page shows is :attr:`Zoom.image`, for a few kilobytes instead of a
+    picture of the whole zoom (quicker to make, to send and to decode)."""
+    w, h = z.width, z.height
+
+    def pct(v: int, whole: int) -> str:
+        return f"{100.0 * v / whole:.6f}%"
+
+    imgs = []
+    for part in z.parts:
+        t = part.tile
+        imgs.append(
+            f'<img alt="" src="{_png_url(part.shown)}" style="position:absolute;'
+            f"left:{pct(t.x0, w)};top:{pct(t.y0, h)};width:{pct(t.width, w)};"
+            f'height:{pct(t.height, h)};image-rendering:pixelated">'
+        )
+    shapes = [_svg_tile(part, z) for part in z.parts]
+    if not z.fill:
+        d = "".join(
+            f"M{part.tile.x0 + x} {part.tile.y0 + y}h{rw}v{rh}h{-rw}z"
+            for part in z.parts
+            for x, y, rw, rh in outline_rects(part.mask, part.magnification)
+        )
+        shapes.append(f'<path fill="{_rgb(z.colour)}" d="{d}"/>')
+    shapes += [
+        f'<text x="{x}" y="{y}" fill="rgb(200,200,200)" {_FONT} font-size="14">'
+        f"{html.escape(text)}</text>"
+        for text, x, y in z.notes
+    ]
+    return (
+        f'{_STYLE}<div style="{_over_canvas(w, h)}z-index:{layer};background:#000;'
+        f'overflow:hidden">{"".join(imgs)}'
+        f'<svg viewBox="0 0 {w} {h}" preserveAspectRatio="none" shape-rendering="crispEdges" '
+        f'style="position:absolute;left:0;top:0;width:100%;height:100%">{"".join(shapes)}'
+        "</svg></div>"
+    )
+
+
+_FONT = 'font-family="Helvetica,Arial,sans-serif"'
+
+
+def _svg_tile(part: ZoomTile, z: Zoom) -> str:
+    """A tile's title and marks (what :func:`viewer.zoom._decorate` draws), clipped to it."""
+    t = part.tile
+    local = Tile(t.name, t.camera, 0, 0, t.width, t.height, t.scale, t.origin)
+    inner = []
+    if part.panel.is_depth:
+        d = ""
+        for r in z.look.regions:
+            p0 = local.to_picture(r.box[0] - 0.5, r.box[1] - 0.5)
+            p1 = local.to_picture(r.box[2] - 0.5, r.box[3] - 0.5)
+            x0, y0, x1, y1 = int(p0[0]), int(p0[1]), int(p1[0]), int(p1[1])
+            rw, rh = x1 - x0 + 1, y1 - y0 + 1
+            d += f"M{x0} {y0}h{rw}v1h{-rw}zM{x0} {y1}h{rw}v1h{-rw}z"
+            d += f"M{x0} {y0}h1v{rh}h-1zM{x1} {y0}h1v{rh}h-1z"
+        if d:
+            inner.append(f'<path fill="{_rgb(UNEXPLAINED_COLOUR)}" d="{d}"/>')
+    else:
+        for mk in z.look.missing:
+            if mk.camera == part.panel.camera:
+                x, y = (round(v) for v in local.to_picture(*mk.pixel))
+                c = _rgb(MISSING_COLOUR)
+                inner.append(
+                    f'<g shape-rendering="auto" fill="none"><circle cx="{x}" cy="{y}" r="9" '
+                    f'stroke="#000" stroke-width="3"/><circle cx="{x}" cy="{y}" r="9" '
+                    f'stroke="{c}" stroke-width="2"/><path stroke="{c}" '
+                    f'd="M{x - 5} {y + 0.5}h10M{x + 0.5} {y - 5}v10"/></g>'
+                )
+    title = f"{part.panel.name} x{int(t.scale)}  ({int(t.origin[0])}, {int(t.origin[1])})"
+    inner.append(
+        f'<rect width="{9 + 9 * len(title)}" height="23" fill="#000"/><text x="4" y="16" '
+        f'fill="#fff" {_FONT} font-size="13">{html.escape(title)}</text>'
+    )
+    return (
+        f'<svg x="{t.x0}" y="{t.y0}" width="{t.width}" height="{t.height}" overflow="hidden">'
+        f"{''.join(inner)}</svg>"
+    )
+
+
+def _rgb(bgr: tuple[int, int, int]) -> str:
+    return f"rgb({bgr[2]},{bgr[1]},{bgr[0]})"
+
+
+#: The data URLs of the zoom's last crops, by content: a repair changes the outline, and
+#: seldom the crops under it (see :func:`viewer.zoom.zoom`'s ``keep``).
+_CROP_URLS: dict[bytes, str] = {}
+_CROP_URLS_KEPT = 32
+
+
+def _png_url(bgr: np.ndarray) -> str:
+    """A data URL of a crop (BGR) as PNG: one channel if it is grey (a third of the bytes),
+    the crop's natural pixels deflated as libpng does by default."""
+    key = hashlib.blake2b(bgr.tobytes(), digest_size=16, person=str(bgr.shape).encode()[:16])
+    digest = key.digest()
+    url = _CROP_URLS.get(digest)
+    if url is not None:
+        return url
+    grey = (
+        bgr.ndim == 3
+        and np.array_equal(bgr[..., 0], bgr[..., 1])
+        and np.array_equal(bgr[..., 0], bgr[..., 2])
+    )
+    ok, data = cv2.imencode(".png", np.ascontiguousarray(bgr[..., 0]) if grey else bgr)
+    if not ok:
+        raise ValueError("could not encode a picture")
+    url = f"data:image/png;base64,{base64.b64encode(data.tobytes()).decode('ascii')}"
+    if len(_CROP_URLS) >= _CROP_URLS_KEPT:
+        _CROP_URLS.pop(next(iter(_CROP_URLS)))
+    _CROP_URLS[digest] = url
+    return url
 
 
 class Pictures:
@@ -96,7 +226,7 @@ class Pictures:
         self._hidden = False
         self._zoom_open = False
         self._blinking = False
-        self._current: np.ndarray | None = None  # the picture on screen
+        self._current: Callable[[], np.ndarray] | None = None  # draws the picture on screen
         #: draws the zoom's rendered part, not sent yet
         self._unsent: Callable[[], np.ndarray] | None = None
         self._background_due = False
@@ -109,19 +239,18 @@ class Pictures:
         with self._lock:
             self._mosaic.content = html
             self._zoom_open = False
-            self._current, self._background_due = image, True
+            self._current, self._background_due = lambda: image, True
             self._apply()
 
-    def show_zoom(self, image: np.ndarray, rendered: Callable[[], np.ndarray]) -> None:
-        """Show the zoom over the mosaic; ``rendered`` draws what blinking shows over it
-        (drawn and sent when blinking starts: making it would delay the zoom, and blinking
-        is rare)."""
-        html = picture_html(image, exact=True, z=2)
+    def show_zoom(self, z: Zoom) -> None:
+        """Show the zoom over the mosaic; what blinking shows over it is drawn and sent when
+        blinking starts (making it would delay the zoom, and blinking is rare)."""
+        content = zoom_html(z, layer=2)
         with self._lock:
-            self._zoom.content = html
-            self._unsent = rendered
+            self._zoom.content = content
+            self._unsent = lambda: z.rendered
             self._zoom_open = True
-            self._current, self._background_due = image, True
+            self._current, self._background_due = lambda: z.image, True
             if self._blinking:
                 self._send_rendered()
             self._apply()
@@ -177,7 +306,7 @@ class Pictures:
             if not self._background_due:
                 return
             self._background_due = False
-            image = None if self._hidden else self._current
+            image = None if self._hidden or self._current is None else self._current()
             try:
                 if image is None:
                     self._scene.set_background_image(None)

@@ -45,7 +45,7 @@ import viser
 
 from annotator.dataset.review import EditedPose, ReviewStatus
 from viewer import repair
-from viewer.memory import clamp_viewport
+from viewer.memory import picture_size
 from viewer.mosaic import Picture, compose
 from viewer.navigation import Navigator
 from viewer.overlays import Prepared, repose
@@ -82,7 +82,7 @@ class Session:
         self._unsaved_notes: dict[str, viser.NotificationHandle] = {}
         self.alerts: list[tuple[float, str]] = []  # other reviewers' decisions over ours
         self.mine: dict[str, ReviewStatus] = {}  # scenes this page decided last
-        self.viewport = self._viewport()
+        self.viewport = self._viewport(None)
         self.displayed: str | None = None  # the scene whose panel and pictures were sent last
         self._render_lock = threading.Condition()
         self._dirty = False
@@ -125,16 +125,17 @@ class Session:
         # The first render is the app's to ask for, once this page is listed among its pages.
 
     # --------------------------------------------------------------- viewport
-    def _viewport(self) -> tuple[int, int]:
-        """The size to make the pictures: the page's canvas, as it says, within 8K."""
+    def _viewport(self, shown: tuple[int, int] | None) -> tuple[int, int]:
+        """The size to make the pictures: the page's canvas, as it says, the pictures being
+        ``shown`` at that size (see :func:`viewer.memory.picture_size`)."""
         try:
             w, h = int(self.client.camera.image_width), int(self.client.camera.image_height)
         except (AssertionError, AttributeError, TypeError, ValueError, OverflowError):
             return DEFAULT_VIEWPORT
-        return clamp_viewport(w, h) if w >= 64 and h >= 64 else DEFAULT_VIEWPORT
+        return picture_size(w, h, shown) or DEFAULT_VIEWPORT
 
     def _camera_moved(self, _camera: viser.CameraHandle) -> None:
-        size = self._viewport()
+        size = self._viewport(self.viewport)
         if abs(size[0] - self.viewport[0]) > 2 or abs(size[1] - self.viewport[1]) > 2:
             self.viewport = size
             self.request_render()
@@ -213,12 +214,13 @@ class Session:
         prep = self.app.prepared(sid, info)  # a failure is shown by request_render
         self._prep = prep
         look = Look.of(info, selected)
-        self.viewport = self._viewport()  # the canvas may have changed size since
+        self.viewport = self._viewport(self.viewport)  # the canvas may have changed since
         w, h = self.viewport
         base = (sid, info.view, look, (w, h))
         zkey = (*base, fill) if zoom_open and selected else None
         if selected is not None and zkey is not None and zkey != self._shown_zoom:
-            z = zoom(prep, selected, look, w, h, fill=fill)
+            shown = self._zoom[1] if self._zoom is not None and self._zoom[0] == sid else None
+            z = zoom(prep, selected, look, w, h, fill=fill, keep=shown)
             self._zoom = (sid, z) if z is not None else None
             self._shown_zoom = zkey if z is not None else None
         if zkey is None or self._zoom is None:
@@ -234,7 +236,7 @@ class Session:
                 self.blinking = False  # blinking belongs to a zoom
         elif ("zoom", zkey) != self._on_canvas:
             z = self._zoom[1]
-            self.pictures.show_zoom(z.image, lambda: z.rendered)
+            self.pictures.show_zoom(z)
             self._on_canvas = ("zoom", zkey)
         self.pictures.blink(blinking and self._on_canvas[0] == "zoom")
         self.panel.show(self._panel_view(info, prep, flt, selected), [p.key for p in info.poses])

@@ -11,7 +11,6 @@ offset of one pixel jump to the eye.
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import cv2
@@ -33,21 +32,54 @@ MAX_MAGNIFICATION = 12
 
 
 @dataclass
+class ZoomTile:
+    """One panel's crop in the zoom: its camera pixels as shown, where they are shown and
+    the instance's pixels there (what the outline follows)."""
+
+    tile: Tile
+    panel: Panel
+    x0: int  # the crop's corner, full-resolution pixels
+    y0: int
+    magnification: int
+    plain: np.ndarray  # BGR crop, before the fill (what the rendered part is painted on)
+    shown: np.ndarray  # BGR crop as shown: tinted where the instance is, in fill mode
+    mask: np.ndarray  # the instance's pixels in the crop
+
+
+@dataclass
 class Zoom:
-    """The zoom pictures of one instance, RGB, with the tiles mapping them to camera pixels."""
+    """The zoom pictures of one instance: the crops of every panel at full resolution, the
+    outline over them, and where the tiles map to camera pixels.
+
+    The page gets them as layers (:func:`viewer.pictures.zoom_html`): each crop at its own
+    resolution, magnified by the browser, and the outline and marks as vector shapes, so
+    that a repair sends a few kilobytes where a picture of the whole zoom is hundreds.
+    :attr:`image` is the same drawn in one picture: what the page shows."""
 
     key: str
-    image: np.ndarray  # the crops with the outline (or fill)
+    width: int
+    height: int
     tiles: list[Tile]
-    #: draws :attr:`rendered`: only blinking needs it, so a repair does not wait for it
-    paint: Callable[[], np.ndarray] = field(repr=False)
+    parts: list[ZoomTile]
+    notes: list[tuple[str, int, int]]  # "not visible" texts and where they start
+    look: Look
+    colour: tuple[int, int, int]  # the instance's outline, BGR
+    fill: bool  # a translucent fill instead of the outline
+    _image: np.ndarray | None = field(default=None, init=False, repr=False)
     _rendered: np.ndarray | None = field(default=None, init=False, repr=False)
 
     @property
+    def image(self) -> np.ndarray:
+        """The zoom in one RGB picture: the crops magnified, with the outline (or fill)."""
+        if self._image is None:
+            self._image = _composite(self)
+        return self._image
+
+    @property
     def rendered(self) -> np.ndarray:
-        """The same crops with the rendered part painted over the image."""
+        """The same crops with the rendered part painted over the image (blinking)."""
         if self._rendered is None:
-            self._rendered = self.paint()
+            self._rendered = _rendered(self)
         return self._rendered
 
     def locate(self, u: float, v: float) -> tuple[Tile, float, float] | None:
@@ -68,6 +100,21 @@ def _crop(
     x0 = int(np.clip(round(cx - cw / 2.0), 0, w - cw))
     y0 = int(np.clip(round(cy - ch / 2.0), 0, h - ch))
     return x0, y0, cw, ch, m
+
+
+def _kept_crop(
+    part: ZoomTile | None, crop: tuple[int, int, int, int, int]
+) -> tuple[int, int, int, int, int]:
+    """``crop``, or ``part``'s crop where it is of the same size and magnification and its
+    corner is within half the margin of ``crop``'s (the instance moved a pixel or two)."""
+    if part is None:
+        return crop
+    x0, y0, cw, ch, m = crop
+    h, w = part.mask.shape
+    same = (cw, ch, m) == (w, h, part.magnification)
+    if same and max(abs(x0 - part.x0), abs(y0 - part.y0)) <= MARGIN_PX // 2:
+        return part.x0, part.y0, cw, ch, m
+    return crop
 
 
 def _magnify(img: np.ndarray, m: int) -> np.ndarray:
@@ -91,35 +138,47 @@ def inner_outline(mask: np.ndarray) -> np.ndarray:
 
 
 def zoom(
-    prep: Prepared, key: str, look: Look, width: int, height: int, *, fill: bool = False
+    prep: Prepared,
+    key: str,
+    look: Look,
+    width: int,
+    height: int,
+    *,
+    fill: bool = False,
+    keep: Zoom | None = None,
 ) -> Zoom | None:
     """The zoom pictures of instance ``key``, ``width`` x ``height``; None if it is not in
-    ``prep``. The rendered part (for blinking) is drawn when it is first asked for."""
+    ``prep``. Only the crops are made here; the picture in one piece and the rendered part
+    (for blinking) are drawn when first asked for.
+
+    ``keep``: the zoom shown before. Where it was on the same instance at the same size and
+    a crop would move by a few pixels only (a repaired pose), its crop is kept: the
+    reviewer sees the outline move over the image, not the image under the outline, and
+    the page gets the same crop again."""
     if key not in prep.keys:
         return None
     k = prep.keys.index(key)
     colour = look.colour(key)
-    base = np.zeros((height, width, 3), np.uint8)
-    tiles: list[Tile] = []
-    crops: list[_Crop] = []
+    parts: list[ZoomTile] = []
+    notes: list[tuple[str, int, int]] = []
+    before = {}
+    if keep is not None and keep.key == key and (keep.width, keep.height) == (width, height):
+        before = {p.panel.name: p for p in keep.parts}
     for panel, cx0, cy0, cell_w, cell_h in _cells(prep, width, height):
         box = panel.layer.boxes[k]
         if box is None:
-            _not_visible(base, f"{panel.name}: {key} not visible", cx0, cy0)
+            notes.append((f"{panel.name}: {key} not visible", cx0 + 10, cy0 + 40))
             continue
-        x0, y0, cw, ch, m = _crop(panel, box, cell_w, cell_h)
+        crop = _crop(panel, box, cell_w, cell_h)
+        x0, y0, cw, ch, m = _kept_crop(before.get(panel.name), crop)
         img = panel.image[y0 : y0 + ch, x0 : x0 + cw]
         img = cv2.cvtColor(img, cv2.COLOR_GRAY2BGR) if img.ndim == 2 else img.copy()
         mask = panel.layer.instance[y0 : y0 + ch, x0 : x0 + cw] == k
         if panel.is_depth and prep.unexplained is not None:
             tint(img, prep.unexplained[y0 : y0 + ch, x0 : x0 + cw], UNEXPLAINED_COLOUR, 0.6)
-        crop = _Crop(panel, x0, y0, m, img.copy(), mask)
+        shown = img.copy()
         if fill:
-            tint(img, mask, colour, 0.35)
-        big = _magnify(img, m)
-        if not fill:
-            # One screen pixel wide, just inside the magnified silhouette's edge.
-            big[inner_outline(_magnify(mask, m))] = colour
+            tint(shown, mask, colour, 0.35)
         tile = Tile(
             panel.name,
             panel.camera,
@@ -130,25 +189,59 @@ def zoom(
             float(m),
             (float(x0), float(y0)),
         )
-        _decorate(big, panel, tile, look)
-        base[tile.y0 : tile.y0 + tile.height, tile.x0 : tile.x0 + tile.width] = big
-        tiles.append(tile)
-        crops.append(crop)
-    image = cv2.cvtColor(base, cv2.COLOR_BGR2RGB)
-    return Zoom(key, image, tiles, lambda: _rendered(image, crops, tiles, look, colour))
+        parts.append(ZoomTile(tile, panel, x0, y0, m, img, shown, mask))
+    tiles = [p.tile for p in parts]
+    return Zoom(key, width, height, tiles, parts, notes, look, colour, fill)
 
 
-@dataclass
-class _Crop:
-    """What a tile of the zoom shows: its panel's crop (BGR, before any outline) and the
-    instance's pixels there."""
+def outline_rects(mask: np.ndarray, m: int) -> list[tuple[int, int, int, int]]:
+    """The outline :func:`inner_outline` finds in ``mask`` magnified ``m`` times, as
+    rectangles (x, y, width, height) of the magnified picture: one screen pixel wide along
+    each edge between the mask and the rest, on the mask's side, runs of edges merged. The
+    border of the array is not an edge."""
+    mk = np.asarray(mask, bool)
+    up = np.zeros_like(mk)  # an edge above the pixel
+    up[1:] = mk[1:] & ~mk[:-1]
+    down = np.zeros_like(mk)
+    down[:-1] = mk[:-1] & ~mk[1:]
+    left = np.zeros_like(mk)
+    left[:, 1:] = mk[:, 1:] & ~mk[:, :-1]
+    right = np.zeros_like(mk)
+    right[:, :-1] = mk[:, :-1] & ~mk[:, 1:]
+    rects = [(x * m, y * m, n * m, 1) for y, x, n in _runs(up)]
+    rects += [(x * m, y * m + m - 1, n * m, 1) for y, x, n in _runs(down)]
+    rects += [(x * m, y * m, 1, n * m) for x, y, n in _runs(left.T)]
+    rects += [(x * m + m - 1, y * m, 1, n * m) for x, y, n in _runs(right.T)]
+    return rects
 
-    panel: Panel
-    x0: int
-    y0: int
-    magnification: int
-    image: np.ndarray
-    mask: np.ndarray
+
+def _runs(edges: np.ndarray) -> list[tuple[int, int, int]]:
+    """(row, first column, length) of each run of True along the rows of ``edges``."""
+    h, w = edges.shape
+    # A zero after each row keeps runs from joining across rows; then runs start and end
+    # at alternate changes of the flattened array.
+    padded = np.zeros((h, w + 1), np.int8)
+    padded[:, :w] = edges
+    change = np.flatnonzero(np.diff(padded.ravel(), prepend=np.int8(0)))
+    starts, ends = change[0::2], change[1::2]
+    rows, cols = np.divmod(starts, w + 1)
+    return list(zip(rows.tolist(), cols.tolist(), (ends - starts).tolist()))
+
+
+def _composite(z: Zoom) -> np.ndarray:
+    """The zoom in one RGB picture (see :attr:`Zoom.image`)."""
+    base = np.zeros((z.height, z.width, 3), np.uint8)
+    for text, x, y in z.notes:
+        _not_visible(base, text, x, y)
+    for part in z.parts:
+        big = _magnify(part.shown, part.magnification)
+        if not z.fill:
+            # One screen pixel wide, just inside the magnified silhouette's edge.
+            big[inner_outline(_magnify(part.mask, part.magnification))] = z.colour
+        _decorate(big, part.panel, part.tile, z.look)
+        t = part.tile
+        base[t.y0 : t.y0 + t.height, t.x0 : t.x0 + t.width] = big
+    return cv2.cvtColor(base, cv2.COLOR_BGR2RGB)
 
 
 def _cells(prep: Prepared, width: int, height: int) -> list[tuple[Panel, int, int, int, int]]:
@@ -195,23 +288,18 @@ def _decorate(pic: np.ndarray, panel: Panel, tile: Tile, look: Look) -> None:
     )
 
 
-def _rendered(
-    image: np.ndarray,
-    crops: list[_Crop],
-    tiles: list[Tile],
-    look: Look,
-    colour: tuple[int, int, int],
-) -> np.ndarray:
+def _rendered(z: Zoom) -> np.ndarray:
     """The zoom's picture with the rendered part painted over each crop (RGB): the shaded
     rendering at the pose, in the instance's colour."""
-    out = image.copy()  # the cells without a tile ("not visible") are the same
-    for crop, tile in zip(crops, tiles):
-        small = crop.image.copy()
-        h, w = crop.mask.shape
-        shade = crop.panel.layer.shade[crop.y0 : crop.y0 + h, crop.x0 : crop.x0 + w]
-        small[crop.mask] = (shade[crop.mask, None] * (np.asarray(colour) / 255.0)).astype(np.uint8)
-        paint = _magnify(small, crop.magnification)
-        _decorate(paint, crop.panel, tile, look)
-        ys, xs = slice(tile.y0, tile.y0 + tile.height), slice(tile.x0, tile.x0 + tile.width)
-        out[ys, xs] = cv2.cvtColor(paint, cv2.COLOR_BGR2RGB)
+    out = z.image.copy()  # the cells without a tile ("not visible") are the same
+    for part in z.parts:
+        small = part.plain.copy()
+        h, w = part.mask.shape
+        shade = part.panel.layer.shade[part.y0 : part.y0 + h, part.x0 : part.x0 + w]
+        paint_colour = np.asarray(z.colour) / 255.0
+        small[part.mask] = (shade[part.mask, None] * paint_colour).astype(np.uint8)
+        paint = _magnify(small, part.magnification)
+        _decorate(paint, part.panel, part.tile, z.look)
+        t = part.tile
+        out[t.y0 : t.y0 + t.height, t.x0 : t.x0 + t.width] = cv2.cvtColor(paint, cv2.COLOR_BGR2RGB)
     return out
