@@ -49,7 +49,8 @@ BACKGROUND_DELAY = 0.2  # seconds
 BLINK_SECONDS = 0.7  # one period: rendered part, then the image, half each
 _ANCHOR = "--review-canvas"
 _STYLE = (
-    f"<style>canvas[data-engine]{{anchor-name:{_ANCHOR}}}"
+    f"<style>div:has(>canvas[data-engine]){{anchor-name:{_ANCHOR}}}"
+    "canvas[data-engine]{visibility:hidden}"
     "@keyframes review-blink{0%{opacity:1}50%{opacity:0}}</style>"
 )
 #: Fast and small for the zoom, whose rows come in runs of equal rows (magnified pixels):
