@@ -63,8 +63,11 @@ DEFAULT_VIEWPORT = (1280, 960)
 #: How long a page's closing waits for its render under way (it is dropped after it).
 CLOSE_WAIT_SECONDS = 10.0
 _MAX_ALERTS = 3
-ALERT_SECONDS = 60.0
-AHEAD_WAIT = 1.0  # seconds a repair waits for its overlays being made ahead, at most  # how long the panel repeats another reviewer's overriding decision
+ALERT_SECONDS = 60.0  # how long the panel repeats another reviewer's overriding decision
+AHEAD_WAIT = 1.0  # seconds a repair waits for its overlays being made ahead, at most
+#: seconds work ahead waits after a key's pixels went out: the browser draws them meanwhile
+#: (on two cores the work would slow that down), and a next key in between makes it moot
+AHEAD_DELAY = 0.3
 
 
 class Session:
@@ -608,6 +611,9 @@ class Session:
 
     def _prepare_alternative(self, sid: str, key: str, info: SceneInfo) -> None:
         try:
+            time.sleep(AHEAD_DELAY)
+            if not self._still_on(sid, key) or self.app.state.info(sid).view != info.view:
+                return  # another key came meanwhile: its own render asks again
             if info.pose(key) is None or not self.app.cache.ready((sid, info.view)):
                 return
             prep = self.app.prepared(sid, info)  # the overlays shown, made already
