@@ -366,7 +366,7 @@ def test_a_nudge_is_shown_first_and_on_disk_when_its_key_is_done(sample_copy, mo
     try:
         ws, session = _page_on(app, SCENE, KEY)
         order: list[str] = []
-        write, encode = viewer.state.write_review, viewer.pictures.zoom_html
+        write, encode = viewer.state.write_review, viewer.pictures.zoom_layers
 
         def writing(path, review):
             order.append("write")
@@ -377,7 +377,7 @@ def test_a_nudge_is_shown_first_and_on_disk_when_its_key_is_done(sample_copy, mo
             return encode(*args, **kwargs)
 
         monkeypatch.setattr(viewer.state, "write_review", writing)
-        monkeypatch.setattr(viewer.pictures, "zoom_html", encoding)
+        monkeypatch.setattr(viewer.pictures, "zoom_layers", encoding)
         before = app.state.info(SCENE).pose(KEY).t.copy()
         session.nudge(0, +1)
         # The new zoom went out before the write, and the pose is on disk once the key is

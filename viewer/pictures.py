@@ -66,6 +66,7 @@ _PNG = [
     cv2.IMWRITE_PNG_STRATEGY_RLE,
 ]
 _ORDER = 1e9  # after everything else in the panel: the images take no room in it
+_ZOOM_LAYER = 2  # z-index of the zoom's ground: over the mosaic (1), under blinking
 
 
 def _data_url(image: np.ndarray, exact: bool) -> str:
@@ -101,23 +102,53 @@ def picture_html(image: np.ndarray, *, exact: bool = False, z: int = 0, blink: b
 
 
 def zoom_html(z: Zoom, *, layer: int = 0) -> str:
-    """The zoom ``z`` covering the 3D canvas, in layers: each crop as a PNG of its own
-    camera pixels, magnified by the browser pixel for pixel, and over them one SVG of the
-    outline (the rectangles of :func:`viewer.zoom.outline_rects`), the tiles' titles and
-    marks. What the page shows is :attr:`Zoom.image`, for a few kilobytes instead of a
-    picture of the whole zoom (quicker to make, to send and to decode)."""
+    """The zoom ``z`` covering the 3D canvas, in layers (:func:`zoom_layers`, one after
+    the other)."""
+    return "".join(zoom_layers(z, layer=layer))
+
+
+def zoom_layers(z: Zoom, *, layer: int = 0) -> list[str]:
+    """The zoom ``z`` covering the 3D canvas, as HTML layers: the black ground and the
+    "not visible" notes, each crop as a PNG of its own camera pixels (magnified by the
+    browser pixel for pixel), and over them one SVG of the outline (the rectangles of
+    :func:`viewer.zoom.outline_rects`), the tiles' titles and marks. Together they show
+    :attr:`Zoom.image`. Each goes to the page as an element of its own, so that a repair,
+    which changes the outline and seldom a crop, sends the page a few kilobytes and the
+    browser decodes no picture again. ``layer``: the z-index of the ground, the crops
+    one above, the SVG two above."""
     w, h = z.width, z.height
 
     def pct(v: int, whole: int) -> str:
         return f"{100.0 * v / whole:.6f}%"
 
-    imgs = []
+    def over(z_index: int, body: str, ground: str = "") -> str:
+        return (
+            f'{_STYLE}<div style="{_over_canvas(w, h)}z-index:{z_index};{ground}'
+            f'overflow:hidden">{body}</div>'
+        )
+
+    def svg(body: str) -> str:
+        return (
+            f'<svg viewBox="0 0 {w} {h}" preserveAspectRatio="none" '
+            'shape-rendering="crispEdges" style="position:absolute;left:0;top:0;'
+            f'width:100%;height:100%">{body}</svg>'
+        )
+
+    notes = "".join(
+        f'<text x="{x}" y="{y}" fill="rgb(200,200,200)" {_FONT} font-size="14">'
+        f"{html.escape(text)}</text>"
+        for text, x, y in z.notes
+    )
+    layers = [over(layer, svg(notes) if notes else "", "background:#000;")]
     for part in z.parts:
         t = part.tile
-        imgs.append(
-            f'<img alt="" src="{_png_url(part.shown)}" style="position:absolute;'
-            f"left:{pct(t.x0, w)};top:{pct(t.y0, h)};width:{pct(t.width, w)};"
-            f'height:{pct(t.height, h)};image-rendering:pixelated">'
+        layers.append(
+            over(
+                layer + 1,
+                f'<img alt="" src="{_png_url(part.shown)}" style="position:absolute;'
+                f"left:{pct(t.x0, w)};top:{pct(t.y0, h)};width:{pct(t.width, w)};"
+                f'height:{pct(t.height, h)};image-rendering:pixelated">',
+            )
         )
     shapes = [_svg_tile(part, z) for part in z.parts]
     if not z.fill:
@@ -127,18 +158,8 @@ def zoom_html(z: Zoom, *, layer: int = 0) -> str:
             for x, y, rw, rh in outline_rects(part.mask, part.magnification)
         )
         shapes.append(f'<path fill="{_rgb(z.colour)}" d="{d}"/>')
-    shapes += [
-        f'<text x="{x}" y="{y}" fill="rgb(200,200,200)" {_FONT} font-size="14">'
-        f"{html.escape(text)}</text>"
-        for text, x, y in z.notes
-    ]
-    return (
-        f'{_STYLE}<div style="{_over_canvas(w, h)}z-index:{layer};background:#000;'
-        f'overflow:hidden">{"".join(imgs)}'
-        f'<svg viewBox="0 0 {w} {h}" preserveAspectRatio="none" shape-rendering="crispEdges" '
-        f'style="position:absolute;left:0;top:0;width:100%;height:100%">{"".join(shapes)}'
-        "</svg></div>"
-    )
+    layers.append(over(layer + 2, svg("".join(shapes))))
+    return layers
 
 
 _FONT = 'font-family="Helvetica,Arial,sans-serif"'
@@ -220,9 +241,11 @@ class Pictures:
 
     def __init__(self, gui: viser.GuiApi, scene: viser.SceneApi) -> None:
         self._scene = scene
+        self._gui = gui
         self._mosaic = gui.add_html("", order=_ORDER)
-        self._zoom = gui.add_html("", order=_ORDER + 1, visible=False)
-        self._rendered = gui.add_html("", order=_ORDER + 2, visible=False)
+        self._rendered = gui.add_html("", order=_ORDER + 1, visible=False)
+        self._zoom: list[viser.GuiHtmlHandle] = []  # the zoom's layers (zoom_layers)
+        self._zoom_used = 0  # how many of them the zoom shown has
         self._lock = threading.Lock()  # the page's render and its 3D toggle both come here
         self._hidden = False
         self._zoom_open = False
@@ -246,9 +269,13 @@ class Pictures:
     def show_zoom(self, z: Zoom) -> None:
         """Show the zoom over the mosaic; what blinking shows over it is drawn and sent when
         blinking starts (making it would delay the zoom, and blinking is rare)."""
-        content = zoom_html(z, layer=2)
+        layers = zoom_layers(z, layer=_ZOOM_LAYER)
         with self._lock:
-            self._zoom.content = content
+            while len(self._zoom) < len(layers):
+                self._zoom.append(self._gui.add_html("", order=_ORDER + 2, visible=False))
+            for handle, content in zip(self._zoom, layers):
+                handle.content = content  # viser sends only what changed: seldom a crop
+            self._zoom_used = len(layers)
             self._unsent = lambda: z.rendered
             self._zoom_open = True
             self._current, self._background_due = lambda: z.image, True
@@ -258,7 +285,9 @@ class Pictures:
 
     def _send_rendered(self) -> None:
         if self._unsent is not None:
-            self._rendered.content = picture_html(self._unsent(), exact=True, z=3, blink=True)
+            self._rendered.content = picture_html(
+                self._unsent(), exact=True, z=_ZOOM_LAYER + 3, blink=True
+            )
             self._unsent = None
 
     def clear(self) -> None:
@@ -266,7 +295,8 @@ class Pictures:
         panel; the pictures of the one before must not stand for it)."""
         with self._lock:
             self._mosaic.content = ""
-            self._zoom.content = ""
+            for handle in self._zoom:
+                handle.content = ""
             self._rendered.content = ""
             self._unsent = None
             self._zoom_open = False
@@ -329,5 +359,6 @@ class Pictures:
     def _apply(self) -> None:
         shown = not self._hidden
         self._mosaic.visible = shown and not self._zoom_open
-        self._zoom.visible = shown and self._zoom_open
+        for i, handle in enumerate(self._zoom):
+            handle.visible = shown and self._zoom_open and i < self._zoom_used
         self._rendered.visible = shown and self._zoom_open and self._blinking
