@@ -49,8 +49,7 @@ BACKGROUND_DELAY = 0.2  # seconds
 BLINK_SECONDS = 0.7  # one period: rendered part, then the image, half each
 _ANCHOR = "--review-canvas"
 _STYLE = (
-    f"<style>div:has(>canvas[data-engine]){{anchor-name:{_ANCHOR}}}"
-    "canvas[data-engine]{visibility:hidden}"
+    f"<style>canvas[data-engine]{{anchor-name:{_ANCHOR}}}"
     "@keyframes review-blink{0%{opacity:1}50%{opacity:0}}</style>"
 )
 #: Fast and small for the zoom, whose rows come in runs of equal rows (magnified pixels):
@@ -122,9 +121,11 @@ def zoom_layers(z: Zoom, *, layer: int = 0) -> list[str]:
         return f"{100.0 * v / whole:.6f}%"
 
     def over(z_index: int, body: str, ground: str = "") -> str:
+        # The style sheet is in the ground only: a page takes a new sheet as a change to
+        # everything, and the ground seldom changes.
         return (
-            f'{_STYLE}<div style="{_over_canvas(w, h)}z-index:{z_index};{ground}'
-            f'overflow:hidden">{body}</div>'
+            f'{_STYLE if ground else ""}<div style="{_over_canvas(w, h)}z-index:{z_index};'
+            f'{ground}overflow:hidden">{body}</div>'
         )
 
     def svg(body: str) -> str:
