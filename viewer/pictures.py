@@ -210,15 +210,14 @@ def _rgb(bgr: tuple[int, int, int]) -> str:
 
 #: The data URLs of the zoom's last crops, by content: a repair changes the outline, and
 #: seldom the crops under it (see :func:`viewer.zoom.zoom`'s ``keep``).
-_CROP_URLS: dict[bytes, str] = {}
+_CROP_URLS: dict[tuple[tuple[int, ...], bytes], str] = {}
 _CROP_URLS_KEPT = 32
 
 
 def _png_url(bgr: np.ndarray) -> str:
     """A data URL of a crop (BGR) as PNG: one channel if it is grey (a third of the bytes),
     the crop's natural pixels deflated as libpng does by default."""
-    key = hashlib.blake2b(bgr.tobytes(), digest_size=16, person=str(bgr.shape).encode()[:16])
-    digest = key.digest()
+    digest = (bgr.shape, hashlib.blake2b(bgr.tobytes(), digest_size=16).digest())
     url = _CROP_URLS.get(digest)
     if url is not None:
         return url
