@@ -40,9 +40,8 @@ import cv2
 import numpy as np
 import viser
 
-from viewer.mosaic import Tile
 from viewer.style import MISSING_COLOUR, UNEXPLAINED_COLOUR
-from viewer.zoom import Zoom, ZoomTile, outline_rects
+from viewer.zoom import Zoom, ZoomTile, outline_rects, tile_marks
 
 JPEG_QUALITY = 85
 BACKGROUND_DELAY = 0.2  # seconds
@@ -167,36 +166,29 @@ _FONT = 'font-family="Helvetica,Arial,sans-serif"'
 
 
 def _svg_tile(part: ZoomTile, z: Zoom) -> str:
-    """A tile's title and marks (what :func:`viewer.zoom._decorate` draws), clipped to it."""
+    """A tile's title and marks (:func:`viewer.zoom.tile_marks`), clipped to it."""
     t = part.tile
-    local = Tile(t.name, t.camera, 0, 0, t.width, t.height, t.scale, t.origin)
+    marks = tile_marks(part.panel, t, z.look)
     inner = []
-    if part.panel.is_depth:
-        d = ""
-        for r in z.look.regions:
-            p0 = local.to_picture(r.box[0] - 0.5, r.box[1] - 0.5)
-            p1 = local.to_picture(r.box[2] - 0.5, r.box[3] - 0.5)
-            x0, y0, x1, y1 = int(p0[0]), int(p0[1]), int(p1[0]), int(p1[1])
-            rw, rh = x1 - x0 + 1, y1 - y0 + 1
-            d += f"M{x0} {y0}h{rw}v1h{-rw}zM{x0} {y1}h{rw}v1h{-rw}z"
-            d += f"M{x0} {y0}h1v{rh}h-1zM{x1} {y0}h1v{rh}h-1z"
-        if d:
-            inner.append(f'<path fill="{_rgb(UNEXPLAINED_COLOUR)}" d="{d}"/>')
-    else:
-        for mk in z.look.missing:
-            if mk.camera == part.panel.camera:
-                x, y = (round(v) for v in local.to_picture(*mk.pixel))
-                c = _rgb(MISSING_COLOUR)
-                inner.append(
-                    f'<g shape-rendering="auto" fill="none"><circle cx="{x}" cy="{y}" r="9" '
-                    f'stroke="#000" stroke-width="3"/><circle cx="{x}" cy="{y}" r="9" '
-                    f'stroke="{c}" stroke-width="2"/><path stroke="{c}" '
-                    f'd="M{x - 5} {y + 0.5}h10M{x + 0.5} {y - 5}v10"/></g>'
-                )
-    title = f"{part.panel.name} x{int(t.scale)}  ({int(t.origin[0])}, {int(t.origin[1])})"
+    d = ""
+    for x0, y0, x1, y1 in marks.regions:
+        rw, rh = x1 - x0 + 1, y1 - y0 + 1
+        d += f"M{x0} {y0}h{rw}v1h{-rw}zM{x0} {y1}h{rw}v1h{-rw}z"
+        d += f"M{x0} {y0}h1v{rh}h-1zM{x1} {y0}h1v{rh}h-1z"
+    if d:
+        inner.append(f'<path fill="{_rgb(UNEXPLAINED_COLOUR)}" d="{d}"/>')
+    c = _rgb(MISSING_COLOUR)
+    for cx, cy in marks.missing:
+        x, y = round(cx), round(cy)
+        inner.append(
+            f'<g shape-rendering="auto" fill="none"><circle cx="{x}" cy="{y}" r="9" '
+            f'stroke="#000" stroke-width="3"/><circle cx="{x}" cy="{y}" r="9" '
+            f'stroke="{c}" stroke-width="2"/><path stroke="{c}" '
+            f'd="M{x - 5} {y + 0.5}h10M{x + 0.5} {y - 5}v10"/></g>'
+        )
     inner.append(
-        f'<rect width="{9 + 9 * len(title)}" height="23" fill="#000"/><text x="4" y="16" '
-        f'fill="#fff" {_FONT} font-size="13">{html.escape(title)}</text>'
+        f'<rect width="{9 + 9 * len(marks.title)}" height="23" fill="#000"/><text x="4" '
+        f'y="16" fill="#fff" {_FONT} font-size="13">{html.escape(marks.title)}</text>'
     )
     return (
         f'<svg x="{t.x0}" y="{t.y0}" width="{t.width}" height="{t.height}" overflow="hidden">'

@@ -269,23 +269,40 @@ def _not_visible(img: np.ndarray, text: str, x0: int, y0: int) -> None:
     )
 
 
-def _decorate(pic: np.ndarray, panel: Panel, tile: Tile, look: Look) -> None:
-    """The unexplained regions or "no pose here" marks, and the title, on a tile's picture."""
+@dataclass(frozen=True)
+class TileMarks:
+    """What a zoom tile shows over its crop besides the outline, in the tile's own picture
+    pixels (drawn into :attr:`Zoom.image` and sent to the page as SVG alike)."""
+
+    title: str
+    regions: list[tuple[int, int, int, int]]  # unexplained depth: x0, y0, x1, y1 inclusive
+    missing: list[tuple[float, float]]  # "no pose here" marks' centres
+
+
+def tile_marks(panel: Panel, tile: Tile, look: Look) -> TileMarks:
+    """The title, unexplained regions (depth panels) or "no pose here" marks of a tile."""
     local = Tile(tile.name, tile.camera, 0, 0, tile.width, tile.height, tile.scale, tile.origin)
+    regions: list[tuple[int, int, int, int]] = []
+    missing: list[tuple[float, float]] = []
     if panel.is_depth:
         for r in look.regions:
             p0 = local.to_picture(r.box[0] - 0.5, r.box[1] - 0.5)
             p1 = local.to_picture(r.box[2] - 0.5, r.box[3] - 0.5)
-            cv2.rectangle(
-                pic, (int(p0[0]), int(p0[1])), (int(p1[0]), int(p1[1])), UNEXPLAINED_COLOUR, 1
-            )
+            regions.append((int(p0[0]), int(p0[1]), int(p1[0]), int(p1[1])))
     else:
-        for mk in look.missing:
-            if mk.camera == panel.camera:
-                draw_missing(pic, *local.to_picture(*mk.pixel))
-    put_title(
-        pic, f"{panel.name} x{int(tile.scale)}  ({int(tile.origin[0])}, {int(tile.origin[1])})"
-    )
+        missing = [local.to_picture(*mk.pixel) for mk in look.missing if mk.camera == panel.camera]
+    title = f"{panel.name} x{int(tile.scale)}  ({int(tile.origin[0])}, {int(tile.origin[1])})"
+    return TileMarks(title, regions, missing)
+
+
+def _decorate(pic: np.ndarray, panel: Panel, tile: Tile, look: Look) -> None:
+    """The unexplained regions or "no pose here" marks, and the title, on a tile's picture."""
+    marks = tile_marks(panel, tile, look)
+    for x0, y0, x1, y1 in marks.regions:
+        cv2.rectangle(pic, (x0, y0), (x1, y1), UNEXPLAINED_COLOUR, 1)
+    for x, y in marks.missing:
+        draw_missing(pic, x, y)
+    put_title(pic, marks.title)
 
 
 def _rendered(z: Zoom) -> np.ndarray:
