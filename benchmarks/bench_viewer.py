@@ -9,7 +9,9 @@ compositor produced it, so the cost of capturing them is not in the figure. "The
 pictures" means: the picture area of the frame (its left 60%) equals, within JPEG noise,
 that of the last frame once the page has been still for 400 ms. Between presses
 the script waits one second, as a person looking at the scene would, which is when the next
-scenes are prepared. Targets: median <= 300 ms, worst <= 600 ms.
+scenes are prepared. Targets: median <= 300 ms, worst <= 600 ms. Then the same for J pressed
+every 0.6 s, as a reviewer on a run does (each key's picture being the one on screen just
+before the next key).
 
 It also prints the server-side part of a switch, and then, the same way, the time from a
 repair key to the new overlay on screen (the zoom on the instance repaired): R (refine; its
@@ -19,7 +21,8 @@ scene 000000 was moved by 3 mm and 4 degrees; A on brick/05 of scene 000003 (one
 IPPE solutions). Target: 150 ms after the key (R: after the ICP). A repair changes few
 pixels, so its frames are larger (700 px wide) and "the new overlay" also means: where the
 settled frame differs from the one on screen at the key, the frame is at least 3/4 of the
-way there (the overall test alone passes a frame still showing the old overlay).
+way there (the overall test alone passes a frame still showing the old overlay). Nudges are
+also pressed 0.3 s apart, as one repeats a key, without waiting for the page to settle.
 
     .venv/bin/python benchmarks/bench_viewer.py            # switches, then repairs
     .venv/bin/python benchmarks/bench_viewer.py --repair   # repairs only
@@ -48,6 +51,9 @@ from viewer.app import ReviewApp  # noqa: E402
 
 SAMPLE = ROOT / "sample_scenes"
 SWITCHES = 20
+#: A reviewer on a run: J at a brisk decision's pace, nudges as fast as one repeats a key.
+PACED_SWITCHES, PACED_SWITCH_MS = 12, 600
+PACED_NUDGES, PACED_NUDGE_MS = 10, 300
 REPAIRS = 8  # presses of each repair key
 REPAIR_TARGET_MS = 150.0
 VIEWPORT = {"width": 1400, "height": 1000}
@@ -157,8 +163,36 @@ def shown_at(
     raise RuntimeError("the page did not settle within 10 s of the key")
 
 
-def browser_switches(url: str) -> list[float]:
-    """Key press to the new pictures on screen, in ms, for SWITCHES presses of J."""
+def paced(page, cast: Screencast, key: str, presses: int, gap_ms: int) -> list[float]:
+    """Key press to the new picture on screen, in ms, for ``presses`` presses of ``key``
+    ``gap_ms`` apart, as a reviewer on a run presses them (without waiting for the page to
+    settle). Each key's picture is the one on screen just before the next key; a key whose
+    picture had not changed by then counts as ``gap_ms`` (the figure is then a lower bound)."""
+    page.wait_for_timeout(1500)  # the page settles first
+    first = len(page.evaluate("window.__keys"))
+    for _ in range(presses):
+        page.keyboard.press(key)
+        page.wait_for_timeout(gap_ms)
+    page.wait_for_timeout(1500)  # the last key's frames, and none after
+    keys = page.evaluate("window.__keys")[first:]
+    out = []
+    for i, t in enumerate(keys):
+        end = keys[i + 1] if i + 1 < len(keys) else t + 1.0
+        before, final = cast.at(t), cast.at(end - 0.005)
+        assert before is not None and final is not None
+        changed = np.abs(_picture_area(before) - _picture_area(final)) > CHANGE_LEVEL
+        if changed.sum() < MIN_CHANGED:
+            out.append(float(gap_ms))
+            continue
+        target = _picture_area(final)
+        shown = next(ft for ft, img in cast.since(t) if _arrived(img, target, before))
+        out.append(1000.0 * (shown - t))
+    return out
+
+
+def browser_switches(url: str) -> tuple[list[float], list[float]]:
+    """Key press to the new pictures on screen, in ms, for SWITCHES presses of J a second
+    or more apart, then for PACED_SWITCHES presses :data:`PACED_SWITCH_MS` apart."""
     from playwright.sync_api import sync_playwright
 
     out = []
@@ -180,10 +214,11 @@ def browser_switches(url: str) -> list[float]:
                 page.get_by_text(f"Scene {k + 1:06d}").first.wait_for(timeout=10000)
                 pressed = page.evaluate("window.__keys[window.__keys.length - 1]")
                 out.append(1000.0 * (shown_at(page, cast, pressed) - pressed))
+            paced_out = paced(page, cast, "j", PACED_SWITCHES, PACED_SWITCH_MS)
             cast.stop()
         finally:
             browser.close()
-    return out
+    return out, paced_out
 
 
 def server_switches(app: ReviewApp) -> tuple[float, list[float]]:
@@ -254,6 +289,7 @@ def browser_repairs(app: ReviewApp) -> dict[str, list[float]]:
         "U": [],
         "nudge, mosaic": [],
         "U, mosaic": [],
+        f"nudges {PACED_NUDGE_MS} ms apart": [],
     }
     try:
         with sync_playwright() as pw:
@@ -299,6 +335,10 @@ def browser_repairs(app: ReviewApp) -> dict[str, list[float]]:
                     press("1", "nudge")
                     press("u", "U")
                     press("u", None)  # the refinement undone: moved again for the next R
+                for key in "21":  # a run of nudges one way, then back
+                    out[f"nudges {PACED_NUDGE_MS} ms apart"] += paced(
+                        page, cast, key, PACED_NUDGES // 2, PACED_NUDGE_MS
+                    )
                 press("z", None)  # the zoom closed: the same in the mosaic
                 for _ in range(REPAIRS):
                     press("2", "nudge, mosaic")
@@ -354,10 +394,10 @@ def main() -> None:
 
 def switches() -> None:
     with tempfile.TemporaryDirectory() as tmp:
-        root = make_dataset(Path(tmp) / "ds", SWITCHES + 4)
+        root = make_dataset(Path(tmp) / "ds", SWITCHES + PACED_SWITCHES + 4)
         app = ReviewApp(root, host="127.0.0.1", port=free_port())
         try:
-            times = browser_switches(app.url)
+            times, paced_times = browser_switches(app.url)
         finally:
             app.stop()
         med, worst = statistics.median(times), max(times)
@@ -368,6 +408,12 @@ def switches() -> None:
             f"{worst / 600:.2f})"
         )
         print(f"  each switch, ms: {', '.join(f'{t:.0f}' for t in times)}")
+        med, worst = statistics.median(paced_times), max(paced_times)
+        print(
+            f"  {PACED_SWITCHES} switches {PACED_SWITCH_MS} ms apart: median {med:.0f} ms, "
+            f"worst {worst:.0f} ms (ratios {med / 300:.2f} / {worst / 600:.2f})"
+        )
+        print(f"    each, ms: {', '.join(f'{t:.0f}' for t in paced_times)}")
         shutil.rmtree(root)
         root = make_dataset(Path(tmp) / "ds", 6)
         app = ReviewApp(root, host="127.0.0.1", port=free_port())

@@ -22,6 +22,7 @@ from polling import wait_until
 playwright = pytest.importorskip("playwright.sync_api")
 
 import viewer.app  # noqa: E402
+from viewer import pictures  # noqa: E402
 from viewer.app import ReviewApp  # noqa: E402
 
 # A page closed while its scene is being sent: viser warns of what it can no longer deliver
@@ -135,6 +136,27 @@ def test_review_page_end_to_end(browser, served) -> None:
         page.keyboard.press("y")
         assert wait_until(lambda: _status(root, "000002") == "accepted")
         page.get_by_text("reviewed 3 / 4").first.wait_for(timeout=15000)
+    finally:
+        page.close()
+
+
+def test_a_collapsed_panel_leaves_the_picture_on_the_canvas(browser, served) -> None:
+    """The pictures live in the control panel and go with it; the canvas then shows its own
+    copy, made to the wider canvas, soon after (not after the long wait kept while the
+    panel is open, see viewer.pictures)."""
+    app, _ = served
+    page = _open(browser, app.url)
+    try:
+        session = _session(app)
+        assert _shows(page, lambda: _as_sent(session._picture[1].image))
+        narrow = session.viewport
+        session.client.gui.main_panel.minimize()
+        session.client.flush()
+        t0 = time.monotonic()
+        assert wait_until(lambda: session.viewport[0] > narrow[0] * 1.2)
+        assert page.locator("[data-review-picture]").count() == 0  # gone with the panel
+        assert _shows(page, lambda: _as_sent(session._picture[1].image), timeout=10)
+        assert time.monotonic() - t0 < pictures.BACKGROUND_QUIET
     finally:
         page.close()
 

@@ -5,14 +5,18 @@ pixels, the zoom's one-pixel outline, picking an instance, unexplained depth in 
 from __future__ import annotations
 
 import dataclasses
+import doctest
+import time
 
 import cv2
 import numpy as np
 import pytest
+from polling import wait_until
 
 from annotator.dataset import load_dataset, read_poses
 from annotator.dataset.annotation import DepthRegion
 from annotator.dataset.review import MissingPart, ReviewStatus
+from viewer import keyguard, pictures
 from viewer.mosaic import Tile, compose, grid
 from viewer.overlays import prepare, repose
 from viewer.pictures import picture_html, zoom_html
@@ -238,3 +242,95 @@ def test_pictures_go_to_the_page_as_images_over_the_canvas() -> None:
         assert css in html
     assert "animation" not in html and "animation:review-blink" in picture_html(img, blink=True)
     assert 'src="data:image/jpeg;base64,' in picture_html(img)
+
+
+class _Html:
+    def __init__(self) -> None:
+        self.content, self.visible = "", True
+
+
+class _Gui:
+    def add_html(self, content: str, **_kw) -> _Html:
+        return _Html()
+
+
+class _Scene:
+    """Records when the canvas's copy of the picture was sent (None: cleared)."""
+
+    def __init__(self) -> None:
+        self.sent: list[tuple[float, object]] = []
+
+    def set_background_image(self, image, **_kw) -> None:
+        self.sent.append((time.monotonic(), None if image is None else image.shape))
+
+
+@pytest.fixture()
+def quick(monkeypatch):
+    """Pictures with short waits (the same rules, a test's time)."""
+    monkeypatch.setattr(pictures, "BACKGROUND_DELAY", 0.05)
+    monkeypatch.setattr(pictures, "BACKGROUND_QUIET", 0.6)
+    scene = _Scene()
+    p = pictures.Pictures(_Gui(), scene)  # type: ignore[arg-type]
+    yield p, scene
+    p.close()
+
+
+def test_the_canvas_copy_waits_until_the_pictures_and_keys_are_still(quick) -> None:
+    p, scene = quick
+    image = np.zeros((40, 60, 3), np.uint8)
+    start = time.monotonic()
+    for _ in range(5):  # a picture every 0.15 s: nothing is drawn on the canvas meanwhile
+        p.show_mosaic(image)
+        p.send_background_soon()
+        time.sleep(0.15)
+    assert scene.sent == []
+    p.postpone()  # a key came: its answer must not wait for the copy either
+    assert wait_until(lambda: len(scene.sent) == 1, timeout=3)
+    (at, shape), last_change = scene.sent[0], start + 0.6
+    assert shape == (40, 60, 3)
+    assert at - last_change >= 0.6 + 0.1  # the quiet counted from the key, not the picture
+    time.sleep(0.8)
+    assert len(scene.sent) == 1  # sent once, and not again while nothing changes
+
+
+def test_a_collapsed_panel_gets_the_copy_at_once(quick) -> None:
+    p, scene = quick
+    image = np.zeros((40, 60, 3), np.uint8)
+    p.canvas_resized(916, 1000)
+    p.canvas_resized(1360, 1000)  # the docked panel collapsed: the canvas widened
+    t0 = time.monotonic()
+    p.show_mosaic(image)
+    p.send_background_soon()
+    assert wait_until(lambda: len(scene.sent) == 1, timeout=3)
+    assert scene.sent[0][0] - t0 < 0.45  # the short wait, not the quiet one
+    p.canvas_resized(916, 1000)  # open again: back to the long wait
+    t1 = time.monotonic()
+    p.show_mosaic(image[:20])
+    p.send_background_soon()
+    assert wait_until(lambda: len(scene.sent) == 2, timeout=3)
+    assert scene.sent[1][0] - t1 >= 0.6
+
+
+def test_the_3d_view_clears_the_canvas_copy_at_once(quick) -> None:
+    p, scene = quick
+    p.show_mosaic(np.zeros((40, 60, 3), np.uint8))
+    p.hide(True)
+    p.send_background()
+    assert [s for _, s in scene.sent] == [None]
+
+
+def test_every_picture_carries_the_mark_the_key_guard_looks_for(scene) -> None:
+    _, _, poses, prep = scene
+    look = Look()
+    z = zoom(prep, poses[0].key, look, 900, 700)
+    assert z is not None
+    for layer in pictures.zoom_layers(z):
+        assert layer.count(f"<div {keyguard.PICTURE_MARK} ") == 1
+    assert f'<img alt="" {keyguard.PICTURE_MARK} ' in picture_html(np.zeros((8, 8, 3), np.uint8))
+    # The guard's script is an attribute of an empty image: quotes escaped, nothing else.
+    assert keyguard.GUARD_HTML.count("<") == 1 and '"KeyA"' not in keyguard.GUARD_HTML
+    assert "&quot;KeyA&quot;" in keyguard.GUARD_HTML
+
+
+def test_the_docstring_examples_run() -> None:
+    assert doctest.testmod(pictures).failed == 0

@@ -231,3 +231,44 @@ def test_a_deleted_instance_is_added_back_with_m_a_click_and_r(browser, moved) -
             assert _error_fraction(moved, DELETED, *_pose(rec)) < 0.005
         finally:
             page.close()
+
+
+def test_a_cycles_the_candidates_and_moves_the_3d_camera_only_in_the_3d_view(
+    browser, moved
+) -> None:
+    """A is viser's camera key too (its W A S D): over the pictures it only cycles the
+    candidates (a camera moving unseen under them is elsewhere when the 3D view opens, and
+    drawing its motion delayed the overlay); in the 3D view it also moves the camera."""
+    key = "brick/05"  # one marker in scene 000003: both IPPE solutions are candidates
+    with _serving(moved) as app:
+        page = _open(browser, app.url)
+        try:
+            session = _session(app)
+            for _ in range(3):
+                page.keyboard.press("j")
+            page.get_by_text("Scene 000003").first.wait_for(timeout=10000)
+            page.get_by_role("button", name=key, exact=True).first.click()
+            assert wait_until(lambda: session.nav.selected == key)
+            page.get_by_text("Scene 000003").first.click()  # keys go to the page again
+            camera = session.client.camera
+            assert wait_until(lambda: camera.update_timestamp > 0)
+            before = np.array(camera.position)
+
+            page.keyboard.down("a")
+            page.wait_for_timeout(300)  # held: viser's camera would move all along
+            page.keyboard.up("a")
+            page.get_by_text(f"{key}: candidate 2 of").first.wait_for(timeout=10000)
+            page.wait_for_timeout(1000)  # any camera motion has been reported by now
+            assert np.allclose(camera.position, before)
+
+            page.keyboard.press("v")
+            assert wait_until(lambda: session.scene.showing_3d)
+            page.get_by_text("Scene 000003").first.click()
+            page.keyboard.down("a")
+            page.wait_for_timeout(300)
+            page.keyboard.up("a")
+            # The candidates cycle (back to the first, the auto pose) and the camera moved.
+            page.get_by_text(f"{key}: candidate 1 of").first.wait_for(timeout=10000)
+            assert wait_until(lambda: not np.allclose(camera.position, before), timeout=5)
+        finally:
+            page.close()

@@ -12,6 +12,7 @@
 - :mod:`viewer.pictures`: the pictures on the page, laid over the 3D canvas as HTML images;
 - :mod:`viewer.style`: colours and what each instance's outline shows;
 - :mod:`viewer.panel`: the control panel and hotkeys;
+- :mod:`viewer.keyguard`: keys over the pictures kept from viser's 3D camera (A);
 - :mod:`viewer.scene3d`: the 3D canvas (clicks on the pictures, the 3D view, the gizmo) and
   its handles;
 - :mod:`viewer.repair`: what the repair keys compute (over :mod:`annotator.repair`);

@@ -4,7 +4,8 @@ repair folder (what the last repair did, "Add here" after M and a click, the nud
 It shows a :class:`PanelView` and calls a :class:`PanelActions` (the page's session); it
 decides nothing itself.
 
-Hotkeys (none on W A S D Q E or the arrows, which move the 3D camera):
+Hotkeys (none on W S D Q E or the arrows, which move viser's 3D camera; A, which it takes
+too, is kept from it while the pictures are shown, see :mod:`viewer.keyguard`):
 
 =====  ==========================================================================
 Y      accept the scene and go to the next
@@ -20,7 +21,7 @@ M      "a part has no pose here": the next click on a picture marks it (and offe
        the instances without a pose, to add there)
 V      3D view (parts, depth points, cameras) / back to the pictures
 R      refine the selected instance (depth ICP with its markers)
-A      the selected instance's next candidate pose (from its markers)
+A / C  the selected instance's next candidate pose (from its markers)
 1-6    nudge the selected instance: -x +x -y +y -z +z of the reference camera
 G      nudges move / turn (about the part's centre)
 L      small (1 mm, 1 degree) / large (10 mm, 10 degrees) nudges
@@ -38,9 +39,11 @@ from typing import Protocol
 import viser
 
 from annotator.dataset.review import ReviewStatus
+from viewer.keyguard import GUARD_HTML
 from viewer.state import FILTERS, SceneInfo
 
 PANEL_WIDTH = 480  # CSS pixels
+_GUARD_ORDER = -1e9  # first: an empty element, it takes no room
 
 HOTKEYS: tuple[tuple[str, str, str], ...] = (
     # (key, command label, action name)
@@ -57,9 +60,10 @@ HOTKEYS: tuple[tuple[str, str, str], ...] = (
     ("M", "A part has no pose here (then click it)", "arm_missing"),
     ("V", "3D view / pictures", "toggle_3d"),
     ("R", "Refine the selected instance", "refine"),
-    ("C", "Next candidate pose", "alternative"),
-    # The issue's own key; viser's 3D camera also moves on it (its W A S D), C does not.
-    ("A", "Next candidate pose (also moves the 3D camera: C does not)", "alternative"),
+    # viser's 3D camera takes A too (its W A S D): viewer.keyguard keeps it from the camera
+    # while the pictures are shown. C is the same command on a key the camera never takes.
+    ("A", "Next candidate pose", "alternative"),
+    ("C", "Next candidate pose (as A)", "alternative"),
     ("G", "Nudges move / turn", "toggle_nudge_kind"),
     ("L", "Small / large nudges", "toggle_nudge_size"),
     ("U", "Undo a pose edit", "undo"),
@@ -78,6 +82,10 @@ NUDGE_KEYS: tuple[tuple[str, int, int], ...] = (
 
 class PanelActions(Protocol):
     """What the panel's buttons and hotkeys do (implemented by the page's session)."""
+
+    def pressed(self) -> None:
+        """A key or button came, before what it does: work the page would do meanwhile
+        (drawing the canvas's copy of the picture) waits, so as not to slow the answer."""
 
     def accept(self) -> None: ...
     def reject(self) -> None: ...
@@ -169,6 +177,7 @@ class Panel:
 
     def __init__(self, gui: viser.GuiApi, actions: PanelActions) -> None:
         self._gui = gui
+        self._actions = actions
         gui.configure_theme(control_width="large", show_share_button=False)
         # Docked, the panel takes its width from the canvas instead of covering the mosaic.
         gui.main_panel.dock_right()
@@ -198,7 +207,7 @@ class Panel:
             self._button("Next (J)", actions.next)
             self._button("Next flagged (F)", actions.next_flagged)
             self._button("No pose here… (M, then click)", actions.arm_missing)
-        self.filter.on_update(_ignoring_event(lambda: actions.set_filter(self.filter.value)))
+        self.filter.on_update(self._callback(lambda: actions.set_filter(self.filter.value)))
 
     def _instances_folder(self, actions: PanelActions) -> None:
         with self._gui.add_folder("Instances"):
@@ -210,6 +219,7 @@ class Panel:
             self._button("Toggle instance (T)", actions.toggle_instance)
 
         def select(event: viser.GuiEvent[viser.GuiButtonGroupHandle]) -> None:
+            actions.pressed()
             actions.select(event.target.value)
 
         self.instances.on_click(select)
@@ -219,7 +229,7 @@ class Panel:
             self.repair = self._gui.add_markdown("")
             self.offer = self._gui.add_button_group("Add here", ["-"], visible=False)
             self._button("Refine (R)", actions.refine)
-            self._button("Next candidate pose (C)", actions.alternative)
+            self._button("Next candidate pose (A)", actions.alternative)
             self.nudges = self._gui.add_markdown("")
             for key, axis, sign in NUDGE_KEYS:
                 self._button(f"{'-+'[sign > 0]}{'xyz'[axis]} ({key})", _nudge(actions, axis, sign))
@@ -230,28 +240,40 @@ class Panel:
             self._button("Reset to the auto-annotation (X)", actions.reset_pose)
 
         def add(event: viser.GuiEvent[viser.GuiButtonGroupHandle]) -> None:
+            actions.pressed()
             actions.add_missing(event.target.value)
 
         self.offer.on_click(add)
 
     def _hotkeys(self, actions: PanelActions) -> None:
         gui = self._gui
+        gui.add_html(GUARD_HTML, order=_GUARD_ORDER)  # A over the pictures: not the camera's
         for key, text, name in HOTKEYS:
             cmd = gui.add_command(text, hotkey=key, modifier=None)  # type: ignore[arg-type]
-            cmd.on_trigger(_ignoring_event(getattr(actions, name)))
+            cmd.on_trigger(self._callback(getattr(actions, name)))
         redo = gui.add_command("Redo a pose edit", hotkey="U", modifier="shift")
-        redo.on_trigger(_ignoring_event(actions.redo))
+        redo.on_trigger(self._callback(actions.redo))
         for key, axis, sign in NUDGE_KEYS:
             cmd = gui.add_command(
                 f"Nudge {'-+'[sign > 0]}{'xyz'[axis]}",
                 hotkey=key,  # type: ignore[arg-type]
                 modifier=None,
             )
-            cmd.on_trigger(_ignoring_event(_nudge(actions, axis, sign)))
+            cmd.on_trigger(self._callback(_nudge(actions, axis, sign)))
 
     def _button(self, text: str, fn: Callable[[], None], color: str | None = None) -> None:
         button = self._gui.add_button(text, color=color)  # type: ignore[arg-type]
-        button.on_click(_ignoring_event(fn))
+        button.on_click(self._callback(fn))
+
+    def _callback(self, fn: Callable[[], None]) -> Callable[[object], None]:
+        """A viser callback for a key or button: the page hears that one came (see
+        :meth:`PanelActions.pressed`), then ``fn`` runs (the event says nothing it needs)."""
+
+        def callback(_event: object) -> None:
+            self._actions.pressed()
+            fn()
+
+        return callback
 
     def show(self, view: PanelView, keys: list[str]) -> None:
         """Update every element (viser sends only what changed); ``keys`` are the scene's
@@ -281,15 +303,6 @@ class Panel:
         """Only the repair's text (while a refinement runs) and the nudge settings."""
         self.repair.content = text
         self.nudges.content = nudges
-
-
-def _ignoring_event(fn: Callable[[], None]) -> Callable[[object], None]:
-    """A viser callback that runs ``fn`` (the event says nothing ``fn`` needs)."""
-
-    def callback(_event: object) -> None:
-        fn()
-
-    return callback
 
 
 def _nudge(actions: PanelActions, axis: int, sign: int) -> Callable[[], None]:

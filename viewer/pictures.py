@@ -23,9 +23,14 @@ filter, see :data:`_PNG`): JPEG would smear its edges.
 Blinking is a CSS animation of the rendered part over the zoom: no message per blink.
 
 The HTML elements live in the control panel, so they vanish with it when the reviewer
-collapses the panel. The same picture is therefore also sent, a moment after the HTML one
-(:data:`BACKGROUND_DELAY`, so that drawing it does not slow the picture down), as the
-canvas's background image, which the images cover exactly while they are there.
+collapses the panel. The same picture is therefore also sent as the canvas's background
+image, which the images cover exactly while they are there. Drawing it is a dozen WebGL
+frames, and on a software renderer each is read back for compositing (25-60 ms of the
+page's main thread each): a key pressed meanwhile waited for them. So the copy goes
+:data:`BACKGROUND_DELAY` after a change while the panel is collapsed, and otherwise, as a
+safety net, only once the pictures have been still for :data:`BACKGROUND_QUIET`, longer
+than a reviewer takes between keys. viser does not tell the server that its panel
+collapsed; the canvas does (:class:`PanelGuess`): it widens by the panel's width at once.
 """
 
 from __future__ import annotations
@@ -34,17 +39,23 @@ import base64
 import hashlib
 import html
 import threading
+import time
 from collections.abc import Callable
 
 import cv2
 import numpy as np
 import viser
 
+from viewer.keyguard import PICTURE_MARK
 from viewer.style import MISSING_COLOUR, UNEXPLAINED_COLOUR
 from viewer.zoom import Zoom, ZoomTile, outline_rects, tile_marks
 
 JPEG_QUALITY = 85
-BACKGROUND_DELAY = 0.2  # seconds
+BACKGROUND_DELAY = 0.2  # seconds after a change: the canvas's copy, panel collapsed
+BACKGROUND_QUIET = 2.5  # seconds without a change: the canvas's copy, panel open
+#: A canvas that widens (narrows) by this share at once, its height kept, is taken for the
+#: control panel collapsed (opened): it is docked beside the canvas (about a third of it).
+PANEL_SHIFT = 0.2
 BLINK_SECONDS = 0.7  # one period: rendered part, then the image, half each
 _ANCHOR = "--review-canvas"
 _STYLE = (
@@ -94,7 +105,8 @@ def picture_html(image: np.ndarray, *, exact: bool = False, z: int = 0, blink: b
     h, w = image.shape[:2]
     animation = f"animation:review-blink {BLINK_SECONDS}s steps(1,end) infinite;" if blink else ""
     return (
-        f'{_STYLE}<img alt="" src="{_data_url(image, exact)}" style="{_over_canvas(w, h)}'
+        f'{_STYLE}<img alt="" {PICTURE_MARK} src="{_data_url(image, exact)}" '
+        f'style="{_over_canvas(w, h)}'
         f'image-rendering:pixelated;z-index:{z};{animation}">'
     )
 
@@ -123,7 +135,8 @@ def zoom_layers(z: Zoom, *, layer: int = 0) -> list[str]:
         # The style sheet is in the ground only: a page takes a new sheet as a change to
         # everything, and the ground seldom changes.
         return (
-            f'{_STYLE if ground else ""}<div style="{_over_canvas(w, h)}z-index:{z_index};'
+            f'{_STYLE if ground else ""}<div {PICTURE_MARK} style="{_over_canvas(w, h)}'
+            f"z-index:{z_index};"
             f'{ground}overflow:hidden">{body}</div>'
         )
 
@@ -228,6 +241,36 @@ def _png_url(bgr: np.ndarray) -> str:
     return url
 
 
+class PanelGuess:
+    """Whether a page's control panel is collapsed, as its canvas's sizes (in the order the
+    page reports them) tell: collapsing the docked panel widens the canvas by the panel's
+    width, and its height stays. A window resized only in width by as much is taken for the
+    same; the worst that follows is a canvas copy sent sooner, or later, than needed.
+
+    >>> guess = PanelGuess()
+    >>> guess.canvas(916, 1000), guess.canvas(1360, 1000), guess.canvas(916, 1000)
+    (False, True, False)
+    >>> guess.canvas(687, 750)  # viser's lower pixel ratio: the same canvas, no panel change
+    False
+    """
+
+    def __init__(self) -> None:
+        self.collapsed = False  # a page starts with its panel open
+        self._size: tuple[int, int] | None = None
+
+    def canvas(self, width: int, height: int) -> bool:
+        """Take the canvas's size now; whether the panel is collapsed."""
+        if self._size is not None:
+            w0, h0 = self._size
+            if abs(height - h0) <= 0.01 * h0:
+                if width >= (1 + PANEL_SHIFT) * w0:
+                    self.collapsed = True
+                elif width <= (1 - PANEL_SHIFT) * w0:
+                    self.collapsed = False
+        self._size = (width, height)
+        return self.collapsed
+
+
 class Pictures:
     """The pictures of one page (``gui`` and ``scene`` are that client's)."""
 
@@ -246,8 +289,11 @@ class Pictures:
         #: draws the zoom's rendered part, not sent yet
         self._unsent: Callable[[], np.ndarray] | None = None
         self._background_due = False
+        self._changed_at = 0.0  # time.monotonic() of the last change the canvas should copy
+        self._panel = PanelGuess()
         self._timer: threading.Timer | None = None
         self._timer_pending = False
+        self._timer_at = 0.0  # time.monotonic() when the pending timer fires
 
     def show_mosaic(self, image: np.ndarray) -> None:
         """Show the mosaic (RGB, made to the canvas's size); the zoom closes."""
@@ -310,20 +356,56 @@ class Pictures:
             self._background_due = True
             self._apply()
 
+    def canvas_resized(self, width: int, height: int) -> None:
+        """The page's canvas is now ``width`` x ``height`` (see :class:`PanelGuess`)."""
+        with self._lock:
+            self._panel.canvas(width, height)
+            if self._timer_pending:  # a panel just collapsed wants its copy sooner
+                self._schedule()
+
     def send_background_soon(self) -> None:
         """Send the canvas's copy of the picture on screen (or clear it while the pictures
-        are hidden) in :data:`BACKGROUND_DELAY`, if it has changed by then."""
+        are hidden) once the pictures have been still for :meth:`_wait` (every call starts
+        that wait again)."""
+        with self._lock:
+            self._changed_at = time.monotonic()
+            self._schedule()
+
+    def postpone(self) -> None:
+        """A key came: the canvas's copy waits again as if the pictures had just changed
+        (the key's answer is likely to change them, and must not wait for the copy)."""
         with self._lock:
             if self._timer_pending:
-                return  # the pending one will send the latest
-            self._timer_pending = True
-            self._timer = threading.Timer(BACKGROUND_DELAY, self.send_background)
-            self._timer.daemon = True
-            self._timer.start()
+                self._changed_at = time.monotonic()
+
+    def _wait(self) -> float:
+        return BACKGROUND_DELAY if self._panel.collapsed else BACKGROUND_QUIET
+
+    def _schedule(self) -> None:
+        """(The lock held.) A timer for when the copy is due, unless one fires no later:
+        a timer that finds the pictures changed since it was set waits on."""
+        due = self._changed_at + self._wait()
+        if self._timer_pending and self._timer_at <= due:
+            return
+        if self._timer is not None:
+            self._timer.cancel()
+        self._timer_pending, self._timer_at = True, due
+        self._timer = threading.Timer(max(0.0, due - time.monotonic()), self._still)
+        self._timer.daemon = True
+        self._timer.start()
+
+    def _still(self) -> None:
+        """The timer: send the copy, or wait on if the pictures changed meanwhile."""
+        with self._lock:
+            if self._background_due and self._changed_at + self._wait() > time.monotonic():
+                self._timer_pending = False
+                self._schedule()
+                return
+        self.send_background()
 
     def send_background(self) -> None:
-        """Send the canvas's copy of the picture on screen now (see
-        :meth:`send_background_soon`)."""
+        """Send the canvas's copy of the picture on screen now, if it has changed since the
+        last one sent (see :meth:`send_background_soon`)."""
         with self._lock:
             self._timer_pending = False
             if not self._background_due:

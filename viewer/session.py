@@ -128,18 +128,27 @@ class Session:
         # The first render is the app's to ask for, once this page is listed among its pages.
 
     # --------------------------------------------------------------- viewport
+    def _canvas(self) -> tuple[int, int] | None:
+        """The page's canvas size as it says (None: it has not said, or nonsense)."""
+        try:
+            return int(self.client.camera.image_width), int(self.client.camera.image_height)
+        except (AssertionError, AttributeError, TypeError, ValueError, OverflowError):
+            return None
+
     def _viewport(self, shown: tuple[int, int] | None) -> tuple[int, int]:
         """The size to make the pictures: the page's canvas, as it says, the pictures being
         ``shown`` at that size (see :func:`viewer.memory.picture_size`)."""
-        try:
-            w, h = int(self.client.camera.image_width), int(self.client.camera.image_height)
-        except (AssertionError, AttributeError, TypeError, ValueError, OverflowError):
+        canvas = self._canvas()
+        if canvas is None:
             return DEFAULT_VIEWPORT
-        return picture_size(w, h, shown) or DEFAULT_VIEWPORT
+        return picture_size(*canvas, shown) or DEFAULT_VIEWPORT
 
     def _camera_moved(self, _camera: viser.CameraHandle) -> None:
+        canvas = self._canvas()
+        if canvas is not None:
+            self.pictures.canvas_resized(*canvas)
         size = self._viewport(self.viewport)
-        if abs(size[0] - self.viewport[0]) > 2 or abs(size[1] - self.viewport[1]) > 2:
+        if size != self.viewport:  # a pixel off would be a picture scaled, no longer exact
             self.viewport = size
             self.request_render()
 
@@ -549,6 +558,10 @@ class Session:
         finally:
             self._refining.release()
 
+    def pressed(self) -> None:
+        """A key or button came (see :meth:`viewer.panel.PanelActions.pressed`)."""
+        self.pictures.postpone()
+
     def alternative(self) -> None:
         """A: the selected instance's next candidate pose."""
         target = self._target("alternative for")
@@ -779,7 +792,10 @@ class Session:
     def toggle_3d(self) -> None:
         on = not self.scene.showing_3d
         self.pictures.hide(on)
-        self.pictures.send_background_soon()
+        if on:  # the canvas is in view at once: no picture may linger on it
+            self.pictures.send_background()
+        else:
+            self.pictures.send_background_soon()
         self.scene.show_3d(on, self.client.camera)
 
     # ----------------------------------------------------------------- clicks
