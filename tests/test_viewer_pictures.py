@@ -328,9 +328,11 @@ def test_every_picture_carries_the_mark_the_key_guard_looks_for(scene) -> None:
         assert layer.count(f"<div {keyguard.PICTURE_MARK} ") == 1
     assert f'<img alt="" {keyguard.PICTURE_MARK} ' in picture_html(np.zeros((8, 8, 3), np.uint8))
     # The guard's script is an attribute of an empty image: quotes escaped, nothing else.
-    assert keyguard.GUARD_HTML.count("<") == 1 and '"KeyA"' not in keyguard.GUARD_HTML
-    assert "&quot;KeyA&quot;" in keyguard.GUARD_HTML
+    guard = keyguard.guard_html(["A", "Y", "1"])
+    assert guard.count("<") == 1 and '"KeyA"' not in guard
+    assert "&quot;KeyA&quot;" in guard and "[&quot;1&quot;, &quot;a&quot;, &quot;y&quot;]" in guard
 
 
 def test_the_docstring_examples_run() -> None:
     assert doctest.testmod(pictures).failed == 0
+    assert doctest.testmod(keyguard).failed == 0

@@ -261,6 +261,19 @@ def test_a_cycles_the_candidates_and_moves_the_3d_camera_only_in_the_3d_view(
             page.wait_for_timeout(1000)  # any camera motion has been reported by now
             assert np.allclose(camera.position, before)
 
+            # On an AZERTY keyboard Z (open / close the zoom) is where QWERTY's W is, which
+            # viser's camera takes (it goes by the key's place): the zoom closes, the camera
+            # stays.
+            assert session.nav.zoom
+            cdp = page.context.new_cdp_session(page)
+            azerty_z = {"key": "z", "code": "KeyW", "windowsVirtualKeyCode": 90}
+            cdp.send("Input.dispatchKeyEvent", {"type": "keyDown", "text": "z", **azerty_z})
+            page.wait_for_timeout(300)
+            cdp.send("Input.dispatchKeyEvent", {"type": "keyUp", **azerty_z})
+            assert wait_until(lambda: not session.nav.zoom)
+            page.wait_for_timeout(1000)
+            assert np.allclose(camera.position, before)
+
             page.keyboard.press("v")
             assert wait_until(lambda: session.scene.showing_3d)
             page.get_by_text("Scene 000003").first.click()

@@ -5,7 +5,8 @@ It shows a :class:`PanelView` and calls a :class:`PanelActions` (the page's sess
 decides nothing itself.
 
 Hotkeys (none on W S D Q E or the arrows, which move viser's 3D camera; A, which it takes
-too, is kept from it while the pictures are shown, see :mod:`viewer.keyguard`):
+too, and any review key typed at a camera key's place on another keyboard layout, is kept
+from it while the pictures are shown, see :mod:`viewer.keyguard`):
 
 =====  ==========================================================================
 Y      accept the scene and go to the next
@@ -39,7 +40,7 @@ from typing import Protocol
 import viser
 
 from annotator.dataset.review import ReviewStatus
-from viewer.keyguard import GUARD_HTML
+from viewer.keyguard import guard_html
 from viewer.state import FILTERS, SceneInfo
 
 PANEL_WIDTH = 480  # CSS pixels
@@ -247,7 +248,9 @@ class Panel:
 
     def _hotkeys(self, actions: PanelActions) -> None:
         gui = self._gui
-        gui.add_html(GUARD_HTML, order=_GUARD_ORDER)  # A over the pictures: not the camera's
+        # Over the pictures, review keys typed where the camera's are (A) are not the camera's.
+        keys = [key for key, _, _ in HOTKEYS] + [key for key, _, _ in NUDGE_KEYS]
+        gui.add_html(guard_html(keys), order=_GUARD_ORDER)
         for key, text, name in HOTKEYS:
             cmd = gui.add_command(text, hotkey=key, modifier=None)  # type: ignore[arg-type]
             cmd.on_trigger(self._callback(getattr(actions, name)))
