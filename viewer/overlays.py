@@ -293,16 +293,22 @@ def _outline(
     within ``box`` (which holds all its pixels)."""
     x0, y0, x1, y1 = box
     sub = (instance[y0:y1, x0:x1] == k).astype(np.uint8)
-    ys, xs = np.nonzero(sub)
-    if not len(xs):
+    # The box from OpenCV and the centre from the row and column counts: the same figures
+    # as from numpy's nonzero (integer sums, exact), which took most of an outline's time
+    # on large parts.
+    bx, by, bw, bh = cv2.boundingRect(sub)
+    if bw == 0:
         return [], None, None
+    cols, rows = sub.sum(axis=0, dtype=np.int64), sub.sum(axis=1, dtype=np.int64)
+    n = int(cols.sum())
+    cx, cy = int(cols @ np.arange(len(cols))) / n, int(rows @ np.arange(len(rows))) / n
     cs, _ = cv2.findContours(sub, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
     # Within 0.7 px of the pixel outline: below a pixel of the mosaic, which shows the
     # images at half size or less, and many times fewer points to draw.
     cs = [cv2.approxPolyDP(c, CONTOUR_TOLERANCE_PX, True) for c in cs if len(c) > 2]
     contours = [(c.reshape(-1, 2) + [x0, y0]).astype(np.int32) for c in cs if len(c) > 2]
-    vis = (int(xs.min() + x0), int(ys.min() + y0), int(xs.max() + x0 + 1), int(ys.max() + y0 + 1))
-    return contours, vis, (int(xs.mean() + x0), int(ys.mean() + y0))
+    vis = (x0 + bx, y0 + by, x0 + bx + bw, y0 + by + bh)
+    return contours, vis, (int(cx + x0), int(cy + y0))
 
 
 def _disagreement(measured: np.ndarray, rendered: np.ndarray) -> np.ndarray:

@@ -139,20 +139,21 @@ class RayScene:
                 barycentric=np.zeros((*shape, 2), np.float32),
             )
         res = self._scene.cast_rays(o3d.core.Tensor(rays), nthreads=_threads)
-        gid = res["geometry_ids"].numpy().astype(np.int64)
+        # open3d's arrays are this call's own: read in place, no copies (large casts spent
+        # as long converting them as casting).
+        gid = res["geometry_ids"].numpy()
         miss = gid == o3d.t.geometry.RaycastingScene.INVALID_ID
-        gid[miss] = len(self._lut) - 1
-        instance = self._lut[gid]
-        instance[miss] = NO_HIT
-        tri = res["primitive_ids"].numpy().astype(np.int32)
-        tri[miss] = -1
-        depth = res["t_hit"].numpy().astype(np.float32)
+        # A miss's ids are INVALID_ID (2**32 - 1): -1 once read as int32, as a miss's
+        # triangle is; the LUT's last entry is NO_HIT, which a miss's index picks.
+        instance = self._lut[np.minimum(gid, len(self._lut) - 1)]
+        tri = res["primitive_ids"].numpy().view(np.int32)
+        depth = res["t_hit"].numpy()
         depth[miss] = np.inf
         return Hits(
             depth=depth.reshape(shape),
             instance=instance.reshape(shape),
             triangle=tri.reshape(shape),
-            barycentric=res["primitive_uvs"].numpy().astype(np.float32).reshape(*shape, 2),
+            barycentric=res["primitive_uvs"].numpy().reshape(*shape, 2),
         )
 
 
