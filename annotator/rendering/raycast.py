@@ -128,9 +128,11 @@ class RayScene:
     def cast(self, directions: np.ndarray, origin: np.ndarray | None = None) -> Hits:
         """Cast rays from ``origin`` (default: the camera centre) along ``directions`` (..., 3)."""
         shape = directions.shape[:-1]
-        d = np.asarray(directions, dtype=np.float32).reshape(-1, 3)
-        start = np.zeros(3, np.float32) if origin is None else np.asarray(origin, np.float32)
-        rays = np.concatenate([np.broadcast_to(start, d.shape), d], axis=1)
+        # open3d's rays in one array made once (the directions rounded to float32 as
+        # astype rounds them): no intermediate copies of a large bundle.
+        rays = np.empty((int(np.prod(shape)), 6), np.float32)
+        rays[:, :3] = 0.0 if origin is None else np.asarray(origin, np.float32)
+        rays[:, 3:] = np.asarray(directions).reshape(-1, 3)
         if not self.placed:
             return Hits(
                 depth=np.full(shape, np.inf, np.float32),
