@@ -311,6 +311,47 @@ def test_a_pose_moved_twice_in_place_equals_one_prepared_anew(sample) -> None:
     assert np.abs(prep.disagreement.astype(int) - full.disagreement).max() <= 8
 
 
+def test_after_an_undo_the_next_move_reuses_the_neighbours_and_equals_one_prepared_anew(
+    sample, monkeypatch
+) -> None:
+    """Nudge, undo, nudge: the second move starts from the layers shown before the first
+    (the undo shows them again), which keep the neighbours the first move cast."""
+    import viewer.overlays
+
+    cast = viewer.overlays._cast_alone
+    neighbours: list[int] = []  # per move, the neighbours cast
+
+    def counted(camera, placed, rect, bound, earlier):
+        neighbours[-1] += bound is not None
+        return cast(camera, placed, rect, bound, earlier)
+
+    monkeypatch.setattr(viewer.overlays, "_cast_alone", counted)
+    ds = load_dataset(sample)
+    sc = next(s for s in ds.scenes() if s.id == SCENE)
+    poses = SceneAnnotation.read(sc.annotation_path).instances
+    k = [p.key for p in poses].index(KEY)
+    shown = prepare(ds, sc, poses)
+    assert not any(layer.alone for layer in shown.layers)
+    moves = []
+    for step in ([1.0, 0.0, 0.0], [-1.0, 0.0, 0.0]):
+        moved = list(poses)
+        moved[k] = dataclasses.replace(poses[k], t=poses[k].t + step)
+        neighbours.append(0)
+        moves.append((moved, repose(ds, shown, moved, KEY)))
+    assert neighbours[0] > 0 and neighbours[1] == 0
+    # The first move left its neighbours' casts in the layers it started from ...
+    assert all(j != k for layer in shown.layers for j in layer.alone)
+    assert any(layer.alone for layer in shown.layers)
+    for moved, fast in moves:  # ... and every move gives the pixels of one prepared anew
+        assert fast is not None
+        full = prepare(ds, sc, moved)
+        for a, b in zip(fast.layers, full.layers):
+            assert (a.instance != b.instance).sum() <= 2  # float rounding of separate BVHs
+            assert a.boxes == b.boxes
+            assert np.abs(a.shade.astype(int) - b.shade).max() <= 1
+        assert np.abs(fast.disagreement.astype(int) - full.disagreement).max() <= 8
+
+
 def test_the_overlays_made_ahead_for_a_stay_through_the_scenes_repairs(sample_copy) -> None:
     from headless import free_port
 

@@ -142,7 +142,8 @@ class Prepared:
         arrays += [self.measured, self.rendered]
         for layer in self.layers:
             arrays += [layer.image, layer.instance, layer.shade]
-            arrays += [a for cast in layer.alone.values() for a in (cast.depth, cast.triangle)]
+            casts = list(layer.alone.values())  # one step: a repair may add to it meanwhile
+            arrays += [a for cast in casts for a in (cast.depth, cast.triangle)]
         own = sum(a.nbytes for a in arrays if a is not None)
         return own + self.resized.nbytes + self.pictures.nbytes
 
@@ -438,13 +439,21 @@ def _repose_layer(
     ]
     region = _union(boxes[k], bboxes[k])
     instance, shade = layer.instance, layer.shade
-    # The unmoved parts' casts carry over (the dict is the new layer's: the old one's stays).
-    alone = {j: cast for j, cast in layer.alone.items() if j != k}
+    # The unmoved parts' casts carry over (the dict is the new layer's). dict() copies in
+    # one step: another repair from the same layer may add to it meanwhile.
+    alone = dict(layer.alone)
+    alone.pop(k, None)
     depth = None
     if region is not None:
         instance, shade = instance.copy(), shade.copy()
         x0, y0, x1, y1 = region
         depth, index, lambert = _cast_region(cam, placed, bboxes, alone, k, region)
+        # The neighbours cast now stand where they stood in the layer this one came from:
+        # kept there too, for the next repair that starts from it (after an undo, the
+        # layer shown again is that one, and its neighbours need not be cast again).
+        for j, cast in alone.items():
+            if j != k and layer.alone.get(j) is not cast:
+                layer.alone[j] = cast
         before = instance[y0:y1, x0:x1]
         moved = before != index
         # Whose silhouettes changed (the part, and those it uncovers or covers): re-outlined.
