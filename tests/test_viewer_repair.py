@@ -303,12 +303,18 @@ def test_a_pose_moved_twice_in_place_equals_one_prepared_anew(sample) -> None:
         prep = repose(ds, prep, moved, KEY)
         assert prep is not None
     assert any(j != k for layer in prep.layers for j in layer.alone)  # neighbours kept
-    full = prepare(ds, sc, moved)
-    for a, b in zip(prep.layers, full.layers):
+    _assert_prepared_anew(ds, sc, moved, prep)
+
+
+def _assert_prepared_anew(ds, sc, poses, fast) -> None:
+    """``fast`` (made in place) shows the pixels of ``poses`` prepared anew."""
+    assert fast is not None
+    full = prepare(ds, sc, poses)
+    for a, b in zip(fast.layers, full.layers):
         assert (a.instance != b.instance).sum() <= 2  # float rounding of separate BVHs
         assert a.boxes == b.boxes
         assert np.abs(a.shade.astype(int) - b.shade).max() <= 1
-    assert np.abs(prep.disagreement.astype(int) - full.disagreement).max() <= 8
+    assert np.abs(fast.disagreement.astype(int) - full.disagreement).max() <= 8
 
 
 def test_after_an_undo_the_next_move_reuses_the_neighbours_and_equals_one_prepared_anew(
@@ -343,13 +349,7 @@ def test_after_an_undo_the_next_move_reuses_the_neighbours_and_equals_one_prepar
     assert all(j != k for layer in shown.layers for j in layer.alone)
     assert any(layer.alone for layer in shown.layers)
     for moved, fast in moves:  # ... and every move gives the pixels of one prepared anew
-        assert fast is not None
-        full = prepare(ds, sc, moved)
-        for a, b in zip(fast.layers, full.layers):
-            assert (a.instance != b.instance).sum() <= 2  # float rounding of separate BVHs
-            assert a.boxes == b.boxes
-            assert np.abs(a.shade.astype(int) - b.shade).max() <= 1
-        assert np.abs(fast.disagreement.astype(int) - full.disagreement).max() <= 8
+        _assert_prepared_anew(ds, sc, moved, fast)
 
 
 def test_the_overlays_made_ahead_for_a_stay_through_the_scenes_repairs(sample_copy) -> None:
