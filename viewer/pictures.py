@@ -252,6 +252,8 @@ class PanelGuess:
     (False, True, False)
     >>> guess.canvas(687, 750)  # viser's lower pixel ratio: the same canvas, no panel change
     False
+    >>> guess.canvas(0, 0), guess.canvas(916, 1000)  # no canvas (yet): nothing to go by
+    (False, False)
     """
 
     def __init__(self) -> None:
@@ -260,6 +262,8 @@ class PanelGuess:
 
     def canvas(self, width: int, height: int) -> bool:
         """Take the canvas's size now; whether the panel is collapsed."""
+        if width < 64 or height < 64:  # no canvas to speak of (see memory.picture_size)
+            return self.collapsed
         if self._size is not None:
             w0, h0 = self._size
             if abs(height - h0) <= 0.01 * h0:
