@@ -15,7 +15,10 @@ Drawing is done elsewhere (:mod:`viewer.mosaic`, :mod:`viewer.zoom`): a decision
 re-colours what was prepared. A repaired pose is rendered again only where it changes
 anything (:func:`repose`: the instance's old and new rectangles, every part cast there), so
 that the new overlay is on screen at once; each part's cast there is kept
-(:attr:`CameraLayer.alone`), so the next repair of the instance casts only the part itself.
+(:attr:`CameraLayer.alone`), in the new layers and in those the repair started from (the
+neighbours stand in both where they were), so the next repair of the instance, or the one
+after an undo, casts only the part itself. They are the same arrays in both, weighed once
+in the cache, by the prepared scene that made them.
 What is drawn from a prepared scene for the pages (panels resized to a page's canvas,
 mosaics) is kept with it, within :data:`SCALED_BYTES` and :data:`PICTURE_BYTES`
 (:mod:`viewer.memory`): the sizes are the pages' to choose.
@@ -351,7 +354,8 @@ def repose(
     """``prep`` with instance ``key`` moved to its pose in ``poses`` (the scene's poses, the
     others as in ``prep``; ``key`` may be new, last): only the rectangles its old and new
     silhouettes cover are cast again, every part there. None when ``poses`` is not ``prep``'s
-    with that one change (an instance removed): prepare the scene anew then. ``parallel``:
+    with that one change (an instance removed): prepare the scene anew then. The neighbours
+    cast are also kept in ``prep``'s layers (see the module docstring). ``parallel``:
     the cameras at once, in :data:`_POOL` (work done ahead of a key runs in its own thread
     instead: it must not hold up the pool a key's repose needs)."""
     keys = [p.key for p in poses]
