@@ -49,6 +49,7 @@ from annotator.dataset.review import (
     read_review,
     write_review,
 )
+from annotator.dataset.validity import unknown_name
 from annotator.errors import UserError
 
 FILTERS = ("all", "pending", "flagged", "rejected", "stale")
@@ -220,6 +221,14 @@ class ReviewState:
             review, error = Review(), f"{exc} (it will be replaced by the next decision)"
         fingerprint = poses_fingerprint(poses)
         edits = apply_edits(poses, review, added=_added)
+        unknown = {p.key: unknown_name(self.ds, p.object, p.instance) for p in edits.poses}
+        unknown = {k: why for k, why in unknown.items() if why is not None}
+        if unknown:  # nothing to draw them with: shown as an error, never drawn
+            key, why = sorted(unknown.items())[0]
+            error = (
+                error or f"{sc.review_path if key in edits.edited else sc.annotation_path}: {why}"
+            )
+            edits.poses = [p for p in edits.poses if p.key not in unknown]
         info = SceneInfo(
             id=sid,
             annotated=annotated,

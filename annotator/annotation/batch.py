@@ -13,7 +13,7 @@ from typing import Any
 
 from annotator.annotation.scene import annotate_scene
 from annotator.annotation.settings import Settings
-from annotator.dataset import Dataset, Scene, cached_dataset, require_meshes
+from annotator.dataset import Dataset, Scene, as_dataset, cached_dataset, require_meshes
 from annotator.dataset.annotation import WarningKind
 from annotator.dataset.check import BROKEN_LINK
 from annotator.dataset.model import SCENES_DIR
@@ -24,6 +24,7 @@ from annotator.errors import UserError
 from annotator.io.images import write_png
 from annotator.runner import BatchReport, run_batch
 from annotator.runner.bundle import description_files, dictionary_files
+from annotator.values import number, of_type, whole
 
 
 def description_digest(ds: Dataset) -> str:
@@ -167,7 +168,7 @@ class AnnotateSummary:
 
 
 def annotate_dataset(
-    ds: Dataset,
+    ds: Dataset | str | Path,
     *,
     scenes: str = "*",
     force: bool = False,
@@ -184,6 +185,14 @@ def annotate_dataset(
     Raises:
         UserError: no scene matches, or a mesh is unreadable.
     """
+    # What `annotator annotate` refuses, refused here in the same words.
+    ds = as_dataset(ds, name="ds")
+    of_type(scenes, str, name="scenes", what="an fnmatch pattern (str)")
+    workers = whole(workers, name="workers", low=1)
+    if ray_wait is not None:
+        ray_wait = number(ray_wait, name="ray_wait", low=0)
+    if settings is not None:
+        of_type(settings, Settings, name="settings", what="annotator.Settings")
     chosen = [s for s in ds.scenes() if fnmatch.fnmatch(s.id, scenes)]
     if not chosen:
         raise UserError(f"no scene matches {scenes!r}", path=ds.root / SCENES_DIR)

@@ -37,6 +37,7 @@ from annotator.detection import MarkerDetector
 from annotator.detection.aruco import ImageReading
 from annotator.io.images import to_gray8
 from annotator.pnp import Observation
+from annotator.values import of_type
 
 __all__ = ["UNEXPLAINED_MASK", "SceneResult", "Settings", "annotate_scene"]
 
@@ -71,6 +72,10 @@ def annotate_scene(
     settings: Settings = Settings(),
 ) -> SceneResult:
     """Pose every instance with detected markers, and check the scene's completeness."""
+    of_type(ds, Dataset, name="ds", what="a Dataset (annotator.load_dataset)")
+    of_type(scene, Scene, name="scene", what="a Scene of the dataset (ds.scene(id))")
+    of_type(detector, MarkerDetector, name="detector", what="an annotator.MarkerDetector")
+    of_type(settings, Settings, name="settings", what="annotator.Settings")
     grays = [to_gray8(scene.read_image(cam)) for cam in ds.rig.cameras]
     readings = [detector.read(g) for g in grays]
     markers = _sort_markers(ds, readings)

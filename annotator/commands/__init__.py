@@ -8,11 +8,11 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import sys
 from collections.abc import Callable
 from pathlib import Path
 
+from annotator import values
 from annotator.runner import RAY_WAIT_S, BatchReport, available_cpus
 
 
@@ -61,17 +61,14 @@ def _seconds(text: str) -> float:
 
 
 def whole(*, low: int = 0, high: int | None = None) -> Callable[[str], int]:
-    """An argparse type: a whole number within [``low``, ``high``] (one line otherwise)."""
+    """An argparse type: a whole number within [``low``, ``high``] (one line otherwise;
+    :func:`annotator.values.whole`, which the API calls too)."""
 
     def parse(text: str) -> int:
         try:
-            value = int(text)
-        except ValueError:
-            value = None
-        if value is None or value < low or (high is not None and value > high):
-            span = f"at least {low}" if high is None else f"from {low} to {high}"
-            raise argparse.ArgumentTypeError(f"must be a whole number {span}, not {text!r}")
-        return value
+            return values.whole(text, name="value", low=low, high=high)
+        except values.BadValue as exc:
+            raise argparse.ArgumentTypeError(exc.reason) from None
 
     return parse
 
@@ -80,27 +77,14 @@ def number(
     *, low: float | None = None, high: float | None = None, above: bool = False
 ) -> Callable[[str], float]:
     """An argparse type: a finite number within [``low``, ``high``] (``above``: strictly
-    greater than ``low``); NaN and infinities are refused in one line."""
+    greater than ``low``); NaN and infinities are refused in one line
+    (:func:`annotator.values.number`, which the API calls too)."""
 
     def parse(text: str) -> float:
         try:
-            value = float(text)
-        except ValueError:
-            value = math.nan
-        ok = math.isfinite(value)
-        if ok and low is not None:
-            ok = value > low if above else value >= low
-        if ok and high is not None:
-            ok = value <= high
-        if not ok:
-            bounds = []
-            if low is not None:
-                bounds.append(f"{'above' if above else 'at least'} {low:g}")
-            if high is not None:
-                bounds.append(f"at most {high:g}")
-            span = f" {' and '.join(bounds)}" if bounds else ""
-            raise argparse.ArgumentTypeError(f"must be a finite number{span}, not {text!r}")
-        return value
+            return values.number(text, name="value", low=low, high=high, above=above)
+        except values.BadValue as exc:
+            raise argparse.ArgumentTypeError(exc.reason) from None
 
     return parse
 

@@ -17,6 +17,7 @@ from annotator.commands import add_ray_option, add_workers_option, finish_batch,
 from annotator.dataset import load_dataset, require_meshes
 from annotator.dataset.model import SCENES_DIR
 from annotator.errors import UserError
+from annotator.io.output_folder import check_output_files
 from annotator.runner import run_batch
 
 
@@ -67,6 +68,7 @@ def run(args: argparse.Namespace) -> int:
         raise UserError("is a folder; give a file name for the results CSV", path=out)
     if not out.parent.is_dir():
         raise UserError("the folder to write the results in does not exist", path=out)
+    check_output_files([("OUT", out)], datasets=[args.dataset])
     ds = load_dataset(args.dataset)
     if ds.rig.depth is None:
         raise UserError(

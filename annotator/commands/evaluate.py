@@ -159,9 +159,16 @@ def run(args: argparse.Namespace) -> int:
 
 def _check_options(args: argparse.Namespace) -> None:
     """Combinations that cannot work, refused before anything is read."""
+    from annotator.io.output_folder import check_output_files
+
     for out in (args.json, args.plot):
         if out and Path(out).is_dir():
             raise UserError("is a folder; give a file name", path=out)
+    check_output_files(
+        [("--json", args.json), ("--plot", args.plot)],
+        inputs=[args.results, args.twin_results],
+        datasets=[args.gt, args.twin],
+    )
     if (args.twin or args.twin_results) and not (args.twin and args.twin_results and args.results):
         raise UserError("--twin needs --twin-results, and --results for GT")
     if args.bop19 and not args.results:

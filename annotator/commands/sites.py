@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -17,7 +18,7 @@ from annotator.commands import add_workers_option, confirm, number
 from annotator.dataset import load_dataset
 from annotator.dataset.model import SCENES_DIR
 from annotator.errors import UserError
-from annotator.io.atomic import write_text
+from annotator.io.atomic import write_together
 
 if TYPE_CHECKING:  # imported when the command runs, so that `annotator --help` stays fast
     from annotator.sites.measure import InstanceSites
@@ -65,7 +66,7 @@ def run(args: argparse.Namespace) -> int:
     )
     if not args.json:
         _print_report(survey)
-    written, declined = _write(args, survey)
+    written, declined = _write(args, survey, ds.root)
     if args.json:
         print(json.dumps(_json(survey, written), indent=1))
     else:
@@ -82,20 +83,23 @@ def _print_report(survey: SitesSurvey) -> None:
         print(update.diff, end="" if update.diff.endswith("\n") else "\n")
 
 
-def _write(args: argparse.Namespace, survey: SitesSurvey) -> tuple[list[str], bool]:
+def _write(args: argparse.Namespace, survey: SitesSurvey, root: Path) -> tuple[list[str], bool]:
     """Write the object.yaml files (asking about each on a terminal, unless --yes; none with
-    --dry-run): the paths written, and whether the user declined any."""
+    --dry-run), all together (:func:`annotator.io.atomic.write_together`): the paths written,
+    and whether the user declined any."""
     written: list[str] = []
     declined = False
     if not survey.updates or args.dry_run:
         return written, declined
     asking = not args.yes and sys.stdin.isatty()
-    for update in survey.updates:
+    chosen = {}
+    for update in survey.updates:  # every question first: then all are written, or none
         if not asking or confirm(update.path):
-            write_text(update.path, update.text)
+            chosen[update.path] = update.text
             written.append(str(update.path))
         else:
             declined = True
+    write_together(root, chosen)
     return written, declined
 
 

@@ -10,6 +10,7 @@ Typical use::
 
 from annotator.dataset.load import (
     Problem,
+    as_dataset,
     cached_dataset,
     load_dataset,
     read_dataset,
@@ -40,6 +41,7 @@ __all__ = [
     "Rig",
     "Scene",
     "Symmetry",
+    "as_dataset",
     "cached_dataset",
     "load_dataset",
     "read_dataset",

@@ -153,8 +153,9 @@ def _check_sites(obj: ObjectModel, mesh: Mesh) -> list[Problem]:
 
 
 def _check_scene(ds: Dataset, scene) -> list[Problem]:
-    from annotator.dataset.poses import read_pose_file
+    from annotator.dataset.poses import InstancePose, read_pose_file
     from annotator.dataset.review import read_review
+    from annotator.dataset.validity import pose_problem
 
     out: list[Problem] = []
     for cam in ds.rig.cameras:
@@ -186,13 +187,17 @@ def _check_scene(ds: Dataset, scene) -> list[Problem]:
                 out.append(Problem(path, exc.message))
                 continue
             for p in poses:
-                obj = ds.objects.get(p.object)
-                if obj is None:
-                    out.append(Problem(path, f"unknown object {p.object!r}"))
-                elif p.instance not in {i.name for i in obj.instances}:
-                    out.append(Problem(path, f"unknown instance {p.key!r}"))
+                problem = pose_problem(ds, p)
+                if problem is not None:
+                    out.append(Problem(path, problem))
     try:
-        read_review(scene.review_path)
+        review = read_review(scene.review_path)
     except UserError as exc:
         out.append(Problem(scene.review_path, exc.message))
+        review = None
+    for key, edit in sorted((review.poses if review else {}).items()):
+        obj, _, inst = key.partition("/")
+        problem = pose_problem(ds, InstancePose(obj, inst, edit.R, edit.t))
+        if problem is not None:
+            out.append(Problem(scene.review_path, f"poses[{key!r}]: {problem}"))
     return out

@@ -30,6 +30,7 @@ from annotator.dataset.model import (
 from annotator.errors import UserError
 from annotator.geometry.camera import Camera
 from annotator.geometry.transforms import is_rotation
+from annotator.io.atomic import finish_interrupted
 from annotator.io.documents import read_yaml
 from annotator.symmetry.classes import symmetry_from_yaml
 
@@ -58,6 +59,19 @@ def load_dataset(root: str | Path) -> Dataset:
         raise UserError(problems[0].message + more, path=problems[0].path)
     assert dataset is not None
     return dataset
+
+
+def as_dataset(ds: Dataset | str | Path, *, name: str = "ds") -> Dataset:
+    """``ds`` itself, or the dataset at that folder (:func:`load_dataset`): what the API's
+    functions take; a TypeError naming ``name`` for anything else."""
+    if isinstance(ds, Dataset):
+        return ds
+    if isinstance(ds, (str, Path)):
+        return load_dataset(ds)
+    raise TypeError(
+        f"{name} must be a Dataset (annotator.load_dataset) or a dataset folder, not "
+        f"{type(ds).__name__}"
+    )
 
 
 def require_meshes(ds: Dataset) -> None:
@@ -97,6 +111,10 @@ def read_dataset(root: str | Path) -> tuple[Dataset | None, list[Problem]]:
     yaml_path = root / "dataset.yaml"
     if not root.is_dir():
         return None, [Problem(root, "dataset folder does not exist")]
+    try:  # object.yaml files a killed `annotator sites` was writing together: finished first
+        finish_interrupted(root)
+    except UserError as exc:
+        return None, [Problem(exc.path or root, exc.message)]
     doc = _read_yaml(yaml_path, problems)
     if doc is None:
         return None, problems

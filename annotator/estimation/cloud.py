@@ -6,8 +6,8 @@
   ``step`` pixels apart along the row and the column, turned towards the camera; pixels
   where a difference spans a depth edge (longer than ``edge_factor`` times the pixel
   footprint) get none.
-- **Setting**: points within ``max(3 mm, 0.5%)`` of the background, or behind it, belong to
-  the bin or the support, not to parts (the tolerances of annotate's completeness check).
+- **Setting**: points within ``max(3 mm, 0.5%)`` of the background, or behind it, or beyond
+  the farthest background depth, belong to the bin or the support, not to parts (the tolerances of annotate's completeness check).
   The background is the dataset's empty-bin depth (``rig.depth.background``), else the
   support plane and the bin's walls found in the scene's own depth (as annotate does).
 - **Subsampling**: one point per cube of side ``voxel`` mm (mean position, mean normal), the
@@ -100,7 +100,12 @@ def setting_mask(
         background = support_depth(depth, camera.pixel_rays())
     tol = np.maximum(tolerance_mm, tolerance_rel * depth)
     with np.errstate(invalid="ignore"):
-        return np.isfinite(background) & (depth >= background - tol)
+        setting = np.isfinite(background) & (depth >= background - tol)
+        if np.isfinite(background).any():
+            # Behind the farthest setting (a far wall, a sensor's junk where the background
+            # has a hole): not a part, and a far plane of points would swamp the voting.
+            setting |= depth > np.nanmax(background) + tol
+    return setting
 
 
 def scene_cloud(

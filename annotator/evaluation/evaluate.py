@@ -12,9 +12,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from annotator.errors import UserError
 from annotator.evaluation.metrics import SceneCurve, Summary, scene_curve, summarise
 from annotator.formats.base import GroundTruth, PoseSet, Results
 from annotator.symmetry.space import MATCH_THRESHOLD_FRACTION
+from annotator.values import number, of_type, whole
 
 
 @dataclass(frozen=True)
@@ -36,6 +38,25 @@ class Options:
     threshold_mm: float | None = None
     threshold_fraction: float | None = None
     only_scenes_with_results: bool = False
+
+    def __post_init__(self) -> None:
+        # What `annotator evaluate` refuses, refused here in the same words.
+        set_ = object.__setattr__
+        set_(self, "max_occlusion", number(self.max_occlusion, name="max_occlusion", low=0, high=1))
+        of_type(
+            self.max_results, (tuple, list), name="max_results", what="a tuple of whole numbers"
+        )
+        set_(
+            self,
+            "max_results",
+            tuple(whole(n, name="max_results", low=1) for n in self.max_results),
+        )
+        for name in ("threshold_mm", "threshold_fraction"):
+            value = getattr(self, name)
+            if value is not None:
+                set_(self, name, number(value, name=name, low=0, above=True))
+        if self.threshold_mm is not None and self.threshold_fraction is not None:
+            raise UserError("threshold_mm and threshold_fraction cannot be given together")
 
 
 @dataclass
@@ -92,6 +113,9 @@ def thresholds_for(gt: GroundTruth, options: Options) -> dict[str, float]:
 
 def evaluate(gt: GroundTruth, results: Results, options: Options = Options()) -> Report:
     """Score ``results`` against ``gt`` (see :mod:`annotator.evaluation.metrics`)."""
+    of_type(gt, GroundTruth, name="gt", what="a GroundTruth (annotator.read_ground_truth)")
+    of_type(results, Results, name="results", what="Results (annotator.read_results)")
+    of_type(options, Options, name="options", what="an annotator.Options")
     thresholds = thresholds_for(gt, options)
     scenes = [s for s in gt.scenes if s in results.scenes or not options.only_scenes_with_results]
     curves: dict[str, list[SceneCurve]] = {name: [] for name in gt.spaces}

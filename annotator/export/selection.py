@@ -7,6 +7,8 @@ scenes, ``drop_rejected_instances`` exports scenes with rejected instances witho
 Poses a reviewer repaired in the viewer (review.json ``poses``) replace annotation.json's,
 and instances added by hand are exported with the others; a scene with a stale edit (made
 on an auto pose that ``annotate`` has changed since) is left out, as a stale decision is.
+A scene with a pose that cannot be right (:mod:`annotator.dataset.validity`: an unknown
+object or instance, a part behind the camera) is left out and named.
 """
 
 from __future__ import annotations
@@ -16,6 +18,7 @@ from dataclasses import dataclass, field
 from annotator.dataset import Dataset, InstancePose, Scene
 from annotator.dataset.poses import read_poses
 from annotator.dataset.review import ReviewStatus, apply_edits, poses_fingerprint, read_review
+from annotator.dataset.validity import pose_problem
 from annotator.errors import UserError
 
 
@@ -83,5 +86,12 @@ def select_scenes(
         if rejected and not drop_rejected_instances:
             sel.skipped[scene.id] = "has a rejected instance"
             continue
-        sel.scenes.append(Selected(scene, [p for p in poses if p.key not in rejected]))
+        kept = [p for p in poses if p.key not in rejected]
+        problems = [(p.key, x) for p in kept if (x := pose_problem(ds, p)) is not None]
+        if problems:
+            key, problem = problems[0]
+            edited = review is not None and key in review.poses
+            sel.skipped[scene.id] = f"error: {scene.review_path if edited else path}: {problem}"
+            continue
+        sel.scenes.append(Selected(scene, kept))
     return sel

@@ -155,7 +155,14 @@ def _read_scene_gt(
         keys.append(key)
         infos = gi.get(im_id, [])
         for k, inst in enumerate(insts):
-            name = names.get(int(inst["obj_id"]), f"obj_{int(inst['obj_id']):06d}")
+            oid = _object_id(inst.get("obj_id"))
+            name = None if oid is None else names.get(oid)
+            if name is None:
+                raise UserError(
+                    f"image {im_id}, entry {k}: object {inst.get('obj_id')!r} is not in "
+                    "models/models_info.json",
+                    path=gt_path,
+                )
             vf = infos[k].get("visib_fract") if k < len(infos) else None
             R, t = checked_pose(
                 inst.get("cam_R_m2c"), inst.get("cam_t_m2c"), f"image {im_id}, entry {k}", gt_path
@@ -168,6 +175,17 @@ def _read_scene_gt(
                 R, t, 1.0 - float(vf) if vf is not None else float("nan")
             )
     return keys
+
+
+def _object_id(value: Any) -> int | None:
+    """A scene_gt entry's obj_id as an int (None if it is not a whole number)."""
+    if isinstance(value, bool) or not isinstance(value, (int, float, str)):
+        return None
+    try:
+        number = float(value)
+    except ValueError:
+        return None
+    return int(number) if number.is_integer() else None
 
 
 #: A listed symmetry whose axis misses the surface centroid by more than this fraction of the

@@ -196,6 +196,12 @@ def _objects(path: Path, notes: list[str]) -> dict[int, BopObject]:
             sym_R, sym_t = symmetry_transformations(entry)
         except (KeyError, TypeError, ValueError) as exc:
             raise UserError(f"object {key}: malformed entry ({exc})", path=info_path) from None
+        if not (math.isfinite(diameter) and diameter > 0):
+            # BOP's thresholds are fractions of it: any other value changes every score.
+            raise UserError(
+                f"object {key}: diameter must be a positive number of mm, got {entry['diameter']}",
+                path=info_path,
+            )
         objects[oid] = BopObject(mesh.vertices, diameter, sym_R, sym_t, mesh)
     return objects
 
@@ -311,9 +317,17 @@ def _poses_as_written(insts: list[Any], im_key: str, path: Path) -> tuple[np.nda
 
 def _camera_matrix(cam: dict[str, Any], im_key: str, path: Path) -> np.ndarray:
     try:
-        return np.asarray(cam["cam_K"], float).reshape(3, 3)
+        K = np.asarray(cam["cam_K"], float).reshape(3, 3)
     except (KeyError, TypeError, ValueError):
         raise UserError(f"image {im_key}: cam_K must be 9 numbers", path=path) from None
+    proper = np.all(np.isfinite(K)) and K[0, 0] > 0 and K[1, 1] > 0
+    if not (proper and np.allclose(K[2], [0, 0, 1]) and K[1, 0] == 0):
+        raise UserError(
+            f"image {im_key}: cam_K must be a camera matrix [fx, s, cx, 0, fy, cy, 0, 0, 1] of "
+            "finite numbers with fx, fy > 0",
+            path=path,
+        )
+    return K
 
 
 def _mapping(path: Path) -> dict[str, Any]:

@@ -2,7 +2,8 @@
 
 - Ground truth: ``scenes/<id>/gt.json``, or ``annotation.json`` when a scene has no gt.json
   (with the poses a reviewer repaired in review.json applied, see
-  :func:`annotator.dataset.review.apply_edits`);
+  :func:`annotator.dataset.review.apply_edits`; a scene a reviewer rejected, or one with a
+  rejected instance, whose true pose is then unknown, is left out and counted in the notes);
   occlusion from each instance's ``occlusion.rate`` (or ``occlusion_rate``); symmetries from
   object.yaml (see :mod:`annotator.symmetry.classes`). Millimetres.
 - Results: a folder of ``<scene>.json`` lists (millimetres), a BOP CSV (see
@@ -17,6 +18,13 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from annotator.dataset.review import (
+    Review,
+    ReviewStatus,
+    apply_edits,
+    poses_fingerprint,
+    read_review,
+)
 from annotator.errors import UserError
 from annotator.formats.base import GroundTruth, PoseSet, Results, Table, read_json_lists
 
@@ -44,14 +52,20 @@ def read_ground_truth(path: Path, *, symmetry: str | None = None) -> GroundTruth
     spaces = {n: PoseSpace.from_moments(o.mesh.moments, o.symmetry) for n, o in ds.objects.items()}
     table: Table = {}
     scenes = []
+    left_out: dict[str, int] = {}
     for sc in ds.scenes():
         src = sc.gt_path if sc.gt_path.exists() else sc.annotation_path
         if not src.exists():
             continue
-        scenes.append(sc.id)
         poses = read_poses(src)
         if src == sc.annotation_path:
-            poses = _edited(poses, sc.review_path)
+            review = read_review(sc.review_path)
+            why = _rejected(review, poses)
+            if why is not None:
+                left_out[why] = left_out.get(why, 0) + 1
+                continue
+            poses = apply_edits(poses, review).poses
+        scenes.append(sc.id)
         for i, p in enumerate(poses):
             if p.object not in spaces:
                 raise UserError(
@@ -60,14 +74,23 @@ def read_ground_truth(path: Path, *, symmetry: str | None = None) -> GroundTruth
                 )
             table.setdefault((sc.id, p.object), PoseSet()).add(p.R, p.t, _occlusion(p.extra))
     ids = {k + 1: n for k, n in enumerate(ds.objects)}
-    return GroundTruth(spaces, table, scenes, NAME, "mm", ids)
+    notes = [
+        f"{n} scene(s) without gt.json left out of the ground truth: {why}"
+        for why, n in sorted(left_out.items())
+    ]
+    return GroundTruth(spaces, table, scenes, NAME, "mm", ids, notes=notes)
 
 
-def _edited(poses: list, review_path: Path) -> list:
-    """``poses`` with the current edits of review.json (if any) applied."""
-    from annotator.dataset.review import apply_edits, read_review
-
-    return apply_edits(poses, read_review(review_path)).poses
+def _rejected(review: Review | None, poses: list) -> str | None:
+    """Why a scene's annotation cannot be ground truth by its review (None: it can). A
+    decision made on other poses (stale) says nothing of these: the scene counts as pending."""
+    if review is None or review.is_stale(poses_fingerprint(poses)):
+        return None
+    if review.status == ReviewStatus.REJECTED:
+        return "rejected by a reviewer"
+    if any(v == ReviewStatus.REJECTED for v in review.instances.values()):
+        return "an instance rejected by a reviewer (its true pose is unknown)"
+    return None
 
 
 def read_results(path: Path, gt: GroundTruth) -> Results:
@@ -102,7 +125,7 @@ def annotations_as_results(root: Path, gt: GroundTruth) -> Results:
         if not sc.annotation_path.exists():
             continue
         instances = SceneAnnotation.read(sc.annotation_path).instances
-        for i in _edited(instances, sc.review_path):
+        for i in apply_edits(instances, read_review(sc.review_path)).poses:
             unc = getattr(i, "uncertainty_mm", None)
             score = 1.0 / (1.0 + float(unc)) if unc is not None else 0.0
             table.setdefault((sc.id, i.object), PoseSet()).add(i.R, i.t, score)

@@ -16,9 +16,11 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import re
 import shutil
 import stat
 import tempfile
+import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -39,7 +41,12 @@ def _umask() -> int:
 
 
 def write_bytes(path: str | Path, data: bytes) -> None:
-    """Write ``data`` to ``path`` atomically, creating parent folders as needed."""
+    """Write ``data`` to ``path`` atomically, creating parent folders as needed.
+
+    The temporary file is locked (``flock``) while it is written; the first write of a
+    process into a folder removes the temporary files there that a killed writer left
+    (unlocked, and older than :data:`ABANDONED_AFTER_S`).
+    """
     path = Path(path)
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
@@ -47,10 +54,12 @@ def write_bytes(path: str | Path, data: bytes) -> None:
             mode = stat.S_IMODE(path.stat().st_mode)
         except FileNotFoundError:
             mode = 0o666 & ~_umask()
+        _sweep_once(path.parent)
         fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     except OSError as exc:
         raise WriteError(f"cannot write ({exc.strerror or exc})", path=path) from None
     try:
+        _flock(fd, blocking=True)
         with os.fdopen(fd, "wb") as f:
             os.fchmod(f.fileno(), mode)
             f.write(data)
@@ -63,6 +72,68 @@ def write_bytes(path: str | Path, data: bytes) -> None:
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
+
+
+#: A temporary file of :func:`write_bytes` this old and unlocked was left by a killed writer
+#: (a live one locks it right after making it: the age covers only that instant).
+ABANDONED_AFTER_S = 10.0
+# ".<name>.<mkstemp's 8 characters>.tmp": the only names a sweep ever removes.
+_TEMPORARY_NAME = re.compile(r"^\..+\.[a-z0-9_]{8}\.tmp$")
+_SWEPT: set[str] = set()
+
+
+def _flock(fd: int, *, blocking: bool) -> bool:
+    """An exclusive ``flock`` on ``fd``: True if taken (always, where there is no flock)."""
+    try:
+        import fcntl
+    except ImportError:
+        return True
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | (0 if blocking else fcntl.LOCK_NB))
+    except OSError:
+        return False
+    return True
+
+
+def _sweep_once(folder: Path) -> None:
+    """Remove the temporary files that killed writers left in ``folder`` (once a process)."""
+    key = os.path.realpath(folder)
+    if key in _SWEPT:
+        return
+    _SWEPT.add(key)
+    remove_abandoned_files(folder)
+
+
+def remove_abandoned_files(folder: Path, *, older_than_s: float = ABANDONED_AFTER_S) -> list[Path]:
+    """Delete the temporary files of :func:`write_bytes` in ``folder`` whose writer is gone
+    (no ``flock`` on them) and that are older than ``older_than_s``; return them. Any other
+    file is left alone, whatever its name."""
+    removed: list[Path] = []
+    if not hasattr(os, "O_NOFOLLOW"):
+        return removed
+    try:
+        entries = [e for e in os.scandir(folder) if _TEMPORARY_NAME.match(e.name)]
+    except OSError:
+        return removed
+    now = time.time()
+    for entry in entries:
+        try:
+            if not entry.is_file(follow_symlinks=False):
+                continue
+            if now - entry.stat(follow_symlinks=False).st_mtime < older_than_s:
+                continue
+            fd = os.open(entry.path, os.O_RDONLY | os.O_NOFOLLOW)
+        except OSError:
+            continue
+        try:
+            if _flock(fd, blocking=False):
+                os.unlink(entry.path)
+                removed.append(Path(entry.path))
+        except OSError:
+            pass
+        finally:
+            os.close(fd)
+    return removed
 
 
 def write_text(path: str | Path, text: str) -> None:
@@ -85,6 +156,74 @@ def _to_builtin(obj: Any) -> Any:
     if isinstance(obj, Path):
         return str(obj)
     raise TypeError(f"cannot serialise {type(obj).__name__} to JSON")
+
+
+#: A dataset's journal of files written together (:func:`write_together`).
+JOURNAL = ".annotator-journal.json"
+
+
+def write_together(root: str | Path, texts: dict[Path, str]) -> None:
+    """Write several text files under ``root`` so that either all of them take their new
+    text or none does, even if the process is killed half-way.
+
+    The new texts go first into ``root/.annotator-journal.json`` (written atomically); then
+    each file is written atomically; then the journal is removed. A journal left by a killed
+    process is played again by :func:`finish_interrupted` (the dataset's reader calls it),
+    which writes every file it lists: the same texts again, so doing it twice is harmless.
+    """
+    root = Path(root)
+    entries = {}
+    for path, text in texts.items():
+        rel = os.path.relpath(os.path.realpath(path), os.path.realpath(root))
+        if rel.startswith(".."):
+            raise ValueError(f"{path} does not lie in {root}")
+        entries[rel] = text
+    if not entries:
+        return
+    write_json(root / JOURNAL, {"written_by": "annotator", "files": entries})
+    _play(root)
+
+
+def finish_interrupted(root: str | Path) -> list[Path]:
+    """Finish the files written together (:func:`write_together`) that a killed process
+    left half-written in ``root``; return them (none if there is no journal).
+
+    Raises:
+        UserError: the journal is unreadable or cannot be played (naming it).
+    """
+    root = Path(root)
+    if not (root / JOURNAL).is_file():
+        return []
+    return _play(root)
+
+
+def _play(root: Path) -> list[Path]:
+    journal = root / JOURNAL
+    try:
+        doc = json.loads(journal.read_text(encoding="utf-8"))
+        files = doc["files"]
+        if not isinstance(files, dict) or not all(
+            isinstance(k, str) and isinstance(v, str) for k, v in files.items()
+        ):
+            raise ValueError("'files' must map paths to texts")
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise UserError(
+            f"cannot finish the files an interrupted command was writing together ({exc}); "
+            "remove the journal once the files it lists are as they should be",
+            path=journal,
+        ) from None
+    written = []
+    for rel, text in files.items():
+        target = root / rel
+        if os.path.isabs(rel) or ".." in Path(rel).parts:
+            raise UserError(f"lists {rel!r}, which is not inside the dataset", path=journal)
+        write_text(target, text)
+        written.append(target)
+    try:
+        journal.unlink()
+    except OSError as exc:
+        raise WriteError(f"cannot remove it ({exc.strerror or exc})", path=journal) from None
+    return written
 
 
 #: The file that marks a folder as one of the project's temporary folders. Abandoned

@@ -91,20 +91,25 @@ def write_png(path: str | Path, img: np.ndarray) -> None:
     write_bytes(path, buf.tobytes())
 
 
+#: The uint16 that depth maps hold where the sensor got nothing back, as 0 (FORMAT.md).
+NO_RETURN = 65535
+
+
 def read_depth(path: str | Path, scale: float) -> np.ndarray:
-    """Read a uint16 depth PNG as float32 millimetres, NaN where there is no measurement."""
+    """Read a uint16 depth PNG as float32 millimetres, NaN where there is no measurement:
+    0, and 65535 (the largest value, which sensors write where nothing came back)."""
     raw = read_image(path)
     if raw.dtype != np.uint16 or raw.ndim != 2:
         raise UserError(
             f"depth map must be single-channel uint16, got {raw.dtype} {raw.shape}", path=path
         )
     depth = raw.astype(np.float32) * np.float32(scale)
-    depth[raw == 0] = np.nan
+    depth[(raw == 0) | (raw == NO_RETURN)] = np.nan
     return depth
 
 
 def encode_depth(depth_mm: np.ndarray, scale: float) -> np.ndarray:
     """Convert float millimetres (NaN/inf/<=0 = no measurement) to uint16 units of ``scale`` mm."""
     units = np.round(np.nan_to_num(depth_mm, nan=0.0, posinf=0.0, neginf=0.0) / scale)
-    units[(units < 1) | (units > 65535)] = 0
+    units[(units < 1) | (units >= NO_RETURN)] = 0
     return units.astype(np.uint16)

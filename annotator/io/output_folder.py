@@ -1,7 +1,6 @@
-"""Folders a command creates as a whole (``export``, ``synth``, ``markers``): when one may be
-written, and when ``--overwrite`` may replace it.
+"""Outputs never destroy inputs: when a command may write a folder or a file.
 
-Rules, whatever the flags:
+Folders a command creates as a whole (``export``, ``synth``, ``markers``), whatever the flags:
 
 - OUT may not be what the command reads (the dataset, a mesh), nor lie inside it, nor contain
   it: replacing OUT would delete the user's data.
@@ -11,6 +10,17 @@ Rules, whatever the flags:
 
 The folder itself is then built with :func:`annotator.io.atomic.atomic_folder`, and
 :func:`write_manifest` marks it before it takes OUT's place.
+
+Files a command writes (``estimate OUT.csv``, ``evaluate --json``/``--plot``), checked by
+:func:`check_output_files` before anything is read or computed:
+
+- a file may not be one the command reads (``--results``), nor lie inside a folder it reads
+  (a results folder), nor be an existing file of a dataset it reads (``dataset.yaml``, an
+  image), nor lie in a dataset's ``scenes/`` or ``objects/`` (where a new file would be read
+  as the dataset's own: a ``gt.json``, say);
+- two outputs of one command may not be the same file.
+
+A new file beside a dataset's own files (``DS/ppf.csv``) is allowed.
 """
 
 from __future__ import annotations
@@ -64,6 +74,67 @@ def check_output_folder(
             "remove it yourself or choose another folder",
             path=out,
         )
+
+
+def check_output_files(
+    outputs: Sequence[tuple[str, str | Path | None]],
+    *,
+    inputs: Sequence[str | Path | None] = (),
+    datasets: Sequence[str | Path | None] = (),
+) -> None:
+    """Raise a one-line UserError (naming the file) unless every output file may be written
+    without touching what the command reads (the rules in the module docstring).
+
+    Args:
+        outputs: (option, path) of each file the command will write (``("--json",
+            "r.json")``); a None path is not written and not checked.
+        inputs: Files or folders the command reads (None: not given).
+        datasets: Dataset folders the command reads (ours, BOP, Siléane; None: not given).
+
+    >>> check_output_files([("OUT", "sample_scenes/dataset.yaml")], datasets=["sample_scenes"])
+    Traceback (most recent call last):
+    ...
+    annotator.errors.UserError: sample_scenes/dataset.yaml: OUT would write over a file of the dataset sample_scenes; choose a new file outside it
+    """
+    seen: dict[Path, str] = {}
+    for option, out in outputs:
+        if out is None:
+            continue
+        real = Path(os.path.realpath(out))
+        if real in seen:
+            raise UserError(f"{option} is also {seen[real]}: give each its own file", path=out)
+        seen[real] = option
+        for p in inputs:
+            if p is None:
+                continue
+            keep = Path(os.path.realpath(p))
+            if real == keep:
+                raise UserError(f"{option} is the input {p} itself; choose another file", path=out)
+            if keep in real.parents:
+                raise UserError(
+                    f"{option} lies inside the input {p}; choose a file outside it", path=out
+                )
+        for d in datasets:
+            if d is None:
+                continue
+            root = Path(os.path.realpath(d))
+            if real == root:
+                raise UserError(f"{option} is the dataset {d} itself; give a file name", path=out)
+            if root not in real.parents:
+                continue
+            if real.exists() or real.is_symlink():
+                raise UserError(
+                    f"{option} would write over a file of the dataset {d}; choose a new file "
+                    "outside it",
+                    path=out,
+                )
+            inside = real.relative_to(root).parts[0]
+            if inside in ("scenes", "objects"):
+                raise UserError(
+                    f"{option} lies in {d}/{inside}, where the dataset's own files are; "
+                    "choose a file outside it",
+                    path=out,
+                )
 
 
 def write_manifest(folder: str | Path, *, command: str) -> None:

@@ -109,8 +109,34 @@ def _from_file(path: str, _mtime_ns: int, _size: int) -> cv2.aruco.Dictionary:
         correction = int(node.real()) if not node.empty() else 0
     finally:
         fs.release()
+    _check_distinct(bits, path)
     byte_list = np.concatenate([cv2.aruco.Dictionary.getByteListFromBits(b) for b in bits])
     return cv2.aruco.Dictionary(byte_list, size, correction)
+
+
+def _check_distinct(bits: list[np.ndarray], path: str) -> None:
+    """UserError unless every marker reads as itself alone: no two markers alike in any turn
+    (one id would be read for the other), none alike turned (its corners' order unknown)."""
+    turns: dict[bytes, tuple[int, int]] = {}  # each earlier marker's four turns
+    for i, b in enumerate(bits):
+        same = turns.get(b.tobytes())
+        if same is not None:
+            j, k = same
+            turned = "" if k == 0 else f" turned by {90 * k} degrees"
+            raise UserError(
+                f"marker_{i} is marker_{j}{turned}: a reading could not tell them apart; every marker must differ from "
+                "every other in all four turns",
+                path=path,
+            )
+        for k in range(1, 4):
+            if np.array_equal(np.rot90(b, k), b):
+                raise UserError(
+                    f"marker_{i} looks the same turned by {90 * k} degrees: its corners' order "
+                    "could not be read",
+                    path=path,
+                )
+        for k in range(4):
+            turns.setdefault(np.rot90(b, k).tobytes(), (i, k))
 
 
 def marker_bit_grids(d: cv2.aruco.Dictionary) -> np.ndarray:

@@ -10,6 +10,9 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from annotator.dataset import Dataset, Scene, require_meshes
+from annotator.dataset.annotation import SceneAnnotation
+from annotator.dataset.validity import unknown_name
+from annotator.errors import UserError
 from annotator.io.documents import unified_diff
 from annotator.runner import BatchReport, run_batch
 from annotator.sites.measure import DetectJob, InstanceSites, measure_sites, updated_object_yaml
@@ -62,6 +65,11 @@ def survey_sites(
         quiet=quiet,
     )
     detections = {sid: r["markers"] for sid, r in report.done.items()}
+    for scene in scenes:
+        problem = _unknown_instance(ds, scene) if scene.id in detections else None
+        if problem is not None:  # its poses cannot be matched to sites: the rest goes on
+            del detections[scene.id]
+            report.failed[scene.id] = problem
     measured, spread = measure_sites(
         ds,
         [s for s in scenes if s.id in detections],
@@ -69,6 +77,20 @@ def survey_sites(
         settings=SiteSettings(max_move_mm=max_move_mm),
     )
     return SitesSurvey(scenes, report, measured, spread, object_updates(ds, measured))
+
+
+def _unknown_instance(ds: Dataset, scene: Scene) -> str | None:
+    """Why the scene's annotation.json cannot be used (it names an instance the dataset does
+    not have, or it is unreadable), or None."""
+    try:
+        instances = SceneAnnotation.read(scene.annotation_path).instances
+    except UserError as exc:
+        return str(exc)
+    for inst in instances:
+        why = unknown_name(ds, inst.object, inst.instance)
+        if why is not None:
+            return f"{scene.annotation_path}: {why}; annotate the scene again"
+    return None
 
 
 def object_updates(ds: Dataset, measured: list[InstanceSites]) -> list[ObjectUpdate]:

@@ -190,6 +190,8 @@ def symmetry_from_bop(
         return Symmetry("spherical")
     if axes:
         axis = axes[0]
+        for k, R in enumerate(rotations):
+            _check_with_axis(R, axis, k)
         flip = any(float(axis @ R @ axis) < 0 for R in rotations)
         return Symmetry("revolution_flip" if flip else "revolution", axis=axis)
     gens = _generators(rotations, snapped)
@@ -198,6 +200,27 @@ def symmetry_from_bop(
     sym = Symmetry("finite", generators=tuple(gens))
     _check_closed(sym, rotations, tol)
     return sym
+
+
+def _check_with_axis(R: np.ndarray, axis: np.ndarray, k: int) -> None:
+    """ValueError unless ``symmetries_discrete[k]`` can stand beside a continuous symmetry
+    about ``axis``: a turn about that axis, or a half turn about an axis across it (a flip),
+    each within :data:`SNAP_DEG`. Any other element and the turns about the axis generate
+    every rotation, which is a sphere's symmetry, not a part's with one axis."""
+    rv = matrix_to_rotvec(R)
+    angle = float(np.linalg.norm(rv))
+    if angle < math.radians(SNAP_DEG):
+        return
+    tilt = math.degrees(math.acos(min(1.0, abs(float(axis @ rv)) / angle)))
+    if tilt <= SNAP_DEG:
+        return
+    if abs(90.0 - tilt) <= SNAP_DEG and abs(math.degrees(angle) - 180.0) <= SNAP_DEG:
+        return
+    raise ValueError(
+        f"symmetries_discrete[{k}] (a turn of {math.degrees(angle):.1f} degrees about an axis "
+        f"{tilt:.1f} degrees from the continuous axis) is neither a turn about the continuous "
+        "axis nor a half turn across it"
+    )
 
 
 def _bop_rotation(element: Any, k: int) -> np.ndarray:
