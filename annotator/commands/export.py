@@ -10,6 +10,8 @@ from collections.abc import Callable
 from tqdm import tqdm
 
 from annotator.dataset import load_dataset
+from annotator.errors import UserError
+from annotator.export.fill import METHODS as FILLS
 from annotator.formats import EXPORTS
 from annotator.formats.exporting import export_dataset
 
@@ -47,6 +49,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "tar shards",
     )
     parser.add_argument(
+        "--remove-markers",
+        action="store_true",
+        help="write the intensity images with the markers filled in, and mask_markers (where "
+        "they were; also a 'marker' category in BOP's COCO file); depth as measured",
+    )
+    parser.add_argument(
+        "--marker-fill",
+        choices=FILLS,
+        help="with --remove-markers: fill from the same surface around each marker (default) "
+        "or with OpenCV's inpainting (telea)",
+    )
+    parser.add_argument(
         "--overwrite", action="store_true", help="replace OUT if an earlier export wrote it"
     )
     parser.add_argument("--json", action="store_true", help="print the summary as JSON")
@@ -67,6 +81,8 @@ def run(args: argparse.Namespace) -> int:
         bars.append(bar)
         return bar.update
 
+    if args.marker_fill and not args.remove_markers:
+        raise UserError("--marker-fill is for --remove-markers")
     try:
         summary = export_dataset(
             load_dataset(args.dataset),
@@ -81,6 +97,8 @@ def run(args: argparse.Namespace) -> int:
             layout=args.layout,
             overwrite=args.overwrite,
             progress=progress,
+            remove_markers=args.remove_markers,
+            fill=args.marker_fill or "surface",
         )
     finally:
         for bar in bars:

@@ -91,6 +91,12 @@ def _add_rendering_options(parser: argparse.ArgumentParser) -> None:
         f"scene; the true sites go to OUT/{GLUED_SITES} (default 0,0: exactly on the layout)",
     )
     group.add_argument("--no-depth", action="store_true", help="skip the active-stereo depth maps")
+    group.add_argument(
+        "--no-markers",
+        action="store_true",
+        help="render the parts bare (object.yaml still lists the markers): with the same seed "
+        "and options, the same scenes as with markers, pixel for pixel away from them",
+    )
 
 
 def _add_calibration_options(parser: argparse.ArgumentParser) -> None:
@@ -214,6 +220,7 @@ def _config(args: argparse.Namespace) -> SynthConfig:
         blur=args.blur,
         depth=not args.no_depth,
         glue=args.glue,
+        markers=not args.no_markers,
     )
 
 

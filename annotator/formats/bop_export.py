@@ -9,10 +9,17 @@
   part (pycocotools), amodal boxes and ``ignore`` for instances less than 10 % visible, as
   bop_toolkit's ``calc_gt_coco.py``.
 
+With ``remove_markers`` (``export --remove-markers``) the intensity images are written with
+the markers filled in (:mod:`annotator.export.removal`), and beside each one its
+``mask_markers[_<cam>]/000000.png`` (uint8, 255 where a marker was filled, 0 elsewhere); the
+COCO file then has a ``marker`` category of its own (id: the largest object id + 1), one
+annotation per visible marker with its ``marker_id``, ``obj_id``, ``gt_index`` (the
+instance's place in scene_gt.json) and projected ``corners``. Depth is left as measured.
+
 ``layout`` ``imagewise`` and ``webdataset`` then turn ``test/`` into bop_toolkit's
 ``bop_imagewise`` files (``test_imagewise/KEY.gray.tiff``, ``KEY.depth.png``,
 ``KEY.camera.json``, ``KEY.gt.json``, ``KEY.gt_info.json``, ``KEY.mask.json``,
-``KEY.mask_visib.json``, with KEY ``<scene>_<image>``; a rig's cameras are images 0, 1, ...
+``KEY.mask_visib.json``, ``KEY.mask_markers.png`` with ``remove_markers``, with KEY ``<scene>_<image>``; a rig's cameras are images 0, 1, ...
 of their scene), or into the tar shards of ``bop_webdataset`` (``test_webdataset/
 shard-000000.tar``... and ``key_to_shard.json``), as MegaPose's training sets are stored.
 """
@@ -34,6 +41,8 @@ from scipy.spatial import ConvexHull
 from annotator.dataset import Dataset
 from annotator.errors import UserError
 from annotator.export.inputs import read_scene_inputs
+from annotator.export.markers import MarkerRegion
+from annotator.export.removal import remove_scene_markers
 from annotator.export.selection import Selected
 from annotator.export.undistort import pinhole_rig
 from annotator.io.atomic import write_bytes, write_json
@@ -77,9 +86,13 @@ def export_bop(
     cameras: Sequence[str],
     progress: Callable[[], None] | None = None,
     layout: str = "scenewise",
+    remove_markers: bool = False,
+    fill: str = "surface",
 ) -> dict[str, str]:
     """Write ``selected`` scenes into the empty folder ``out``; returns the scenes left out
-    because an input was unreadable (scene id -> one-line reason)."""
+    because an input was unreadable (scene id -> one-line reason). ``remove_markers``: the
+    images with their markers filled in by ``fill`` (:mod:`annotator.export.fill`), and
+    ``mask_markers``."""
     if layout not in LAYOUTS:
         raise UserError(f"unknown layout {layout!r} (expected one of {', '.join(LAYOUTS)})")
     obj_ids = _write_models(ds, out)
@@ -112,6 +125,7 @@ def export_bop(
             bop_id = len(ids)
             ids[f"{bop_id:06d}"] = item.scene.id
             scene = _SceneWriter(ds, rig, cameras, obj_ids, out / "test" / f"{bop_id:06d}")
+            scene.remove_markers, scene.fill = remove_markers, fill
             targets += scene.write(item, inputs, bop_id)
         if progress:
             progress()
@@ -166,29 +180,58 @@ class _SceneWriter:
             folder,
         )
         self.depth_scale = ds.rig.depth.scale if ds.rig.depth else 1.0
+        self.remove_markers = False
+        self.fill = "surface"
 
     def write(self, item: Selected, inputs: Any, bop_id: int) -> list[dict[str, int]]:
         """Write the scene; returns its entries of test_targets_bop19.json (for the first
         camera: BOP's targets name one image per scene here)."""
         depth = inputs.depth
-        meshes = [self.ds.objects[p.object].mesh for p in item.poses]
-        vis = scene_visibility(
-            self.rig,
-            meshes,
-            [p.T for p in item.poses],
-            depth=depth,
-            cameras=self.cameras,
-            masks=True,
-        )
+        images = inputs.images
+        markers: dict[str, list[MarkerRegion] | None] = {c: None for c in self.cameras}
+        if self.remove_markers:
+            removed = remove_scene_markers(
+                self.ds,
+                self.rig,
+                item.scene,
+                item.poses,
+                images,
+                cameras=self.cameras,
+                depth=depth,
+                fill=self.fill,
+            )
+            vis, images = removed.visibility, removed.images
+            sfx = len(self.cameras) > 1
+            for name, m in removed.markers.items():
+                mask = m.mask.astype(np.uint8) * 255
+                write_png(self.folder / f"mask_markers{suffix(name, sfx)}" / "000000.png", mask)
+                markers[name] = m.regions
+        else:
+            meshes = [self.ds.objects[p.object].mesh for p in item.poses]
+            vis = scene_visibility(
+                self.rig,
+                meshes,
+                [p.T for p in item.poses],
+                depth=depth,
+                cameras=self.cameras,
+                masks=True,
+            )
         targets: list[dict[str, int]] = []
         for ci, name in enumerate(self.cameras):
-            visib = self._write_camera(ci, name, item, inputs.images[name], depth, vis)
+            visib = self._write_camera(ci, name, item, images[name], depth, vis, markers[name])
             if ci == 0:
                 targets = _targets(bop_id, [self.obj_ids[p.object] for p in item.poses], visib)
         return targets
 
     def _write_camera(
-        self, ci: int, name: str, item: Selected, img: np.ndarray, depth: Any, vis: Any
+        self,
+        ci: int,
+        name: str,
+        item: Selected,
+        img: np.ndarray,
+        depth: Any,
+        vis: Any,
+        markers: list[MarkerRegion] | None = None,
     ) -> list[float]:
         sfx = suffix(name, len(self.cameras) > 1)
         cam = self.rig.camera(name)
@@ -243,7 +286,15 @@ class _SceneWriter:
         write_json(d / f"scene_gt_info{sfx}.json", {"0": infos})
         write_json(
             d / f"scene_gt_coco{sfx}.json",
-            coco_scene(coco, f"{kind}{sfx}/000000.png", cam.width, cam.height, self.obj_ids),
+            coco_scene(
+                coco,
+                f"{kind}{sfx}/000000.png",
+                cam.width,
+                cam.height,
+                self.obj_ids,
+                markers=markers,
+                marker_objects=[self.obj_ids[p.object] for p in item.poses],
+            ),
         )
         return [c[3] for c in coco]
 
@@ -271,9 +322,14 @@ def coco_scene(
     width: int,
     height: int,
     obj_ids: dict[str, int],
+    *,
+    markers: Sequence[MarkerRegion] | None = None,
+    marker_objects: Sequence[int] = (),
 ) -> dict[str, Any]:
     """A scene_gt_coco.json of one image: per instance (object id, full mask, visible mask,
-    visible fraction); instances with nothing visible are left out, as bop_toolkit does."""
+    visible fraction); instances with nothing visible are left out, as bop_toolkit does.
+    ``markers``: the image's markers, as annotations of a category of their own
+    (:func:`marker_category`); ``marker_objects``: the object id of each instance."""
     annotations: list[dict[str, Any]] = []
     for oid, full, visib, fract in instances:
         if not visib.any() or not full.any():
@@ -294,15 +350,46 @@ def coco_scene(
                 "ignore": bool(fract < TARGET_MIN_VISIB),
             }
         )
+    categories = [
+        {"id": oid, "name": str(oid), "supercategory": "annotator"} for oid in obj_ids.values()
+    ]
+    if markers is not None:
+        marker_id = marker_category(obj_ids)
+        categories.append({"id": marker_id, "name": "marker", "supercategory": "marker"})
+        for m in markers:
+            if not m.px_visib or m.bbox_visib is None:
+                continue
+            annotations.append(
+                {
+                    "id": len(annotations) + 1,
+                    "image_id": 0,
+                    "category_id": marker_id,
+                    "iscrowd": 0,
+                    "area": m.px_visib,
+                    "bbox": list(m.bbox_visib),
+                    "segmentation": rle(m.mask(width, height)),
+                    "width": int(width),
+                    "height": int(height),
+                    "ignore": False,
+                    "marker_id": m.marker_id,
+                    "obj_id": int(marker_objects[m.instance]),
+                    "gt_index": m.instance,
+                    "corners": np.round(m.corners, 3).tolist(),
+                    "visib_fract": round(m.visib_fract, 4),
+                }
+            )
     return {
         "info": {"description": "annotator export", "url": "", "version": "0.1.0"},
         "licenses": [],
-        "categories": [
-            {"id": oid, "name": str(oid), "supercategory": "annotator"} for oid in obj_ids.values()
-        ],
+        "categories": categories,
         "images": [{"id": 0, "file_name": file_name, "width": int(width), "height": int(height)}],
         "annotations": annotations,
     }
+
+
+def marker_category(obj_ids: dict[str, int]) -> int:
+    """The COCO category id of markers: one past the largest object id."""
+    return max(obj_ids.values(), default=0) + 1
 
 
 # -------------------------------------------------------------------------------- layouts
@@ -334,6 +421,10 @@ def _imagewise(scenes: Path, out: Path, cameras: Sequence[str]) -> None:
                 write_bytes(out / f"{key}.gray.tiff", buf.tobytes())
             if (scene / f"depth{sfx}").is_dir():
                 shutil.copy(scene / f"depth{sfx}" / "000000.png", out / f"{key}.depth.png")
+            if (scene / f"mask_markers{sfx}").is_dir():
+                shutil.copy(
+                    scene / f"mask_markers{sfx}" / "000000.png", out / f"{key}.mask_markers.png"
+                )
 
 
 def _webdataset(imagewise: Path, out: Path) -> None:

@@ -17,6 +17,7 @@ from typing import Any
 
 from annotator.dataset import Dataset
 from annotator.errors import UserError
+from annotator.export.fill import METHODS as FILLS
 from annotator.export.selection import Selection, select_scenes
 from annotator.formats import EXPORTS, get_format
 from annotator.io.atomic import atomic_folder
@@ -72,6 +73,8 @@ def export_dataset(
     layout: str = "scenewise",
     overwrite: bool = False,
     progress: Callable[[int], Callable[[], None]] | None = None,
+    remove_markers: bool = False,
+    fill: str = "surface",
 ) -> ExportSummary:
     """Export the accepted scenes of ``ds`` into the new folder ``out`` (or, with
     ``overwrite``, one an earlier export wrote).
@@ -84,6 +87,12 @@ def export_dataset(
         poses: ``annotation`` (annotation.json with the review's repairs) or ``gt``.
         layout: BOP only: ``scenewise``, ``imagewise`` or ``webdataset``.
         progress: Given the number of scenes, returns what to call after each.
+        remove_markers: Write the intensity images with the markers filled in, and where
+            they were (``mask_markers``; see :mod:`annotator.export.removal`). Depth is left
+            as measured.
+        fill: How marker regions are filled: ``surface`` (from the pixels of the same
+            surface around them) or ``telea`` (OpenCV's inpainting); see
+            :mod:`annotator.export.fill`.
 
     Raises:
         UserError: a bad option, an output folder that may not be written, or no scene to
@@ -93,6 +102,8 @@ def export_dataset(
         raise UserError(f"unknown format {format!r} (expected one of {', '.join(EXPORTS)})")
     if layout != "scenewise" and format != "bop":
         raise UserError("--layout is for --format bop")
+    if fill not in FILLS:
+        raise UserError(f"unknown marker fill {fill!r} (expected one of {', '.join(FILLS)})")
     names = [c.name for c in ds.rig.cameras]
     chosen = list(cameras) if cameras else names
     unknown = [c for c in chosen if c not in names]
@@ -114,12 +125,19 @@ def export_dataset(
             path=ds.root,
         )
     tick = progress(len(sel.scenes)) if progress else None
-    options: dict[str, Any] = {"layout": layout} if format == "bop" else {}
+    markers: dict[str, Any] = {"remove_markers": remove_markers, "fill": fill}
     with atomic_folder(out) as tmp:
         write_manifest(tmp, command="export")
-        unreadable = get_format(format).export(
-            ds, sel.scenes, tmp, cameras=chosen, progress=tick, **options
-        )
+        if format == "bop":
+            from annotator.formats.bop_export import export_bop
+
+            unreadable = export_bop(
+                ds, sel.scenes, tmp, cameras=chosen, progress=tick, layout=layout, **markers
+            )
+        else:
+            unreadable = get_format(format).export(
+                ds, sel.scenes, tmp, cameras=chosen, progress=tick, **markers
+            )
     return _summary(format, out, sel, unreadable)
 
 

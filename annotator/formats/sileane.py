@@ -13,6 +13,8 @@ One folder per object (the format holds one object per dataset); lengths in **me
     OUT/<object>/gt/<scene>.json          [{"R": 3x3, "t": [x, y, z], "occlusion_rate",
                                           "segmentation_id", "instance"}]
     OUT/<object>/segmentation/<scene>.PNG  uint8, segmentation_id per pixel (visible part), 255 = none
+    OUT/<object>/mask_markers/<scene>.PNG  with --remove-markers: uint8, 255 where a marker of
+                                          any part was filled in rgb/, 0 elsewhere
 
 **Canonical frame.** The authors' code measures the translation part of the distance on the
 pose's ``t`` itself and the rotation part about the model axes, which is the paper's
@@ -148,9 +150,13 @@ def export(
     *,
     cameras: Sequence[str] = (),
     progress: Callable[[], None] | None = None,
+    remove_markers: bool = False,
+    fill: str = "surface",
 ) -> dict[str, str]:
     """Write ``selected`` scenes into the empty folder ``out`` (the reference camera only);
-    returns the scenes left out because an input was unreadable (scene id -> reason)."""
+    returns the scenes left out because an input was unreadable (scene id -> reason).
+    ``remove_markers``: the images with their markers filled in by ``fill``
+    (:mod:`annotator.export.fill`), and ``mask_markers/``."""
     from annotator.export.inputs import read_scene_inputs
     from annotator.export.undistort import pinhole_rig
 
@@ -168,7 +174,9 @@ def export(
     frames = _write_objects(ds, out, ref.K, clip)
     for item in selected:
         if item.scene.id in inputs:
-            _write_scene(ds, rig, item, inputs[item.scene.id], out, frames, clip)
+            _write_scene(
+                ds, rig, item, inputs[item.scene.id], out, frames, clip, remove_markers, fill
+            )
         if progress:
             progress()
     return failed
@@ -222,9 +230,12 @@ def _write_scene(
     out: Path,
     frames: dict[str, np.ndarray],
     clip: tuple[float, float],
+    remove_markers: bool = False,
+    fill: str = "surface",
 ) -> None:
     """One scene in every object's folder: the image, the encoded depth, the segmentation
-    of that object's instances and their poses in its canonical frame."""
+    of that object's instances and their poses in its canonical frame (``remove_markers``:
+    the image with its markers filled in, and their mask)."""
     from annotator.io.atomic import write_json
     from annotator.io.images import write_png
     from annotator.occlusion import scene_visibility
@@ -232,13 +243,33 @@ def _write_scene(
     ref = rig.cameras[0]
     sid = item.scene.id
     depth = inputs.depth
-    meshes = [ds.objects[p.object].mesh for p in item.poses]
-    vis = scene_visibility(
-        rig, meshes, [p.T for p in item.poses], depth=depth, cameras=[ref.name], masks=True
-    )
+    image = inputs.images[ref.name]
+    marker_mask = None
+    if remove_markers:
+        from annotator.export.removal import remove_scene_markers
+
+        removed = remove_scene_markers(
+            ds,
+            rig,
+            item.scene,
+            item.poses,
+            inputs.images,
+            cameras=[ref.name],
+            depth=depth,
+            fill=fill,
+        )
+        vis, image = removed.visibility, removed.images[ref.name]
+        marker_mask = removed.markers[ref.name].mask.astype(np.uint8) * 255
+    else:
+        meshes = [ds.objects[p.object].mesh for p in item.poses]
+        vis = scene_visibility(
+            rig, meshes, [p.T for p in item.poses], depth=depth, cameras=[ref.name], masks=True
+        )
     for name in ds.objects:
         folder = out / name
-        write_png(folder / "rgb" / f"{sid}.PNG", inputs.images[ref.name])
+        write_png(folder / "rgb" / f"{sid}.PNG", image)
+        if marker_mask is not None:
+            write_png(folder / "mask_markers" / f"{sid}.PNG", marker_mask)
         if depth is not None:
             z = depth / M
             enc = np.clip((z - clip[0]) / (clip[1] - clip[0]), 0, 1) * 65535

@@ -62,6 +62,11 @@ class SynthConfig:
     #: plane by N(0, glue[0]) along both axes and turned by N(0, glue[1]) about its normal,
     #: once per instance (the same in every scene). (0, 0): exactly on their sites.
     glue: tuple[float, float] = (0.0, 0.0)
+    #: False: the parts are rendered bare, as if no marker were glued on them, while
+    #: object.yaml still lists the sites and ids. Every random draw is made as with markers
+    #: (the noise does not depend on what is drawn), so the same seed gives the same scene,
+    #: pixel for pixel, away from the markers: the twin the marker removal is measured on.
+    markers: bool = True
 
 
 @dataclass
@@ -175,7 +180,8 @@ def write_dataset_files(plan: DatasetPlan, root: Path) -> None:
         synth={
             k: v if not isinstance(v, tuple) else list(v)
             for k, v in plan.config.__dict__.items()
-            if not (k == "glue" and v == (0.0, 0.0))  # recorded only when used
+            # recorded only when used
+            if not (k == "glue" and v == (0.0, 0.0)) and not (k == "markers" and v)
         },
     )
 
@@ -275,9 +281,12 @@ def _stage(plan: DatasetPlan, contents: _BinContents) -> _Staged:
         if T is None:
             continue
         inst = plan.instances[p][copy]
-        bits = np.stack([marker_bits(DICTIONARY, m) for m in inst.marker_ids])
-        corners = plan.glued[p][copy][: len(inst.marker_ids)]
-        surfaces.append(Surface(plan.parts[p].mesh, T, 0.8, corners, bits))
+        if plan.config.markers:
+            bits = np.stack([marker_bits(DICTIONARY, m) for m in inst.marker_ids])
+            corners = plan.glued[p][copy][: len(inst.marker_ids)]
+            surfaces.append(Surface(plan.parts[p].mesh, T, 0.8, corners, bits))
+        else:
+            surfaces.append(Surface(plan.parts[p].mesh, T, 0.8))
         cam_T = plan.setup.ref_T_world @ T
         poses.append(InstancePose(plan.parts[p].name, inst.name, cam_T[:3, :3], cam_T[:3, 3]))
     for k in range(len(contents.chosen), len(contents.meshes)):
