@@ -22,7 +22,10 @@ Repairing a pose (R, A, the nudges, the gizmo, M + click + "Add here", U, X) sho
 pose re-rendered only where it changed (:func:`viewer.overlays.repose`), then saves it in
 review.json (staged in memory first: :meth:`ReviewState.stage_pose`), before the key is done
 with and the next change is made; one that cannot be written is said so in red and taken
-back. Undo and redo are per page and scene. A
+back. Each change names the edit it was computed from, so one made on a pose that another
+page or server has changed since is refused and said (:class:`viewer.state.Conflict`),
+never written over theirs. Undo and redo are per page and scene, and undo only the page's
+own steps, while each is still its part's last change. A
 refinement runs in its own thread, the page saying so meanwhile. Once the pixels of a
 selected instance are out, what the next A needs is made in the background (the scene's
 markers read, the candidates, the overlays of the next one): A then only shows it, as U does.
@@ -38,6 +41,8 @@ import threading
 import time
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+from enum import Enum
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -52,7 +57,7 @@ from viewer.overlays import Prepared, repose
 from viewer.panel import Panel, PanelView, instance_table, warnings_text
 from viewer.pictures import Pictures
 from viewer.scene3d import Scene3D
-from viewer.state import FILTERS, SaveError, SceneInfo, Staged
+from viewer.state import FILTERS, Conflict, SaveError, SceneInfo, Staged
 from viewer.style import Look
 from viewer.zoom import Zoom, zoom
 
@@ -68,6 +73,23 @@ AHEAD_WAIT = 1.0  # seconds a repair waits for its overlays being made ahead, at
 #: seconds work ahead waits after a key's pixels went out: the browser draws them meanwhile
 #: (on two cores the work would slow that down), and a next key in between makes it moot
 AHEAD_DELAY = 0.3
+
+
+@dataclass(frozen=True)
+class Step:
+    """One repair of this page, for undo and redo: ``key``'s edit before and after it
+    (None: the auto pose)."""
+
+    key: str
+    before: EditedPose | None
+    after: EditedPose | None
+
+
+class Unsaved(Enum):
+    """Why a pose change was not written."""
+
+    FAILED = "failed"  # the file could not be written: the same change may be tried again
+    CONFLICT = "conflict"  # another reviewer changed the part first (viewer.state.Conflict)
 
 
 class Session:
@@ -98,12 +120,13 @@ class Session:
         self._zoom: tuple[str, Zoom] | None = None
         self._prep: Prepared | None = None
         self.blinking = False
-        # Repairs: nudge settings, per scene undo / redo stacks of (instance, its earlier
-        # edit or None), what the last repair did, the instances offered after M + click.
+        # Repairs: nudge settings, per scene undo / redo stacks of the page's steps (instance,
+        # its edit before, its edit after; None: the auto pose), what the last repair did, the
+        # instances offered after M + click.
         self.nudge_kind = "move"
         self.large = False
-        self.history: dict[str, list[tuple[str, EditedPose | None]]] = {}
-        self.future: dict[str, list[tuple[str, EditedPose | None]]] = {}
+        self.history: dict[str, list[Step]] = {}
+        self.future: dict[str, list[Step]] = {}
         self.repair_text = ""
         self.offer: tuple[str, str, tuple[float, float], tuple[str, ...]] | None = None
         self._cycle: dict[tuple[str, str, str], tuple[list, int]] = {}
@@ -462,55 +485,65 @@ class Session:
         T: np.ndarray,
         step: dict,
         *,
+        seen: SceneInfo,
         unmark: tuple[str, tuple[float, float]] | None = None,
     ) -> bool:
-        """Show a new pose of ``key`` (``step`` added to its edit's steps), then save it."""
+        """Show a new pose of ``key`` (``step`` added to its edit's steps), then save it.
+        ``seen``: the scene as it was when ``T`` was computed; if another page has changed
+        that part since, nothing is written and this reviewer is told."""
         state = self.app.state
+        before = seen.review.poses.get(key)
+        steps = list(before.steps) if before is not None and key in seen.edited else []
         with self._editing:
-            info = state.info(sid)
-            before = info.review.poses.get(key)
-            steps = list(before.steps) if before is not None and key in info.edited else []
-            saved = self._show_then_save(
+            after = self._show_then_save(
                 sid,
                 key,
                 f"pose of {key}",
-                lambda: state.stage_pose(sid, key, T, [*steps, step], by=self.id, unmark=unmark),
-                info.view,
+                lambda: state.stage_pose(
+                    sid, key, T, [*steps, step], by=self.id, unmark=unmark, expect=before
+                ),
+                state.info(sid).view,
             )
-            if saved:
-                with self._lock:
-                    self.history.setdefault(sid, []).append((key, before))
-                    self.future.pop(sid, None)
-            return saved
+            if isinstance(after, Unsaved):
+                return False
+            with self._lock:
+                self.history.setdefault(sid, []).append(Step(key, before, after))
+                self.future.pop(sid, None)
+            return True
 
-    def _restore(self, sid: str, key: str, edit: EditedPose | None, what: str) -> bool:
+    def _restore(
+        self, sid: str, key: str, edit: EditedPose | None, what: str, *, expect: object
+    ) -> EditedPose | None | Unsaved:
+        """Put ``key``'s edit back to ``edit`` if it is still ``expect``: the edit written
+        (None: the auto pose), or why not."""
         state = self.app.state
         with self._editing:
             return self._show_then_save(
                 sid,
                 key,
                 what,
-                lambda: state.stage_restore(sid, key, edit, by=self.id),
+                lambda: state.stage_restore(sid, key, edit, by=self.id, expect=expect),
                 state.info(sid).view,
             )
 
     def _show_then_save(
         self, sid: str, key: str, what: str, stage: Callable[[], Staged], shown: str
-    ) -> bool:
+    ) -> EditedPose | None | Unsaved:
         """Make a pose change in memory (``stage``), send its pixels, then write it: the
         reviewer sees it before the disk has it, and it is on disk before this returns (and
         so before the next change is made). A change that cannot be written is said so in
-        red, and the page goes back to what the file holds."""
+        red, and the page goes back to what the file holds. Returns ``key``'s edit as
+        written (None: the auto pose), or why it was not."""
         try:
             staged = stage()
         except SaveError as exc:
             self._not_saved(sid, what, str(exc))
-            return False
+            return Unsaved.CONFLICT if isinstance(exc, Conflict) else Unsaved.FAILED
         try:
             self._reposed(sid, key, shown)
         finally:  # whatever showing it did, the change is written
             saved = self._write(sid, what, lambda: self.app.state.commit(staged), decision=False)
-        return saved
+        return staged.review.poses.get(key) if saved else Unsaved.FAILED
 
     def _reposed(self, sid: str, key: str, before: str) -> None:
         """Make the scene's overlays for its new poses from the shown ones (only the
@@ -543,10 +576,11 @@ class Session:
         try:
             state = self.app.state
             inputs = self.app.repair_inputs(sid)
-            result = repair.refine(state.ds, state.info(sid), key, inputs)
+            seen = state.info(sid)
+            result = repair.refine(state.ds, seen, key, inputs)
             residuals = f"before: {result.before.text()}; after: {result.after.text()}"
             if result.converged:
-                if self._edit(sid, key, result.T, result.to_json()):
+                if self._edit(sid, key, result.T, result.to_json(), seen=seen):
                     self._say(f"✔ {key} refined in {result.seconds:.2f} s — {residuals}")
             else:
                 self._say(
@@ -579,13 +613,16 @@ class Session:
             self._cycle[ck] = (found, index)
         c = found[index]
         if index == 0 and auto is not None:
-            saved = self._restore(sid, key, None, f"pose of {key}")
+            before = info.review.poses.get(key)
+            done = self._restore(sid, key, None, f"pose of {key}", expect=before)
+            saved = not isinstance(done, Unsaved)
             if saved:
                 with self._lock:
-                    self.history.setdefault(sid, []).append((key, info.review.poses.get(key)))
+                    self.history.setdefault(sid, []).append(Step(key, before, None))
+                    self.future.pop(sid, None)
         else:
             step = {"op": "alternative", "source": c.source, "support": c.support}
-            saved = self._edit(sid, key, c.T, step)
+            saved = self._edit(sid, key, c.T, step, seen=info)
         if saved:
             self._say(f"{key}: candidate {index + 1} of {len(found)} — {c.text()}")
 
@@ -659,7 +696,8 @@ class Session:
         sid, key = target
         step = repair.step_of(self.nudge_kind, axis, sign, self.large)
         info = self.app.state.info(sid)
-        if self._edit(sid, key, repair.nudge(self.app.state.ds, info, key, step), step.to_json()):
+        T = repair.nudge(self.app.state.ds, info, key, step)
+        if self._edit(sid, key, T, step.to_json(), seen=info):
             unit = "mm" if step.kind == "move" else "°"
             self._say(f"{key}: {step.kind} {step.amount:+g} {unit} along {'xyz'[axis]}")
 
@@ -667,8 +705,9 @@ class Session:
         """The gizmo in the 3D view was let go: ``T`` is the part's new pose."""
         with self._lock:
             sid = self.nav.current
-        if sid is not None and self.app.state.info(sid).pose(key) is not None:
-            if self._edit(sid, key, T, {"op": "gizmo"}):
+        info = self.app.state.info(sid) if sid is not None else None
+        if sid is not None and info is not None and info.pose(key) is not None:
+            if self._edit(sid, key, T, {"op": "gizmo"}, seen=info):
                 self._say(f"{key}: moved with the gizmo")
 
     def toggle_nudge_kind(self) -> None:
@@ -696,16 +735,21 @@ class Session:
         if item is None:
             self._say(self.repair_text)
             return
-        key, edit = item
-        current = self.app.state.info(sid).review.poses.get(key)
-        if self._restore(sid, key, edit, f"{what} of {key}"):
-            with self._lock:
-                (self.future if back else self.history).setdefault(sid, []).append((key, current))
-                self.nav.select(key, zoom=self.nav.zoom)
-            self._say(f"{what}: {key} " + ("back to its auto pose" if edit is None else "restored"))
-        else:
-            with self._lock:
-                source.append(item)
+        # Only this page's own step, while it is still the part's last change: an undo
+        # never throws away what another reviewer did to the part since.
+        edit, expect = (item.before, item.after) if back else (item.after, item.before)
+        done = self._restore(sid, item.key, edit, f"{what} of {item.key}", expect=expect)
+        if done is Unsaved.CONFLICT:
+            return  # another reviewer's change came after it: the step is gone
+        with self._lock:
+            if done is Unsaved.FAILED:
+                source.append(item)  # the disk refused it: it may be tried again
+                return
+            (self.future if back else self.history).setdefault(sid, []).append(item)
+            self.nav.select(item.key, zoom=self.nav.zoom)
+        self._say(
+            f"{what}: {item.key} " + ("back to its auto pose" if edit is None else "restored")
+        )
 
     def undo(self) -> None:
         self._step_back(True)
@@ -723,9 +767,10 @@ class Session:
         if before is None:
             self._say(f"{key} has its auto pose already")
             return
-        if self._restore(sid, key, None, f"reset of {key}"):
+        done = self._restore(sid, key, None, f"reset of {key}", expect=before)
+        if not isinstance(done, Unsaved):
             with self._lock:
-                self.history.setdefault(sid, []).append((key, before))
+                self.history.setdefault(sid, []).append(Step(key, before, None))
                 self.future.pop(sid, None)
             self._say(f"{key}: reset to the auto-annotation")
 
@@ -745,7 +790,7 @@ class Session:
             self._say(f"⚠ {key}: no marker and no depth near the click to start it from")
             return
         step = {"op": "add", "camera": camera, "pixel": list(pixel), "source": found.source}
-        if self._edit(sid, key, found.T, step, unmark=(camera, pixel)):
+        if self._edit(sid, key, found.T, step, seen=info, unmark=(camera, pixel)):
             with self._lock:
                 self.offer = None
                 self.nav.select(key)

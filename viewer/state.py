@@ -8,11 +8,21 @@ tells which scenes changed on disk by other hands since it was last asked.
 A decision that cannot be written (read-only folder, full disk) raises :class:`SaveError`
 with one line for the person who made it; nothing is changed then.
 
+Several servers (processes) and several pages on one dataset: every change of a scene is
+made under the scene's lock (a ``flock`` on its folder, across processes, and the state's
+own lock, across the pages of a server), on review.json as the file holds it then, and
+changes only what it is about: a decision keeps the poses other reviewers repaired, a pose
+edit keeps their decisions and their edits of other parts. A pose edit is a compare-and-set:
+it names the edit it was computed from (``expect``), and if another reviewer has changed
+that part's pose since, nothing is written and :class:`Conflict` (a :class:`SaveError`)
+says who did it and when; an undo likewise undoes only the page's own step, while it is
+still the part's last one.
+
 A pose edit can be shown before it is written: :meth:`ReviewState.stage_pose` (and
 :meth:`ReviewState.stage_restore`) make the scene's next state in memory, which
 :meth:`ReviewState.info` returns from then on, and :meth:`ReviewState.commit` writes it. No
-other write happens in between (the state's lock is held), so nothing written meanwhile can
-be overwritten, and a failed commit puts the scene back as the file has it.
+other write happens in between (both locks are held), so nothing written meanwhile can be
+overwritten, and a failed commit puts the scene back as the file has it.
 
 Poses repaired in a page (review.json ``poses``) are applied to the scene's poses here:
 :attr:`SceneInfo.poses` are what the pages show and the export takes, :attr:`SceneInfo.auto`
@@ -26,9 +36,11 @@ gone) is known as :attr:`SceneInfo.gone`: it is shown as gone, and a decision fo
 
 from __future__ import annotations
 
+import contextlib
 import os
 import threading
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -69,6 +81,38 @@ def _stamp(path: str) -> _Stamp:
 
 class SaveError(Exception):
     """A decision could not be written; the message is one line naming the file and why."""
+
+
+class Conflict(SaveError):
+    """A pose edit or an undo was not made: another reviewer changed that part's pose
+    after the page computed its change (the message says who and when)."""
+
+
+#: ``expect`` of a pose edit that is not checked against what the file holds.
+ANY = object()
+
+#: How long a change waits for another server's lock on the scene.
+LOCK_WAIT_S = 5.0
+
+
+def same_edit(a: EditedPose | None, b: EditedPose | None) -> bool:
+    """Whether two states of a part's edit are the same one (None: no edit, the auto pose):
+    made by the same page at the same time into the same pose."""
+    if a is None or b is None:
+        return a is b
+    return (
+        a.decided_by == b.decided_by
+        and a.at == b.at
+        and np.allclose(a.R, b.R, rtol=0, atol=1e-9)
+        and np.allclose(a.t, b.t, rtol=0, atol=1e-6)
+    )
+
+
+def _describe(edit: EditedPose | None) -> str:
+    if edit is None:
+        return "put back to its auto pose"
+    who = edit.decided_by or "another reviewer"
+    return f"changed by {who}" + (f" at {edit.at}" if edit.at else "")
 
 
 @dataclass(frozen=True)
@@ -172,6 +216,9 @@ class ReviewState:
         self._cache: dict[str, tuple[tuple[_Stamp, _Stamp], SceneInfo]] = {}
         self._seen: dict[str, tuple[_Stamp, _Stamp]] = {}
         self._staged: dict[str, Staged] = {}  # scene -> its edit shown and not yet written
+        # scene -> (descriptor holding the folder's flock, how many holds): taken and given
+        # back only under self._lock, so one thread at a time holds a scene's file lock.
+        self._flocks: dict[str, list[int]] = {}
         self.started = time.time()
         self.decided = 0  # decisions made through this server
 
@@ -259,6 +306,70 @@ class ReviewState:
                 self._seen[sid] = stamps
         return changed
 
+    # ------------------------------------------------------------ locks
+    def _hold(self, sid: str) -> None:
+        """Take the scene's lock across processes (a ``flock`` on its folder), or once more
+        if this thread has it; called with ``self._lock`` held. SaveError if another server
+        keeps it longer than :data:`LOCK_WAIT_S`, or if the folder has gone."""
+        held = self._flocks.get(sid)
+        if held is not None:
+            held[1] += 1
+            return
+        folder = self._scenes[sid].path
+        try:
+            fd = os.open(folder, os.O_RDONLY)
+        except OSError:
+            raise SaveError(f"{folder}: the scene's folder is gone (deleted or moved)") from None
+        deadline = time.monotonic() + LOCK_WAIT_S
+        try:
+            import fcntl
+        except ImportError:  # not POSIX: the pages of this server are still serialised
+            self._flocks[sid] = [fd, 1]
+            return
+        while True:
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                break
+            except OSError:
+                if time.monotonic() > deadline:
+                    os.close(fd)
+                    raise SaveError(
+                        f"{folder}: another review server has kept the scene locked for "
+                        f"{LOCK_WAIT_S:g} s; try again"
+                    ) from None
+                time.sleep(0.01)
+        self._flocks[sid] = [fd, 1]
+
+    def _release(self, sid: str) -> None:
+        """Give back one hold of :meth:`_hold` (the lock goes with the last one)."""
+        held = self._flocks[sid]
+        held[1] -= 1
+        if held[1] == 0:
+            del self._flocks[sid]
+            os.close(held[0])  # closing the descriptor releases the flock
+
+    @contextlib.contextmanager
+    def _changing(self, sid: str) -> Iterator[SceneInfo]:
+        """Hold both locks of the scene while it is changed; yields it as the files say."""
+        with self._lock:
+            self._hold(sid)
+            try:
+                yield self.info(sid)
+            finally:
+                self._release(sid)
+
+    @staticmethod
+    def _check_expected(info: SceneInfo, key: str, expect: object, what: str) -> None:
+        """Conflict unless ``key``'s edit is still ``expect`` (:data:`ANY`: not checked)."""
+        if expect is ANY:
+            return
+        current = info.review.poses.get(key)
+        if not same_edit(current, expect):  # type: ignore[arg-type]
+            raise Conflict(
+                f"{key} was {_describe(current)} after your page computed this {what}; "
+                "nothing was written: look at the part as it is now"
+            )
+
     # ------------------------------------------------------------ decisions
     def _write(self, sid: str, review: Review, by: str | None, *, decision: bool = True) -> Review:
         """Write ``review``; a ``decision`` is stamped with the poses it judged, when and by
@@ -302,8 +413,7 @@ class ReviewState:
         the reason and the "no pose here" marks; accepting says every part is posed, so it
         clears them."""
         status = ReviewStatus(status)
-        with self._lock:
-            info = self.info(sid)
+        with self._changing(sid) as info:
             instances = {
                 k: v for k, v in info.review.instances.items() if v == ReviewStatus.REJECTED
             }
@@ -315,18 +425,17 @@ class ReviewState:
 
     def set_instance(self, sid: str, key: str, status: str, *, by: str | None = None) -> Review:
         """Accept or reject one instance of a scene."""
-        with self._lock:
-            info = self.info(sid)
+        with self._changing(sid) as info:
             instances = dict(info.review.instances)
             instances[key] = ReviewStatus(status)
             return self._write(sid, self._next_review(info, instances=instances), by)
 
     def toggle_instance(self, sid: str, key: str, *, by: str | None = None) -> ReviewStatus:
         """Flip one instance between accepted and rejected; return its new status."""
-        with self._lock:
+        with self._changing(sid) as info:
             new = (
                 ReviewStatus.ACCEPTED
-                if self.info(sid).instance_status(key) == ReviewStatus.REJECTED
+                if info.instance_status(key) == ReviewStatus.REJECTED
                 else ReviewStatus.REJECTED
             )
             self.set_instance(sid, key, new, by=by)
@@ -337,8 +446,7 @@ class ReviewState:
     ) -> Review:
         """Record "a part has no pose here" at ``pixel`` of ``camera``: the scene is rejected
         with that reason."""
-        with self._lock:
-            info = self.info(sid)
+        with self._changing(sid) as info:
             mark = MissingPart(camera, (round(pixel[0], 1), round(pixel[1], 1)), now_iso())
             return self._write(
                 sid,
@@ -361,9 +469,10 @@ class ReviewState:
         *,
         by: str | None = None,
         unmark: tuple[str, tuple[float, float]] | None = None,
+        expect: object = ANY,
     ) -> Review:
         """Save a repaired pose of instance ``key`` (see :meth:`stage_pose`) at once."""
-        return self.commit(self.stage_pose(sid, key, T, steps, by=by, unmark=unmark))
+        return self.commit(self.stage_pose(sid, key, T, steps, by=by, unmark=unmark, expect=expect))
 
     def stage_pose(
         self,
@@ -374,15 +483,17 @@ class ReviewState:
         *,
         by: str | None = None,
         unmark: tuple[str, tuple[float, float]] | None = None,
+        expect: object = ANY,
     ) -> Staged:
         """A repaired pose of instance ``key`` (``T``: 4x4 ``cam_T_model``, reference
         camera) made by ``steps`` from its auto pose, in memory until :meth:`commit`.
         ``unmark``: the "no pose here" mark (camera, pixel) the instance was added at, which
         it now explains (the scene goes back to pending when that was the only reason it
-        was rejected)."""
+        was rejected). ``expect``: the part's edit ``T`` was computed from (None: its auto
+        pose); :class:`Conflict` if the file holds another one now."""
         M = np.asarray(T, float)
-        with self._lock:
-            info = self.info(sid)
+        with self._changing(sid) as info:
+            self._check_expected(info, key, expect, "change")
             auto = info.auto_pose(key)
             edit = EditedPose(
                 R=M[:3, :3].copy(),
@@ -415,19 +526,33 @@ class ReviewState:
                 review.status, review.reason = ReviewStatus.PENDING, None
 
     def restore_pose(
-        self, sid: str, key: str, edit: EditedPose | None, *, by: str | None = None
+        self,
+        sid: str,
+        key: str,
+        edit: EditedPose | None,
+        *,
+        by: str | None = None,
+        expect: object = ANY,
     ) -> Review:
         """Put back an earlier state of instance ``key``'s edit at once (see
         :meth:`stage_restore`)."""
-        return self.commit(self.stage_restore(sid, key, edit, by=by))
+        return self.commit(self.stage_restore(sid, key, edit, by=by, expect=expect))
 
     def stage_restore(
-        self, sid: str, key: str, edit: EditedPose | None, *, by: str | None = None
+        self,
+        sid: str,
+        key: str,
+        edit: EditedPose | None,
+        *,
+        by: str | None = None,
+        expect: object = ANY,
     ) -> Staged:
         """An earlier state of instance ``key``'s edit (None: no edit, the auto pose), for
-        undo, redo and reset, in memory until :meth:`commit`."""
-        with self._lock:
-            info = self.info(sid)
+        undo, redo and reset, in memory until :meth:`commit`. ``expect``: the edit it
+        replaces (an undo: the page's own step); :class:`Conflict` if the file holds
+        another one now."""
+        with self._changing(sid) as info:
+            self._check_expected(info, key, expect, "undo, redo or reset")
             review = self._next_review(info)
             if edit is None:
                 review.poses.pop(key, None)
@@ -436,7 +561,7 @@ class ReviewState:
             return self._stage(sid, info, review, by)
 
     def _stage(self, sid: str, info: SceneInfo, review: Review, by: str | None) -> Staged:
-        """Hold ``review`` as the scene's state in memory; the lock stays taken (by this
+        """Hold ``review`` as the scene's state in memory; both locks stay taken (by this
         thread) until :meth:`commit`, so that no other write comes in between."""
         if info.gone or self.is_gone(sid):  # as _write would say, before anything is shown
             raise SaveError(
@@ -459,6 +584,7 @@ class ReviewState:
             by,
         )
         self._lock.acquire()
+        self._hold(sid)
         self._staged[sid] = staged
         return staged
 
@@ -473,6 +599,7 @@ class ReviewState:
                     if self._staged.get(staged.sid) is staged:
                         del self._staged[staged.sid]
         finally:
+            self._release(staged.sid)
             self._lock.release()
 
     # ----------------------------------------------------------- summaries
