@@ -63,6 +63,11 @@ def test_a_pose_moved_by_2_mm_disagrees(twin, capsys) -> None:
     assert disagreeing == {moved}
     assert main(["twin-report", str(root), str(out)]) == 0
     assert "000000" in capsys.readouterr().out
+    # Pictures never land among a dataset's own files (scene 000000's pictures in its folder).
+    for folder in (root / "scenes", out / "scenes" / "000000", root):
+        assert main(["twin-report", str(root), str(out), "--report", str(folder)]) == 2
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and "--report" in err, err
 
 
 def test_twin_bad_input(sample_copy, tmp_path, capsys) -> None:

@@ -16,6 +16,7 @@ from typing import Any
 
 from annotator.commands import number
 from annotator.errors import UserError
+from annotator.io.output_folder import check_pictures_folder
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -43,6 +44,8 @@ def run(args: argparse.Namespace) -> int:
 
     if args.tolerance <= 0 or not 0 < args.max_disagreement <= 1:
         raise UserError("--tolerance must be positive and --max-disagreement in (0, 1]")
+    if args.report:
+        check_pictures_folder(args.report, option="--report", datasets=[args.dataset, args.twin])
     result = compare_twin(
         load_dataset(args.dataset),
         load_dataset(args.twin),

@@ -137,6 +137,25 @@ def check_output_files(
                 )
 
 
+def check_pictures_folder(out: str | Path, *, option: str, datasets: Sequence[str | Path]) -> None:
+    """Raise a one-line UserError if pictures written into ``out`` could land among a
+    dataset's own files: ``out`` is a dataset read, or lies in its ``scenes/`` or
+    ``objects/`` (a scene folder holds ``<camera>.png`` files a picture could replace)."""
+    real = Path(os.path.realpath(out))
+    for d in datasets:
+        root = Path(os.path.realpath(d))
+        if real == root:
+            raise UserError(
+                f"{option} is the dataset {d} itself; choose a folder of its own", path=out
+            )
+        if root in real.parents and real.relative_to(root).parts[0] in ("scenes", "objects"):
+            raise UserError(
+                f"{option} lies in {d}/{real.relative_to(root).parts[0]}, where the dataset's "
+                "own files are; choose a folder outside it",
+                path=out,
+            )
+
+
 def write_manifest(folder: str | Path, *, command: str) -> None:
     """Mark ``folder`` as written by ``annotator <command>`` (see :func:`check_output_folder`)."""
     # No date in it: the same inputs must give the same bytes (``synth`` promises that).
