@@ -452,6 +452,8 @@ def test_the_api_names_a_wrong_type(sample_copy: Path) -> None:
         (lambda: annotator.evaluate("gt.json", None), "gt must be a GroundTruth"),
         (lambda: annotator.annotate_scene(ds, "000000", None), "scene must be a Scene"),
         (lambda: annotator.annotate_dataset(ds, scenes=3), "scenes must be an fnmatch pattern"),
+        (lambda: annotator.read_ground_truth(5), "path must be a dataset folder"),
+        (lambda: annotator.read_results("r.csv", ds), "gt must be a GroundTruth"),
     ]
     for call, message in cases:
         with pytest.raises(TypeError, match=message):

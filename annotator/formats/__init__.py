@@ -20,6 +20,7 @@ from types import ModuleType
 from annotator.errors import UserError
 from annotator.formats import bop, ours, sileane
 from annotator.formats.base import GroundTruth, Results
+from annotator.values import of_type
 
 FORMATS: dict[str, ModuleType] = {m.NAME: m for m in (ours, bop, sileane)}
 EXPORTS: tuple[str, ...] = tuple(n for n, m in FORMATS.items() if hasattr(m, "export"))
@@ -34,7 +35,7 @@ def get_format(name: str) -> ModuleType:
 
 def detect_format(path: str | Path) -> ModuleType:
     """The format of the dataset folder ``path`` (UserError if none matches)."""
-    path = Path(path)
+    path = Path(of_type(path, (str, Path), name="path", what="a dataset folder (str or Path)"))
     if not path.is_dir():
         raise UserError("dataset folder does not exist", path=path)
     for module in FORMATS.values():
@@ -55,4 +56,6 @@ def read_ground_truth(path: str | Path, *, symmetry: str | None = None) -> Groun
 def read_results(path: str | Path, gt: GroundTruth) -> Results:
     """Results to score against ``gt``: a BOP CSV or a folder of per-scene JSON lists, in
     ``gt``'s unit."""
+    of_type(path, (str, Path), name="path", what="a results file or folder (str or Path)")
+    of_type(gt, GroundTruth, name="gt", what="a GroundTruth (annotator.read_ground_truth)")
     return get_format(gt.format).read_results(Path(path), gt)
