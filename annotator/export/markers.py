@@ -130,6 +130,9 @@ class ImageMarkers:
         labels: (H, W) int32: which instance each pixel shows (the nearest posed one), -1
             for everything else (bin, table, unannotated parts).
         margin_px: How much the mask was grown.
+        normals: (H, W, 3) float32 unit normals (camera frame) of the surface ``labels``
+            names at each pixel of the mask's bounding box, 0 elsewhere: where a part's
+            faces meet at a crease.
     """
 
     camera: str
@@ -137,6 +140,7 @@ class ImageMarkers:
     mask: np.ndarray
     labels: np.ndarray
     margin_px: int
+    normals: np.ndarray | None = None
 
 
 def image_markers(
@@ -167,7 +171,35 @@ def image_markers(
         d = 2 * margin_px + 1
         disk = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (d, d))
         mask = cv2.dilate(union.astype(np.uint8), disk) > 0
-    return ImageMarkers(camera.name, regions, mask, labels, margin_px)
+    normals = _normals(camera, instances, own, labels, mask)
+    return ImageMarkers(camera.name, regions, mask, labels, margin_px, normals)
+
+
+def _normals(
+    camera: Camera,
+    instances: Sequence[MarkedInstance],
+    own: Sequence[tuple[Rect, Hits] | None],
+    labels: np.ndarray,
+    mask: np.ndarray,
+) -> np.ndarray:
+    """Per pixel near the mask, the camera-frame normal of the face of its instance the
+    pixel shows (0 on no instance)."""
+    out = np.zeros((*labels.shape, 3), np.float32)
+    if not mask.any():
+        return out
+    grown = cv2.dilate(mask.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
+    for k, (inst, cast) in enumerate(zip(instances, own)):
+        if cast is None:
+            continue
+        (x0, y0, x1, y1), hits = cast
+        sel = grown[y0:y1, x0:x1] & (labels[y0:y1, x0:x1] == k) & (hits.triangle >= 0)
+        if not sel.any():
+            continue
+        R = (camera.cam_T_rig @ inst.rig_T_model)[:3, :3]
+        rows, cols = np.nonzero(sel)
+        n = inst.mesh.face_normals[hits.triangle[rows, cols]] @ R.T
+        out[rows + y0, cols + x0] = n
+    return out
 
 
 def _marker(

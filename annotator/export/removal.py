@@ -18,7 +18,13 @@ import numpy as np
 from annotator.dataset import Dataset, InstancePose, Scene
 from annotator.errors import UserError
 from annotator.export.fill import fill_markers
-from annotator.export.markers import ImageMarkers, MarkedInstance, margin_for_blur, scene_markers
+from annotator.export.markers import (
+    DEFAULT_BLUR_PX,
+    ImageMarkers,
+    MarkedInstance,
+    margin_for_blur,
+    scene_markers,
+)
 from annotator.io.documents import read_json
 from annotator.markers.dictionary import dictionary
 from annotator.occlusion import InstanceVisibility
@@ -72,6 +78,14 @@ def scene_blur(scene: Scene) -> dict[str, float]:
     return out
 
 
+def fill_blur(measured_px: float | None) -> float:
+    """The blur (Gaussian sigma, px) given to the fill: the one ``annotate`` measured (or
+    the assumed one) less the pixel's own footprint, which the measure includes and the
+    fill's pixels already have (a pixel is a box of variance 1/12)."""
+    sigma = DEFAULT_BLUR_PX if measured_px is None else measured_px
+    return float(np.sqrt(max(sigma * sigma - 1.0 / 12.0, 0.0)))
+
+
 def remove_scene_markers(
     ds: Dataset,
     rig: Any,
@@ -90,7 +104,16 @@ def remove_scene_markers(
     vis, markers = scene_markers(
         rig, marked_instances(ds, poses), cameras=cameras, depth=depth, margin_px=margins
     )
-    filled = {
-        c: fill_markers(images[c], markers[c].mask, markers[c].labels, method=fill) for c in cameras
-    }
+    filled = {}
+    for c in cameras:
+        m = markers[c]
+        filled[c] = fill_markers(
+            images[c],
+            m.mask,
+            m.labels,
+            normals=m.normals,
+            rays=rig.camera(c).pixel_rays(),
+            blur=fill_blur(blur.get(c)),
+            method=fill,
+        )
     return SceneWithoutMarkers(filled, markers, vis)
