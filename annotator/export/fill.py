@@ -132,7 +132,7 @@ def _harmonic(
         img = img - model
         # A pixel no known pixel of its surface reaches is its part's shading where the part
         # has a model (the residual's anchor is 0), OpenCV's inpainting elsewhere.
-        modelled = model[ys, xs].any(axis=1)
+        modelled: np.ndarray = np.any(model[ys, xs] != 0, axis=1)
         base = np.where(modelled[:, None], 0.0, base)
     diag = np.full(n, ANCHOR)
     rhs = ANCHOR * base
@@ -217,8 +217,9 @@ def _shading(
             ratios.append(coef[0] / coef[1])
     ratio = np.median(np.stack(ratios), axis=0) if ratios else None
     for k, (F, v, (ey, ex)) in fits.items():
-        coef = coefs.get(k)
-        if coef is None:
+        if k in coefs:
+            coef = coefs[k]
+        else:
             if ratio is None:  # nothing pins the light down: the part's mean grey
                 coef = np.stack([v.mean(axis=0), np.zeros(v.shape[1])])
             else:

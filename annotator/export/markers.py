@@ -48,11 +48,12 @@ DEFAULT_BLUR_PX = 1.0
 
 
 def margin_for_blur(sigma_px: float | None) -> int:
-    """Pixels a mask is grown by for images of blur ``sigma_px``: the ink blurs out to about
-    two sigma (less than a grey level beyond), plus one pixel each for the undistortion's
-    bilinear resampling and the anti-aliased edge."""
+    """Pixels a mask is grown by for images of blur ``sigma_px``: the ink blurs out to three
+    sigma (a hundredth of its contrast beyond, which still turns the rounding of a grey level
+    now and then), plus one pixel each for the undistortion's bilinear resampling and the
+    anti-aliased edge."""
     sigma = DEFAULT_BLUR_PX if sigma_px is None or not math.isfinite(sigma_px) else sigma_px
-    return int(math.ceil(2.0 * max(sigma, 0.0))) + 2
+    return int(math.ceil(3.0 * max(sigma, 0.0))) + 2
 
 
 @dataclass(frozen=True)
@@ -267,7 +268,7 @@ def _marker(
         # A face seen edge-on shows its marker between pixel centres only (a sliver along
         # the part's outline that no centre ray meets): the outline's pixels inside the
         # square's projection are taken too.
-        er, ec = _outline(uv, labels, k, (x0, y0, x1, y1))
+        er, ec = _outline(uv, labels, k, (x0, y0, x1, y1), hit)
         rows, cols = np.r_[rows, er], np.r_[cols, ec]
     if len(rows):
         px = np.unique(np.stack([rows, cols], axis=1).astype(np.int32), axis=0)
@@ -283,10 +284,12 @@ def _marker(
 
 
 def _outline(
-    uv: np.ndarray, labels: np.ndarray, k: int, rect: Rect
+    uv: np.ndarray, labels: np.ndarray, k: int, rect: Rect, hit: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
     """(rows, columns) of the pixels inside the quad ``uv`` (pixels) on the outline of
-    instance ``k`` (``labels``), either side of it, within ``rect``."""
+    instance ``k`` (``labels``), either side of it, within ``rect``; ``hit``: where the
+    instance alone is hit in ``rect``. The side of an outline where another part is in front
+    (the instance is hit there, but hidden) is the occluder's, and left out."""
     x0, y0, x1, y1 = rect
     shift = 4  # fixed-point bits: the quad is rasterised to a sixteenth of a pixel
     quad = np.round((uv - [x0, y0]) * (1 << shift)).astype(np.int32)
@@ -294,7 +297,7 @@ def _outline(
     cv2.fillConvexPoly(poly, quad, 1, lineType=cv2.LINE_8, shift=shift)
     own = (labels[y0:y1, x0:x1] == k).astype(np.uint8)
     kernel = np.ones((3, 3), np.uint8)
-    edge = (cv2.dilate(own, kernel) > cv2.erode(own, kernel)) & (poly > 0)
+    edge = (cv2.dilate(own, kernel) > cv2.erode(own, kernel)) & (poly > 0) & ((own > 0) | ~hit)
     r, c = np.nonzero(edge)
     return r + y0, c + x0
 

@@ -357,7 +357,7 @@ def coco_scene(
         marker_id = marker_category(obj_ids)
         categories.append({"id": marker_id, "name": "marker", "supercategory": "marker"})
         for m in markers:
-            if not m.px_visib or m.bbox_visib is None:
+            if not len(m.pixels) or m.bbox_visib is None:
                 continue
             annotations.append(
                 {
@@ -365,7 +365,7 @@ def coco_scene(
                     "image_id": 0,
                     "category_id": marker_id,
                     "iscrowd": 0,
-                    "area": m.px_visib,
+                    "area": int(len(m.pixels)),
                     "bbox": list(m.bbox_visib),
                     "segmentation": rle(m.mask(width, height)),
                     "width": int(width),
