@@ -333,13 +333,13 @@ def test_marker_behind_another_part_is_not_erased() -> None:
 
 
 def test_fill_keeps_each_surface_its_own() -> None:
-    """Two surfaces meet inside a masked square: the surface fill gives each its own shading
-    (a gradient on one, a constant on the other) and touches nothing outside the mask;
-    OpenCV's inpainting blends them."""
+    """Two surfaces meet inside a masked square: the surface fill gives each its own grey
+    and touches nothing outside the mask; OpenCV's inpainting blends them."""
     h, w = 60, 80
     yy, xx = np.mgrid[0:h, 0:w]
     labels = np.where(xx < 40, 0, 1).astype(np.int32)
-    truth = np.where(labels == 0, 100 + 2 * yy, 220).astype(np.uint8)
+    truth = np.where(labels == 0, 90, 220).astype(np.uint8)
+    truth = truth + (np.random.default_rng(0).normal(0, 1, (h, w)) > 0)  # a little texture
     img = truth.copy()
     mask = np.zeros((h, w), bool)
     mask[20:40, 25:55] = True
@@ -348,8 +348,32 @@ def test_fill_keeps_each_surface_its_own() -> None:
     assert np.array_equal(out[~mask], img[~mask])
     assert np.abs(out[mask].astype(int) - truth[mask]).max() <= 1
     telea = fill_markers(img, mask, labels, method="telea")
-    assert np.abs(telea[mask].astype(int) - truth[mask]).max() > 20
+    assert np.array_equal(telea[~mask], img[~mask])
+    assert np.abs(telea[mask].astype(int) - truth[mask]).max() > 30
     colour = fill_markers(np.dstack([img] * 3), mask, labels)
     assert np.array_equal(colour[..., 1], out)
     wide = fill_markers(img.astype(np.uint16) * 200, mask, labels)
     assert np.abs(wide[mask].astype(int) - truth[mask].astype(int) * 200).max() <= 200
+    assert np.array_equal(fill_markers(img, np.zeros_like(mask), labels), img)
+
+
+def test_fill_carries_shading_across_a_marker() -> None:
+    """A curved surface lit from the camera (grey = 40 + 180 cos, the cosine turning fast
+    across the marker): the shading model puts back what lies under the marker, which no
+    interpolation of the border's greys does."""
+    h, w = 50, 120
+    yy, xx = np.mgrid[0:h, 0:w]
+    theta = np.radians(85.0) * xx / (w - 1)  # the normal turns from facing to edge-on
+    normals = np.dstack([np.sin(theta), np.zeros_like(theta), -np.cos(theta)]).astype(np.float32)
+    rays = np.dstack([np.zeros((h, w)), np.zeros((h, w)), np.ones((h, w))]).astype(np.float32)
+    truth = np.round(40 + 180 * np.cos(theta)).astype(np.uint8)
+    labels = np.zeros((h, w), np.int32)
+    mask = np.zeros((h, w), bool)
+    mask[10:40, 40:90] = True
+    img = truth.copy()
+    img[mask] = 5
+    model = fill_markers(img, mask, labels, normals=normals, rays=rays)
+    plain = fill_markers(img, mask, labels)
+    err_model = np.abs(model[mask].astype(int) - truth[mask]).max()
+    err_plain = np.abs(plain[mask].astype(int) - truth[mask]).max()
+    assert err_model <= 1 < 10 < err_plain

@@ -2,52 +2,45 @@
 
 Two methods, both changing only the pixels of the mask:
 
-- ``surface`` (the default): each masked pixel is filled from the pixels of its *own
-  surface* only (``labels``: which instance the pixel shows, -1 for the rest; ``normals``:
-  its face's normal, so that two faces of a part meeting at a crease are two surfaces), by
-  harmonic interpolation: the filled values solve Laplace's equation over the masked pixels,
-  equal to the known pixels of the same surface at the region's border, with no flux across
-  a boundary between surfaces. With normals (and viewing rays), what is interpolated is what
-  a shading model of each part does not explain: per part, its known pixels around the
-  regions are fitted by ``a + b (n.v)`` (Lambert's law for a light beside the camera, as a
-  bin-picking rig's projector or ring light; richer models, with the normal's three
-  components, extrapolate wildly to a face seen nowhere else), so shading that changes fast (a cylinder towards its outline) is carried
-  across a marker, not only its values at the border. The fill is then blurred as the image
-  is, so that an outline crossing a region is as soft as elsewhere. A marker next to another part's edge is thus filled with its
-  own part's shading, never with the neighbour's grey level, and a smooth shading gradient
-  across the marker is continued. Pixels whose surface shows nothing known around them
-  (a marker covering all that is visible of a part) fall back on OpenCV's inpainting.
+- ``surface`` (the default): each masked pixel is filled from its *own surface* only
+  (``labels``: which posed instance the pixel shows, -1 for the rest). Per instance, a
+  shading model ``a + b (n.v)`` (Lambert's law for a light beside the camera, as a
+  bin-picking rig's projector or ring light; ``n`` the face's normal from the pose, ``v``
+  towards the camera) is fitted on all its known pixels; one light lights every part, so a
+  part seen on one face only (its other faces under markers) borrows the others' ratio
+  ``a / b`` and fits its albedo alone. The model is what carries a face's shading across a
+  marker, and a crease between two faces, and a cylinder's fast-changing shading near its
+  outline. What it leaves (the albedo's and light's local departures from it) is carried in
+  from the region's border by a normalised convolution over the known pixels of the same
+  surface. The fill is then blurred as the image is, so that an outline crossing a region is
+  as soft as elsewhere. A marker next to another part's edge is thus filled with its own
+  part's shading, never with the neighbour's grey level. Pixels of no instance (the bin, an
+  unannotated part) get the mean of the known pixels of the same label around them.
 - ``telea``: OpenCV's ``cv2.inpaint`` (Telea's fast marching), which blends every known
   pixel around the region whatever surface it belongs to.
 
 The markers are on the part in every view and every frame, so no other camera ever sees the
-surface beneath one: its surroundings in the same image are what is known of it.
+surface beneath one: its surroundings in the same image are what is known of it. Richer
+lighting models (the normal's three components) extrapolate wildly to a face seen nowhere
+else; a harmonic interpolation of the residual (a sparse solve) was a little closer to the
+truth and several times slower (see benchmarks/bench_remove_markers.py).
 """
 
 from __future__ import annotations
 
 import cv2
 import numpy as np
-import scipy.sparse as sp
-from scipy.sparse.linalg import splu
 
 METHODS = ("surface", "telea")
 #: Radius (px) of OpenCV's inpainting neighbourhood.
 INPAINT_RADIUS = 5
-#: Weight of the inpainted image in the harmonic fill: it only decides pixels that no known
-#: pixel of their surface reaches (the system is singular without it), and is negligible
-#: against a neighbour's weight of 1 everywhere else.
-ANCHOR = 1e-4
-#: Neighbouring pixels are on one surface when their normals are within this angle (cosine):
-#: a curved part's normals turn a few degrees from a pixel to the next, a box's by 90.
-SMOOTH_COS = float(np.cos(np.radians(20.0)))
 #: A part's shading model is fitted on its known pixels (every FIT_STEP-th row and column:
 #: a part's shading varies slowly) ...
 FIT_STEP = 2
-#: ... when there are at least this many; and it is used within this distance (px) of the
-#: mask (the harmonic fill's neighbours).
+#: ... when there are at least this many; and it is evaluated within this distance (px) of
+#: the mask, where what it leaves is read.
 MIN_FIT_PIXELS = 30
-NEAR_PX = 2
+NEAR_PX = 8
 
 
 def fill_markers(
@@ -62,22 +55,22 @@ def fill_markers(
 ) -> np.ndarray:
     """``image`` (H, W) or (H, W, C), 8 or 16 bit, with the pixels of ``mask`` filled; every
     other pixel is returned as it was. For the ``surface`` method: ``labels`` (H, W), the
-    surface each pixel shows (None: one surface), ``normals`` (H, W, 3), its unit normal
-    (0: unknown, joins nothing but its own label), ``rays`` (H, W, 3), the viewing ray through
-    each pixel (any length), and ``blur``, the image's blur (Gaussian sigma, px)."""
+    instance each pixel shows (-1: none; None: one surface), ``normals`` (H, W, 3), the unit
+    normal (camera frame) of its face (0: unknown; None: no shading model), ``rays``
+    (H, W, 3), the viewing ray through each pixel (any length; None: along z), and ``blur``,
+    the image's blur (Gaussian sigma, px)."""
     if method not in METHODS:
         raise ValueError(f"unknown fill method {method!r} (expected one of {', '.join(METHODS)})")
     out = image.copy()
     if not mask.any():
         return out
-    telea = _telea(image, mask)
     if method == "telea":
-        out[mask] = telea[mask]
+        out[mask] = _telea(image, mask)[mask]
         return out
     if labels is None:
         labels = np.zeros(mask.shape, np.int32)
     model = None if normals is None else _shading(image, mask, labels, normals, rays)
-    filled = _harmonic(image, mask, labels, normals, model, telea)
+    filled = _spread(image, mask, labels, model, _surroundings(image, mask))
     if blur > 0:
         # Blur the filled pixels with their neighbourhood (already blurred as the camera
         # blurs): the outlines the fill draws hard are made as soft as the image's.
@@ -89,6 +82,25 @@ def fill_markers(
     if info is not None:
         filled = np.clip(np.round(filled), info.min, info.max)
     out[mask] = filled.astype(image.dtype).reshape(out[mask].shape)
+    return out
+
+
+#: Gaussian sigma (px) of the average of the known pixels around a region.
+SURROUNDINGS_PX = 6.0
+
+
+def _surroundings(image: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """(H, W, C) float32: at each pixel, the Gaussian-weighted mean of the known pixels
+    around it, whatever their surface (the fill of a pixel its own surface does not reach)."""
+    known = (~mask).astype(np.float32)
+    img = image.reshape(*mask.shape, -1).astype(np.float32)
+    d = int(4 * SURROUNDINGS_PX) | 1
+    weight = cv2.GaussianBlur(known, (d, d), SURROUNDINGS_PX)
+    out = np.empty_like(img)
+    for ch in range(img.shape[2]):
+        total = cv2.GaussianBlur(img[..., ch] * known, (d, d), SURROUNDINGS_PX)
+        mean = np.divide(total, weight, out=np.zeros_like(total), where=weight > 1e-6)
+        out[..., ch] = mean
     return out
 
 
@@ -108,66 +120,6 @@ def _telea(image: np.ndarray, mask: np.ndarray) -> np.ndarray:
         info = np.iinfo(image.dtype)
         res = np.clip(np.round(res), info.min, info.max)
     return res.astype(image.dtype)
-
-
-def _harmonic(
-    image: np.ndarray,
-    mask: np.ndarray,
-    labels: np.ndarray,
-    normals: np.ndarray | None,
-    model: np.ndarray | None,
-    anchor: np.ndarray,
-) -> np.ndarray:
-    """(N, C) float64 values of the masked pixels (row-major order): ``model`` (H, W, C)
-    plus the harmonic interpolation of what it leaves (None: of the image itself)."""
-    h, w = mask.shape
-    ys, xs = np.nonzero(mask)
-    n = len(ys)
-    index = np.full((h, w), -1, np.int64)
-    index[ys, xs] = np.arange(n)
-    img = image.reshape(h, w, -1).astype(np.float64)
-    channels = img.shape[2]
-    base = anchor.reshape(h, w, -1)[ys, xs].astype(np.float64)
-    if model is not None:
-        img = img - model
-        # A pixel no known pixel of its surface reaches is its part's shading where the part
-        # has a model (the residual's anchor is 0), OpenCV's inpainting elsewhere.
-        modelled: np.ndarray = np.any(model[ys, xs] != 0, axis=1)
-        base = np.where(modelled[:, None], 0.0, base)
-    diag = np.full(n, ANCHOR)
-    rhs = ANCHOR * base
-    rows: list[np.ndarray] = []
-    cols: list[np.ndarray] = []
-    own = labels[ys, xs]
-    for dy, dx in ((-1, 0), (1, 0), (0, -1), (0, 1)):
-        qy, qx = ys + dy, xs + dx
-        inside = (qy >= 0) & (qy < h) & (qx >= 0) & (qx < w)
-        qy_c, qx_c = np.clip(qy, 0, h - 1), np.clip(qx, 0, w - 1)
-        same = inside & (labels[qy_c, qx_c] == own)
-        if normals is not None:
-            np_, nq = normals[ys, xs], normals[qy_c, qx_c]
-            unknown_normal = ~np_.any(axis=1) | ~nq.any(axis=1)
-            same &= unknown_normal | ((np_ * nq).sum(axis=1) > SMOOTH_COS)
-        q = index[qy_c, qx_c]
-        unknown = same & (q >= 0)
-        known = same & (q < 0)
-        diag += same
-        rows.append(np.flatnonzero(unknown))
-        cols.append(q[unknown])
-        k = np.flatnonzero(known)
-        rhs[k] += img[qy_c[k], qx_c[k]]
-    r = np.concatenate(rows)
-    c = np.concatenate(cols)
-    A = sp.csc_matrix(
-        (
-            np.concatenate([diag, -np.ones(len(r))]),
-            (np.r_[np.arange(n), r], np.r_[np.arange(n), c]),
-        ),
-        shape=(n, n),
-    )
-    solve = splu(A)
-    out = np.stack([solve.solve(rhs[:, ch]) for ch in range(channels)], axis=1)
-    return out if model is None else out + model[ys, xs]
 
 
 def _shading(
@@ -255,3 +207,58 @@ def _features(n: np.ndarray, rays: np.ndarray | None) -> np.ndarray:
     else:
         cos = -n[:, 2]
     return np.stack([np.ones(len(n)), cos], axis=1).astype(np.float64)
+
+
+#: Gaussian sigma (px) of the normalised convolution that carries what the model leaves (or
+#: the image itself, on a surface without one) in from a region's border.
+SPREAD_PX = 6.0
+
+
+def _spread(
+    image: np.ndarray,
+    mask: np.ndarray,
+    labels: np.ndarray,
+    model: np.ndarray | None,
+    fallback: np.ndarray,
+) -> np.ndarray:
+    """(N, C) float64 values of the masked pixels (row-major order): ``model`` plus the
+    Gaussian-weighted mean of what it leaves at the known pixels of the same surface around
+    (normalised convolution, per surface); where none is near, the model alone, or
+    ``fallback`` for a surface without one."""
+    h, w = mask.shape
+    img = image.reshape(h, w, -1).astype(np.float32)
+    res = img if model is None else img - model.astype(np.float32)
+    out = np.zeros((h, w, img.shape[2]), np.float32)
+    pad = int(np.ceil(4 * SPREAD_PX))
+    d = 2 * pad + 1
+    n, comp, stats, _ = cv2.connectedComponentsWithStats(mask.astype(np.uint8), connectivity=8)
+    for i in range(1, n):
+        x, y, bw, bh, _ = stats[i]
+        x0, y0 = max(x - pad, 0), max(y - pad, 0)
+        x1, y1 = min(x + bw + pad, w), min(y + bh + pad, h)
+        sub = (slice(y0, y1), slice(x0, x1))
+        region = comp[sub] == i
+        lab, known_all = labels[sub], ~mask[sub]
+        defined = None if model is None else np.any(model[sub] != 0, axis=2)
+        for L in np.unique(lab[region]):
+            todo = region & (lab == L)
+            modelled = defined is not None and bool(np.any(defined[todo]))
+            # A modelled surface's residual is known only where the model is evaluated.
+            known = (known_all & (lab == L) & (defined if modelled else True)).astype(np.float32)
+            weight = cv2.GaussianBlur(known, (d, d), SPREAD_PX)[todo]
+            spread = np.stack(
+                [
+                    cv2.GaussianBlur(res[sub][..., ch] * known, (d, d), SPREAD_PX)[todo]
+                    for ch in range(img.shape[2])
+                ],
+                axis=1,
+            )
+            far = weight < 1e-6
+            val = spread / np.maximum(weight, 1e-6)[:, None]
+            if modelled:
+                val[far] = 0.0
+            else:
+                val[far] = fallback[sub][todo][far]
+            out[sub][todo] = val
+    values = out[mask].astype(np.float64)
+    return values if model is None else values + model[mask]

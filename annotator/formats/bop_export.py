@@ -316,6 +316,25 @@ def rle(mask: np.ndarray) -> dict[str, Any]:
     return {"counts": code["counts"].decode("ascii"), "size": [int(s) for s in code["size"]]}
 
 
+def rle_of_pixels(pixels: np.ndarray, width: int, height: int) -> dict[str, Any]:
+    """:func:`rle` of the mask of ``pixels`` ((N, 2) ``(row, column)``, no repeats), from
+    the pixels themselves: a marker's few hundred pixels, not a full image per marker."""
+    idx = np.sort(pixels[:, 1].astype(np.int64) * height + pixels[:, 0])
+    # Column-major runs: zeros before the first pixel, then alternating ones and zeros.
+    starts = np.flatnonzero(np.r_[True, np.diff(idx) != 1])
+    ends = np.r_[starts[1:], len(idx)]
+    counts: list[int] = []
+    pos = 0
+    for a, b in zip(starts, ends):
+        first = int(idx[a])
+        counts += [first - pos, int(b - a)]
+        pos = first + int(b - a)
+    if pos < height * width:  # (pycocotools writes no empty last run)
+        counts.append(height * width - pos)
+    code = coco_mask.frPyObjects({"counts": counts, "size": [height, width]}, height, width)
+    return {"counts": code["counts"].decode("ascii"), "size": [int(s) for s in code["size"]]}
+
+
 def coco_scene(
     instances: list[tuple[int, np.ndarray, np.ndarray, float]],
     file_name: str,
@@ -367,7 +386,7 @@ def coco_scene(
                     "iscrowd": 0,
                     "area": int(len(m.pixels)),
                     "bbox": list(m.bbox_visib),
-                    "segmentation": rle(m.mask(width, height)),
+                    "segmentation": rle_of_pixels(m.pixels, width, height),
                     "width": int(width),
                     "height": int(height),
                     "ignore": False,

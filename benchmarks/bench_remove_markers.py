@@ -1,0 +1,151 @@
+"""``export --remove-markers`` on synthetic twins: the same scenes rendered with and without
+markers (``synth --no-markers``, same seed), 1280x1024, two cameras.
+
+Prints the markers OpenCV's ArUco detector finds in the exported images before and after,
+the PSNR inside the marker regions against the bare render (the marked image, our fill and
+OpenCV's inpainting), whether every pixel outside the regions is byte for byte the plain
+export's and the bare render's, and the time of the whole ``annotator export`` process with
+``--remove-markers`` over a plain one (target: at most 2x).
+
+    .venv/bin/python benchmarks/bench_remove_markers.py [--scenes 4]
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+SYNTH = ["--parts", "bracket,brick,cylinder", "--instances", "10-16", "--seed", "11", "--quiet"]
+EXPORT = ["--format", "bop", "--poses", "gt", "--include-pending", "--quiet"]
+
+
+def _annotator(*args: str) -> float:
+    t0 = time.perf_counter()
+    subprocess.run([sys.executable, "-m", "annotator", *args], check=True)
+    return time.perf_counter() - t0
+
+
+def _read(path: Path) -> np.ndarray:
+    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if img is None:
+        raise SystemExit(f"cannot read {path}")
+    return img
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--scenes", type=int, default=4)
+    ap.add_argument("--repeat", type=int, default=3, help="timed runs of each export")
+    opts = ap.parse_args()
+    with tempfile.TemporaryDirectory() as tmp:
+        base = Path(tmp)
+        n = ["--scenes", str(opts.scenes)]
+        _annotator("synth", str(base / "marked"), *SYNTH, *n)
+        _annotator("synth", str(base / "bare"), *SYNTH, *n, "--no-markers")
+        _annotator("export", str(base / "marked"), str(base / "bare_bop"), *EXPORT)
+        _annotator(
+            "export",
+            str(base / "marked"),
+            str(base / "telea"),
+            *EXPORT,
+            "--remove-markers",
+            "--marker-fill",
+            "telea",
+        )
+        plain_t, removed_t = [], []
+        for _ in range(opts.repeat):  # alternated, so that a busy machine weighs on both
+            for out, extra, times in (
+                ("plain", [], plain_t),
+                ("removed", ["--remove-markers"], removed_t),
+            ):
+                times.append(
+                    _annotator(
+                        "export",
+                        str(base / "marked"),
+                        str(base / out),
+                        *EXPORT,
+                        *extra,
+                        "--overwrite",
+                    )
+                )
+        _annotator("export", str(base / "bare"), str(base / "bare_bop"), *EXPORT, "--overwrite")
+        _report(base, plain_t, removed_t)
+
+
+def _report(base: Path, plain_t: list[float], removed_t: list[float]) -> None:
+    d = cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_4X4_1000)
+    det = cv2.aruco.ArucoDetector(d, cv2.aruco.DetectorParameters(), cv2.aruco.RefineParameters())
+
+    def found(img: np.ndarray) -> set[int]:
+        _, ids, _ = det.detectMarkers(img)
+        return set() if ids is None else set(np.asarray(ids).reshape(-1).tolist())
+
+    counts = {"marked": 0, "removed": 0, "telea": 0, "bare_bop": 0}
+    # ArUco now and then reads an id in the parts' own edges: the bare render has those too.
+    not_bare = {"removed": 0, "telea": 0}
+    err = {"marked": 0.0, "removed": 0.0, "telea": 0.0}
+    pixels = images = 0
+    identical = {"plain export": True, "bare render": True}
+    for f in sorted((base / "plain" / "test").glob("*/gray_*/000000.png")):
+        rel = f.relative_to(base / "plain")
+        cam = rel.parent.name[len("gray") :]
+        mask = _read(base / "removed" / rel.parents[1] / f"mask_markers{cam}" / "000000.png") > 0
+        img = {
+            "marked": _read(f),
+            **{k: _read(base / k / rel) for k in ("removed", "telea", "bare_bop")},
+        }
+        bare = img["bare_bop"].astype(np.float64)
+        ids = {k: found(img[k]) for k in counts}
+        for k in counts:
+            counts[k] += len(ids[k])
+        for k in not_bare:
+            not_bare[k] += len(ids[k] - ids["bare_bop"])
+        for k in err:
+            err[k] += float(np.sum((img[k][mask] - bare[mask]) ** 2))
+        pixels += int(mask.sum())
+        images += 1
+        identical["plain export"] &= bool(
+            np.array_equal(img["removed"][~mask], img["marked"][~mask])
+        )
+        identical["bare render"] &= bool(
+            np.array_equal(img["removed"][~mask], img["bare_bop"][~mask])
+        )
+    h, w = img["marked"].shape[:2]
+
+    def psnr(k: str) -> float:
+        return 10 * np.log10(255.0**2 * pixels / err[k])
+
+    print(
+        f"remove markers: {images} images ({w}x{h}), {pixels / images:.0f} px of marker "
+        f"regions per image ({100 * pixels / images / (w * h):.1f} %)"
+    )
+    print(
+        f"  ArUco markers found: {counts['marked']} in the plain export, "
+        f"{counts['removed']} after --remove-markers ({not_bare['removed']} not also in the bare "
+        f"render: target 0), {counts['telea']} with --marker-fill telea "
+        f"({not_bare['telea']}), {counts['bare_bop']} in the bare render"
+    )
+    print(
+        "  PSNR in the regions against the bare render: "
+        f"marked {psnr('marked'):.1f} dB -> filled {psnr('removed'):.1f} dB "
+        f"(OpenCV's inpainting: {psnr('telea'):.1f} dB)"
+    )
+    for k, v in identical.items():
+        print(f"  outside the regions, byte-identical to the {k}: {'yes' if v else 'NO'}")
+    p, r = statistics.median(plain_t), statistics.median(removed_t)
+    print(
+        f"  annotator export, whole process (median of {len(plain_t)}): plain {p:.2f} s, "
+        f"--remove-markers {r:.2f} s: ratio {r / p:.2f} (target 2)"
+    )
+
+
+if __name__ == "__main__":
+    main()
