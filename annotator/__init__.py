@@ -10,14 +10,20 @@ same functions: the same options give the same numbers.
 ['bracket', 'brick', 'cylinder']
 
 The records are dataclasses (:class:`Dataset`, :class:`SceneAnnotation`,
-:class:`GroundTruth`, :class:`Report`...); lengths are millimetres and a pose maps model to
-camera, ``x_cam = R @ x_model + t`` (docs/FORMAT.md).
+:class:`GroundTruth`, :class:`EvaluationReport`...); lengths are millimetres and a pose maps
+model to camera, ``x_cam = R @ x_model + t`` (docs/FORMAT.md).
+
+The public names are the keys of ``_HOMES`` below, the one list of them: it drives the lazy
+import here and ``__all__``, and ``__init__.pyi`` (the types a checker reads, shipped with
+``py.typed``) must import the same names from the same modules (``tests/test_api.py``
+checks it).
 """
 
 from __future__ import annotations
 
 import importlib
-from typing import TYPE_CHECKING, Any
+import warnings
+from typing import Any
 
 #: Public name -> the module that defines it.
 _HOMES = {
@@ -30,71 +36,64 @@ _HOMES = {
     "InstancePose": "annotator.dataset",
     "SceneAnnotation": "annotator.dataset.annotation",
     "InstanceAnnotation": "annotator.dataset.annotation",
+    "MarkerUse": "annotator.dataset.annotation",
+    "Reprojection": "annotator.dataset.annotation",
+    "DepthCheck": "annotator.dataset.annotation",
+    "Occlusion": "annotator.dataset.annotation",
     "SceneWarning": "annotator.dataset.annotation",
+    "DepthRegion": "annotator.dataset.annotation",
     "Flag": "annotator.dataset.annotation",
     "WarningKind": "annotator.dataset.annotation",
     "ReviewStatus": "annotator.dataset.review",
     "check_dataset": "annotator.dataset.check",
+    "CheckReport": "annotator.dataset.check",
+    "Problem": "annotator.dataset",
     # marker detection and auto-annotation
     "MarkerDetector": "annotator.detection",
     "annotate_scene": "annotator.annotation.scene",
-    "Settings": "annotator.annotation.settings",
+    "AnnotateSettings": "annotator.annotation.settings",
     "SceneResult": "annotator.annotation.scene",
     "annotate_dataset": "annotator.annotation.batch",
     "AnnotateSummary": "annotator.annotation.batch",
-    "FLAGS": "annotator.annotation",
     # evaluation
     "read_ground_truth": "annotator.formats",
     "read_results": "annotator.formats",
     "annotations_as_results": "annotator.formats.ours",
     "GroundTruth": "annotator.formats.base",
-    "Results": "annotator.formats.base",
+    "PoseResults": "annotator.formats.base",
     "evaluate": "annotator.evaluation.evaluate",
-    "Options": "annotator.evaluation.evaluate",
-    "Report": "annotator.evaluation.evaluate",
+    "EvaluationOptions": "annotator.evaluation.evaluate",
+    "EvaluationReport": "annotator.evaluation.evaluate",
     # export
     "export_dataset": "annotator.formats.exporting",
     "ExportSummary": "annotator.formats.exporting",
     # errors
     "UserError": "annotator.errors",
+    "BadValue": "annotator.values",
 }
 
-__all__ = [
-    "AnnotateSummary",
-    "Dataset",
-    "ExportSummary",
-    "FLAGS",
-    "Flag",
-    "GroundTruth",
-    "InstanceAnnotation",
-    "InstancePose",
-    "MarkerDetector",
-    "ObjectModel",
-    "Options",
-    "Report",
-    "Results",
-    "ReviewStatus",
-    "Rig",
-    "Scene",
-    "SceneAnnotation",
-    "SceneResult",
-    "SceneWarning",
-    "Settings",
-    "UserError",
-    "WarningKind",
-    "annotate_dataset",
-    "annotate_scene",
-    "annotations_as_results",
-    "check_dataset",
-    "evaluate",
-    "export_dataset",
-    "load_dataset",
-    "read_ground_truth",
-    "read_results",
-]
+#: Names of an earlier release -> their new name (they still work, with a DeprecationWarning).
+_RENAMED = {
+    "Settings": "AnnotateSettings",
+    "Options": "EvaluationOptions",
+    "Report": "EvaluationReport",
+    "Results": "PoseResults",
+}
+
+__all__ = sorted(_HOMES)
 
 
 def __getattr__(name: str) -> Any:
+    if name in _RENAMED or name == "FLAGS":
+        new = _RENAMED.get(name, "Flag")
+        warnings.warn(
+            f"annotator.{name} is now annotator.{new}"
+            + (" (list(annotator.Flag) for every flag)" if name == "FLAGS" else ""),
+            DeprecationWarning,
+            stacklevel=2,
+        )
+        value = __getattr__(new)
+        return tuple(value) if name == "FLAGS" else value
     home = _HOMES.get(name)
     if home is None:
         raise AttributeError(f"module 'annotator' has no attribute {name!r}")
@@ -105,27 +104,3 @@ def __getattr__(name: str) -> Any:
 
 def __dir__() -> list[str]:
     return list(__all__)
-
-
-if TYPE_CHECKING:
-    from annotator.annotation import FLAGS
-    from annotator.annotation.batch import AnnotateSummary, annotate_dataset
-    from annotator.annotation.scene import SceneResult, annotate_scene
-    from annotator.annotation.settings import Settings
-    from annotator.dataset import Dataset, InstancePose, ObjectModel, Rig, Scene, load_dataset
-    from annotator.dataset.annotation import (
-        Flag,
-        InstanceAnnotation,
-        SceneAnnotation,
-        SceneWarning,
-        WarningKind,
-    )
-    from annotator.dataset.check import check_dataset
-    from annotator.dataset.review import ReviewStatus
-    from annotator.detection import MarkerDetector
-    from annotator.errors import UserError
-    from annotator.evaluation.evaluate import Options, Report, evaluate
-    from annotator.formats import read_ground_truth, read_results
-    from annotator.formats.base import GroundTruth, Results
-    from annotator.formats.exporting import ExportSummary, export_dataset
-    from annotator.formats.ours import annotations_as_results

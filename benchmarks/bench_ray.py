@@ -31,9 +31,7 @@ import tempfile
 import time
 from pathlib import Path
 
-# The throwaway local cluster is test support code: it lives beside the tests.
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
-from local_cluster import LocalCluster  # noqa: E402
+from devkit.local_cluster import LocalCluster
 
 SAMPLE = Path(__file__).resolve().parent.parent / "sample_scenes"
 ANNOTATOR = str(Path(sys.executable).parent / "annotator")

@@ -39,15 +39,13 @@ import threading
 import time
 from pathlib import Path
 
+import cv2
+import numpy as np
+
+from devkit.headless import free_port, launch_chromium
+from viewer.app import ReviewApp
+
 ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "tests"))  # headless: the browser tests' Chromium
-
-import cv2  # noqa: E402
-import numpy as np  # noqa: E402
-from headless import free_port, launch_chromium  # noqa: E402
-
-from viewer.app import ReviewApp  # noqa: E402
 
 SAMPLE = ROOT / "sample_scenes"
 SWITCHES = 20

@@ -16,16 +16,14 @@ the last page left). Target: after the pages leave, within 0.5 GB of before.
 from __future__ import annotations
 
 import shutil
-import sys
 import tempfile
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT))
+from devkit.served import ReviewProcess
+from devkit.wire import drop, open_page
 
-from viewer.served import ReviewProcess  # noqa: E402
-from viewer.wire import drop, open_page  # noqa: E402
+ROOT = Path(__file__).resolve().parent.parent
 
 SAMPLE = ROOT / "sample_scenes"
 HUGE = 30000

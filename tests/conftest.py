@@ -1,6 +1,7 @@
-"""Shared fixtures: copies of the committed sample dataset (tests never write into it); and the
-``slow`` mark on the modules that a developer's inner loop (``make test-fast``) leaves out:
-Ray clusters, calibration captures, sites measured over many scenes, real browsers."""
+"""Shared fixtures: copies of the committed sample dataset (tests never write into it), the
+browser. Modules that a developer's inner loop (``make test-fast``) leaves out mark
+themselves ``slow`` (``pytestmark``): Ray clusters, calibration captures, sites measured over
+many scenes, real browsers."""
 
 from __future__ import annotations
 
@@ -11,18 +12,13 @@ import pytest
 
 SAMPLE = Path(__file__).resolve().parent.parent / "sample_scenes"
 
-#: Test modules marked ``slow`` as a whole (the browser tests are, through their fixture).
-SLOW_MODULES = {
-    "test_ray.py",
-    "test_calibrate.py",
-    "test_calibrate_boards.py",
-    "test_sites.py",
-}
+#: Modules marked slow here until they say so themselves (their own ``pytestmark``).
+SLOW_MODULES = {"test_calibrate.py", "test_calibrate_boards.py"}
 
 
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     for item in items:
-        if item.path.name in SLOW_MODULES or "browser" in getattr(item, "fixturenames", ()):
+        if item.path.name in SLOW_MODULES:
             item.add_marker(pytest.mark.slow)
 
 
@@ -44,7 +40,7 @@ def sample() -> Path:
 def browser():
     """Debian's Chromium, headless, driven by Playwright (the browser tests' one browser)."""
     playwright = pytest.importorskip("playwright.sync_api")
-    from headless import launch_chromium
+    from devkit.headless import launch_chromium
 
     with playwright.sync_playwright() as pw:
         b = launch_chromium(pw)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import importlib
 import json
 import re
 import shutil
@@ -34,11 +35,46 @@ def test_the_readme_example_runs(sample: Path, tmp_path: Path, monkeypatch, caps
     assert (tmp_path / "sample_bop" / "models" / "models_info.json").is_file()
 
 
+def _own_doc(value: object) -> str:
+    """The docstring written for ``value`` itself: not a dataclass's generated signature
+    (``Name(a: int, b: str)``), nor one inherited from a base class or an enum's."""
+    doc = (value.__dict__.get("__doc__") if isinstance(value, type) else value.__doc__) or ""
+    if isinstance(value, type) and doc.startswith(f"{value.__name__}("):
+        return ""
+    return doc.strip()
+
+
 def test_every_public_name_is_there_and_documented() -> None:
     for name in annotator.__all__:
         value = getattr(annotator, name)
-        if callable(value):
-            assert (value.__doc__ or "").strip(), name
+        assert getattr(value, "__module__", "").startswith("annotator"), name
+        assert len(_own_doc(value)) >= 20, f"annotator.{name} has no docstring of its own"
+
+
+def test_one_list_of_public_names_drives_the_imports_and_the_types() -> None:
+    import ast
+
+    stub = ast.parse((ROOT / "annotator" / "__init__.pyi").read_text())
+    typed = {
+        alias.asname: (node.module, alias.name)
+        for node in stub.body
+        if isinstance(node, ast.ImportFrom)
+        for alias in node.names
+    }
+    homes = annotator._HOMES
+    assert typed == {name: (module, name) for name, module in homes.items()}
+    assert annotator.__all__ == sorted(homes) and set(dir(annotator)) == set(homes)
+    for name, module in homes.items():  # each name is defined (or re-exported) where it says
+        assert getattr(importlib.import_module(module), name) is getattr(annotator, name)
+    assert (ROOT / "annotator" / "py.typed").is_file()
+
+
+def test_the_names_of_an_earlier_release_still_work_with_a_warning() -> None:
+    for old, new in [("Settings", "AnnotateSettings"), ("Options", "EvaluationOptions")]:
+        with pytest.warns(DeprecationWarning, match=f"annotator.{old} is now annotator.{new}"):
+            assert getattr(annotator, old) is getattr(annotator, new)
+    with pytest.warns(DeprecationWarning, match="annotator.FLAGS"):
+        assert annotator.FLAGS == tuple(annotator.Flag)
 
 
 def _cli(*args: str) -> dict:
@@ -85,7 +121,7 @@ def test_evaluate_cli_is_the_api(copies: tuple[Path, Path], tmp_path: Path) -> N
     )
     gt = annotator.read_ground_truth(api)
     results = annotator.annotations_as_results(api, gt)
-    from_api = annotator.evaluate(gt, results, annotator.Options(max_results=(1, 3))).to_json()
+    from_api = annotator.evaluate(gt, results, annotator.EvaluationOptions(max_results=(1, 3))).to_json()
     assert json.loads(report.read_text()) == json.loads(json.dumps(from_api))
 
 

@@ -254,6 +254,8 @@ def test_export_files_for_bop_tools(export: Path) -> None:
         assert ann["ignore"] == (info[k]["visib_fract"] < 0.1)
 
 
+# webdataset's tar reader leaves the shard's file for the garbage collector to close.
+@pytest.mark.filterwarnings("ignore::ResourceWarning", "ignore::pytest.PytestUnraisableExceptionWarning")
 def test_webdataset_layout(sample: Path, tmp_path: Path, export: Path) -> None:
     import webdataset as wds
 

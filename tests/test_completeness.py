@@ -11,7 +11,7 @@ import pytest
 import yaml
 
 from annotator.annotation.completeness import exposure, quality_warnings
-from annotator.annotation.scene import Settings, annotate_scene
+from annotator.annotation.scene import AnnotateSettings, annotate_scene
 from annotator.annotation.unexplained import unexplained_depth
 from annotator.annotation.visibility import render_poses
 from annotator.cli import main
@@ -180,7 +180,7 @@ def test_flags_stay_honest_on_clean_scenes(sample) -> None:
     unflagged = total = covered = with_truth = 0
     for scene in ds.scenes():
         truth = {p.key: p for p in read_poses(scene.gt_path)}
-        ann = annotate_scene(ds, scene, det, settings=Settings()).annotation
+        ann = annotate_scene(ds, scene, det, settings=AnnotateSettings()).annotation
         assert not ann.warnings, (scene.id, ann.warnings)
         for i in ann.instances:
             total += 1

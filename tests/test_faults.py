@@ -117,12 +117,11 @@ def _killed_while_building(out: Path) -> None:
         "    print('building', flush=True)\n"
         "    time.sleep(60)\n"
     )
-    proc = subprocess.Popen([sys.executable, "-c", code, str(out)], stdout=subprocess.PIPE)
-    try:
-        assert proc.stdout is not None and proc.stdout.readline() == b"building\n"
-    finally:
-        proc.kill()
-        proc.wait()
+    with subprocess.Popen([sys.executable, "-c", code, str(out)], stdout=subprocess.PIPE) as proc:
+        try:
+            assert proc.stdout is not None and proc.stdout.readline() == b"building\n"
+        finally:
+            proc.kill()
 
 
 def test_abandoned_temporary_folders_are_removed(tmp_path) -> None:
@@ -266,7 +265,13 @@ def test_no_worker_survives_its_parent(sample_copy, sig, code) -> None:
     for p in scenes.glob("*/annotation.json"):
         p.unlink()
     cmd = [sys.executable, "-m", "annotator", "annotate", str(sample_copy), "--workers", "2"]
-    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    with subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE) as proc:
+        _stop_in_the_middle(proc, sig, code)
+    assert sum(1 for _ in scenes.glob("*/annotation.json")) < 24  # it really was stopped
+
+
+def _stop_in_the_middle(proc: subprocess.Popen[bytes], sig: int, code: int) -> None:
+    """Send ``sig`` once both workers run; the parent exits with ``code`` and takes them."""
     try:
         deadline = time.time() + 120
         workers: set[int] = set()
@@ -282,7 +287,6 @@ def test_no_worker_survives_its_parent(sample_copy, sig, code) -> None:
     finally:
         if proc.poll() is None:
             proc.kill()
-    assert sum(1 for _ in scenes.glob("*/annotation.json")) < 24  # it really was stopped
 
 
 # ----------------------------------------------------------------------------- 4. modes

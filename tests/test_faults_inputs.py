@@ -372,6 +372,8 @@ def test_a_killed_writers_temporary_file_is_removed_by_the_next_write(tmp_path: 
     dead = _start_writer(folder / "review.json")
     dead.send_signal(signal.SIGKILL)
     dead.wait()
+    assert dead.stdout is not None
+    dead.stdout.close()
     try:
         left = [p for p in _temporaries(folder) if p.name.startswith(".review.json.")]
         assert len(left) == 1
@@ -390,7 +392,7 @@ def test_a_killed_writers_temporary_file_is_removed_by_the_next_write(tmp_path: 
         assert (folder / "review.json").read_text() == "new"
     finally:
         live.kill()
-        live.wait()
+        live.communicate()
 
 
 def test_files_written_together_are_finished_after_a_kill(sample_copy: Path, monkeypatch) -> None:
@@ -431,9 +433,9 @@ def test_a_corrupt_journal_is_one_line(sample_copy: Path, capsys) -> None:
 def test_the_api_refuses_what_the_commands_refuse(sample_copy: Path, capsys) -> None:
     cases = [
         (lambda: annotator.annotate_dataset(sample_copy, workers=-1), ["annotate", str(sample_copy), "--workers", "-1"]),
-        (lambda: annotator.Options(max_occlusion=-1), ["evaluate", str(sample_copy), "--max-occlusion", "-1"]),
-        (lambda: annotator.Options(threshold_mm=float("nan")), ["evaluate", str(sample_copy), "--threshold", "nan"]),
-        (lambda: annotator.Options(max_results=(0,)), ["evaluate", str(sample_copy), "-n", "0"]),
+        (lambda: annotator.EvaluationOptions(max_occlusion=-1), ["evaluate", str(sample_copy), "--max-occlusion", "-1"]),
+        (lambda: annotator.EvaluationOptions(threshold_mm=float("nan")), ["evaluate", str(sample_copy), "--threshold", "nan"]),
+        (lambda: annotator.EvaluationOptions(max_results=(0,)), ["evaluate", str(sample_copy), "-n", "0"]),
     ]  # fmt: skip
     for call, args in cases:
         with pytest.raises(UserError) as info:

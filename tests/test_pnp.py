@@ -133,7 +133,7 @@ def _fake_dataset(cams):
 
 def test_a_mislabeled_marker_is_rejected_and_flagged() -> None:
     from annotator.annotation.consensus import pose_instance
-    from annotator.annotation.settings import Settings
+    from annotator.annotation.settings import AnnotateSettings
 
     rng = np.random.default_rng(11)
     cams = _rig()
@@ -144,7 +144,7 @@ def test_a_mislabeled_marker_is_rejected_and_flagged() -> None:
     other = make_transform(T[:3, :3], T[:3, 3] + [40.0, 10.0, 0.0])
     uv = cams[0].project(sites[2] @ other[:3, :3].T + other[:3, 3])
     obs = [o if (o.camera, o.marker_id) != (0, 2) else Observation(0, 2, sites[2], uv) for o in obs]
-    r = pose_instance(_fake_dataset(cams), "box", "01", obs, Settings())
+    r = pose_instance(_fake_dataset(cams), "box", "01", obs, AnnotateSettings())
     assert np.abs(r.T[:3, 3] - T[:3, 3]).max() < 0.5
     assert r.markers["left"].rejected == [2]
     assert 2 in r.markers["right"].used
@@ -153,7 +153,7 @@ def test_a_mislabeled_marker_is_rejected_and_flagged() -> None:
 
 def test_an_id_seen_twice_keeps_the_consistent_detection() -> None:
     from annotator.annotation.consensus import pose_instance
-    from annotator.annotation.settings import Settings
+    from annotator.annotation.settings import AnnotateSettings
 
     rng = np.random.default_rng(12)
     cams = _rig()
@@ -162,7 +162,7 @@ def test_an_id_seen_twice_keeps_the_consistent_detection() -> None:
     obs = _observe(cams, sites, T, rng, noise=0.2)
     copy = next(o for o in obs if (o.camera, o.marker_id) == (1, 0))
     obs.append(Observation(1, 0, copy.model_corners, copy.image_corners + [-300.0, 150.0]))
-    r = pose_instance(_fake_dataset(cams), "box", "01", obs, Settings())
+    r = pose_instance(_fake_dataset(cams), "box", "01", obs, AnnotateSettings())
     assert np.abs(r.T[:3, 3] - T[:3, 3]).max() < 0.5
     assert r.markers["right"].used.count(0) == 1
     assert r.markers["right"].rejected == [0]
@@ -171,7 +171,7 @@ def test_an_id_seen_twice_keeps_the_consistent_detection() -> None:
 
 def test_a_lone_fronto_parallel_marker_is_flagged_ambiguous_not_guessed() -> None:
     from annotator.annotation.consensus import pose_instance
-    from annotator.annotation.settings import Settings
+    from annotator.annotation.settings import AnnotateSettings
 
     rng = np.random.default_rng(13)
     cams = _rig()[:1]
@@ -179,12 +179,12 @@ def test_a_lone_fronto_parallel_marker_is_flagged_ambiguous_not_guessed() -> Non
     site = square_corners(np.zeros(3), np.array([0.0, 0, -1]), np.array([1.0, 0, 0]), 10.0)
     T = make_transform(rotvec_to_matrix(np.array([0.05, 0.0, 0.0])), [0.0, 0.0, 900.0])
     obs = _observe(cams, site[None], T, rng, noise=0.2)
-    r = pose_instance(_fake_dataset(cams), "box", "01", obs, Settings())
+    r = pose_instance(_fake_dataset(cams), "box", "01", obs, AnnotateSettings())
     assert {"ambiguous", "single_view", "high_uncertainty"} <= set(r.flags)
     # Seen by two cameras the same instance is not ambiguous.
     cams2 = _rig()
     obs2 = _observe(cams2, _sites(3, rng), _true_pose(rng), rng, noise=0.2)
-    r2 = pose_instance(_fake_dataset(cams2), "box", "01", obs2, Settings())
+    r2 = pose_instance(_fake_dataset(cams2), "box", "01", obs2, AnnotateSettings())
     assert r2.flags == [] and r2.views == 2
 
 

@@ -26,7 +26,6 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from local_cluster import LocalCluster, _free_port
 
 from annotator.cli import main
 from annotator.dataset import load_dataset
@@ -34,11 +33,15 @@ from annotator.dataset.poses import read_pose_file
 from annotator.dataset.review import Review, now_iso, poses_fingerprint, write_review
 from annotator.errors import UserError
 from annotator.runner.ray_cluster import run_on_ray
+from devkit.local_cluster import LocalCluster, _free_port
 
-pytestmark = pytest.mark.skipif(
-    importlib.util.find_spec("ray") is None,
-    reason="Ray is not installed (`make test` installs it: '.[dev,ray]')",
-)
+pytestmark = [
+    pytest.mark.slow,  # real Ray clusters
+    pytest.mark.skipif(
+        importlib.util.find_spec("ray") is None,
+        reason="Ray is not installed (`make test` installs it: '.[dev,ray]')",
+    ),
+]
 
 ANNOTATOR = str(Path(sys.executable).parent / "annotator")
 

@@ -91,7 +91,7 @@ _SERVER = textwrap.dedent(
         for key in keys:
             pose = state.info("000001").pose(key)
             T = make_transform(pose.R, pose.t + [0.5, 0.0, 0.0])
-            state.set_pose("000001", key, T, [{"op": me, "n": n}], by=me)
+            state.set_pose("000001", key, T, [{"op": "nudge", "n": n}], by=me)
             if n % 3 == 0:
                 state.toggle_instance("000001", key, by=me)
             time.sleep(0.002)
@@ -128,9 +128,9 @@ def test_two_servers_at_once_lose_nothing(sample_copy: Path) -> None:
 
 
 def test_a_pages_undo_after_another_reviewers_edit_is_refused_and_said(sample_copy: Path) -> None:
-    from headless import free_port
     from test_viewer_repair import KEY, _page_on
 
+    from devkit.headless import free_port
     from viewer.app import ReviewApp
 
     app = ReviewApp(sample_copy, host="127.0.0.1", port=free_port())

@@ -23,6 +23,8 @@ from annotator.geometry.transforms import axis_angle, make_transform
 from annotator.markers.glue import apply_corrections
 from annotator.sites import InstanceData, MarkerView, solve_sites
 
+pytestmark = pytest.mark.slow  # sites measured over many scenes
+
 ANNOTATOR = str(Path(sys.executable).parent / "annotator")
 
 

@@ -8,13 +8,13 @@ from argparse import Namespace
 
 import pytest
 import viser
-from headless import free_port
 from websockets.exceptions import ConnectionClosed
 from websockets.sync.client import connect
 
 import viewer.app
 from annotator.cli import main
 from annotator.errors import UserError
+from devkit.headless import free_port
 from viewer.access import Access, is_loopback
 from viewer.app import ReviewApp
 

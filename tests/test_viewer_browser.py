@@ -16,8 +16,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-from headless import free_port
-from polling import wait_until
+
+from devkit.headless import free_port
+from devkit.polling import wait_until
 
 playwright = pytest.importorskip("playwright.sync_api")
 
@@ -27,7 +28,11 @@ from viewer.app import ReviewApp  # noqa: E402
 
 # A page closed while its scene is being sent: viser warns of what it can no longer deliver
 # (the server ignores that warning; pytest records it anyway).
-pytestmark = [pytest.mark.browser, pytest.mark.filterwarnings("ignore:Queued a:UserWarning")]
+pytestmark = [
+    pytest.mark.browser,
+    pytest.mark.slow,
+    pytest.mark.filterwarnings("ignore:Queued a:UserWarning"),
+]
 
 VIEWPORT = {"width": 1400, "height": 1000}
 PENDING_RGB = (255, 220, 0)

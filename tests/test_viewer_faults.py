@@ -18,22 +18,22 @@ import weakref
 import msgspec
 import numpy as np
 import pytest
-from headless import free_port
-from polling import wait_until
 
 import viewer.memory
 from annotator.cli import main
 from annotator.dataset.review import ReviewStatus
 from annotator.errors import UserError
+from devkit.headless import free_port
+from devkit.polling import wait_until
+from devkit.served import ReviewProcess
+from devkit.wire import camera_message, drop, open_page
 from viewer import memory, startup
 from viewer.app import CACHE_BYTES, ReviewApp
 from viewer.cache import PrefetchCache
 from viewer.frames import conforms, why_malformed
 from viewer.memory import MAX_VIEWPORT, BytesLRU, clamp_viewport, picture_size
-from viewer.served import ReviewProcess
 from viewer.session import Session
 from viewer.state import ReviewState, SaveError
-from viewer.wire import camera_message, drop, open_page
 
 GB = 1e9
 # A page that leaves while its scene is being sent: viser warns of what it can no longer

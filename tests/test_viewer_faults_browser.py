@@ -13,8 +13,9 @@ import time
 from pathlib import Path
 
 import pytest
-from headless import free_port
-from polling import wait_until
+
+from devkit.headless import free_port
+from devkit.polling import wait_until
 
 playwright = pytest.importorskip("playwright.sync_api")
 
@@ -23,7 +24,11 @@ import viewer.session  # noqa: E402
 from viewer.app import ReviewApp  # noqa: E402
 from viewer.panel import Panel  # noqa: E402
 
-pytestmark = [pytest.mark.browser, pytest.mark.filterwarnings("ignore:Queued a:UserWarning")]
+pytestmark = [
+    pytest.mark.browser,
+    pytest.mark.slow,
+    pytest.mark.filterwarnings("ignore:Queued a:UserWarning"),
+]
 
 VIEWPORT = {"width": 1400, "height": 1000}
 GONE = "the scene's folder is gone"

@@ -11,11 +11,11 @@ import time
 import cv2
 import numpy as np
 import pytest
-from polling import wait_until
 
 from annotator.dataset import load_dataset, read_poses
 from annotator.dataset.annotation import DepthRegion
 from annotator.dataset.review import MissingPart, ReviewStatus
+from devkit.polling import wait_until
 from viewer import keyguard, pictures
 from viewer.mosaic import Tile, compose, grid
 from viewer.overlays import _outline, prepare, repose

@@ -10,7 +10,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from polling import wait_until
+
+from devkit.polling import wait_until
 
 pytest.importorskip("playwright.sync_api")
 
@@ -28,7 +29,11 @@ from annotator.dataset import load_dataset, read_poses  # noqa: E402
 from annotator.geometry.transforms import axis_angle, matrix_to_rotvec  # noqa: E402
 from annotator.symmetry import PoseSpace  # noqa: E402
 
-pytestmark = [pytest.mark.browser, pytest.mark.filterwarnings("ignore:Queued a:UserWarning")]
+pytestmark = [
+    pytest.mark.browser,
+    pytest.mark.slow,
+    pytest.mark.filterwarnings("ignore:Queued a:UserWarning"),
+]
 
 SCENE = "000000"
 MOVED = "bracket/01"  # 12 markers in both cameras, hardly occluded

@@ -20,8 +20,8 @@
 - :mod:`viewer.frames`: what a connection may send (malformed frames dropped, one log line);
 - :mod:`viewer.memory`: what bounds the server's memory (canvas sizes, cache bytes, closed
   pages' memory given back);
-- :mod:`viewer.startup`: starting viser's server without waiting forever (the port checked);
-- :mod:`viewer.wire`, :mod:`viewer.served`: for the tests and benchmarks: a bare client of
-  viser's protocol, a server in a child process (headless Chromium is the tests' own:
-  ``tests/headless.py``).
+- :mod:`viewer.startup`: starting viser's server without waiting forever (the port checked).
+
+What the tests and benchmarks drive it with (a bare client of viser's protocol, a server in
+a child process, headless Chromium) is in ``devkit/``, which is not installed.
 """

@@ -21,6 +21,7 @@ from annotator.rendering.raycast import PlacedMesh
 from annotator.repair import (
     Candidate,
     Nudge,
+    NudgeKind,
     Refinement,
     alternatives,
     instance_observations,
@@ -106,11 +107,12 @@ def nudge(ds: Dataset, info: SceneInfo, key: str, step: Nudge) -> np.ndarray:
     return nudged(pose.T, step, ds.objects[pose.object].mesh.moments.centroid)
 
 
-def step_of(kind: str, axis: int, sign: int, large: bool) -> Nudge:
-    """The nudge of a key: ``kind`` "move" or "turn", small or large."""
-    amount = (
-        (LARGE_MM if large else SMALL_MM) if kind == "move" else (LARGE_DEG if large else SMALL_DEG)
-    )
+def step_of(kind: NudgeKind, axis: int, sign: int, large: bool) -> Nudge:
+    """The nudge of a key: ``kind`` move or turn, small or large."""
+    if kind == NudgeKind.MOVE:
+        amount = LARGE_MM if large else SMALL_MM
+    else:
+        amount = LARGE_DEG if large else SMALL_DEG
     return Nudge(kind, axis, sign * amount)
 
 

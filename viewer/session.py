@@ -48,7 +48,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 import viser
 
-from annotator.dataset.review import EditedPose, ReviewStatus
+from annotator.dataset.review import EditedPose, RepairOp, RepairStep, ReviewStatus
+from annotator.repair import NudgeKind
 from viewer import repair
 from viewer.memory import picture_size
 from viewer.mosaic import Picture, compose
@@ -83,6 +84,17 @@ class Step:
     key: str
     before: EditedPose | None
     after: EditedPose | None
+
+
+@dataclass(frozen=True)
+class Offer:
+    """The instances without a pose offered after M and a click: "Add here" starts one at
+    ``pixel`` of ``camera`` in ``scene``."""
+
+    scene: str
+    camera: str
+    pixel: tuple[float, float]
+    instances: tuple[str, ...]
 
 
 class Unsaved(Enum):
@@ -123,12 +135,12 @@ class Session:
         # Repairs: nudge settings, per scene undo / redo stacks of the page's steps (instance,
         # its edit before, its edit after; None: the auto pose), what the last repair did, the
         # instances offered after M + click.
-        self.nudge_kind = "move"
+        self.nudge_kind = NudgeKind.MOVE
         self.large = False
         self.history: dict[str, list[Step]] = {}
         self.future: dict[str, list[Step]] = {}
         self.repair_text = ""
-        self.offer: tuple[str, str, tuple[float, float], tuple[str, ...]] | None = None
+        self.offer: Offer | None = None
         self._cycle: dict[tuple[str, str, str], tuple[list, int]] = {}
         self._refining = threading.Lock()
         # One pose change at a time: each is written before the next is made.
@@ -314,10 +326,11 @@ class Session:
                 "**Click on a picture where a part without a pose lies** (M again to cancel)"
                 + (f"\n\n{notice}" if notice else "")
             )
-        offer = self.offer if self.offer is not None and self.offer[0] == sid else None
+        offer = self.offer if self.offer is not None and self.offer.scene == sid else None
         if offer is not None:
+            x, y = offer.pixel
             notice = (
-                f"**Add a part at {offer[1]} ({offer[2][0]:.0f}, {offer[2][1]:.0f})**: pick "
+                f"**Add a part at {offer.camera} ({x:.0f}, {y:.0f})**: pick "
                 "the instance below (then R to refine it)" + (f"\n\n{notice}" if notice else "")
             )
         done, total = state.progress()
@@ -332,7 +345,7 @@ class Session:
             table=instance_table(info, selected),
             warnings=warnings_text(info),
             repair=self.repair_text,
-            offer=offer[3] if offer is not None else (),
+            offer=offer.instances if offer is not None else (),
         )
 
     # ------------------------------------------------------------ decisions
@@ -447,7 +460,7 @@ class Session:
         if saved and keys:
             mark = self.app.state.info(sid).review.missing[-1]
             with self._lock:
-                self.offer = (sid, mark.camera, mark.pixel, tuple(keys))
+                self.offer = Offer(sid, mark.camera, mark.pixel, tuple(keys))
         self.request_render()
 
     # ---------------------------------------------------------------- repairs
@@ -461,7 +474,7 @@ class Session:
     def _nudge_text(self) -> str:
         size = (
             (f"{repair.LARGE_MM:g} mm" if self.large else f"{repair.SMALL_MM:g} mm")
-            if self.nudge_kind == "move"
+            if self.nudge_kind == NudgeKind.MOVE
             else (f"{repair.LARGE_DEG:g}°" if self.large else f"{repair.SMALL_DEG:g}°")
         )
         return f"nudges (1-6): **{self.nudge_kind}** by {size} in the reference camera's axes"
@@ -483,7 +496,7 @@ class Session:
         sid: str,
         key: str,
         T: np.ndarray,
-        step: dict,
+        step: RepairStep,
         *,
         seen: SceneInfo,
         unmark: tuple[str, tuple[float, float]] | None = None,
@@ -580,7 +593,7 @@ class Session:
             result = repair.refine(state.ds, seen, key, inputs)
             residuals = f"before: {result.before.text()}; after: {result.after.text()}"
             if result.converged:
-                if self._edit(sid, key, result.T, result.to_json(), seen=seen):
+                if self._edit(sid, key, result.T, result.step(), seen=seen):
                     self._say(f"✔ {key} refined in {result.seconds:.2f} s — {residuals}")
             else:
                 self._say(
@@ -621,7 +634,7 @@ class Session:
                     self.history.setdefault(sid, []).append(Step(key, before, None))
                     self.future.pop(sid, None)
         else:
-            step = {"op": "alternative", "source": c.source, "support": c.support}
+            step = RepairStep(RepairOp.ALTERNATIVE, {"source": c.source, "support": c.support})
             saved = self._edit(sid, key, c.T, step, seen=info)
         if saved:
             self._say(f"{key}: candidate {index + 1} of {len(found)} — {c.text()}")
@@ -697,7 +710,7 @@ class Session:
         step = repair.step_of(self.nudge_kind, axis, sign, self.large)
         info = self.app.state.info(sid)
         T = repair.nudge(self.app.state.ds, info, key, step)
-        if self._edit(sid, key, T, step.to_json(), seen=info):
+        if self._edit(sid, key, T, step.step(), seen=info):
             unit = "mm" if step.kind == "move" else "°"
             self._say(f"{key}: {step.kind} {step.amount:+g} {unit} along {'xyz'[axis]}")
 
@@ -707,11 +720,12 @@ class Session:
             sid = self.nav.current
         info = self.app.state.info(sid) if sid is not None else None
         if sid is not None and info is not None and info.pose(key) is not None:
-            if self._edit(sid, key, T, {"op": "gizmo"}, seen=info):
+            if self._edit(sid, key, T, RepairStep(RepairOp.GIZMO), seen=info):
                 self._say(f"{key}: moved with the gizmo")
 
     def toggle_nudge_kind(self) -> None:
-        self.nudge_kind = "turn" if self.nudge_kind == "move" else "move"
+        move = self.nudge_kind == NudgeKind.MOVE
+        self.nudge_kind = NudgeKind.TURN if move else NudgeKind.MOVE
         self._say(self.repair_text)
 
     def toggle_nudge_size(self) -> None:
@@ -778,9 +792,9 @@ class Session:
         """ "Add here": start instance ``key`` where M was clicked."""
         with self._lock:
             offer = self.offer
-        if offer is None or key not in offer[3]:
+        if offer is None or key not in offer.instances:
             return
-        sid, camera, pixel, _ = offer
+        sid, camera, pixel = offer.scene, offer.camera, offer.pixel
         if self._shown_scene(f"add {key}") != sid:
             return
         state = self.app.state
@@ -789,7 +803,9 @@ class Session:
         if found is None:
             self._say(f"⚠ {key}: no marker and no depth near the click to start it from")
             return
-        step = {"op": "add", "camera": camera, "pixel": list(pixel), "source": found.source}
+        step = RepairStep(
+            RepairOp.ADD, {"camera": camera, "pixel": list(pixel), "source": found.source}
+        )
         if self._edit(sid, key, found.T, step, seen=info, unmark=(camera, pixel)):
             with self._lock:
                 self.offer = None

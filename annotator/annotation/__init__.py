@@ -28,11 +28,3 @@ Top level: ``format``, ``created_at``, ``description_digest``, ``unknown_markers
 twice in one image), ``image_quality``, ``warnings`` (``{"kind", "message", ...}``, see
 :class:`annotator.dataset.annotation.SceneWarning`), ``unexplained_mask`` and ``errors``.
 """
-
-from annotator.dataset.annotation import Flag
-
-#: Every flag, in the order annotation.json lists them (the names of :class:`Flag`; kept for
-#: scripts written before it).
-FLAGS: tuple[Flag, ...] = tuple(Flag)
-
-__all__ = ["FLAGS"]

@@ -12,7 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from annotator.annotation.scene import annotate_scene
-from annotator.annotation.settings import Settings
+from annotator.annotation.settings import AnnotateSettings
 from annotator.dataset import Dataset, Scene, as_dataset, cached_dataset, require_meshes
 from annotator.dataset.annotation import WarningKind
 from annotator.dataset.check import BROKEN_LINK
@@ -70,12 +70,12 @@ class AnnotateJob:
 
     root: str
     digest: str  # description_digest() of the dataset, recorded in every annotation.json
-    settings: Settings = Settings()
+    settings: AnnotateSettings = AnnotateSettings()
 
     @classmethod
-    def for_dataset(cls, ds: Dataset, settings: Settings | None = None) -> AnnotateJob:
+    def for_dataset(cls, ds: Dataset, settings: AnnotateSettings | None = None) -> AnnotateJob:
         """The job for every scene of ``ds`` (computes the dataset's description digest)."""
-        return cls(str(ds.root), description_digest(ds), settings or Settings())
+        return cls(str(ds.root), description_digest(ds), settings or AnnotateSettings())
 
     def prepare(self) -> None:
         """Do once what every scene needs (see :mod:`annotator.runner`): import open3d, load
@@ -173,7 +173,7 @@ def annotate_dataset(
     scenes: str = "*",
     force: bool = False,
     workers: int = 1,
-    settings: Settings | None = None,
+    settings: AnnotateSettings | None = None,
     quiet: bool = True,
     ray_address: str | None = None,
     ray_wait: float | None = None,
@@ -192,7 +192,7 @@ def annotate_dataset(
     if ray_wait is not None:
         ray_wait = number(ray_wait, name="ray_wait", low=0)
     if settings is not None:
-        of_type(settings, Settings, name="settings", what="annotator.Settings")
+        of_type(settings, AnnotateSettings, name="settings", what="annotator.AnnotateSettings")
     chosen = [s for s in ds.scenes() if fnmatch.fnmatch(s.id, scenes)]
     if not chosen:
         raise UserError(f"no scene matches {scenes!r}", path=ds.root / SCENES_DIR)

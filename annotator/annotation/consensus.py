@@ -17,7 +17,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from annotator.annotation.settings import Settings
+from annotator.annotation.settings import AnnotateSettings
 from annotator.dataset import Dataset
 from annotator.dataset.annotation import Flag, InstanceAnnotation, MarkerUse, Reprojection
 from annotator.geometry.camera import Camera
@@ -35,7 +35,7 @@ from annotator.symmetry.space import MATCH_THRESHOLD_FRACTION
 
 
 def pose_instance(
-    ds: Dataset, obj: str, inst: str, obs: list[Observation], s: Settings
+    ds: Dataset, obj: str, inst: str, obs: list[Observation], s: AnnotateSettings
 ) -> InstanceAnnotation | None:
     """Pose one instance from its observations, with its markers' use, reprojection error,
     uncertainty and flags (depth and occlusion are added later, with the whole scene)."""
@@ -97,7 +97,7 @@ def _best_candidate(
 
 
 def _refine_on_inliers(
-    cams: Sequence[Camera], obs: list[Observation], T: np.ndarray, s: Settings
+    cams: Sequence[Camera], obs: list[Observation], T: np.ndarray, s: AnnotateSettings
 ) -> tuple[PoseEstimate, list[int]] | None:
     """Refine ``T`` on the markers it explains, re-test every marker and refine again (at
     most twice): the estimate and the indices of its inliers, or None if none is."""
@@ -172,7 +172,7 @@ def _dedupe(obs: list[Observation], err: np.ndarray, thr: float) -> list[int]:
     return sorted(best.values())
 
 
-def _ambiguous(cams: Sequence[Camera], used: list[Observation], T: np.ndarray, s: Settings) -> bool:
+def _ambiguous(cams: Sequence[Camera], used: list[Observation], T: np.ndarray, s: AnnotateSettings) -> bool:
     """True if a single marker in a single camera explains two different poses about equally
     well (the two IPPE solutions' reprojection errors within ``ambiguity_ratio``)."""
     if len({o.camera for o in used}) > 1 or len({o.marker_id for o in used}) > 1:

@@ -20,7 +20,7 @@ import numpy as np
 from annotator.annotation.completeness import exposure, quality_warnings
 from annotator.annotation.consensus import flag_overlaps, pose_instance
 from annotator.annotation.recovery import recover_markers
-from annotator.annotation.settings import Settings
+from annotator.annotation.settings import AnnotateSettings
 from annotator.annotation.unexplained import unexplained_depth
 from annotator.annotation.visibility import Renders, add_visibility
 from annotator.dataset import Dataset, Scene
@@ -39,7 +39,7 @@ from annotator.io.images import to_gray8
 from annotator.pnp import Observation
 from annotator.values import of_type
 
-__all__ = ["UNEXPLAINED_MASK", "SceneResult", "Settings", "annotate_scene"]
+__all__ = ["UNEXPLAINED_MASK", "AnnotateSettings", "SceneResult", "annotate_scene"]
 
 #: Below this depth agreement a pose on one marker id is contradicted by the depth.
 CONTRADICTED = 0.3
@@ -69,13 +69,13 @@ def annotate_scene(
     scene: Scene,
     detector: MarkerDetector,
     *,
-    settings: Settings = Settings(),
+    settings: AnnotateSettings = AnnotateSettings(),
 ) -> SceneResult:
     """Pose every instance with detected markers, and check the scene's completeness."""
     of_type(ds, Dataset, name="ds", what="a Dataset (annotator.load_dataset)")
     of_type(scene, Scene, name="scene", what="a Scene of the dataset (ds.scene(id))")
     of_type(detector, MarkerDetector, name="detector", what="an annotator.MarkerDetector")
-    of_type(settings, Settings, name="settings", what="annotator.Settings")
+    of_type(settings, AnnotateSettings, name="settings", what="annotator.AnnotateSettings")
     grays = [to_gray8(scene.read_image(cam)) for cam in ds.rig.cameras]
     readings = [detector.read(g) for g in grays]
     markers = _sort_markers(ds, readings)

@@ -9,7 +9,7 @@ from annotator.occlusion import AGREEMENT_TOLERANCE_MM
 
 
 @dataclass(frozen=True)
-class Settings:
+class AnnotateSettings:
     """Thresholds of the annotation (px, mm, ratios).
 
     Attributes:

@@ -16,7 +16,7 @@ from annotator.annotation.completeness import (
     support_depth,
     unexplained_mask,
 )
-from annotator.annotation.settings import Settings
+from annotator.annotation.settings import AnnotateSettings
 from annotator.annotation.visibility import Renders
 from annotator.dataset import Dataset
 from annotator.dataset.annotation import DepthRegion, SceneWarning, WarningKind
@@ -31,7 +31,7 @@ def unexplained_depth(
     *,
     disagreeing: Sequence[int] = (),
     unread: np.ndarray | None = None,
-    settings: Settings = Settings(),
+    settings: AnnotateSettings = AnnotateSettings(),
 ) -> tuple[SceneWarning | None, np.ndarray]:
     """The ``unexplained_depth`` warning (or None) and the full-resolution mask (uint8, 255
     where a reported region is), for a depth map (mm) and the posed instances as rendered
@@ -89,7 +89,7 @@ def _background(
     return support_depth(measured, cam.pixel_rays(step)), "the support plane found in the depth"
 
 
-def _min_region_px(ds: Dataset, cam: Camera, measured: np.ndarray, settings: Settings) -> float:
+def _min_region_px(ds: Dataset, cam: Camera, measured: np.ndarray, settings: AnnotateSettings) -> float:
     """The smallest region reported: a fraction of the smallest part's mean silhouette, seen
     at the scene's median depth."""
     z = float(np.nanmedian(measured)) if np.isfinite(measured).any() else 1000.0

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from annotator.annotation.settings import Settings
+from annotator.annotation.settings import AnnotateSettings
 from annotator.dataset import Dataset, InstancePose
 from annotator.dataset.annotation import DepthCheck, Flag, InstanceAnnotation, Occlusion, sort_flags
 from annotator.occlusion import InstanceVisibility, scene_visibility
@@ -31,7 +31,7 @@ def add_visibility(
     ds: Dataset,
     instances: list[InstanceAnnotation],
     depth: np.ndarray | None,
-    s: Settings,
+    s: AnnotateSettings,
     renders: Renders,
 ) -> None:
     """Set the occlusion rates and depth agreement of the posed instances (all instances as

@@ -20,7 +20,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    problems, scenes = check_dataset(args.dataset, annotations=args.annotations)
+    report = check_dataset(args.dataset, annotations=args.annotations)
+    problems, scenes = report.problems, report.scenes
     if args.json:
         print(
             json.dumps(

@@ -20,8 +20,8 @@ if TYPE_CHECKING:
     from types import ModuleType
 
     from annotator.evaluation.bop19 import Bop19Scores
-    from annotator.evaluation.evaluate import Options, Report
-    from annotator.formats.base import GroundTruth, Results
+    from annotator.evaluation.evaluate import EvaluationOptions, EvaluationReport
+    from annotator.formats.base import GroundTruth, PoseResults
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -114,12 +114,12 @@ def _add_report_options(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from annotator.evaluation.evaluate import Options, evaluate, format_table
+    from annotator.evaluation.evaluate import EvaluationOptions, evaluate, format_table
 
     _check_options(args)
     gt_path = Path(args.gt)
     fmt, gt, results, source = _inputs(args)
-    opts = Options(
+    opts = EvaluationOptions(
         max_occlusion=args.max_occlusion,
         max_results=tuple(args.max_results),
         threshold_mm=args.threshold,
@@ -180,7 +180,7 @@ def _check_options(args: argparse.Namespace) -> None:
         raise UserError("--bop19 and --twin cannot be combined")
 
 
-def _inputs(args: argparse.Namespace) -> tuple[ModuleType, GroundTruth, Results, str]:
+def _inputs(args: argparse.Namespace) -> tuple[ModuleType, GroundTruth, PoseResults, str]:
     """The ground truth's format, the ground truth, the results and a line saying where
     the results come from."""
     from annotator.formats import detect_format
@@ -215,8 +215,8 @@ def _print_header(
     format_name: str,
     source: str,
     gt: GroundTruth,
-    results: Results,
-    report: Report,
+    results: PoseResults,
+    report: EvaluationReport,
 ) -> None:
     from annotator.symmetry.space import MATCH_THRESHOLD_FRACTION
 
@@ -251,7 +251,7 @@ def _print_header(
         print(f"note: {missing} ground-truth scenes have no results: counted as nothing found")
 
 
-def _twin(args: argparse.Namespace, opts: Options) -> Report:
+def _twin(args: argparse.Namespace, opts: EvaluationOptions) -> EvaluationReport:
     from annotator.evaluation.evaluate import evaluate
     from annotator.formats import detect_format
 
@@ -287,7 +287,7 @@ def _bop19(args: argparse.Namespace, gt_path: Path, gt: GroundTruth) -> Bop19Sco
     return scores
 
 
-def _print_bop19(bop: Bop19Scores, report: Report, gt: GroundTruth) -> None:
+def _print_bop19(bop: Bop19Scores, report: EvaluationReport, gt: GroundTruth) -> None:
     def f(v: float | None) -> str:
         return "   -  " if v is None else f"{v:.4f}"
 

@@ -9,6 +9,7 @@ uint16 of the depth camera's size; gt.json, annotation.json and review.json well
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -23,12 +24,31 @@ SIZE_TOLERANCE = 0.02  # relative
 BROKEN_LINK = "a symbolic link that leads nowhere (dangling or a loop): not a scene"
 
 
-def check_dataset(root: str | Path, *, annotations: bool = False) -> tuple[list[Problem], int]:
+@dataclass(frozen=True)
+class CheckReport:
+    """What ``annotator check`` found: every problem (one per file and fault; warnings
+    among them) and how many scenes were looked at."""
+
+    problems: list[Problem]
+    scenes: int
+
+    @property
+    def errors(self) -> list[Problem]:
+        """The problems that make the dataset unusable (not warnings)."""
+        return [p for p in self.problems if not p.warning]
+
+
+def check_dataset(root: str | Path, *, annotations: bool = False) -> CheckReport:
     """All problems of the dataset at ``root`` and the number of scenes looked at; with
-    ``annotations``, the warnings of every annotation.json too (as warning problems)."""
+    ``annotations``, the warnings of every annotation.json too (as warning problems).
+
+    >>> report = check_dataset("sample_scenes")
+    >>> report.scenes, report.errors
+    (4, [])
+    """
     ds, problems = read_dataset(root)
     if ds is None:
-        return problems, 0
+        return CheckReport(problems, 0)
     problems += _check_objects(ds)
     try:
         ds.background_depth  # noqa: B018  (cached property: reads and checks the file)
@@ -42,7 +62,7 @@ def check_dataset(root: str | Path, *, annotations: bool = False) -> tuple[list[
         problems += _check_scene(ds, scene)
         if annotations and scene.annotation_path.exists():
             problems += _annotation_warnings(scene.annotation_path)
-    return problems, n
+    return CheckReport(problems, n)
 
 
 def _annotation_warnings(path: Path) -> list[Problem]:

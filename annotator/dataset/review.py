@@ -89,6 +89,48 @@ class MissingPart:
         return out
 
 
+class RepairOp(StrEnum):
+    """What a repair step did (review.json ``steps[].op``); the values are the JSON strings."""
+
+    REFINE = "refine"  # ICP against the depth and the markers (R)
+    ALTERNATIVE = "alternative"  # another candidate pose from the markers (A)
+    NUDGE = "nudge"  # moved or turned by a step (1-6)
+    GIZMO = "gizmo"  # dragged in the 3D view
+    ADD = "add"  # an instance without a pose, started where a reviewer clicked
+
+
+@dataclass(frozen=True)
+class RepairStep:
+    """One step of a repaired pose's making (review.json ``steps``): what was done and its
+    figures (``{"op": "nudge", "kind": "move", "axis": "x", "amount": 1.0}`` is
+    ``RepairStep(RepairOp.NUDGE, {"kind": "move", "axis": "x", "amount": 1.0})``).
+
+    >>> RepairStep.from_json({"op": "gizmo"}).to_json()
+    {'op': 'gizmo'}
+    """
+
+    op: RepairOp
+    details: dict[str, Any] = field(default_factory=dict)
+
+    def to_json(self) -> dict[str, Any]:
+        return {"op": self.op.value, **self.details}
+
+    @classmethod
+    def from_json(cls, doc: dict[str, Any]) -> RepairStep:
+        """The step a JSON object describes; ValueError if its ``op`` is not a
+        :class:`RepairOp`."""
+        op = doc.get("op")
+        if op not in set(RepairOp):
+            ops = ", ".join(o.value for o in RepairOp)
+            raise ValueError(f"op must be one of {ops}, not {op!r}")
+        return cls(RepairOp(op), {k: v for k, v in doc.items() if k != "op"})
+
+
+def as_step(step: RepairStep | dict[str, Any]) -> RepairStep:
+    """``step`` as a record (a JSON object is read by :meth:`RepairStep.from_json`)."""
+    return step if isinstance(step, RepairStep) else RepairStep.from_json(step)
+
+
 #: The ``source`` of a pose in review.json's ``poses``.
 EDITED_SOURCE = "edited"
 #: A repaired rotation must be this close to orthonormal (max |R R^T - I|).
@@ -101,7 +143,8 @@ class EditedPose:
 
     Attributes:
         R, t: The pose (``x_cam = R x_model + t``, mm).
-        steps: What was done to the auto pose to get here, oldest first (``{"op": ...}``).
+        steps: What was done to the auto pose to get here, oldest first (JSON objects
+            given here are read as :class:`RepairStep`).
         decided_by: The page that made it; at: when (ISO 8601).
         auto_fingerprint: :func:`instance_fingerprint` of the auto pose it was made from;
             None for an instance that had no auto pose (added by hand).
@@ -109,17 +152,21 @@ class EditedPose:
 
     R: np.ndarray
     t: np.ndarray
-    steps: list[dict[str, Any]] = field(default_factory=list)
+    steps: list[RepairStep] = field(default_factory=list)
     decided_by: str | None = None
     at: str | None = None
     auto_fingerprint: str | None = None
+
+    def __post_init__(self) -> None:
+        # Steps may come as their JSON objects (scripts, tests): records inside.
+        self.steps = [as_step(s) for s in self.steps]
 
     def to_json(self) -> dict[str, Any]:
         return {
             "cam_R_m2c": [float(x) for x in np.asarray(self.R).reshape(9)],
             "cam_t_m2c": [float(x) for x in np.asarray(self.t).reshape(3)],
             "source": EDITED_SOURCE,
-            "steps": list(self.steps),
+            "steps": [s.to_json() for s in self.steps],
             "decided_by": self.decided_by,
             "at": self.at,
             "auto_fingerprint": self.auto_fingerprint,
@@ -284,6 +331,10 @@ def _edited_poses(value: Any, path: Path) -> dict[str, EditedPose]:
         steps = rec.get("steps", [])
         if not isinstance(steps, list) or not all(isinstance(s, dict) for s in steps):
             raise UserError(f"{where}: steps must be a list of objects", path=path)
+        try:
+            steps = [RepairStep.from_json(s) for s in steps]
+        except ValueError as exc:
+            raise UserError(f"{where}: a step's {exc}", path=path) from None
         for name in ("decided_by", "at", "auto_fingerprint"):
             if rec.get(name) is not None and not isinstance(rec[name], str):
                 raise UserError(f"{where}: {name} must be a string", path=path)

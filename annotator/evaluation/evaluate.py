@@ -14,13 +14,13 @@ from typing import Any
 
 from annotator.errors import UserError
 from annotator.evaluation.metrics import SceneCurve, Summary, scene_curve, summarise
-from annotator.formats.base import GroundTruth, PoseSet, Results
+from annotator.formats.base import GroundTruth, PoseResults, PoseSet
 from annotator.symmetry.space import MATCH_THRESHOLD_FRACTION
 from annotator.values import number, of_type, whole
 
 
 @dataclass(frozen=True)
-class Options:
+class EvaluationOptions:
     """Evaluation settings (see :mod:`annotator.evaluation.metrics`).
 
     Attributes:
@@ -60,11 +60,22 @@ class Options:
 
 
 @dataclass
-class Report:
+class EvaluationReport:
+    """The scores of one evaluation (:func:`evaluate`).
+
+    Attributes:
+        per_object: AP, AP_n, mean scene AP, best F1, TP/FP/FN and the mean
+            precision/recall curve, per object name.
+        overall: The same over every object.
+        thresholds: The match threshold used per object (mm).
+        options: The options it was made with.
+        unscored_scenes: Ground-truth scenes left out (``only_scenes_with_results``).
+    """
+
     per_object: dict[str, Summary]
     overall: Summary
     thresholds: dict[str, float]
-    options: Options
+    options: EvaluationOptions
     unscored_scenes: list[str] = field(default_factory=list)
 
     def to_json(self) -> dict[str, Any]:
@@ -96,7 +107,7 @@ class Report:
         }
 
 
-def thresholds_for(gt: GroundTruth, options: Options) -> dict[str, float]:
+def thresholds_for(gt: GroundTruth, options: EvaluationOptions) -> dict[str, float]:
     """The match threshold (mm) of each object."""
     out = {}
     for name, sp in gt.spaces.items():
@@ -111,11 +122,11 @@ def thresholds_for(gt: GroundTruth, options: Options) -> dict[str, float]:
     return out
 
 
-def evaluate(gt: GroundTruth, results: Results, options: Options = Options()) -> Report:
+def evaluate(gt: GroundTruth, results: PoseResults, options: EvaluationOptions = EvaluationOptions()) -> EvaluationReport:
     """Score ``results`` against ``gt`` (see :mod:`annotator.evaluation.metrics`)."""
     of_type(gt, GroundTruth, name="gt", what="a GroundTruth (annotator.read_ground_truth)")
-    of_type(results, Results, name="results", what="Results (annotator.read_results)")
-    of_type(options, Options, name="options", what="an annotator.Options")
+    of_type(results, PoseResults, name="results", what="PoseResults (annotator.read_results)")
+    of_type(options, EvaluationOptions, name="options", what="annotator.EvaluationOptions")
     thresholds = thresholds_for(gt, options)
     scenes = [s for s in gt.scenes if s in results.scenes or not options.only_scenes_with_results]
     curves: dict[str, list[SceneCurve]] = {name: [] for name in gt.spaces}
@@ -146,11 +157,11 @@ def evaluate(gt: GroundTruth, results: Results, options: Options = Options()) ->
     else:
         overall = summarise([c for cs in curves.values() for c in cs], max_results=n)
     unscored = [s for s in gt.scenes if s not in scenes]
-    return Report(per_object, overall, thresholds, options, unscored)
+    return EvaluationReport(per_object, overall, thresholds, options, unscored)
 
 
 def format_table(
-    report: Report, *, per_object: bool = True, others: dict[str, Report] | None = None
+    report: EvaluationReport, *, per_object: bool = True, others: dict[str, EvaluationReport] | None = None
 ) -> str:
     """A table like the paper's table 3: one row per object (if ``per_object``) and ``all``.
 
@@ -189,7 +200,7 @@ def format_table(
     return "\n".join([line(head), line(["-" * w for w in widths])] + [line(r) for r in rows])
 
 
-def plot_curves(report: Report, path: str | Path) -> None:
+def plot_curves(report: EvaluationReport, path: str | Path) -> None:
     """Mean precision/recall curves per object to a PNG (matplotlib, no display needed)."""
     import io
 

@@ -19,7 +19,7 @@ from types import ModuleType
 
 from annotator.errors import UserError
 from annotator.formats import bop, ours, sileane
-from annotator.formats.base import GroundTruth, Results
+from annotator.formats.base import GroundTruth, PoseResults
 from annotator.values import of_type
 
 FORMATS: dict[str, ModuleType] = {m.NAME: m for m in (ours, bop, sileane)}
@@ -53,7 +53,7 @@ def read_ground_truth(path: str | Path, *, symmetry: str | None = None) -> Groun
     return detect_format(path).read_ground_truth(Path(path), symmetry=symmetry)
 
 
-def read_results(path: str | Path, gt: GroundTruth) -> Results:
+def read_results(path: str | Path, gt: GroundTruth) -> PoseResults:
     """Results to score against ``gt``: a BOP CSV or a folder of per-scene JSON lists, in
     ``gt``'s unit."""
     of_type(path, (str, Path), name="path", what="a results file or folder (str or Path)")

@@ -91,7 +91,7 @@ class GroundTruth:
 
 
 @dataclass
-class Results:
+class PoseResults:
     """Results to score: poses per (scene, object) with scores as values; ``unknown_scenes``
     are scene keys found in the results but not in the ground truth (they are not scored);
     ``scenes`` the known scenes the results mention (a file with an empty list included)."""
@@ -259,7 +259,7 @@ def read_json_lists(
     *,
     scale: float,
     scene_key: Callable[[str], str] = lambda stem: stem,
-) -> Results:
+) -> PoseResults:
     """A folder of ``<scene>.json`` files, each a list of ``{"object"?, "R", "t", "score"}``
     (the paper's results format; ``object`` may be left out when there is one object).
     ``t`` is multiplied by ``scale`` to give millimetres."""
@@ -287,4 +287,4 @@ def read_json_lists(
             continue
         for i, obj in enumerate(objects):
             table.setdefault((key, obj), PoseSet()).add(R[i], t[i], scores[i])
-    return Results(table, unknown, mentioned, projected_note(projected, total, "the results"))
+    return PoseResults(table, unknown, mentioned, projected_note(projected, total, "the results"))

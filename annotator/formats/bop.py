@@ -41,8 +41,8 @@ import numpy as np
 from annotator.errors import UserError
 from annotator.formats.base import (
     GroundTruth,
+    PoseResults,
     PoseSet,
-    Results,
     Table,
     checked_pose,
     checked_poses,
@@ -268,7 +268,7 @@ def read_targets(path: Path, names: dict[int, str]) -> tuple[str, set[tuple[str,
 # ------------------------------------------------------------------------------ results
 
 
-def read_results(path: Path, gt: GroundTruth) -> Results:
+def read_results(path: Path, gt: GroundTruth) -> PoseResults:
     if path.is_dir():
         raise UserError("BOP results are a CSV file, not a folder", path=path)
     return read_csv_results(path, gt, scene_key=lambda sid, im: f"{int(sid)}/{im}")
@@ -280,7 +280,7 @@ CSV_COLUMNS = ("scene_id", "im_id", "obj_id", "score", "R", "t", "time")
 
 def read_csv_results(
     path: Path, gt: GroundTruth, *, scene_key: Callable[[str, int], str]
-) -> Results:
+) -> PoseResults:
     """BOP's CSV: one result per line, ``scene_id,im_id,obj_id,score,R,t,time``; the
     header line is optional and may put the columns in any order (``time`` may be left
     out); a UTF-8 byte-order mark is allowed; ``obj_id`` is a number (or, for our datasets,
@@ -309,7 +309,7 @@ def read_csv_results(
         if key in known:
             groups.setdefault((key, obj), []).append(i)
     table: Table = {g: PoseSet.of(R[i], t[i], rows.scores[i]) for g, i in groups.items()}
-    return Results(table, unknown, notes=projected_note(projected, len(R), path.name))
+    return PoseResults(table, unknown, notes=projected_note(projected, len(R), path.name))
 
 
 def read_csv_rows(

@@ -26,7 +26,7 @@ from annotator.dataset.review import (
     read_review,
 )
 from annotator.errors import UserError
-from annotator.formats.base import GroundTruth, PoseSet, Results, Table, read_json_lists
+from annotator.formats.base import GroundTruth, PoseResults, PoseSet, Table, read_json_lists
 
 NAME = "ours"
 
@@ -93,7 +93,7 @@ def _rejected(review: Review | None, poses: list) -> str | None:
     return None
 
 
-def read_results(path: Path, gt: GroundTruth) -> Results:
+def read_results(path: Path, gt: GroundTruth) -> PoseResults:
     if path.is_dir():
         return read_json_lists(path, gt, scale=1.0, scene_key=lambda stem: _scene_key(stem, gt))
     from annotator.formats.bop import read_csv_results
@@ -113,7 +113,7 @@ def _scene_key(scene_id: str, gt: GroundTruth) -> str:
     return scene_id
 
 
-def annotations_as_results(root: Path, gt: GroundTruth) -> Results:
+def annotations_as_results(root: Path, gt: GroundTruth) -> PoseResults:
     """annotation.json poses (repaired ones applied) as results, scored ``1 / (1 +
     uncertainty_mm)`` (an instance added by hand has none: score 0)."""
     from annotator.dataset import load_dataset
@@ -129,4 +129,4 @@ def annotations_as_results(root: Path, gt: GroundTruth) -> Results:
             unc = getattr(i, "uncertainty_mm", None)
             score = 1.0 / (1.0 + float(unc)) if unc is not None else 0.0
             table.setdefault((sc.id, i.object), PoseSet()).add(i.R, i.t, score)
-    return Results(table)
+    return PoseResults(table)

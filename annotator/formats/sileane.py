@@ -49,8 +49,8 @@ import numpy as np
 from annotator.errors import UserError
 from annotator.formats.base import (
     GroundTruth,
+    PoseResults,
     PoseSet,
-    Results,
     Table,
     checked_entries,
     read_json_lists,
@@ -362,7 +362,7 @@ def _space_from_mesh(path: Path, symmetry: str | None) -> PoseSpace:
 # ------------------------------------------------------------------------------ results
 
 
-def read_results(path: Path, gt: GroundTruth) -> Results:
+def read_results(path: Path, gt: GroundTruth) -> PoseResults:
     if not path.is_dir():
         raise UserError(
             "results for a Siléane folder are a folder of <scene>.json lists", path=path

@@ -13,12 +13,13 @@ from annotator.repair.candidates import (
     start_pose,
     used_observations,
 )
-from annotator.repair.nudge import Nudge, nudged
+from annotator.repair.nudge import Nudge, NudgeKind, nudged
 from annotator.repair.refine import Refinement, RefineSettings, Residuals, refine_instance
 
 __all__ = [
     "Candidate",
     "Nudge",
+    "NudgeKind",
     "RefineSettings",
     "Refinement",
     "Residuals",

@@ -25,6 +25,7 @@ import cv2
 import numpy as np
 import open3d as o3d
 
+from annotator.dataset.review import RepairOp, RepairStep
 from annotator.estimation.model import surface_samples
 from annotator.geometry.camera import Camera
 from annotator.geometry.mesh import Mesh
@@ -104,13 +105,14 @@ class Refinement:
     why: str  # "" when converged, else the reason in a few words
     seconds: float
 
-    def to_json(self) -> dict[str, object]:
-        return {
-            "op": "refine",
+    def step(self) -> RepairStep:
+        """The step review.json records for it."""
+        details = {
             "before": self.before.to_json(),
             "after": self.after.to_json(),
             "iterations": self.iterations,
         }
+        return RepairStep(RepairOp.REFINE, details)
 
 
 _CLOUDS: dict[bytes, tuple[o3d.geometry.PointCloud, np.ndarray, np.ndarray]] = {}

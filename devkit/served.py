@@ -104,6 +104,8 @@ class ReviewProcess:
                 self.proc.wait(timeout)
         if self._reader is not None:
             self._reader.join(timeout)
+        if self.proc.stdout is not None:
+            self.proc.stdout.close()
         return self.proc.returncode
 
     def __enter__(self) -> ReviewProcess:

@@ -1,13 +1,13 @@
 """Driving the review page from headless Chromium, as the browser tests and
 ``benchmarks/bench_viewer.py`` do: Debian's Chromium through Playwright, against a viewer on
-127.0.0.1 at a free port (:func:`free_port`, the one :mod:`viewer.served` uses too).
+127.0.0.1 at a free port (:func:`free_port`, the one :mod:`devkit.served` uses too).
 """
 
 from __future__ import annotations
 
 from typing import Any
 
-from viewer.served import free_port
+from devkit.served import free_port
 
 __all__ = ["CHROMIUM", "CHROMIUM_ARGS", "free_port", "launch_chromium"]
 

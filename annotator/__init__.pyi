@@ -1,0 +1,72 @@
+"""The types of ``import annotator`` (the names of ``_HOMES`` in ``__init__.py``)."""
+
+from annotator.annotation.batch import (
+    AnnotateSummary as AnnotateSummary,
+    annotate_dataset as annotate_dataset,
+)
+from annotator.annotation.scene import (
+    SceneResult as SceneResult,
+    annotate_scene as annotate_scene,
+)
+from annotator.annotation.settings import (
+    AnnotateSettings as AnnotateSettings,
+)
+from annotator.dataset import (
+    Dataset as Dataset,
+    InstancePose as InstancePose,
+    ObjectModel as ObjectModel,
+    Problem as Problem,
+    Rig as Rig,
+    Scene as Scene,
+    load_dataset as load_dataset,
+)
+from annotator.dataset.annotation import (
+    DepthCheck as DepthCheck,
+    DepthRegion as DepthRegion,
+    Flag as Flag,
+    InstanceAnnotation as InstanceAnnotation,
+    MarkerUse as MarkerUse,
+    Occlusion as Occlusion,
+    Reprojection as Reprojection,
+    SceneAnnotation as SceneAnnotation,
+    SceneWarning as SceneWarning,
+    WarningKind as WarningKind,
+)
+from annotator.dataset.check import (
+    CheckReport as CheckReport,
+    check_dataset as check_dataset,
+)
+from annotator.dataset.review import (
+    ReviewStatus as ReviewStatus,
+)
+from annotator.detection import (
+    MarkerDetector as MarkerDetector,
+)
+from annotator.errors import (
+    UserError as UserError,
+)
+from annotator.evaluation.evaluate import (
+    EvaluationOptions as EvaluationOptions,
+    EvaluationReport as EvaluationReport,
+    evaluate as evaluate,
+)
+from annotator.formats import (
+    read_ground_truth as read_ground_truth,
+    read_results as read_results,
+)
+from annotator.formats.base import (
+    GroundTruth as GroundTruth,
+    PoseResults as PoseResults,
+)
+from annotator.formats.exporting import (
+    ExportSummary as ExportSummary,
+    export_dataset as export_dataset,
+)
+from annotator.formats.ours import (
+    annotations_as_results as annotations_as_results,
+)
+from annotator.values import (
+    BadValue as BadValue,
+)
+
+__all__: list[str]
