@@ -12,6 +12,7 @@ import cv2
 import numpy as np
 import pytest
 import trimesh
+import yaml
 from pycocotools import mask as coco_mask
 
 from annotator.cli import main
@@ -74,6 +75,17 @@ def test_bare_twin_differs_only_at_the_markers(twins) -> None:
     """Independent of the export: every pixel that differs lies within a few pixels of a
     marker square projected with OpenCV from gt.json and object.yaml."""
     ds = load_dataset(twins / "marked")
+    synth = [
+        yaml.safe_load((twins / k / "dataset.yaml").read_text())["synth"]
+        for k in ("marked", "bare")
+    ]
+    assert "markers" not in synth[0] and synth[1].pop("markers") is False and synth[0] == synth[1]
+    assert (twins / "marked" / "objects").is_dir()
+    for name in ds.objects:  # the bare twin's parts still list their markers
+        a, b = (
+            (twins / k / "objects" / name / "object.yaml").read_bytes() for k in ("marked", "bare")
+        )
+        assert a == b
     for scene in ds.scenes():
         gt = json.loads(scene.gt_path.read_text())
         bare = twins / "bare" / "scenes" / scene.id
