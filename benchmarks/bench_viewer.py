@@ -323,7 +323,7 @@ def browser_repairs(app: ReviewApp) -> dict[str, list[float]]:
                 select("bracket/01")
 
                 def edits() -> int:
-                    return len(session.history.get(session.nav.current, []))
+                    return len(session.editor.history.get(session.nav.current, []))
 
                 for _ in range(REPAIRS):
                     n = edits()

@@ -83,3 +83,23 @@ def test_the_checker_finds_a_cycle() -> None:
     edges = {"a": {"b": "a.x"}, "b": {"c": "b.y"}, "c": {"a": "c.z"}, "d": {"a": "d.w"}}
     assert _cycle(edges) == ["a", "b", "c", "a"]
     assert _cycle({"a": {"b": "a.x"}, "b": {}}) is None
+
+
+def test_no_import_cycle_between_the_viewers_modules() -> None:
+    """The viewer's modules form layers too: a page (session, editor) knows its server only
+    as :class:`viewer.host.ReviewHost`, never by importing viewer.app."""
+    edges: dict[str, dict[str, str]] = {}
+    for path in sorted((ROOT / "viewer").glob("*.py")):
+        module = f"viewer.{path.stem}"
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.ImportFrom) and node.module and not node.level:
+                names = [node.module] + [f"{node.module}.{a.name}" for a in node.names]
+            elif isinstance(node, ast.Import):
+                names = [a.name for a in node.names]
+            else:
+                continue
+            for name in names:
+                if name.startswith("viewer.") and name.count(".") == 1 and name != module:
+                    edges.setdefault(module, {}).setdefault(name, module)
+    cycle = _cycle(edges)
+    assert cycle is None, "import cycle: " + " -> ".join(cycle or [])

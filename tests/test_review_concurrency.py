@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from annotator.dataset.review import read_review
+from annotator.dataset.review import RepairStep, read_review
 from annotator.geometry.transforms import make_transform
 from viewer.state import Conflict, ReviewState
 
@@ -137,7 +137,7 @@ def test_a_pages_undo_after_another_reviewers_edit_is_refused_and_said(sample_co
     try:
         ws, session = _page_on(app, SCENE, KEY)
         session.nudge(0, +1)
-        assert len(session.history[SCENE]) == 1 and not session.unsaved
+        assert len(session.editor.history[SCENE]) == 1 and not session.unsaved
         other = ReviewState(sample_copy)  # a second server, another reviewer
         theirs = other.set_pose(SCENE, KEY, _moved(other, KEY, 4.0), [], by="page-other")
         session.undo()
@@ -145,12 +145,12 @@ def test_a_pages_undo_after_another_reviewers_edit_is_refused_and_said(sample_co
         review = read_review(sample_copy / "scenes" / SCENE / "review.json")
         assert review is not None and review.poses[KEY].decided_by == "page-other"
         assert np.allclose(review.poses[KEY].t, theirs.poses[KEY].t)
-        assert not session.history.get(SCENE)  # that step is no longer this page's to undo
+        assert not session.editor.history.get(SCENE)  # that step is no longer this page's to undo
         # A nudge computed from what the page showed before the other's edit is refused too;
         # the page then shows the other's pose, and a nudge from it goes through.
         seen = app.state.info(SCENE)
         other.set_pose(SCENE, KEY, _moved(other, KEY, 1.0), [], by="page-other")
-        session._edit(SCENE, KEY, _moved(app.state, KEY, 1.0), {"op": "nudge"}, seen=seen)
+        session.editor._edit(SCENE, KEY, _moved(app.state, KEY, 1.0), RepairStep.from_json({"op": "nudge"}), seen=seen)
         assert "page-other" in session.unsaved[SCENE]
         session.nudge(0, +1)
         assert SCENE not in session.unsaved

@@ -34,14 +34,14 @@ X      reset the selected instance to the auto-annotation
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
 from typing import Protocol
 
 import viser
 
 from annotator.dataset.review import ReviewStatus
 from viewer.keyguard import guard_html
-from viewer.state import FILTERS, SceneInfo
+from viewer.panel_text import PanelView
+from viewer.state import FILTERS
 
 PANEL_WIDTH = 480  # CSS pixels
 _GUARD_ORDER = -1e9  # first: an empty element, it takes no room
@@ -112,65 +112,6 @@ class PanelActions(Protocol):
     def reset_pose(self) -> None: ...
     def nudge(self, axis: int, sign: int) -> None: ...
     def add_missing(self, key: str) -> None: ...
-
-
-@dataclass
-class PanelView:
-    """Everything the panel shows, as text."""
-
-    title: str
-    alert: str = ""  # red: a decision not saved, another reviewer's overriding decision
-    notice: str = ""  # problems with the scene's files, the armed "no pose here" click
-    progress: float = 0.0  # percent
-    progress_text: str = ""
-    table: str = ""
-    warnings: str = ""
-    repair: str = ""  # what the last repair did (residuals), or what it is doing
-    offer: tuple[str, ...] = ()  # instances without a pose, to add where M was clicked
-
-
-def _fmt(x: float | None, spec: str) -> str:
-    return "-" if x is None else format(x, spec)
-
-
-def instance_table(info: SceneInfo, selected: str | None) -> str:
-    """The instances of a scene with what there is to trust or distrust, as markdown."""
-    rows = [
-        "| | instance | state | flags | mk | px | mm | occl | depth |",
-        "|---|---|---|---|---|---|---|---|---|",
-    ]
-    for p in info.poses:
-        mark = "▶" if p.key == selected else ""
-        state = str(info.instance_status(p.key))
-        if p.key in info.edited:
-            state += " · ✎ edited"
-        elif p.key in info.stale_edits:
-            state += " · ✎ edit stale"
-        flags = ", ".join(f.replace("_", " ") for f in p.flags) or "-"
-        rows.append(
-            f"| {mark} | {p.key} | {state} | {flags} | "
-            f"{p.count('used')}/{p.count('rejected')} | {_fmt(p.reprojection_rms, '.2f')} | "
-            f"{_fmt(p.uncertainty_mm, '.2f')} | {_fmt(p.occlusion_rate, '.2f')} | "
-            f"{_fmt(p.depth_agreement, '.2f')} |"
-        )
-    rows.append(
-        "\nmk: markers used/rejected · px: reprojection RMS · mm: estimated uncertainty · "
-        "occl: occlusion rate · depth: depth agreement · ✎: pose repaired in review.json "
-        "(export and evaluate use it)"
-    )
-    return "\n".join(rows)
-
-
-def warnings_text(info: SceneInfo) -> str:
-    """The scene's annotation warnings, unexplained-depth regions listed (markdown)."""
-    lines = []
-    for w in info.warnings:
-        lines.append(f"- **{str(w.kind).replace('_', ' ')}**: {w.text}")
-        for r in w.regions:
-            lines.append(f"    - <span style='color:#e00'>■</span> {r.describe()}")
-    for m in info.review.missing:
-        lines.append(f"- no pose here: {m.camera} ({m.pixel[0]:.0f}, {m.pixel[1]:.0f})")
-    return "\n".join(lines)
 
 
 class Panel:
