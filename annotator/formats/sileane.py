@@ -57,6 +57,7 @@ from annotator.formats.base import (
 )
 from annotator.geometry import MM_PER_M
 from annotator.io.documents import read_json, read_yaml
+from annotator.symmetry.classes import SymmetryKind
 from annotator.symmetry.space import MATCH_THRESHOLD_FRACTION, PoseSpace
 
 NAME = "sileane"
@@ -117,15 +118,16 @@ def poseutils_from_json(doc: Any, path: Path) -> tuple[PoseSpace, float | None]:
         if not ident or not np.all(np.isfinite(L)):
             raise UserError("G must contain the identity and Lambda be finite", path=path)
         G = np.concatenate([G[ident[0] : ident[0] + 1], np.delete(G, ident[0], axis=0)])
-        kind = "finite" if len(G) > 1 else "none"
-        space = PoseSpace(kind, np.zeros(3), np.eye(3), L, G, 0.0, float("nan"))
+        finite: SymmetryKind = "finite" if len(G) > 1 else "none"
+        space = PoseSpace(finite, np.zeros(3), np.eye(3), L, G, 0.0, float("nan"))
         return space, threshold
     lam = doc.get("lambda")
     if not isinstance(lam, (int, float)) or not lam >= 0:
         raise UserError("lambda must be a number >= 0", path=path)
-    kind = "revolution_flip" if doc.get("rotoreflection_symmetry") else "revolution"
-    if lam == 0:
-        kind = "spherical"
+    revolution: SymmetryKind = (
+        "revolution_flip" if doc.get("rotoreflection_symmetry") else "revolution"
+    )
+    kind = revolution if lam != 0 else "spherical"
     space = PoseSpace(
         kind, np.zeros(3), np.eye(3), np.zeros((3, 3)), np.eye(3)[None], lam * M, float("nan")
     )

@@ -23,14 +23,16 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Literal, get_args
 
 import numpy as np
 
 from annotator.geometry.transforms import axis_angle, matrix_to_rotvec
 from annotator.symmetry.group import finite_group
 
-SYMMETRY_CLASSES = ("none", "finite", "revolution", "revolution_flip", "spherical")
+#: The classes of proper symmetry (object.yaml ``symmetry.class``).
+SymmetryKind = Literal["none", "finite", "revolution", "revolution_flip", "spherical"]
+SYMMETRY_CLASSES: tuple[SymmetryKind, ...] = get_args(SymmetryKind)
 
 
 @dataclass(frozen=True)
@@ -44,7 +46,7 @@ class Symmetry:
         axis: For revolution classes: the axis direction (through the surface centroid).
     """
 
-    kind: str = "none"
+    kind: SymmetryKind = "none"
     generators: tuple[tuple[np.ndarray, int], ...] = ()
     axis: np.ndarray | None = None
 

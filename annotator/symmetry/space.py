@@ -21,7 +21,7 @@ from functools import cached_property
 import numpy as np
 
 from annotator.geometry.mesh import SurfaceMoments
-from annotator.symmetry.classes import Symmetry, group_of
+from annotator.symmetry.classes import Symmetry, SymmetryKind, group_of
 
 #: The paper's match threshold, as a fraction of a part's diameter: two poses closer than
 #: this are the same pose (evaluation), and two copies posed closer are in the same place.
@@ -45,7 +45,7 @@ class PoseSpace:
     Build with :meth:`from_moments`. All lengths are mm.
     """
 
-    kind: str
+    kind: SymmetryKind
     centroid: np.ndarray
     B: np.ndarray  # model -> canonical axes (columns)
     L: np.ndarray  # 3x3 square root of the second moments, canonical frame
