@@ -3,7 +3,7 @@ markers (``synth --no-markers``, same seed), 1280x1024, two cameras.
 
 Prints the markers OpenCV's ArUco detector finds in the exported images before and after,
 the PSNR inside the marker regions against the bare render (the marked image, our fill and
-OpenCV's inpainting), whether every pixel outside the regions is byte for byte the plain
+OpenCV's inpainting) and the sensor noise left there, whether every pixel outside the regions is byte for byte the plain
 export's and the bare render's, and the time of the whole ``annotator export`` process with
 ``--remove-markers`` over a plain one (target: at most 2x).
 
@@ -22,6 +22,8 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+
+from annotator.export.fill import noise_sigma
 
 SYNTH = ["--parts", "bracket,brick,cylinder", "--instances", "10-16", "--seed", "11", "--quiet"]
 EXPORT = ["--format", "bop", "--poses", "gt", "--include-pending", "--quiet"]
@@ -91,6 +93,7 @@ def _report(base: Path, plain_t: list[float], removed_t: list[float]) -> None:
     counts = {"marked": 0, "removed": 0, "telea": 0, "bare_bop": 0}
     # ArUco now and then reads an id in the parts' own edges: the bare render has those too.
     not_bare = {"removed": 0, "telea": 0}
+    grain: dict[str, list[float]] = {"bare_bop": [], "removed": [], "telea": []}
     err = {"marked": 0.0, "removed": 0.0, "telea": 0.0}
     pixels = images = 0
     identical = {"plain export": True, "bare render": True}
@@ -111,6 +114,9 @@ def _report(base: Path, plain_t: list[float], removed_t: list[float]) -> None:
         for k in err:
             err[k] += float(np.sum((img[k][mask] - bare[mask]) ** 2))
         pixels += int(mask.sum())
+        inner = cv2.erode(mask.astype(np.uint8), np.ones((5, 5), np.uint8)) > 0
+        for k in grain:
+            grain[k].append(noise_sigma(img[k], inner))
         images += 1
         identical["plain export"] &= bool(
             np.array_equal(img["removed"][~mask], img["marked"][~mask])
@@ -137,6 +143,11 @@ def _report(base: Path, plain_t: list[float], removed_t: list[float]) -> None:
         "  PSNR in the regions against the bare render: "
         f"marked {psnr('marked'):.1f} dB -> filled {psnr('removed'):.1f} dB "
         f"(OpenCV's inpainting: {psnr('telea'):.1f} dB)"
+    )
+    g = {k: statistics.median(v) for k, v in grain.items()}
+    print(
+        f"  sensor noise inside the regions (sigma, grey levels): bare {g['bare_bop']:.2f}, "
+        f"filled {g['removed']:.2f}, OpenCV's inpainting {g['telea']:.2f}"
     )
     for k, v in identical.items():
         print(f"  outside the regions, byte-identical to the {k}: {'yes' if v else 'NO'}")

@@ -356,15 +356,15 @@ def test_fill_keeps_each_surface_its_own() -> None:
     mask = np.zeros((h, w), bool)
     mask[20:40, 25:55] = True
     img[mask] = 0  # the marker
-    out = fill_markers(img, mask, labels, method="surface")
+    out = fill_markers(img, mask, labels, method="surface", noise=False)
     assert np.array_equal(out[~mask], img[~mask])
     assert np.abs(out[mask].astype(int) - truth[mask]).max() <= 1
     telea = fill_markers(img, mask, labels, method="telea")
     assert np.array_equal(telea[~mask], img[~mask])
     assert np.abs(telea[mask].astype(int) - truth[mask]).max() > 30
-    colour = fill_markers(np.dstack([img] * 3), mask, labels)
+    colour = fill_markers(np.dstack([img] * 3), mask, labels, noise=False)
     assert np.array_equal(colour[..., 1], out)
-    wide = fill_markers(img.astype(np.uint16) * 200, mask, labels)
+    wide = fill_markers(img.astype(np.uint16) * 200, mask, labels, noise=False)
     assert np.abs(wide[mask].astype(int) - truth[mask].astype(int) * 200).max() <= 200
     assert np.array_equal(fill_markers(img, np.zeros_like(mask), labels), img)
 
@@ -384,8 +384,26 @@ def test_fill_carries_shading_across_a_marker() -> None:
     mask[10:40, 40:90] = True
     img = truth.copy()
     img[mask] = 5
-    model = fill_markers(img, mask, labels, normals=normals, rays=rays)
-    plain = fill_markers(img, mask, labels)
+    model = fill_markers(img, mask, labels, normals=normals, rays=rays, noise=False)
+    plain = fill_markers(img, mask, labels, noise=False)
     err_model = np.abs(model[mask].astype(int) - truth[mask]).max()
     err_plain = np.abs(plain[mask].astype(int) - truth[mask]).max()
     assert err_model <= 1 < 10 < err_plain
+
+
+def test_fill_has_the_noise_of_its_surroundings() -> None:
+    """A flat grey with sensor noise: the filled square has that noise (not a smooth patch),
+    the same on every run."""
+    rng = np.random.default_rng(3)
+    img = np.clip(np.round(120 + rng.normal(0, 3.0, (120, 160))), 0, 255).astype(np.uint8)
+    mask = np.zeros(img.shape, bool)
+    mask[40:80, 50:110] = True
+    marked = img.copy()
+    marked[mask] = 0
+    a = fill_markers(marked, mask)
+    assert np.array_equal(a, fill_markers(marked, mask))
+    assert np.array_equal(a[~mask], marked[~mask])
+    inner = a[45:75, 55:105].astype(float)
+    assert 2.4 < inner.std() < 3.6 and abs(inner.mean() - 120) < 1.0
+    smooth = fill_markers(marked, mask, noise=False)[45:75, 55:105].astype(float)
+    assert smooth.std() < 0.5

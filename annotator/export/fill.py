@@ -13,7 +13,7 @@ Two methods, both changing only the pixels of the mask:
   outline. What it leaves (the albedo's and light's local departures from it) is carried in
   from the region's border by a normalised convolution over the known pixels of the same
   surface. The fill is then blurred as the image is, so that an outline crossing a region is
-  as soft as elsewhere. A marker next to another part's edge is thus filled with its own
+  as soft as elsewhere, and given the sensor noise the image has around it. A marker next to another part's edge is thus filled with its own
   part's shading, never with the neighbour's grey level. Pixels of no instance (the bin, an
   unannotated part) get the mean of the known pixels of the same label around them.
 - ``telea``: OpenCV's ``cv2.inpaint`` (Telea's fast marching), which blends every known
@@ -27,6 +27,8 @@ truth and several times slower (see benchmarks/bench_remove_markers.py).
 """
 
 from __future__ import annotations
+
+import hashlib
 
 import cv2
 import numpy as np
@@ -51,6 +53,7 @@ def fill_markers(
     normals: np.ndarray | None = None,
     rays: np.ndarray | None = None,
     blur: float = 0.0,
+    noise: bool = True,
     method: str = "surface",
 ) -> np.ndarray:
     """``image`` (H, W) or (H, W, C), 8 or 16 bit, with the pixels of ``mask`` filled; every
@@ -58,7 +61,10 @@ def fill_markers(
     instance each pixel shows (-1: none; None: one surface), ``normals`` (H, W, 3), the unit
     normal (camera frame) of its face (0: unknown; None: no shading model), ``rays``
     (H, W, 3), the viewing ray through each pixel (any length; None: along z), and ``blur``,
-    the image's blur (Gaussian sigma, px)."""
+    the image's blur (Gaussian sigma, px); ``noise``: give the filled pixels the sensor
+    noise the image has around them (a smooth patch is a cue a network could learn as it
+    learns the markers), drawn from the image's own content, so the same image is always
+    filled the same way."""
     if method not in METHODS:
         raise ValueError(f"unknown fill method {method!r} (expected one of {', '.join(METHODS)})")
     out = image.copy()
@@ -78,11 +84,51 @@ def fill_markers(
         canvas[mask] = filled
         soft = cv2.GaussianBlur(canvas, (0, 0), blur).reshape(canvas.shape)
         filled = soft[mask].astype(np.float64)
+    if noise:
+        filled = filled + _grain(image, mask, filled.shape)
     info = np.iinfo(image.dtype) if np.issubdtype(image.dtype, np.integer) else None
     if info is not None:
         filled = np.clip(np.round(filled), info.min, info.max)
     out[mask] = filled.astype(image.dtype).reshape(out[mask].shape)
     return out
+
+
+#: Known pixels within this distance (px) of the mask measure the image's noise.
+NOISE_RING_PX = 8
+
+
+def noise_sigma(image: np.ndarray, where: np.ndarray) -> float:
+    """The sensor noise (Gaussian sigma, grey levels) of ``image`` at the pixels ``where``:
+    the median absolute response of Immerkaer's kernel (which cancels shading that is
+    linear over 3x3 pixels and answers white noise with 6 sigma), robust to edges."""
+    img = image.reshape(*image.shape[:2], -1).astype(np.float32)
+    kernel = np.array([[1, -2, 1], [-2, 4, -2], [1, -2, 1]], np.float32)
+    sel = where.copy()
+    sel[[0, -1], :] = False
+    sel[:, [0, -1]] = False
+    if sel.sum() < 50:
+        return 0.0
+    resp = np.stack(
+        [cv2.filter2D(img[..., c], -1, kernel)[sel] for c in range(img.shape[2])], axis=1
+    )
+    return float(1.4826 * np.median(np.abs(resp)) / 6.0)
+
+
+def _grain(image: np.ndarray, mask: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
+    """White Gaussian noise of the image's own level around the mask, for the filled pixels;
+    the generator is seeded by the image and the mask, so a fill is reproducible."""
+    d = 2 * NOISE_RING_PX + 1
+    ring = (cv2.dilate(mask.astype(np.uint8), np.ones((d, d), np.uint8)) > 0) & ~mask
+    # The mask's own border is left out: the fill's blur reaches into it.
+    ring &= cv2.dilate(mask.astype(np.uint8), np.ones((5, 5), np.uint8)) == 0
+    sigma = noise_sigma(image, ring)
+    if sigma <= 0:
+        return np.zeros(shape)
+    seed = int.from_bytes(
+        hashlib.blake2b(image.tobytes() + np.packbits(mask).tobytes(), digest_size=8).digest(),
+        "little",
+    )
+    return np.random.default_rng(seed).normal(0.0, sigma, shape)
 
 
 #: Gaussian sigma (px) of the average of the known pixels around a region.
