@@ -264,6 +264,9 @@ def test_bad_options_say_so(twins, tmp_path, capsys) -> None:
     assert main([*args, "--include-pending", "--remove-markers", "--marker-fill", "blur"]) == 2
     assert "invalid choice" in capsys.readouterr().err
     assert not out.exists()
+    assert main(["synth", str(out), "--calibration", "--no-markers"]) == 2
+    assert "--no-markers does not apply to --calibration" in capsys.readouterr().err
+    assert not out.exists()
 
 
 # ------------------------------------------------------------------ hand-built scenes

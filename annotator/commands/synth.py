@@ -226,6 +226,11 @@ def _config(args: argparse.Namespace) -> SynthConfig:
 
 def run(args: argparse.Namespace) -> int:
     out = Path(args.out)
+    if args.no_markers and (args.twin or args.calibration):
+        # A twin's markers are the real scene's, and board shots have no parts.
+        raise UserError(
+            f"--no-markers does not apply to {'--twin' if args.twin else '--calibration'}"
+        )
     if args.twin:
         from annotator.commands.twin import synth_twin
 
