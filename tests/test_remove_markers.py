@@ -453,3 +453,21 @@ def test_the_instances_own_measured_sites_are_used(tmp_path) -> None:
             inst["sites"] = sites[inst["name"]]
         path.write_text(yaml.safe_dump(doc))
     assert ink_outside("measured") == 0
+
+
+def test_the_summary_counts_the_markers_filled(exports, tmp_path, capsys) -> None:
+    """``annotator export --json`` says how many markers were filled in: the COCO files'
+    marker annotations; a plain export says null."""
+    args = ["export", str(exports / "marked"), str(tmp_path / "a"), "--format", "bop"]
+    args += ["--poses", "gt", "--include-pending", "--quiet", "--json"]
+    assert main([*args, "--remove-markers"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    count = 0
+    for f in (exports / "removed" / "test").glob("*/scene_gt_coco_*.json"):
+        coco = json.loads(f.read_text())
+        marker = next(c["id"] for c in coco["categories"] if c["name"] == "marker")
+        count += sum(a["category_id"] == marker for a in coco["annotations"])
+    assert summary["markers_filled"] == count > 40
+    args[2] = str(tmp_path / "b")
+    assert main(args) == 0
+    assert json.loads(capsys.readouterr().out)["markers_filled"] is None

@@ -111,6 +111,11 @@ def run(args: argparse.Namespace) -> int:
         why = "; ".join(f"{n} {r}" for r, n in sorted(summary.reasons().items()))
         print(
             f"export: {summary.exported} scenes written to {summary.out} ({args.format})"
+            + (
+                f", {summary.markers_filled} markers filled in"
+                if summary.markers_filled is not None
+                else ""
+            )
             + (f"; left out: {why}" if why else "")
         )
     return 1 if summary.failures else 0

@@ -44,6 +44,11 @@ class SceneWithoutMarkers:
     markers: dict[str, ImageMarkers]
     visibility: list[InstanceVisibility]
 
+    @property
+    def filled(self) -> int:
+        """Markers filled in, over the cameras (a marker seen by two counts twice)."""
+        return sum(len(r.pixels) > 0 for m in self.markers.values() for r in m.regions)
+
 
 def marked_instances(ds: Dataset, poses: Sequence[InstancePose]) -> list[MarkedInstance]:
     """Each posed instance with its own sites and ids (an instance the dataset does not know

@@ -88,11 +88,13 @@ def export_bop(
     layout: str = "scenewise",
     remove_markers: bool = False,
     fill: str = "surface",
+    markers_filled: Callable[[int], None] | None = None,
 ) -> dict[str, str]:
     """Write ``selected`` scenes into the empty folder ``out``; returns the scenes left out
     because an input was unreadable (scene id -> one-line reason). ``remove_markers``: the
     images with their markers filled in by ``fill`` (:mod:`annotator.export.fill`), and
-    ``mask_markers``."""
+    ``mask_markers``; ``markers_filled`` is told how many markers each scene's images had
+    filled in."""
     if layout not in LAYOUTS:
         raise UserError(f"unknown layout {layout!r} (expected one of {', '.join(LAYOUTS)})")
     obj_ids = _write_models(ds, out)
@@ -126,6 +128,7 @@ def export_bop(
             ids[f"{bop_id:06d}"] = item.scene.id
             scene = _SceneWriter(ds, rig, cameras, obj_ids, out / "test" / f"{bop_id:06d}")
             scene.remove_markers, scene.fill = remove_markers, fill
+            scene.markers_filled = markers_filled
             targets += scene.write(item, inputs, bop_id)
         if progress:
             progress()
@@ -182,6 +185,7 @@ class _SceneWriter:
         self.depth_scale = ds.rig.depth.scale if ds.rig.depth else 1.0
         self.remove_markers = False
         self.fill = "surface"
+        self.markers_filled: Callable[[int], None] | None = None
 
     def write(self, item: Selected, inputs: Any, bop_id: int) -> list[dict[str, int]]:
         """Write the scene; returns its entries of test_targets_bop19.json (for the first
@@ -201,6 +205,8 @@ class _SceneWriter:
                 fill=self.fill,
             )
             vis, images = removed.visibility, removed.images
+            if self.markers_filled:
+                self.markers_filled(removed.filled)
             sfx = len(self.cameras) > 1
             for name, m in removed.markers.items():
                 mask = m.mask.astype(np.uint8) * 255

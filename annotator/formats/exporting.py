@@ -33,6 +33,8 @@ class ExportSummary:
         exported: Scenes written.
         left_out: Scene id -> why it was left out by the reviews (pending, rejected...).
         failures: Scene id -> why it could not be read.
+        markers_filled: With ``remove_markers``, the markers filled in over every exported
+            image (a marker seen by two cameras counts twice); None without.
     """
 
     format: str
@@ -40,6 +42,7 @@ class ExportSummary:
     exported: int
     left_out: dict[str, str] = field(default_factory=dict)
     failures: dict[str, str] = field(default_factory=dict)
+    markers_filled: int | None = None
 
     def reasons(self) -> dict[str, int]:
         """How many scenes were left out for each reason (``unreadable`` for failures)."""
@@ -58,6 +61,7 @@ class ExportSummary:
             "left_out": self.reasons(),
             "scenes_left_out": self.left_out,
             "failures": dict(sorted(self.failures.items())),
+            "markers_filled": self.markers_filled,
         }
 
 
@@ -125,7 +129,12 @@ def export_dataset(
             path=ds.root,
         )
     tick = progress(len(sel.scenes)) if progress else None
-    markers: dict[str, Any] = {"remove_markers": remove_markers, "fill": fill}
+    filled: list[int] = []
+    markers: dict[str, Any] = {
+        "remove_markers": remove_markers,
+        "fill": fill,
+        "markers_filled": filled.append,
+    }
     with atomic_folder(out) as tmp:
         write_manifest(tmp, command="export")
         if format == "bop":
@@ -138,7 +147,10 @@ def export_dataset(
             unreadable = get_format(format).export(
                 ds, sel.scenes, tmp, cameras=chosen, progress=tick, **markers
             )
-    return _summary(format, out, sel, unreadable)
+    summary = _summary(format, out, sel, unreadable)
+    if remove_markers:
+        summary.markers_filled = sum(filled)
+    return summary
 
 
 def _check_writable(out: Path, ds: Dataset, overwrite: bool) -> None:

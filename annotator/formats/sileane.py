@@ -154,11 +154,13 @@ def export(
     progress: Callable[[], None] | None = None,
     remove_markers: bool = False,
     fill: str = "surface",
+    markers_filled: Callable[[int], None] | None = None,
 ) -> dict[str, str]:
     """Write ``selected`` scenes into the empty folder ``out`` (the reference camera only);
     returns the scenes left out because an input was unreadable (scene id -> reason).
     ``remove_markers``: the images with their markers filled in by ``fill``
-    (:mod:`annotator.export.fill`), and ``mask_markers/``."""
+    (:mod:`annotator.export.fill`), and ``mask_markers/``; ``markers_filled`` is told how
+    many markers each scene's image had filled in."""
     from annotator.export.inputs import read_scene_inputs
     from annotator.export.undistort import pinhole_rig
 
@@ -176,9 +178,11 @@ def export(
     frames = _write_objects(ds, out, ref.K, clip)
     for item in selected:
         if item.scene.id in inputs:
-            _write_scene(
+            filled = _write_scene(
                 ds, rig, item, inputs[item.scene.id], out, frames, clip, remove_markers, fill
             )
+            if markers_filled and remove_markers:
+                markers_filled(filled)
         if progress:
             progress()
     return failed
@@ -234,10 +238,10 @@ def _write_scene(
     clip: tuple[float, float],
     remove_markers: bool = False,
     fill: str = "surface",
-) -> None:
+) -> int:
     """One scene in every object's folder: the image, the encoded depth, the segmentation
     of that object's instances and their poses in its canonical frame (``remove_markers``:
-    the image with its markers filled in, and their mask)."""
+    the image with its markers filled in, and their mask). Returns the markers filled in."""
     from annotator.io.atomic import write_json
     from annotator.io.images import write_png
     from annotator.occlusion import scene_visibility
@@ -247,6 +251,7 @@ def _write_scene(
     depth = inputs.depth
     image = inputs.images[ref.name]
     marker_mask = None
+    filled = 0
     if remove_markers:
         from annotator.export.removal import remove_scene_markers
 
@@ -261,6 +266,7 @@ def _write_scene(
             fill=fill,
         )
         vis, image = removed.visibility, removed.images[ref.name]
+        filled = removed.filled
         marker_mask = removed.markers[ref.name].mask.astype(np.uint8) * 255
     else:
         meshes = [ds.objects[p.object].mesh for p in item.poses]
@@ -296,6 +302,7 @@ def _write_scene(
             )
         write_png(folder / "segmentation" / f"{sid}.PNG", seg)
         write_json(folder / "gt" / f"{sid}.json", gt)
+    return filled
 
 
 # ------------------------------------------------------------------------- ground truth
