@@ -1,6 +1,8 @@
 """Calibration from captures as users make them: colour-inverted boards, a mirrored camera, a
-custom dictionary, a plain chessboard, videos, a board that covers only the image centre
-(held-out error, model choice, extrapolation warning), and their bad inputs.
+camera behind the board and a board turned round (seen through the paper), a custom
+dictionary, a plain chessboard, videos, a board that covers only the image centre (held-out
+error, model choice, extrapolation warning), a rig that does not hold together, and their
+bad inputs.
 
 Each capture is rendered once per module by ``annotator synth --calibration`` with the truth
 beside it, and calibrated through the command line; the recovered rig is compared with the
@@ -28,7 +30,7 @@ from annotator.errors import UserError
 from annotator.geometry.transforms import invert
 from annotator.markers.dictionary import dictionary, min_distance
 from annotator.runner.bundle import description_files
-from annotator.synthesis.board import write_videos
+from annotator.synthesis.board import CaptureConfig, write_captures, write_videos
 
 TOLERANCE = {"focal_pct": 0.2, "principal_px": 5.0, "position_mm": 0.3, "rotation_deg": 0.2}
 #: Smaller images and fewer shots than tests/test_calibrate.py's, to keep the module quick.
@@ -116,7 +118,13 @@ def test_inverted_board_mirrored_camera_custom_dictionary(
     # Calibrated as a user would who does not know the board is inverted (auto overrides the
     # board.yaml of the synthetic captures, which says so).
     out, doc, rig = _calibrate(awkward, tmp_path, capsys, "--inverted", "auto", "--folds", "3")
-    assert "camera right: its images are mirrored" in out
+    assert "camera right: a mirrored camera (the board reads only in the flipped image" in out
+    assert "its board poses agree with camera left's" in out
+    reading = doc["cameras"][1]["reading"]
+    assert reading["mirrored"] and not reading["behind_shots"]
+    # Decided by the geometry: the other reading's board poses drift by far more.
+    chosen, other = reading["spread_mm"]
+    assert chosen < 5 and other > 10 * chosen
     assert f"camera left: the board reads colour-inverted in {SHOTS} of its {SHOTS} shots" in out
     assert [c.get("flip") for c in rig["cameras"]] == [None, "horizontal"]
     assert [c["flip"] for c in doc["cameras"]] == [None, "horizontal"]
@@ -332,13 +340,21 @@ def _subset(captures: Path, dst: Path, shots: int) -> Path:
 def test_camera_mirrored_in_some_shots_only(
     awkward: Path, tmp_path: Path, capsys: pytest.CaptureFixture
 ) -> None:
-    caps = _subset(awkward, tmp_path / "caps", 8)
+    """Two images stored unmirrored among a mirrored camera's: read the one way they are a
+    board seen from behind, whose pose does not agree with the other camera's; they are
+    left out, saying why, and the rest calibrates."""
+    caps = _subset(awkward, tmp_path / "caps", 9)
     for shot in ("003", "007"):
         p = caps / "right" / f"{shot}.png"
         cv2.imwrite(str(p), cv2.imread(str(p), cv2.IMREAD_UNCHANGED)[:, ::-1])
-    line = one_error_line(["calibrate", str(caps)], capsys)
-    assert f"{caps / 'right'}: camera right's images are mirrored in some shots only" in line
-    assert "as it is (not mirrored) in 2 of 8 shots (003, 007)" in line
+    out, doc, rig = _calibrate(caps, tmp_path, capsys, "--dist-coeffs", "4", "--folds", "3")
+    assert [c.get("flip") for c in rig["cameras"]] == [None, "horizontal"]
+    left_out = {(r["shot"], r["camera"]): r["reason"] for r in doc["rejected"]}
+    assert set(left_out) == {("003", "right"), ("007", "right")}, left_out
+    assert all("is this image mirrored?" in why for why in left_out.values())
+    assert "rejected: shot 003, camera right: its board pose is" in out
+    errors = _rig_errors(rig, _truth(awkward))
+    assert all(errors[k] < 2 * tol for k, tol in TOLERANCE.items()), errors
 
 
 def test_camera_without_the_board(
@@ -363,3 +379,96 @@ def test_custom_dictionary_that_does_not_parse(
     line = one_error_line(["calibrate", str(caps)], capsys)
     assert str(caps / "board.yaml") in line and "dictionary.yml" in line
     assert "marker_0 must be a string of 25 bits" in line
+
+
+# ---------------------------------------------------------------- a board seen from behind
+
+
+@pytest.fixture(scope="module")
+def behind(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The right camera placed behind a thin back-lit board (it sees the print through the
+    paper, mirrored, with less contrast), and the board turned round in three shots: then the
+    left camera sees its back and the right camera its front."""
+    out = tmp_path_factory.mktemp("behind") / "captures"
+    config = CaptureConfig(
+        shots=SHOTS, noise=12.0, blur=1.0, size=(1024, 820), behind=("right",), turned=(2, 6, 10)
+    )
+    write_captures(config, out, workers=2)
+    return out
+
+
+def test_camera_behind_the_board_and_a_board_turned_round(
+    behind: Path, tmp_path: Path, capsys: pytest.CaptureFixture
+) -> None:
+    # As recorded: the right camera's board reads only flipped except in the turned shots,
+    # the left camera's only flipped in them.
+    img = cv2.imread(str(behind / "right" / "000.png"), cv2.IMREAD_GRAYSCALE)
+    aruco = cv2.aruco.ArucoDetector(dictionary("DICT_4X4_50"))
+    plain = aruco.detectMarkers(img)[1]
+    assert (
+        (0 if plain is None else len(plain)) < 3 <= len(aruco.detectMarkers(img[:, ::-1].copy())[1])
+    )
+    out, doc, rig = _calibrate(behind, tmp_path, capsys, "--folds", "3")
+    assert "camera right: sees the board from behind, through the paper, in 11 of its 14" in out
+    assert "camera left: sees the board from behind, through the paper, in 3 of its 14" in out
+    # Nobody is mirrored: no flip anywhere.
+    assert [c.get("flip") for c in rig["cameras"]] == [None, None]
+    readings = [c["reading"] for c in doc["cameras"]]
+    assert readings[0]["behind_shots"] == ["002", "006", "010"]
+    assert readings[1]["behind_shots"] == [f"{k:03d}" for k in range(SHOTS) if k not in (2, 6, 10)]
+    chosen, other = readings[1]["spread_mm"]
+    assert chosen < 5 and other > 10 * chosen
+    assert all(s["used"] for s in doc["shots"]) and not doc["refused"]
+    # As accurate as the through-paper corners allow: the intrinsics within the ordinary
+    # tolerances, the pose of a camera 1.3 m away within three of its reported sigmas.
+    truth = _truth(behind)
+    errors = _rig_errors(rig, truth)
+    assert errors["focal_pct"] < 2 * TOLERANCE["focal_pct"], errors
+    assert errors["principal_px"] < TOLERANCE["principal_px"], errors
+    std = doc["cameras"][1]["std"]
+    assert errors["position_mm"] < 3 * std["position_mm"], (errors, std)
+    assert errors["rotation_deg"] < 3 * std["rotation_deg"], (errors, std)
+    T = np.reshape(rig["cameras"][1]["rig_T_cam"], (4, 4))
+    assert T[2, 2] < -0.9  # it looks back at the rig
+    assert doc["held_out"]["rms_px"] < 1.0
+
+
+def test_a_rig_that_diverges_is_never_written(
+    tmp_path_factory: pytest.TempPathFactory, capsys: pytest.CaptureFixture
+) -> None:
+    """A plain chessboard looks the same mirrored, so a camera mirrored in some shots is only
+    seen by the geometry: the joint solve runs off (focal lengths of thousands of px, a
+    held-out error of hundreds); it is refused, naming the camera and the check, the report
+    is written, dataset.yaml is not."""
+    root = tmp_path_factory.mktemp("diverge")
+    captures = _synth(root / "captures", "--scenes", "10", "--board-kind", "chessboard")
+    for shot in ("001", "004", "007"):
+        p = captures / "right" / f"{shot}.png"
+        cv2.imwrite(str(p), cv2.imread(str(p), cv2.IMREAD_UNCHANGED)[:, ::-1])
+    ds, report = root / "ds", root / "report"
+    args = ["calibrate", str(captures), "--dataset", str(ds), "--report", str(report)]
+    code, out, err = run_cli([*args, "--yes", "--dist-coeffs", "4", "--folds", "2"], capsys)
+    assert code == 1
+    assert not ds.exists() and not (report / "rig.yaml").exists()
+    doc = json.loads((report / "report.json").read_text())
+    checks = {p["check"] for p in doc["refused"]}
+    assert {"focal", "rms", "held_out"} <= checks, doc["refused"]
+    assert f"error: {ds / 'dataset.yaml'}: not written: camera " in err
+    assert "focal length fx = " in err and "against 11" in err  # ~1110 px alone
+    assert "error: try --cameras " in err
+    assert "Traceback" not in err and "the rig does not hold together" in out
+
+
+def test_report_inside_a_camera_folder_is_refused(
+    awkward: Path, tmp_path: Path, capsys: pytest.CaptureFixture
+) -> None:
+    caps = _subset(awkward, tmp_path / "caps", 6)
+    for report, words in (
+        (caps / "right", "--report is the camera folder right of the captures"),
+        (caps / "right" / "rep", "--report lies inside the camera folder right of the captures"),
+        (caps, "--report is the captures folder itself"),
+        (caps / "board.yaml", "--report exists and is not a folder"),
+    ):
+        line = one_error_line(["calibrate", str(caps), "--report", str(report)], capsys)
+        assert line.startswith(f"annotator: error: {report}: {words}"), line
+    assert sorted(p.name for p in (caps / "right").iterdir()) == [f"{k:03d}.png" for k in range(6)]

@@ -138,6 +138,8 @@ class RefineResult:
         state: The refined unknowns.
         residuals: (N, 2) projected minus detected pixel of every corner.
         iterations: Levenberg-Marquardt iterations taken.
+        converged: It stopped because a step no longer lowered the cost (by more than the
+            tolerance), not at the iteration limit.
         sigma_px: Residual standard deviation per axis (with the degrees of freedom).
         camera_covariance: Per camera, the covariance of its free intrinsics (in
             ``INTRINSICS`` order, fixed ones left out) followed, for cameras 1..C-1, by that of
@@ -149,6 +151,7 @@ class RefineResult:
     iterations: int
     sigma_px: float
     camera_covariance: list[np.ndarray]
+    converged: bool = True
 
 
 def project(state: RigState, obs: Corners) -> np.ndarray:
@@ -255,6 +258,7 @@ def refine(
     cost = float(r @ r)
     damping = 1e-4
     iterations = 0
+    converged = False
     while iterations < max_iterations:
         iterations += 1
         H = (J.T @ J).tocsc()
@@ -279,6 +283,7 @@ def refine(
                 break
             damping *= 10.0
         if not improved or decrease < tolerance:
+            converged = True
             break
     dof = max(r.size - layout.size, 1)
     sigma = float(np.sqrt(cost / dof))
@@ -288,6 +293,7 @@ def refine(
         iterations=iterations,
         sigma_px=sigma,
         camera_covariance=_camera_covariance(J, layout, sigma),
+        converged=converged,
     )
 
 

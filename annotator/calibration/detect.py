@@ -10,9 +10,12 @@ a single marker (the corner error on rendered boards is printed by
 
 Boards as people print and film them: when the board is not found as it is, the image is
 searched again colour-inverted (white markers on black: some tools print boards so, and a
-board shown on a screen can look so) unless board.yaml says which, and mirrored (a webcam in
-"selfie" mode). A mirrored reading gives the corners in the mirrored image, which is the
-proper pinhole image of a camera whose rig entry says ``flip: horizontal``.
+board shown on a screen can look so) unless board.yaml says which, and flipped left to right.
+A board that reads only in the flipped image is either filmed by a mirrored camera (a webcam
+in "selfie" mode) or seen from behind, through the paper; the detection cannot tell which, so
+:func:`detect_captures` maps the corners back to the image as recorded (``u -> W-1-u``, the
+same corner ids) and marks the view ``flipped``; :mod:`.readings` decides between the two by
+the geometry of the rig.
 
 Plain chessboards: ``cv2.findChessboardCorners`` (``findChessboardCornersSB`` when it fails;
 whole views only) and ``cornerSubPix``, then the corners
@@ -33,7 +36,6 @@ import numpy as np
 from annotator.calibration.board import BoardSpec
 from annotator.calibration.captures import Captures, read_images
 from annotator.calibration.solve import View
-from annotator.errors import UserError
 from annotator.io.images import to_gray8
 
 
@@ -196,15 +198,17 @@ class CapturesDetection:
         views: One per camera and shot, shot by shot (what :func:`calibrate_rig` takes).
         sizes: Each camera's image size ``(width, height)``, in camera order.
         foreign_markers: Markers of the dictionary seen with ids not on the board, in all.
-        mirrored: Per camera, True if its images read mirrored (then its views' corners are
-            in the mirrored images: the camera needs ``flip: horizontal``).
+        flipped: Per camera, the shots whose board read only in the flipped image.
         inverted: Per camera, the views whose board read colour-inverted.
+
+    Every view's corners are in the image as recorded (:mod:`.readings` turns them into a
+    mirrored camera's when it decides a camera is one).
     """
 
     views: list[View]
     sizes: list[tuple[int, int]]
     foreign_markers: int
-    mirrored: list[bool] = field(default_factory=list)
+    flipped: list[int] = field(default_factory=list)
     inverted: list[int] = field(default_factory=list)
 
 
@@ -217,47 +221,35 @@ def detect_captures(
     progress: Callable[[Iterator], Iterator] | None = None,
 ) -> CapturesDetection:
     """Detect ``board`` in every image of ``captures`` (the keywords are those of
-    :func:`read_images`, whose UserErrors pass through).
-
-    Raises:
-        UserError: a camera whose images read mirrored in some shots and as they are in
-            others (one line naming its folder).
-    """
+    :func:`read_images`, whose UserErrors pass through)."""
     detectors = [BoardDetector(board) for _ in captures.cameras]
     views: list[View] = []
     sizes: dict[int, tuple[int, int]] = {}
     foreign = 0
-    mirrored: list[list[str]] = [[] for _ in captures.cameras]
-    normal: list[list[str]] = [[] for _ in captures.cameras]
+    flipped = [0] * len(captures.cameras)
+    found = [0] * len(captures.cameras)
     inverted = [0] * len(captures.cameras)
     for c, s, img in read_images(
         captures, expected_sizes=expected_sizes, expected_source=expected_source, progress=progress
     ):
-        sizes[c] = (int(img.shape[1]), int(img.shape[0]))
+        width = int(img.shape[1])
+        sizes[c] = (width, int(img.shape[0]))
         det = detectors[c].detect(img)
-        views.append(View(c, s, det.ids, det.corners, det.markers, det.mirrored))
+        corners = det.corners.copy()
+        if det.mirrored:  # back to the image as recorded
+            corners[:, 0] = width - 1 - corners[:, 0]
+        views.append(View(c, s, det.ids, corners, det.markers, det.mirrored and det.found))
         foreign += det.foreign_markers
         if det.found:
-            (mirrored if det.mirrored else normal)[c].append(captures.shots[s])
+            found[c] += 1
+            flipped[c] += int(det.mirrored)
             inverted[c] += int(det.inverted)
-            detectors[c].prefer_mirrored = len(mirrored[c]) > len(normal[c])
-            found_c = len(mirrored[c]) + len(normal[c])
-            detectors[c].prefer_inverted = 2 * inverted[c] > found_c
-    for c, name in enumerate(captures.cameras):
-        if mirrored[c] and normal[c]:
-            few, many = sorted((mirrored[c], normal[c]), key=len)
-            how = "mirrored" if few is mirrored[c] else "as it is (not mirrored)"
-            raise UserError(
-                f"camera {name}'s images are mirrored in some shots only: the board reads "
-                f"{how} in {len(few)} of {len(few) + len(many)} shots ({', '.join(few[:4])}"
-                f"{', ...' if len(few) > 4 else ''}); one camera's images must all be mirrored "
-                "or none",
-                path=captures.folder(name),
-            )
+            detectors[c].prefer_mirrored = 2 * flipped[c] > found[c]
+            detectors[c].prefer_inverted = 2 * inverted[c] > found[c]
     return CapturesDetection(
         views,
         [sizes[c] for c in range(len(captures.cameras))],
         foreign,
-        [bool(m) for m in mirrored],
+        flipped,
         inverted,
     )

@@ -19,8 +19,10 @@ from pathlib import Path
 import numpy as np
 
 from annotator.calibration.board import BoardSpec
+from annotator.calibration.checks import camera_held_out, rig_problems
 from annotator.calibration.extrapolation import extrapolation
 from annotator.calibration.heldout import FOLDS, HeldOut, held_out_error
+from annotator.calibration.readings import decide_readings
 from annotator.calibration.solve import Calibration, CalibrationOptions, View, calibrate_rig
 from annotator.geometry.camera import Camera
 
@@ -116,10 +118,16 @@ def calibrate_and_assess(
     folds: int = FOLDS,
     where: Mapping[str, Path] | None = None,
 ) -> Calibration:
-    """Calibrate with each candidate model, measure each on held-out shots, keep the chosen
-    one (``candidates`` of one model: that model, still measured). The result carries
-    ``held_out``, ``model_choice`` and the extrapolation warnings."""
+    """Decide how each camera's board reads (:mod:`.readings`), calibrate with each candidate
+    model, measure each on held-out shots, keep the chosen one (``candidates`` of one model:
+    that model, still measured), and check that the rig holds together (:mod:`.checks`).
+    The result carries ``readings``, ``held_out``, ``model_choice``, the extrapolation
+    warnings, ``camera_held_out`` and ``problems`` (empty: the rig may be written)."""
     opts = options or CalibrationOptions()
+    readings = decide_readings(
+        views, cameras=cameras, sizes=sizes, shots=shots, board=board, options=opts
+    )
+    views = readings.views
     problem = _Problem(views, cameras, sizes, shots, board, where)
     cals: dict[int, Calibration] = {}
     held: dict[int, HeldOut] = {}
@@ -132,11 +140,25 @@ def calibrate_and_assess(
     else:
         chosen = candidates[0]
         reason = f"{chosen} coefficients (as asked); held-out error {held[chosen].rms_px:.3f} px"
-    return _with_extrapolation(
+    cal = _with_extrapolation(
         dataclasses.replace(
-            cals[chosen], held_out=held[chosen], model_choice=ModelChoice(chosen, held, reason)
+            cals[chosen],
+            held_out=held[chosen],
+            model_choice=ModelChoice(chosen, held, reason),
+            readings=readings,
         )
     )
+    used = _used_views(cal)
+    alone = camera_held_out(
+        [v for v in views if (v.camera, v.shot) in used],
+        cameras=cameras,
+        sizes=sizes,
+        board=board,
+        dist_coeffs=chosen,
+        folds=folds,
+        min_corners=opts.min_corners,
+    )
+    return dataclasses.replace(cal, camera_held_out=alone, problems=tuple(rig_problems(cal, alone)))
 
 
 def _calibrate_and_hold_out(

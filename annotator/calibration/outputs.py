@@ -45,10 +45,15 @@ def write_report_folder(
     old_doc: dict[str, Any] | None,
 ) -> dict[str, Any]:
     """Write the report and ``rig.yaml`` into ``folder``; return the rig mapping (the old
-    rig's other fields kept), for :func:`dataset_update`."""
+    rig's other fields kept), for :func:`dataset_update`. A rig that does not hold together
+    (``cal.problems``) gets no ``rig.yaml`` (one left by an earlier run is removed), so that
+    none is copied from the report by mistake."""
     rig = keep_other_fields(rig_mapping(cal.rig_cameras, depth, flipped), old_doc)
     write_report(folder, cal, board, captures=captures, flipped=flipped)
-    write_text(folder / "rig.yaml", rig_yaml_text(rig))
+    if cal.problems:
+        (folder / "rig.yaml").unlink(missing_ok=True)
+    else:
+        write_text(folder / "rig.yaml", rig_yaml_text(rig))
     return rig
 
 

@@ -106,6 +106,11 @@ def _draw_corners(img: np.ndarray, cal: Calibration, camera: int, s: float, bann
         pick = sel & (cal.used == used)
         uv = cal.corners.pixel[pick] * s
         res = cal.residuals[pick] * s * magnify
+        # A rig that ran off has residuals of any size, or none: drawn at most a picture long.
+        res = np.nan_to_num(res, nan=0.0, posinf=0.0, neginf=0.0)
+        longest = float(img.shape[1])
+        norm = np.linalg.norm(res, axis=1, keepdims=True)
+        res = np.where(norm > longest, res * longest / np.maximum(norm, 1e-12), res)
         for (u, v), (du, dv) in zip(uv, res):
             p = (int(round(u)), banner + int(round(v)))
             cv2.circle(img, p, 1 if used else 3, colour, -1, cv2.LINE_AA)
@@ -206,7 +211,14 @@ def report_dict(
             {"shot": r.shot, "camera": r.camera, "reason": r.reason} for r in cal.rejections
         ],
         "warnings": list(cal.warnings),
+        "converged": cal.converged,
+        "refused": [p.to_dict() for p in cal.problems],
     }
+    if cal.camera_held_out:
+        out["camera_held_out_rms_px"] = {
+            rep.camera.name: None if not np.isfinite(e) else round(e, 4)
+            for rep, e in zip(cal.cameras, cal.camera_held_out)
+        }
     if cal.held_out is not None:
         out["held_out"] = cal.held_out.to_dict()
     if cal.model_choice is not None:
@@ -230,6 +242,8 @@ def _camera_entry(cal: Calibration, k: int, flipped: Sequence[str]) -> dict[str,
     frac, _ = coverage(cal, k)
     ex = cal.extrapolation[k] if len(cal.extrapolation) > k else None
     extra: dict[str, Any] = {"flip": "horizontal" if cam.name in flipped else None}
+    if cal.readings is not None:
+        extra["reading"] = cal.readings.cameras[k].to_dict()
     if ex is not None:
         extra["extrapolation"] = {
             "covered_fraction": round(ex.coverage, 3),
@@ -245,6 +259,7 @@ def _camera_entry(cal: Calibration, k: int, flipped: Sequence[str]) -> dict[str,
         "rig_T_cam": cam.rig_T_cam.ravel().tolist(),
         "rms_px": round(rep.rms_px, 4),
         "initial_rms_px": round(rep.initial_rms_px, 4),
+        "initial_focal_px": [round(f, 2) for f in rep.initial_focal_px],
         "shots": rep.shots,
         "corners": rep.corners,
         "outlier_corners": rep.outlier_corners,
@@ -328,6 +343,14 @@ def summary_lines(cal: Calibration) -> list[str]:
         out.append(
             f"held-out error: RMS {cal.held_out.rms_px:.3f} px over {cal.held_out.corners} corners "
             f"of left-out shots ({cal.held_out.folds}-fold; {pairs or 'no pair'})"
+        )
+    if cal.camera_held_out:
+        out.append(
+            "held-out error of each camera alone: "
+            + ", ".join(
+                f"{rep.camera.name} {e:.3f}" for rep, e in zip(cal.cameras, cal.camera_held_out)
+            )
+            + " px"
         )
     if cal.model_choice is not None:
         out.append(f"distortion model: {cal.model_choice.reason}")

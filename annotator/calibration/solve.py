@@ -26,6 +26,7 @@ Euclidean distance (px) between detected and projected corners.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -69,7 +70,9 @@ class View:
         ids: (n,) chessboard corner ids.
         corners: (n, 2) their pixel positions.
         markers: Markers of the board identified (0: the board was not found at all).
-        mirrored: The board read only in the mirrored image (``corners`` are in it).
+        flipped: The board read only in the image flipped left to right (a mirrored camera,
+            or the board seen from behind: :mod:`.readings` decides which).
+        rejected: Why the view is left out before the calibration starts (empty: it is not).
     """
 
     camera: int
@@ -77,7 +80,8 @@ class View:
     ids: np.ndarray
     corners: np.ndarray
     markers: int = 0
-    mirrored: bool = False
+    flipped: bool = False
+    rejected: str = ""
 
 
 @dataclass(frozen=True)
@@ -137,6 +141,10 @@ class CameraReport:
         std: One standard deviation of each estimated intrinsic (``fx`` ... ``k3``), of the
             camera's orientation (``rotation_deg``) and of its position in the rig
             (``position_mm``), from the refinement's covariance.
+        initial_focal_px: Focal lengths ``(fx, fy)`` of OpenCV's ``calibrateCamera`` for this
+            camera alone.
+        board_distance_mm: The farthest the board's centre was from this camera, by
+            ``calibrateCamera`` for this camera alone.
     """
 
     camera: Camera
@@ -146,6 +154,8 @@ class CameraReport:
     corners: int
     outlier_corners: int
     std: dict[str, float]
+    initial_focal_px: tuple[float, float] = (float("nan"), float("nan"))
+    board_distance_mm: float = float("nan")
 
 
 @dataclass(frozen=True)
@@ -172,6 +182,7 @@ class Calibration:
         rejections: Shots and views left out, and why.
         rms_px: RMS reprojection error over every corner used.
         iterations: Levenberg-Marquardt iterations of the last refinement.
+        converged: Whether that refinement converged (rather than stopping at its limit).
         corners: Every corner of the usable views (including the outliers).
         residuals: (N, 2) projected minus detected position of each of ``corners``.
         used: (N,) bool, which of ``corners`` the refinement used.
@@ -180,6 +191,10 @@ class Calibration:
         held_out: The held-out error (:mod:`.heldout`), when measured.
         model_choice: How the distortion model was chosen (:mod:`.model_choice`), if it was.
         extrapolation: Per camera, where its distortion is extrapolated (:mod:`.extrapolation`).
+        readings: Per camera, mirrored or not and where it saw the board from behind
+            (:mod:`.readings`), when decided.
+        camera_held_out: Per camera, the held-out error of that camera alone (:mod:`.checks`).
+        problems: Why the rig does not hold together (:mod:`.checks`); empty: it does.
     """
 
     cameras: tuple[CameraReport, ...]
@@ -195,6 +210,10 @@ class Calibration:
     held_out: Any = None
     model_choice: Any = None
     extrapolation: tuple[Any, ...] = ()
+    converged: bool = True
+    readings: Any = None
+    camera_held_out: tuple[float, ...] = ()
+    problems: tuple[Any, ...] = ()
 
     @property
     def rig_cameras(self) -> tuple[Camera, ...]:
@@ -234,6 +253,19 @@ class _Initial:
     poses: dict[tuple[int, int], np.ndarray]
     rms: list[float]
     usable: list[View]
+
+    def focal(self, c: int) -> tuple[float, float]:
+        return float(self.intrinsics[c, 0]), float(self.intrinsics[c, 1])
+
+    def board_distance(self, c: int, board: BoardSpec) -> float:
+        """The farthest camera ``c`` saw the board's centre, mm."""
+        centre = np.array([*np.asarray(board.size_mm) / 2, 0.0])
+        d = [
+            np.linalg.norm(T[:3, :3] @ centre + T[:3, 3])
+            for (k, _), T in self.poses.items()
+            if k == c
+        ]
+        return float(max(d)) if d else float("nan")
 
 
 @dataclass(frozen=True)
@@ -312,7 +344,7 @@ def calibrate_rig(
         rejections.append(Rejection(shots[s], cameras[c], why))
     used_views = {obs.keys[i] for i in np.unique(obs.view_index[fit.keep])}
     setup.require_shots([v for v in initial.usable if (v.camera, v.shot) in used_views])
-    return _assemble(fit, setup, initial.rms, rejections)
+    return _assemble(fit, setup, initial, rejections)
 
 
 def _calibrate_cameras(setup: _Setup, usable: list[View], rejections: list[Rejection]) -> _Initial:
@@ -426,7 +458,9 @@ def _screen(
     reasons: dict[int, list[tuple[str, str]]] = {}
     for v in sorted(views, key=lambda v: (v.shot, v.camera)):
         n = len(v.ids)
-        if n == 0:
+        if v.rejected:
+            why = v.rejected
+        elif n == 0:
             why = (
                 "board not found"
                 if v.markers == 0
@@ -643,14 +677,18 @@ def _inliers(
 
 
 def _assemble(
-    fit: _Fit, setup: _Setup, initial_rms: Sequence[float], rejections: list[Rejection]
+    fit: _Fit, setup: _Setup, initial: _Initial, rejections: list[Rejection]
 ) -> Calibration:
     """The calibration's figures from the last fit; ``rejections`` gains the shots no view
     of which was used, and is sorted by shot, then camera."""
     cameras, shots = setup.cameras, setup.shots
     used_views = fit.used_views
     reports = [
-        _camera_report(fit, c, name, setup.sizes[c], initial_rms[c], used_views)
+        dataclasses.replace(
+            _camera_report(fit, c, name, setup.sizes[c], initial.rms[c], used_views),
+            initial_focal_px=initial.focal(c),
+            board_distance_mm=initial.board_distance(c, setup.board),
+        )
         for c, name in enumerate(cameras)
     ]
     shot_reports = _shot_reports(fit, cameras, shots, rejections)
@@ -664,6 +702,7 @@ def _assemble(
         rejections=tuple(rejections),
         rms_px=float(np.sqrt(np.mean(fit.err2[fit.keep]))),
         iterations=fit.result.iterations,
+        converged=fit.result.converged,
         corners=fit.obs,
         residuals=fit.residuals,
         used=fit.keep,

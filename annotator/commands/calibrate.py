@@ -39,7 +39,13 @@ the same shot names in every folder (left/017.png and right/017.png are one boar
 or one video per camera, CAPTURES/<camera>.mp4 (.avi .mkv .mov), every --stride-th frame a
 shot, paired by frame index or by CAPTURES/<camera>.timestamps.txt. The board from
 CAPTURES/board.yaml, --board FILE or the board options. Colour-inverted boards are found
-(inverted: auto), and a camera whose images read mirrored gets flip: horizontal in the rig.
+(inverted: auto). A board that reads only in the flipped image is a mirrored camera (flip:
+horizontal in the rig) or a board seen from behind, through the paper (an ordinary camera):
+the other cameras' board poses decide, per camera; the summary says which and why.
+
+A rig that does not hold together (the joint solve did not converge, a camera's RMS or
+held-out error far above its own alone, an implausible focal length, a camera far beyond
+the board distances) is never written: the report is, the reason goes to stderr, exit 1.
 
 Writes the report (report.json, coverage_<camera>.png, rig.yaml) into
 CAPTURES/calibration_report/ or --report DIR and, with --dataset DS, the rig section of
@@ -185,18 +191,23 @@ class _Inputs:
     depth: DepthSpec | None
     report_dir: Path
 
-    @property
-    def flipped(self) -> list[str]:
-        """The mirrored cameras."""
-        return [c for c, m in zip(self.captures.cameras, self.found.mirrored) if m]
-
 
 def run(args: argparse.Namespace) -> int:
     inputs, target = _inputs(args)
     if not args.json:
         for line in _capture_lines(inputs.captures, inputs.found):
             print(line)
-    return _output(args, _calibrate(args, inputs), inputs, target)
+    cal = _calibrate(args, inputs)
+    if not args.json and cal.readings is not None:
+        for reading in cal.readings.cameras:
+            if reading.reason:
+                print(reading.reason)
+    return _output(args, cal, inputs, target)
+
+
+def _flipped(cal: Calibration) -> list[str]:
+    """The mirrored cameras (flip: horizontal)."""
+    return list(cal.readings.mirrored) if cal.readings is not None else []
 
 
 def _inputs(args: argparse.Namespace) -> tuple[_Inputs, _Target]:
@@ -205,12 +216,46 @@ def _inputs(args: argparse.Namespace) -> tuple[_Inputs, _Target]:
 
     root = Path(args.captures)
     report_dir = Path(args.report) if args.report else root / REPORT_FOLDER
+    if args.report:
+        _check_report_dir(report_dir, root)
     board = _board(args, root)
     target = _target(args)
     captures = _captures(args, root, report_dir, target)
     depth = _depth(args, captures.cameras, target.old_rig, target.path)
     found = _detect(captures, board, target.old_rig["sizes"], target.path, quiet=args.quiet)
     return _Inputs(board, captures, found, depth, report_dir), target
+
+
+def _check_report_dir(report: Path, root: Path) -> None:
+    """--report must not be the captures folder, a camera folder or inside one, nor a file
+    of the captures: a report there would be read as captures next time, or drop a camera
+    (a folder given as --report is not read as a camera)."""
+    from annotator.calibration.captures import IMAGE_SUFFIXES
+
+    if report.exists() and not report.is_dir():
+        raise UserError("--report exists and is not a folder", path=report)
+    if not root.is_dir():
+        return
+    rep, top = report.resolve(), root.resolve()
+    if rep == top:
+        raise UserError(
+            "--report is the captures folder itself: its pictures would be read as loose "
+            "images next time; give a folder of its own",
+            path=report,
+        )
+    if top not in rep.parents:
+        return
+    first = top / rep.relative_to(top).parts[0]
+    if first.is_dir() and any(
+        p.suffix.lower() in IMAGE_SUFFIXES for p in first.iterdir() if p.is_file()
+    ):
+        where = "is" if first == rep else "lies inside"
+        raise UserError(
+            f"--report {where} the camera folder {first.name} of the captures {root}: that "
+            "camera would be left out and its images mixed with the report; give a folder "
+            "of its own",
+            path=report,
+        )
 
 
 def _target(args: argparse.Namespace) -> _Target:
@@ -274,8 +319,8 @@ def _calibrate(args: argparse.Namespace, inputs: _Inputs) -> Calibration:
 
 
 def _capture_lines(captures: Captures, found: CapturesDetection) -> list[str]:
-    """What the detection found worth saying: videos' pairing, inverted boards, mirrored
-    cameras (one line each)."""
+    """What the detection found worth saying: videos' pairing, inverted boards (one line
+    each; how flipped boards were read is said after the calibration)."""
     lines = []
     if captures.videos:
         lines.append(_pairing_line(captures))
@@ -285,12 +330,6 @@ def _capture_lines(captures: Captures, found: CapturesDetection) -> list[str]:
             lines.append(
                 f"camera {name}: the board reads colour-inverted in {found.inverted[c]} of its "
                 f"{n} shots with the board"
-            )
-        if found.mirrored[c]:
-            lines.append(
-                f"camera {name}: its images are mirrored (the board reads only in the flipped "
-                f"image, {n} shots): its rig entry gets flip: horizontal, and its images are "
-                "flipped wherever they are read"
             )
     return lines
 
@@ -450,19 +489,22 @@ def _output(args: argparse.Namespace, cal: Calibration, inputs: _Inputs, target:
     from annotator.calibration.outputs import write_report_folder
     from annotator.calibration.report import report_dict
 
+    flipped = _flipped(cal)
     rig = write_report_folder(
         inputs.report_dir,
         cal,
         inputs.board,
         captures=inputs.captures,
         depth=inputs.depth,
-        flipped=inputs.flipped,
+        flipped=flipped,
         old_doc=target.old_doc,
     )
     result: dict[str, Any] = report_dict(
-        cal, inputs.board, captures=inputs.captures, flipped=inputs.flipped
+        cal, inputs.board, captures=inputs.captures, flipped=flipped
     )
     result["report"] = str(inputs.report_dir)
+    if cal.problems:
+        return _refuse(args, cal, inputs, target, result)
     written = None
     if target.path is not None:
         written = _update_dataset(args, cal, target, rig)
@@ -477,6 +519,37 @@ def _output(args: argparse.Namespace, cal: Calibration, inputs: _Inputs, target:
             + _what_became(written, inputs.report_dir)
         )
     return 1 if written is not None and written.declined else 0
+
+
+def _refuse(
+    args: argparse.Namespace,
+    cal: Calibration,
+    inputs: _Inputs,
+    target: _Target,
+    result: dict[str, Any],
+) -> int:
+    """A rig that does not hold together: the summary and the report, nothing written into
+    the dataset, the checks that failed on stderr, exit 1."""
+    from annotator.calibration.checks import what_to_try
+
+    advice = what_to_try(cal.problems, inputs.captures.cameras)
+    if args.json:
+        result.update(written=False, advice=advice)
+        if target.path is not None:
+            result["dataset_yaml"] = str(target.path)
+        print(json.dumps(result, indent=1))
+    else:
+        _print_summary(cal)
+        print(
+            f"calibrate: RMS {cal.rms_px:.3f} px; report in {inputs.report_dir}; the rig does "
+            "not hold together: "
+            + (f"{target.path} not written" if target.path is not None else "no rig.yaml")
+        )
+    where = f"{target.path}: not written: " if target.path is not None else ""
+    for p in cal.problems:
+        print(f"error: {where}{p}", file=sys.stderr)
+    print(f"error: {advice}", file=sys.stderr)
+    return 1
 
 
 @dataclass(frozen=True)

@@ -20,7 +20,12 @@ model extrapolates).
 Boards as people print and film them: ``inverted`` prints the board colour-inverted (white
 markers on black, a black margin), ``mirrored`` cameras store their images flipped left to
 right (their truth carries ``flip: horizontal``), and a board of a custom dictionary gets the
-dictionary file copied beside board.yaml. :func:`write_videos` turns the shot folders into
+dictionary file copied beside board.yaml. A board seen from behind: ``behind`` cameras are
+placed on the far side of the board (turned half a turn about the vertical through the
+middle of the working distance on the reference camera's axis), ``turned`` shots have the
+board turned round (its back to the rig). Either makes the board thin back-lit paper, printed
+on its front face: seen from behind the print shows through it mirrored, with less contrast,
+lit evenly by the light behind it; seen from the front it is the ordinary print. :func:`write_videos` turns the shot folders into
 one lossless video per camera (FFV1), the second camera's video one frame late, with
 timestamps files that pair the frames.
 """
@@ -65,6 +70,8 @@ THICKNESS_MM = 4.0
 TEXELS_PER_SQUARE = 600
 
 WHITE, BLACK, SIDE, BACKGROUND = 0.85, 0.06, 0.35, 0.22
+#: The print seen through back-lit paper: paper and ink, as seen from behind.
+BACK_WHITE, BACK_BLACK = 0.72, 0.3
 
 
 @dataclass(frozen=True)
@@ -85,6 +92,9 @@ class CaptureConfig:
         inverted: The board is printed colour-inverted.
         mirrored: Cameras whose images are stored mirrored (left to right).
         centre: Every corner within the central fraction of each image (1: anywhere).
+        behind: Cameras placed behind the board (they see it through the paper).
+        turned: Shots (indices) in which the board is turned round, its back to the rig.
+        through_paper: Grey of the paper and of the ink seen from behind, through the paper.
     """
 
     shots: int = 30
@@ -100,6 +110,18 @@ class CaptureConfig:
     inverted: bool = False
     mirrored: tuple[str, ...] = ()
     centre: float = 1.0
+    behind: tuple[str, ...] = ()
+    turned: tuple[int, ...] = ()
+    through_paper: tuple[float, float] = (BACK_WHITE, BACK_BLACK)
+
+    @property
+    def paper(self) -> bool:
+        """The board is thin back-lit paper: some camera sees it from behind."""
+        return bool(self.behind or self.turned)
+
+    def from_behind(self, camera: str, shot: int) -> bool:
+        """Whether ``camera`` sees the board's back in shot ``shot``."""
+        return (camera in self.behind) != (shot in self.turned)
 
 
 def board_poses(rig: Rig, config: CaptureConfig, rng: np.random.Generator) -> list[np.ndarray]:
@@ -108,7 +130,11 @@ def board_poses(rig: Rig, config: CaptureConfig, rng: np.random.Generator) -> li
     ref = rig.cameras[0]
     centre_board = np.array([*np.asarray(spec.size_mm) / 2, 0.0])
     # The rig's centre: the board faces it, whichever camera is the reference.
-    rig_centre = np.mean([c.rig_T_cam[:3, 3] for c in rig.cameras], axis=0)
+    front = [c for c in rig.cameras if c.name not in config.behind] or list(rig.cameras)
+    rig_centre = np.mean([c.rig_T_cam[:3, 3] for c in front], axis=0)
+    # A turned board: half a turn about its own vertical through its centre.
+    turn = make_transform(axis_angle(np.array([0.0, 1.0, 0.0]), np.pi), np.zeros(3))
+    turn[:3, 3] = centre_board - turn[:3, :3] @ centre_board
     poses: list[np.ndarray] = []
     for _ in range(10000 * config.shots):
         if len(poses) == config.shots:
@@ -127,8 +153,16 @@ def board_poses(rig: Rig, config: CaptureConfig, rng: np.random.Generator) -> li
         tilt = np.radians(config.max_tilt_deg) * np.sqrt(rng.uniform())
         R = axis_angle(tilt_axis, tilt) @ spin @ facing
         T = make_transform(R, centre - R @ centre_board)
+        if len(poses) in config.turned:
+            T = T @ turn
         if all(
-            _visible_fraction(cam, cam.cam_T_rig @ T, spec.corners, config.centre)
+            _visible_fraction(
+                cam,
+                cam.cam_T_rig @ T,
+                spec.corners,
+                config.centre,
+                back=config.from_behind(cam.name, len(poses)),
+            )
             >= config.min_visible
             for cam in rig.cameras
         ):
@@ -148,7 +182,12 @@ def _frame_with_z(z: np.ndarray) -> np.ndarray:
 
 
 def _visible_fraction(
-    cam: Camera, cam_T_board: np.ndarray, points: np.ndarray, centre: float = 1.0
+    cam: Camera,
+    cam_T_board: np.ndarray,
+    points: np.ndarray,
+    centre: float = 1.0,
+    *,
+    back: bool = False,
 ) -> float:
     pts = points @ cam_T_board[:3, :3].T + cam_T_board[:3, 3]
     uv = cam.project(pts)
@@ -161,21 +200,34 @@ def _visible_fraction(
         & (uv[:, 0] <= cam.width - 1 - mx)
         & (uv[:, 1] <= cam.height - 1 - my)
     )
-    # The board must face the camera: its normal -z points towards the camera centre.
-    facing = (cam_T_board[:3, 2] @ cam_T_board[:3, 3]) > 0
+    # The board must face the camera: its normal -z points towards the camera centre (away
+    # from it for a camera meant to see the back).
+    facing = ((cam_T_board[:3, 2] @ cam_T_board[:3, 3]) > 0) != back
     return float(inside.mean()) if facing else 0.0
 
 
 class BoardModel:
     """The board's slab mesh and texture, built once per board."""
 
-    def __init__(self, spec: BoardSpec, *, inverted: bool = False) -> None:
+    def __init__(
+        self,
+        spec: BoardSpec,
+        *,
+        inverted: bool = False,
+        paper: bool = False,
+        through_paper: tuple[float, float] = (BACK_WHITE, BACK_BLACK),
+    ) -> None:
         self.spec = spec
+        self.paper = paper
         w, h = spec.size_mm
         m = MARGIN_SQUARES * spec.square_mm
-        slab = trimesh.creation.box([w + 2 * m, h + 2 * m, THICKNESS_MM])
-        slab.apply_translation([w / 2, h / 2, THICKNESS_MM / 2])  # face at z = 0, body behind
-        self.mesh = Mesh(np.asarray(slab.vertices), np.asarray(slab.faces, dtype=np.int32))
+        if paper:  # a sheet of no thickness: the print lies at z = 0 from either side
+            verts = np.array([[-m, -m, 0], [w + m, -m, 0], [w + m, h + m, 0], [-m, h + m, 0]])
+            self.mesh = Mesh(verts.astype(float), np.array([[0, 1, 2], [0, 2, 3]], np.int32))
+        else:
+            slab = trimesh.creation.box([w + 2 * m, h + 2 * m, THICKNESS_MM])
+            slab.apply_translation([w / 2, h / 2, THICKNESS_MM / 2])  # face at z = 0, body behind
+            self.mesh = Mesh(np.asarray(slab.vertices), np.asarray(slab.faces, dtype=np.int32))
         texels = (spec.squares_x * TEXELS_PER_SQUARE, spec.squares_y * TEXELS_PER_SQUARE)
         if spec.has_markers:
             image = spec.cv_board.generateImage(texels, marginSize=0, borderBits=1)
@@ -187,19 +239,25 @@ class BoardModel:
         self.texture = np.where(image > 127, white, black).astype(np.float32)
         self.margin = white
         self.texels_per_mm = TEXELS_PER_SQUARE / spec.square_mm
+        # Through the paper, paper and ink keep their order, with less contrast between them.
+        paper_white, ink = through_paper[::-1] if inverted else through_paper
+        self.back_texture = np.where(image > 127, paper_white, ink).astype(np.float32)
+        self.back_margin = paper_white
 
-    def albedo(self, points: np.ndarray) -> np.ndarray:
+    def albedo(self, points: np.ndarray, *, back: bool = False) -> np.ndarray:
         """Albedo at board-frame points (..., 3) on the slab: the texture on the printed face,
-        white in the margin, grey on the sides and back."""
+        white in the margin, grey on the sides and back; for paper seen from behind
+        (``back``), the print as it shows through."""
         x, y, z = points[..., 0], points[..., 1], points[..., 2]
         out = np.full(x.shape, SIDE, np.float32)
         face = np.abs(z) < 1e-3
-        out[face] = self.margin
+        texture = self.back_texture if back else self.texture
+        out[face] = self.back_margin if back else self.margin
         th, tw = self.texture.shape
         col = np.floor(x * self.texels_per_mm).astype(np.int64)
         row = np.floor(y * self.texels_per_mm).astype(np.int64)
         inside = face & (col >= 0) & (row >= 0) & (col < tw) & (row < th)
-        out[inside] = self.texture[row[inside], col[inside]]
+        out[inside] = texture[row[inside], col[inside]]
         return out
 
 
@@ -252,9 +310,15 @@ def _sample(
         r = rays[hit].astype(np.float64)
         p_cam = r * hits.depth[hit][:, None]  # the ray parameter is the z-depth
         R, t = cam_T_board[:3, :3], cam_T_board[:3, 3]
-        albedo[hit] = model.albedo((p_cam - t) @ R)
+        # The camera centre on the board's +z side (the side away from the print).
+        back = model.paper and float((-t) @ R[:, 2]) > 0
+        albedo[hit] = model.albedo((p_cam - t) @ R, back=back)
+        if back:  # lit through the paper by the light behind it: evenly
+            return albedo, light
         n_cam = model.mesh.face_normals[hits.triangle[hit]] @ R.T
         cos = -(n_cam * r).sum(axis=-1) / np.linalg.norm(r, axis=-1)
+        if model.paper:  # a sheet's triangles may be wound either way
+            cos = np.abs(cos)
         light[hit] = ambient + (1.0 - ambient) * np.clip(cos, 0.0, 1.0)
     return albedo, light
 
@@ -315,9 +379,38 @@ def plan_captures(config: CaptureConfig) -> CapturePlan:
             f"no camera {unknown[0]!r} to mirror: the rig's cameras are "
             + ", ".join(c.name for c in rig.cameras)
         )
-    rig = Rig(rig.cameras, rig.depth, frozenset(config.mirrored))
+    unknown = [c for c in config.behind if c not in [cam.name for cam in rig.cameras]]
+    if unknown or len(config.behind) >= len(rig.cameras):
+        raise UserError(
+            f"cannot put camera {unknown[0]!r} behind the board: the rig's cameras are "
+            + ", ".join(c.name for c in rig.cameras)
+            if unknown
+            else "at least one camera must stay in front of the board"
+        )
+    cameras = tuple(
+        dataclasses.replace(cam, rig_T_cam=_behind(config) @ cam.rig_T_cam)
+        if cam.name in config.behind
+        else cam
+        for cam in rig.cameras
+    )
+    rig = Rig(cameras, rig.depth, frozenset(config.mirrored))
     poses = board_poses(rig, config, np.random.default_rng([config.seed, _POSE_STREAM]))
-    return CapturePlan(config, rig, poses, BoardModel(config.board, inverted=config.inverted))
+    model = BoardModel(
+        config.board,
+        inverted=config.inverted,
+        paper=config.paper,
+        through_paper=config.through_paper,
+    )
+    return CapturePlan(config, rig, poses, model)
+
+
+def _behind(config: CaptureConfig) -> np.ndarray:
+    """Half a turn about the vertical through the middle of the working distance on the
+    reference camera's axis: a camera moved so turns to face the rig from the far side."""
+    T = make_transform(axis_angle(np.array([0.0, 1.0, 0.0]), np.pi), np.zeros(3))
+    middle = np.array([0.0, 0.0, float(np.mean(config.distance))])
+    T[:3, 3] = middle - T[:3, :3] @ middle
+    return T
 
 
 def write_truth(plan: CapturePlan, root: Path) -> None:
@@ -350,6 +443,9 @@ def write_truth(plan: CapturePlan, root: Path) -> None:
             "inverted": cfg.inverted,
             "mirrored": list(cfg.mirrored),
             "centre": cfg.centre,
+            "behind": list(cfg.behind),
+            "turned": list(cfg.turned),
+            "through_paper": list(cfg.through_paper),
         },
     }
     header = (
