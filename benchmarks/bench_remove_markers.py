@@ -7,7 +7,7 @@ OpenCV's inpainting) and the sensor noise left there, whether every pixel outsid
 export's and the bare render's, and the time of the whole ``annotator export`` process with
 ``--remove-markers`` over a plain one (target: at most 2x).
 
-    .venv/bin/python benchmarks/bench_remove_markers.py [--scenes 4]
+    .venv/bin/python -m benchmarks.bench_remove_markers [--scenes 4]   (or the script path)
 """
 
 from __future__ import annotations
