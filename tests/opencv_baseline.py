@@ -8,7 +8,8 @@ refinement (:mod:`annotator.calibration.solve`) is measured against (tests, benc
   intrinsics, the relative pose and the board poses, but only on the shots both cameras saw
   and only on the corners both found in them.
 
-Both use every view with at least ``min_corners`` corners, OpenCV's default distortion model
+:func:`opencv_rig` is the two-step pipeline for a rig of any number of cameras, each paired
+with the first. Both stereo pipelines use every view with at least ``min_corners`` corners, OpenCV's default distortion model
 (k1, k2, p1, p2, k3) and up to 100 iterations.
 """
 
@@ -22,6 +23,7 @@ import numpy as np
 
 from annotator.calibration.board import BoardSpec
 from annotator.calibration.solve import View
+from annotator.geometry.camera import Camera
 from annotator.geometry.transforms import invert, make_transform
 
 _CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-12)
@@ -94,3 +96,63 @@ def opencv_stereo(
         rig_T_cam1=invert(cam1_T_cam0),
         rms_px=float(rms),
     )
+
+
+def opencv_rig(
+    views: Sequence[View],
+    board: BoardSpec,
+    sizes: Sequence[tuple[int, int]],
+    names: Sequence[str],
+    *,
+    min_corners: int = 8,
+) -> list[Camera]:
+    """OpenCV's pairwise pipeline for a rig of any size: ``calibrateCamera`` per camera
+    (k1 k2 p1 p2, as the rig calibration chooses on these captures), then ``stereoCalibrate``
+    with the intrinsics fixed of every camera against camera 0 over the shots both saw (the
+    corners both found). ``views`` must already be read right (a mirrored camera's corners
+    flipped: :func:`annotator.calibration.readings.decide_readings`)."""
+    good = [v for v in views if len(v.ids) >= min_corners and not v.rejected]
+    Ks, dists = [], []
+    for c in range(len(names)):
+        mine = [v for v in good if v.camera == c]
+        _, K, dist, _, _ = cv2.calibrateCamera(
+            [board.corners[v.ids].astype(np.float32).reshape(-1, 1, 3) for v in mine],
+            [v.corners.astype(np.float32).reshape(-1, 1, 2) for v in mine],
+            tuple(sizes[c]),
+            None,
+            None,
+            flags=cv2.CALIB_FIX_K3,
+            criteria=_CRITERIA,
+        )
+        Ks.append(np.asarray(K, float))
+        dists.append(np.asarray(dist, float).reshape(-1)[:5])
+    by_shot: dict[int, dict[int, View]] = {}
+    for v in good:
+        by_shot.setdefault(v.shot, {})[v.camera] = v
+    cameras = [Camera(names[0], *sizes[0], Ks[0], dists[0])]
+    for c in range(1, len(names)):
+        obj, img0, img1 = [], [], []
+        for pair in by_shot.values():
+            if 0 not in pair or c not in pair:
+                continue
+            common, i0, i1 = np.intersect1d(pair[0].ids, pair[c].ids, return_indices=True)
+            if len(common) < min_corners:
+                continue
+            obj.append(board.corners[common].astype(np.float32).reshape(-1, 1, 3))
+            img0.append(pair[0].corners[i0].astype(np.float32).reshape(-1, 1, 2))
+            img1.append(pair[c].corners[i1].astype(np.float32).reshape(-1, 1, 2))
+        _, _, _, _, _, R, T, _, _ = cv2.stereoCalibrate(
+            obj,
+            img0,
+            img1,
+            Ks[0].copy(),
+            dists[0].copy(),
+            Ks[c].copy(),
+            dists[c].copy(),
+            tuple(sizes[0]),
+            flags=cv2.CALIB_FIX_INTRINSIC,
+            criteria=_CRITERIA,
+        )
+        rig_T_cam = invert(make_transform(R, np.ravel(T)))
+        cameras.append(Camera(names[c], *sizes[c], Ks[c], dists[c], rig_T_cam))
+    return cameras

@@ -392,3 +392,25 @@ def test_mixed_cameras_and_missing_images(
     assert f"{ds / 'dataset.yaml'}: its rig has cameras cam0, cam1" in line
     line = one_error_line(["calibrate", str(caps), "--cameras", "left,middle"], capsys)
     assert "no folder for camera 'middle'" in line
+
+
+def test_a_mirrored_view_of_the_board_is_a_proper_board_pose() -> None:
+    """The corners of a view flipped left to right (u -> W-1-u) are those of a camera with
+    the principal point mirrored seeing the board in ``mirrored_pose``: a proper rotation, so
+    a camera alone fits either reading and only the other cameras can tell them apart."""
+    from annotator.calibration.readings import mirrored_pose
+
+    board = BoardSpec(7, 5, 30.0, 22.0, "DICT_4X4_50")
+    W, H = 1024, 820
+    K = np.array([[1100.0, 0, 480.0], [0, 1100.0, 400.0], [0, 0, 1]])
+    Km = K.copy()
+    Km[0, 2] = W - 1 - K[0, 2]
+    T = make_transform(rotvec_to_matrix(np.array([0.3, -0.2, 0.1])), np.array([-80.0, -40, 650]))
+    cam = Camera("c", W, H, K)
+    uv = cam.project(board.corners @ T[:3, :3].T + T[:3, 3])
+    M = mirrored_pose(T)
+    assert np.isclose(np.linalg.det(M[:3, :3]), 1.0)
+    mirrored = Camera("m", W, H, Km).project(board.corners @ M[:3, :3].T + M[:3, 3])
+    assert np.allclose(mirrored[:, 0], W - 1 - uv[:, 0]) and np.allclose(mirrored[:, 1], uv[:, 1])
+    # Seen from the other side: the camera centre's z in the board frame changes sign.
+    assert np.sign((invert(M) @ [0, 0, 0, 1])[2]) == -np.sign((invert(T) @ [0, 0, 0, 1])[2])

@@ -95,6 +95,9 @@ class CaptureConfig:
         behind: Cameras placed behind the board (they see it through the paper).
         turned: Shots (indices) in which the board is turned round, its back to the rig.
         through_paper: Grey of the paper and of the ink seen from behind, through the paper.
+        extra_cameras: Cameras added to the rig's two (``cam2``, ``cam3``, ...: copies of the
+            right camera, 120 mm above and below the reference camera in turn, aimed at the
+            middle of the working distance).
     """
 
     shots: int = 30
@@ -113,6 +116,7 @@ class CaptureConfig:
     behind: tuple[str, ...] = ()
     turned: tuple[int, ...] = ()
     through_paper: tuple[float, float] = (BACK_WHITE, BACK_BLACK)
+    extra_cameras: int = 0
 
     @property
     def paper(self) -> bool:
@@ -372,7 +376,9 @@ class CapturePlan:
 def plan_captures(config: CaptureConfig) -> CapturePlan:
     """The synthetic rig of ``annotator synth --seed`` (the same rig as its scenes) and the
     board poses, all from the seed."""
-    rig = make_rig(*config.size, rng=np.random.default_rng(config.seed)).rig
+    rig = _with_extra_cameras(
+        make_rig(*config.size, rng=np.random.default_rng(config.seed)).rig, config
+    )
     unknown = [c for c in config.mirrored if c not in [cam.name for cam in rig.cameras]]
     if unknown:
         raise UserError(
@@ -402,6 +408,22 @@ def plan_captures(config: CaptureConfig) -> CapturePlan:
         through_paper=config.through_paper,
     )
     return CapturePlan(config, rig, poses, model)
+
+
+def _with_extra_cameras(rig: Rig, config: CaptureConfig) -> Rig:
+    """``rig`` with ``config.extra_cameras`` more cameras (see :class:`CaptureConfig`)."""
+    from annotator.synthesis.rig import look_at
+
+    middle = np.array([0.0, 0.0, float(np.mean(config.distance))])
+    extra = []
+    for k in range(config.extra_cameras):
+        eye = np.array([0.0, 120.0 * (k // 2 + 1) * (1 if k % 2 else -1), 0.0])
+        extra.append(
+            dataclasses.replace(
+                rig.cameras[-1], name=f"cam{len(rig.cameras) + k}", rig_T_cam=look_at(eye, middle)
+            )
+        )
+    return Rig(tuple(rig.cameras) + tuple(extra), rig.depth, rig.flipped)
 
 
 def _behind(config: CaptureConfig) -> np.ndarray:
@@ -446,6 +468,7 @@ def write_truth(plan: CapturePlan, root: Path) -> None:
             "behind": list(cfg.behind),
             "turned": list(cfg.turned),
             "through_paper": list(cfg.through_paper),
+            "extra_cameras": cfg.extra_cameras,
         },
     }
     header = (
