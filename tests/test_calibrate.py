@@ -414,3 +414,60 @@ def test_a_mirrored_view_of_the_board_is_a_proper_board_pose() -> None:
     assert np.allclose(mirrored[:, 0], W - 1 - uv[:, 0]) and np.allclose(mirrored[:, 1], uv[:, 1])
     # Seen from the other side: the camera centre's z in the board frame changes sign.
     assert np.sign((invert(M) @ [0, 0, 0, 1])[2]) == -np.sign((invert(T) @ [0, 0, 0, 1])[2])
+
+
+def _projected_views(config, mirrored=(), missing=(), noise=0.1):  # noqa: ANN001, ANN202
+    """Views of ``plan_captures(config)`` from the true corners (no rendering): a camera
+    behind the board reads it flipped, a camera in ``mirrored`` stores it mirrored."""
+    from annotator.calibration.solve import View
+    from annotator.synthesis.board import plan_captures
+
+    plan = plan_captures(config)
+    rng = np.random.default_rng(1)
+    ids = np.arange(config.board.corner_count)
+    views = []
+    for s, T in enumerate(plan.poses):
+        for c, cam in enumerate(plan.rig.cameras):
+            if (c, s) in missing:
+                continue
+            uv = true_corners(cam, T, config.board) + rng.normal(0, noise, (len(ids), 2))
+            behind = config.from_behind(cam.name, s)
+            if cam.name in mirrored:
+                uv[:, 0] = cam.width - 1 - uv[:, 0]
+            views.append(View(c, s, ids, uv, 17, behind != (cam.name in mirrored)))
+    return plan, views
+
+
+@pytest.mark.parametrize(
+    "behind, mirrored, missing",
+    [
+        (("right",), (), ((0, 3), (0, 5))),  # the camera in front saw fewer shots
+        (("right",), (), ((1, 3), (1, 5))),
+        ((), ("right",), ()),
+        ((), ("left", "right"), ()),  # every camera a selfie webcam
+        (("left",), (), ()),  # the rig's first camera behind the board
+        # Not decidable, and so not here: one camera mirrored and the other behind the
+        # board is the mirror image of the other way round.
+    ],
+)
+def test_mirrored_or_behind_is_decided_by_the_geometry(
+    behind: tuple, mirrored: tuple, missing: tuple
+) -> None:
+    from annotator.calibration.readings import decide_readings
+    from annotator.synthesis.board import CaptureConfig
+
+    config = CaptureConfig(shots=12, size=(1024, 820), behind=behind, turned=(4,))
+    plan, views = _projected_views(config, mirrored, missing)
+    names = [c.name for c in plan.rig.cameras]
+    readings = decide_readings(
+        views,
+        cameras=names,
+        sizes=[c.size for c in plan.rig.cameras],
+        shots=plan.shot_names,
+        board=config.board,
+    )
+    assert readings.mirrored == list(mirrored)
+    for r in readings.cameras:
+        want = [n for k, n in enumerate(plan.shot_names) if config.from_behind(r.camera, k)]
+        assert list(r.behind) == [n for n in want if (names.index(r.camera), int(n)) not in missing]
+    assert not any(v.rejected for v in readings.views)

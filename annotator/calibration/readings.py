@@ -22,7 +22,8 @@ drifts under the wrong one (a mirror in one camera's frame is no rigid motion of
 board). The spread is measured as the distance (mm, RMS over the board's corners) between
 each shot's board seen through the robust mean relative pose and the board as the camera saw
 it; the smaller spread wins. Geometry cannot tell a whole rig mirrored from one that is not,
-so of the two the one in which more views saw the board's front is taken.
+so of the two the one in which more cameras saw mostly the board's front is taken (of two as
+good, the one with fewer mirrored cameras).
 
 A view whose pose does not agree with the camera it is compared with while its board read
 the other way than in that camera's other shots (an image stored mirrored among plain ones)
@@ -243,10 +244,11 @@ def _choose(
         spreads[b] = (mirror, plain) if mirrored[b] else (plain, mirror)
     if C == 1:
         return [_mostly_flipped(views, 0)], spreads, parent
-    # A whole rig mirrored fits as well as the rig: the one that saw the board's front more.
-    front = sum(1 for v in views if len(v.ids) and v.flipped == mirrored[v.camera])
-    found = sum(1 for v in views if len(v.ids))
-    if 2 * front < found or (2 * front == found and 2 * sum(mirrored) > C):
+    # A whole rig mirrored fits as well as the rig: the one in which more cameras saw mostly
+    # the board's front, and of two as good the one with fewer mirrored cameras (per camera,
+    # not per view, so that a camera with a few more views does not tip it).
+    front = sum(_mostly_flipped(views, c) == mirrored[c] for c in range(C))
+    if 2 * front < C or (2 * front == C and 2 * sum(mirrored) > C):
         mirrored = [not m for m in mirrored]
     return mirrored, spreads, parent
 
@@ -318,7 +320,7 @@ def _reading(
     elif c == 0 or len(cameras) == 1:
         why = (
             "the rig's other cameras decide, and a whole rig mirrored fits as well as one that "
-            "is not: the reading in which more views saw the board's front"
+            "is not: the reading in which more cameras saw mostly the board's front"
             if len(cameras) > 1
             else "one camera: no other camera to tell a mirrored camera from a board seen "
             "from behind; the reading in which most views saw the board's front"
