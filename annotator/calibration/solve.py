@@ -421,7 +421,9 @@ def _refine_without_outliers(
         result = refine(state, obs.subset(keep))
         state = result.state
         err = np.linalg.norm(project(state, obs) - obs.pixel, axis=1)
-        new_keep, new_dropped = _inliers(err, keep, view_index, len(keys), opts)
+        new_keep, new_dropped = _inliers(
+            err, keep, view_index, len(keys), opts, np.array([k[0] for k in keys], np.int64)
+        )
         if np.array_equal(new_keep, keep):
             break
         if not np.any(new_keep):
@@ -643,23 +645,39 @@ def _inliers(
     view_index: np.ndarray,
     n_views: int,
     opts: CalibrationOptions,
+    view_camera: np.ndarray | None = None,
 ) -> tuple[np.ndarray, dict[int, str]]:
     """Corners to keep after a refinement with residual norms ``err``, and the views dropped
-    as a whole (index -> reason)."""
+    as a whole (index -> reason). Each camera is judged by its own noise (``view_camera``:
+    the camera of each view), never below the rig's nor above three times it: a camera
+    whose corners are noisier (a board seen through the paper) keeps its good corners, and
+    one that runs off is not excused."""
+    if view_camera is None:
+        view_camera = np.zeros(n_views, np.int64)
+    corner_camera = view_camera[view_index]
     # The norm of a 2D Gaussian residual has median 1.1774 sigma.
-    sigma = float(np.median(err[keep])) / 1.1774
-    limit = max(opts.outlier_sigmas * sigma, opts.min_outlier_px)
-    ok = err <= limit
+    rig_sigma = float(np.median(err[keep])) / 1.1774
+    sigma = np.full(int(view_camera.max(initial=0)) + 1, rig_sigma)
+    for c in np.unique(corner_camera[keep]).tolist():
+        own = float(np.median(err[keep & (corner_camera == c)])) / 1.1774
+        sigma[c] = min(max(own, rig_sigma), 3.0 * rig_sigma)
+    limits = np.maximum(opts.outlier_sigmas * sigma, opts.min_outlier_px)
+    ok = err <= limits[corner_camera]
     counts = np.bincount(view_index, minlength=n_views)
     good = np.bincount(view_index, weights=ok, minlength=n_views)
     sq = np.bincount(view_index, weights=np.where(ok, err**2, 0.0), minlength=n_views)
     rms = np.sqrt(sq / np.maximum(good, 1))
     present = counts > 0
-    median_rms = float(np.median(rms[present & (good > 0)])) if np.any(good > 0) else 0.0
-    view_limit = max(3.0 * median_rms, 1.0)
+    view_limits = {}
+    for c in np.unique(view_camera[present]).tolist():
+        mine = present & (good > 0) & (view_camera == c)
+        median_rms = float(np.median(rms[mine])) if np.any(mine) else 0.0
+        view_limits[c] = max(3.0 * median_rms, 1.0)
     dropped: dict[int, str] = {}
     for i in np.flatnonzero(present).tolist():
         lost = counts[i] - good[i]
+        limit = float(limits[view_camera[i]])
+        view_limit = view_limits[int(view_camera[i])]
         if good[i] < opts.min_corners or lost > 0.25 * counts[i]:
             dropped[i] = (
                 f"outlier residuals: {int(lost)} of its {counts[i]} corners off by more than "
@@ -670,7 +688,7 @@ def _inliers(
         elif rms[i] > view_limit:
             dropped[i] = (
                 f"outlier residuals: RMS {rms[i]:.2f} px, over {view_limit:.2f} px "
-                "(three times the median view's)"
+                "(three times the median view's of its camera)"
             )
     ok &= ~np.isin(view_index, list(dropped))
     return ok, dropped
