@@ -6,13 +6,16 @@ One concept per module:
 - :mod:`.board`: the board (``board.yaml``, OpenCV's ``CharucoBoard``, its corners);
 - :mod:`.captures`: the captures folder, ``CAPTURES/<camera>/<shot>.png`` or one video per
   camera, and its checks;
-- :mod:`.detect`: the board's chessboard corners in one image (inverted, mirrored), and in
+- :mod:`.detect`: the board's chessboard corners in one image (inverted, flipped), and in
   every image of the captures;
+- :mod:`.readings`: a board that reads only flipped: a mirrored camera or a board seen from
+  behind, decided by the other cameras' board poses;
 - :mod:`.solve`: screening, per-camera ``calibrateCamera``, initial extrinsics, outliers;
 - :mod:`.bundle`: the joint Levenberg-Marquardt refinement of every camera and shot;
 - :mod:`.heldout`: the held-out error, k-fold over shots, predicted across cameras;
 - :mod:`.extrapolation`: where a distortion model is extrapolated, and by how much;
 - :mod:`.model_choice`: the distortion model chosen by the held-out error;
+- :mod:`.checks`: whether the rig holds together before anything is written;
 - :mod:`.report`: RMS per camera and shot, rejections, coverage pictures, ``report.json``;
 - :mod:`.rig_yaml`: the ``rig:`` block of ``dataset.yaml``, spliced in, and its diff.
 
@@ -33,4 +36,6 @@ Typical use::
                                shots=caps.shots, board=board)
     cal.rig_cameras  # Camera objects: K, dist, rig_T_cam
     cal.held_out     # the error on shots it did not fit, per camera pair
+    cal.readings     # per camera: mirrored or not, the shots it saw the board from behind
+    cal.problems     # why the rig must not be written (empty: it may)
 """

@@ -170,7 +170,9 @@ def _camera_problems(cal: Calibration, rep, names: Sequence[str]) -> list[Proble
 def what_to_try(problems: Sequence[Problem], cameras: Sequence[str]) -> str:
     """One line of advice for a refused rig."""
     named = [p.camera for p in problems if p.camera is not None]
-    cam = named[0] if named else None
+    # The camera most checks name; of several, not the first (the rig's frame).
+    order = {c: k for k, c in enumerate(cameras)}
+    cam = max(named, key=lambda c: (named.count(c), order.get(c, 0)), default=None)
     others = [c for c in cameras if c != cam]
     if cam is not None and others:
         leave_out = f"--cameras {','.join(others)} to calibrate without camera {cam}, "
