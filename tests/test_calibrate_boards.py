@@ -457,6 +457,13 @@ def test_a_rig_that_diverges_is_never_written(
     assert "focal length fx = " in err and "against 11" in err  # ~1110 px alone
     assert "error: try --cameras " in err
     assert "Traceback" not in err and "the rig does not hold together" in out
+    # The camera to try without is the one whose images were flipped.
+    assert "error: try --cameras left to calibrate without camera right" in err
+    # Without a dataset, and as JSON: refused all the same.
+    code, out, err = run_cli([*args[:2], "--report", str(report), "--json", "--folds", "2"], capsys)
+    assert code == 1 and "Traceback" not in err
+    doc = json.loads(out)
+    assert doc["written"] is False and doc["refused"] and doc["advice"].startswith("try --cameras")
 
 
 def test_report_inside_a_camera_folder_is_refused(

@@ -30,7 +30,7 @@ from annotator.calibration.heldout import held_out_error
 from annotator.calibration.solve import Calibration, View, _calibrate_camera, _flags
 from annotator.geometry.camera import Camera
 
-RMS_FACTOR, RMS_MARGIN_PX = 4.0, 0.5
+RMS_FACTOR, RMS_MARGIN_PX = 5.0, 1.0
 FOV_DEG = (5.0, 160.0)
 FOCAL_RATIO = 1.25
 DISTANCE_FACTOR = 4.0
