@@ -471,3 +471,44 @@ def test_mirrored_or_behind_is_decided_by_the_geometry(
         want = [n for k, n in enumerate(plan.shot_names) if config.from_behind(r.camera, k)]
         assert list(r.behind) == [n for n in want if (names.index(r.camera), int(n)) not in missing]
     assert not any(v.rejected for v in readings.views)
+
+
+def test_the_checks_of_a_rig_name_the_camera_and_the_check() -> None:
+    """A good rig passes every check; the same rig with a camera's focal length or position
+    made absurd fails the matching check, naming that camera."""
+    import dataclasses
+
+    from annotator.calibration.checks import rig_problems
+    from annotator.calibration.model_choice import calibrate_and_assess
+    from annotator.synthesis.board import CaptureConfig
+
+    config = CaptureConfig(shots=10, size=(1024, 820))
+    plan, views = _projected_views(config)
+    cal = calibrate_and_assess(
+        views,
+        cameras=[c.name for c in plan.rig.cameras],
+        sizes=[c.size for c in plan.rig.cameras],
+        shots=plan.shot_names,
+        board=config.board,
+        folds=3,
+    )
+    assert cal.converged and not cal.problems and len(cal.camera_held_out) == 2
+
+    def with_camera(**changes: object) -> list:
+        rep = cal.cameras[1]
+        cams = (
+            cal.cameras[0],
+            dataclasses.replace(rep, camera=dataclasses.replace(rep.camera, **changes)),
+        )
+        return rig_problems(dataclasses.replace(cal, cameras=cams), cal.camera_held_out)
+
+    K = cal.cameras[1].camera.K.copy()
+    K[0, 0] *= 80
+    (p,) = with_camera(K=K)
+    assert p.check == "focal" and p.camera == "right" and "fx = " in p.message
+    T = cal.cameras[1].camera.rig_T_cam.copy()
+    T[:3, 3] = [22000.0, 0, 0]
+    (p,) = with_camera(rig_T_cam=T)
+    assert p.check == "distance" and "camera right: 22000 mm from camera left" in p.message
+    (p,) = rig_problems(dataclasses.replace(cal, converged=False), cal.camera_held_out)
+    assert p.check == "converged" and p.camera is None
