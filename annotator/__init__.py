@@ -65,8 +65,11 @@ _HOMES = {
     "EvaluationOptions": "annotator.evaluation.evaluate",
     "EvaluationReport": "annotator.evaluation.evaluate",
     # export
-    "export_dataset": "annotator.formats.exporting",
-    "ExportSummary": "annotator.formats.exporting",
+    "export_dataset": "annotator.export.dataset",
+    "ExportSummary": "annotator.export.dataset",
+    "scene_markers": "annotator.export.markers",
+    "MarkerRegion": "annotator.export.markers",
+    "fill_markers": "annotator.export.fill",
     # errors
     "UserError": "annotator.errors",
     "BadValue": "annotator.values",

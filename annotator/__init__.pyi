@@ -50,6 +50,12 @@ from annotator.evaluation.evaluate import (
     EvaluationReport as EvaluationReport,
     evaluate as evaluate,
 )
+from annotator.export.dataset import (
+    ExportSummary as ExportSummary,
+    export_dataset as export_dataset,
+)
+from annotator.export.fill import fill_markers as fill_markers
+from annotator.export.markers import MarkerRegion as MarkerRegion, scene_markers as scene_markers
 from annotator.formats import (
     read_ground_truth as read_ground_truth,
     read_results as read_results,
@@ -57,10 +63,6 @@ from annotator.formats import (
 from annotator.formats.base import (
     GroundTruth as GroundTruth,
     PoseResults as PoseResults,
-)
-from annotator.formats.exporting import (
-    ExportSummary as ExportSummary,
-    export_dataset as export_dataset,
 )
 from annotator.formats.ours import (
     annotations_as_results as annotations_as_results,

@@ -85,7 +85,7 @@ def test_overwrite_replaces_only_an_earlier_export(sample_copy, tmp_path, capsys
 def test_interrupted_export_leaves_out_as_it_was(
     sample_copy, tmp_path, monkeypatch, capsys
 ) -> None:
-    import annotator.formats.bop_export as images  # the export's own write_png
+    import annotator.export.bop as images  # the export's own write_png
 
     _accept_all(sample_copy)
     out = tmp_path / "bop"

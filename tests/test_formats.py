@@ -11,8 +11,8 @@ import pytest
 
 from annotator.cli import main
 from annotator.errors import UserError
+from annotator.export.bop import models_info
 from annotator.formats import detect_format, get_format
-from annotator.formats.bop_export import models_info
 from annotator.formats.sileane import poseutils_from_json, poseutils_to_json
 from annotator.geometry.transforms import axis_angle, random_rotations
 from annotator.io.ply import write_ply

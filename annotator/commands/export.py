@@ -11,9 +11,9 @@ from tqdm import tqdm
 
 from annotator.dataset import load_dataset
 from annotator.errors import UserError
+from annotator.export.dataset import export_dataset
 from annotator.export.fill import METHODS as FILLS
-from annotator.formats import EXPORTS
-from annotator.formats.exporting import export_dataset
+from annotator.export.options import EXPORTS, LAYOUTS, POSES_FROM
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -34,7 +34,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--poses",
-        choices=("annotation", "gt"),
+        choices=POSES_FROM,
         default="annotation",
         help="poses from annotation.json (default) or gt.json",
     )
@@ -43,7 +43,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--layout",
-        choices=("scenewise", "imagewise", "webdataset"),
+        choices=LAYOUTS,
         default="scenewise",
         help="BOP: scene folders (default), bop_toolkit's image-wise files, or its webdataset "
         "tar shards",

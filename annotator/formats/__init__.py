@@ -5,11 +5,10 @@ One module per format, each with the same functions, found by name in :data:`FOR
 - ``detect(path) -> bool``: is this folder in the format?
 - ``read_ground_truth(path, *, symmetry=None) -> GroundTruth``: true poses, occlusion rates
   and the objects' pose spaces, in millimetres;
-- ``read_results(path, gt) -> Results``: results to score, in millimetres;
-- ``export(ds, selected, out, *, cameras, progress) -> failed`` (BOP and Siléane): accepted
-  scenes of one of our datasets, written into an empty folder.
+- ``read_results(path, gt) -> PoseResults``: results to score, in millimetres.
 
-Each module also holds its format's symmetry mapping. Adding a format is adding a module here.
+Each module also holds its format's symmetry mapping. Adding a format is adding a module here
+(and, to export to it, a writer in :mod:`annotator.export`).
 """
 
 from __future__ import annotations
@@ -23,7 +22,6 @@ from annotator.formats.base import GroundTruth, PoseResults
 from annotator.values import of_type
 
 FORMATS: dict[str, ModuleType] = {m.NAME: m for m in (ours, bop, sileane)}
-EXPORTS: tuple[str, ...] = tuple(n for n, m in FORMATS.items() if hasattr(m, "export"))
 
 
 def get_format(name: str) -> ModuleType:

@@ -53,34 +53,13 @@ from annotator.geometry.transforms import is_rotation
 from annotator.io.documents import read_json
 
 if TYPE_CHECKING:
-    from annotator.dataset import Dataset
-    from annotator.export.selection import Selected
+    pass
 
 NAME = "bop"
 
 
 def detect(path: Path) -> bool:
     return (path / "models" / "models_info.json").is_file()
-
-
-# -------------------------------------------------------------------------------- export
-
-
-def export(
-    ds: Dataset,
-    selected: Sequence[Selected],
-    out: Path,
-    *,
-    cameras: Sequence[str],
-    progress: Callable[[], None] | None = None,
-    layout: str = "scenewise",
-) -> dict[str, str]:
-    """Write ``selected`` scenes into the empty folder ``out`` (see
-    :func:`annotator.formats.bop_export.export_bop`, imported only here so that reading BOP
-    files does not load the renderer)."""
-    from annotator.formats.bop_export import export_bop
-
-    return export_bop(ds, selected, out, cameras=cameras, progress=progress, layout=layout)
 
 
 # ------------------------------------------------------------------------- ground truth

@@ -1,10 +1,9 @@
 """Exporting accepted scenes of one of our datasets into another format:
 :func:`export_dataset`, what ``annotator export`` runs.
 
-Which scenes go is decided by the reviews (:mod:`annotator.export.selection`); the writing is
-the format's own (``export`` of :mod:`annotator.formats.bop` or
-:mod:`annotator.formats.sileane`), into a temporary folder renamed at the end (never half an
-export). A scene whose inputs cannot be read is left out and named; the others are written.
+Which scenes go is decided by the reviews (:mod:`annotator.export.selection`); the writers
+are :mod:`annotator.export.bop` and :mod:`annotator.export.sileane`, into a temporary folder
+renamed at the end (never half an export). A scene whose inputs cannot be read is left out and named; the others are written.
 """
 
 from __future__ import annotations
@@ -15,13 +14,21 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from annotator.dataset import Dataset
+from annotator.dataset import Dataset, as_dataset
 from annotator.errors import UserError
 from annotator.export.fill import METHODS as FILLS
+from annotator.export.options import (
+    EXPORTS,
+    LAYOUTS,
+    POSES_FROM,
+    ExportFormat,
+    Layout,
+    PosesFrom,
+)
 from annotator.export.selection import Selection, select_scenes
-from annotator.formats import EXPORTS, get_format
 from annotator.io.atomic import atomic_folder
 from annotator.io.output_folder import check_output_folder, write_manifest
+from annotator.values import of_type
 
 
 @dataclass
@@ -66,15 +73,15 @@ class ExportSummary:
 
 
 def export_dataset(
-    ds: Dataset,
+    ds: Dataset | str | Path,
     out: str | Path,
     *,
-    format: str,
+    format: ExportFormat,
     cameras: Sequence[str] | None = None,
     include_pending: bool = False,
     drop_rejected_instances: bool = False,
-    poses: str = "annotation",
-    layout: str = "scenewise",
+    poses: PosesFrom = "annotation",
+    layout: Layout = "scenewise",
     overwrite: bool = False,
     progress: Callable[[int], Callable[[], None]] | None = None,
     remove_markers: bool = False,
@@ -102,8 +109,15 @@ def export_dataset(
         UserError: a bad option, an output folder that may not be written, or no scene to
             export.
     """
+    # What `annotator export` refuses, refused here in the same words.
+    ds = as_dataset(ds, name="ds")
+    of_type(out, (str, Path), name="out", what="a folder (str or Path)")
     if format not in EXPORTS:
         raise UserError(f"unknown format {format!r} (expected one of {', '.join(EXPORTS)})")
+    if poses not in POSES_FROM:
+        raise UserError(f"unknown poses {poses!r} (expected one of {', '.join(POSES_FROM)})")
+    if layout not in LAYOUTS:
+        raise UserError(f"unknown layout {layout!r} (expected one of {', '.join(LAYOUTS)})")
     if layout != "scenewise" and format != "bop":
         raise UserError("--layout is for --format bop")
     if fill not in FILLS:
@@ -137,14 +151,17 @@ def export_dataset(
     }
     with atomic_folder(out) as tmp:
         write_manifest(tmp, command="export")
+        # Imported here: the writers load the renderer, which listing the formats need not.
         if format == "bop":
-            from annotator.formats.bop_export import export_bop
+            from annotator.export.bop import export_bop
 
             unreadable = export_bop(
                 ds, sel.scenes, tmp, cameras=chosen, progress=tick, layout=layout, **markers
             )
         else:
-            unreadable = get_format(format).export(
+            from annotator.export.sileane import export_sileane
+
+            unreadable = export_sileane(
                 ds, sel.scenes, tmp, cameras=chosen, progress=tick, **markers
             )
     summary = _summary(format, out, sel, unreadable)

@@ -42,6 +42,7 @@ from annotator.dataset import Dataset
 from annotator.errors import UserError
 from annotator.export.inputs import read_scene_inputs
 from annotator.export.markers import MarkerRegion
+from annotator.export.options import LAYOUTS, Layout
 from annotator.export.removal import remove_scene_markers
 from annotator.export.selection import Selected
 from annotator.export.undistort import pinhole_rig
@@ -51,7 +52,6 @@ from annotator.io.ply import write_ply
 from annotator.occlusion import scene_visibility
 from annotator.symmetry.classes import symmetry_to_bop
 
-LAYOUTS = ("scenewise", "imagewise", "webdataset")
 #: Instances at least this visible are targets (BOP's test_targets_bop19.json rule), and
 #: the others are ``ignore`` in COCO.
 TARGET_MIN_VISIB = 0.1
@@ -85,7 +85,7 @@ def export_bop(
     *,
     cameras: Sequence[str],
     progress: Callable[[], None] | None = None,
-    layout: str = "scenewise",
+    layout: Layout = "scenewise",
     remove_markers: bool = False,
     fill: str = "surface",
     markers_filled: Callable[[int], None] | None = None,
