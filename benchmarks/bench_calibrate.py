@@ -30,16 +30,10 @@ Seed 0 is the captures of tests/test_calibrate.py (``annotator synth --calibrati
 from __future__ import annotations
 
 import argparse
-import sys
 import time
 from functools import partial
-from pathlib import Path
 
 import numpy as np
-
-# OpenCV's pipelines, the reference, are test support code: they live beside the tests.
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
-from opencv_baseline import opencv_rig, opencv_stereo  # noqa: E402
 
 from annotator.calibration.detect import BoardDetector
 from annotator.calibration.heldout import held_out_error
@@ -49,6 +43,9 @@ from annotator.calibration.solve import CalibrationOptions, View, calibrate_rig
 from annotator.geometry.camera import Camera
 from annotator.geometry.transforms import invert
 from annotator.synthesis.board import BLACK, WHITE, CaptureConfig, plan_captures, true_corners
+
+# OpenCV's pipelines, the reference, are test support code: they live beside the tests.
+from devkit.opencv_baseline import opencv_rig, opencv_stereo
 
 TARGET = {"focal %": 0.2, "pp px": 5.0, "t mm": 0.3, "R deg": 0.2}
 

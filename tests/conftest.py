@@ -12,15 +12,6 @@ import pytest
 
 SAMPLE = Path(__file__).resolve().parent.parent / "sample_scenes"
 
-#: Modules marked slow here until they say so themselves (their own ``pytestmark``).
-SLOW_MODULES = {"test_calibrate.py", "test_calibrate_boards.py"}
-
-
-def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
-    for item in items:
-        if item.path.name in SLOW_MODULES:
-            item.add_marker(pytest.mark.slow)
-
 
 @pytest.fixture()
 def sample_copy(tmp_path: Path) -> Path:

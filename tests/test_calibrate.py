@@ -17,7 +17,6 @@ import numpy as np
 import pytest
 import yaml
 from cli_calls import one_error_line, run_cli
-from opencv_baseline import opencv_stereo
 
 from annotator.calibration.board import BoardSpec, read_board_yaml
 from annotator.calibration.bundle import Corners, RigState, _apply, _Layout, residuals_jacobian
@@ -30,6 +29,9 @@ from annotator.dataset import load_dataset
 from annotator.geometry.camera import Camera
 from annotator.geometry.transforms import invert, make_transform, rotvec_to_matrix
 from annotator.synthesis.board import true_corners
+from devkit.opencv_baseline import opencv_stereo
+
+pytestmark = pytest.mark.slow  # calibration captures rendered and solved
 
 SHOTS = 30
 #: The targets: focal lengths (%), principal points (px), rig_T_cam (mm, degrees).

@@ -32,6 +32,8 @@ from annotator.markers.dictionary import dictionary, min_distance
 from annotator.runner.bundle import description_files
 from annotator.synthesis.board import CaptureConfig, write_captures, write_videos
 
+pytestmark = pytest.mark.slow  # calibration captures rendered and solved
+
 TOLERANCE = {"focal_pct": 0.2, "principal_px": 5.0, "position_mm": 0.3, "rotation_deg": 0.2}
 #: Smaller images and fewer shots than tests/test_calibrate.py's, to keep the module quick.
 SYNTH = ["--noise", "12", "--blur", "1.0", "--size", "1024x820", "--workers", "2", "--quiet"]
