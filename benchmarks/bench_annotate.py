@@ -7,7 +7,7 @@ on every third scene).
 Scenes: two 1280x1024 cameras, 12-20 parts of bracket, brick and cylinder (8-10 mm markers,
 about 20-27 px), made by the synth library with its background depth.
 
-    .venv/bin/python benchmarks/bench_annotate.py [--scenes N]
+    .venv/bin/python -m benchmarks.bench_annotate [--scenes N]
 
 Targets: posed >= 95% sharp and >= 90% blurred of the parts at least half visible;
 0 gross errors (> 5% of D) without a flag; every scene with an unposed visible part warned;

@@ -17,7 +17,7 @@ ids added to ``dataset_params.py``), whole process, on this machine at a load of
 
 Target: the same AR, AR_VSD, AR_MSSD and AR_MSPD to 1e-6, and at least 20x faster.
 
-    .venv/bin/python benchmarks/bench_bop19.py [--runs 3]
+    .venv/bin/python -m benchmarks.bench_bop19 [--runs 3]
 """
 
 from __future__ import annotations

@@ -12,7 +12,7 @@ pipeline fitted on the same folds: ours with OpenCV's five coefficients, ours wi
 chosen by the held-out error (``annotator calibrate``'s default), and OpenCV's pipeline
 (per-camera calibrateCamera, then stereoCalibrate with the intrinsics fixed; and joint).
 
-    .venv/bin/python benchmarks/bench_calibrate.py [--seeds 3] [--part reference|behind]
+    .venv/bin/python -m benchmarks.bench_calibrate [--seeds 3] [--part reference|behind]
 
 A camera behind the board (``--part behind``): a four-camera rig of 1280x720 cameras (the
 synthetic pair and two more above and below the reference camera), 20 shots, the fourth

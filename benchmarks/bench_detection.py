@@ -2,7 +2,7 @@
 (OpenCV's candidates, codebook lookup, edge fit) against OpenCV's own (full dictionary search,
 sub-pixel corners). Time per image, markers found, corner error against the truth.
 
-    .venv/bin/python benchmarks/bench_detection.py [--scenes N]
+    .venv/bin/python -m benchmarks.bench_detection [--scenes N]
 """
 
 from __future__ import annotations

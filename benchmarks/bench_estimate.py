@@ -14,7 +14,7 @@ Target (the paper's finding): on the symmetric parts ``--symmetric`` gives a hig
 without (ratio > 1); on the part without symmetry it changes nothing beyond noise (ratio
 within 1 +- 0.05).
 
-    .venv/bin/python benchmarks/bench_estimate.py [--scenes 20] [--workers 2] [--keep DIR]
+    .venv/bin/python -m benchmarks.bench_estimate [--scenes 20] [--workers 2] [--keep DIR]
 """
 
 from __future__ import annotations

@@ -8,7 +8,7 @@ with the rows.
 
 Targets: 1M rows under 20 s and under 2 GB peak resident memory, whole process.
 
-    .venv/bin/python benchmarks/bench_evaluate_rows.py [--rows 1000000]
+    .venv/bin/python -m benchmarks.bench_evaluate_rows [--rows 1000000]
 """
 
 from __future__ import annotations

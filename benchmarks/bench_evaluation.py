@@ -6,7 +6,7 @@ Targets: >= 1e6 distances per second; the whole evaluation process (Python start
 imports included) at least 100x faster than the authors' evaluation code, which takes about
 0.9-1.9 s per scene of this size on these machines (90-190 s for the 100 scenes).
 
-    .venv/bin/python benchmarks/bench_evaluation.py
+    .venv/bin/python -m benchmarks.bench_evaluation
 """
 
 from __future__ import annotations

@@ -1,7 +1,7 @@
 """Occlusion rates of a scene (30 instances, two 1280x1024 cameras): our few ray-casting
 passes against the naive one-full-render-per-instance approach (BOP's tools). Target < 1 s.
 
-    .venv/bin/python benchmarks/bench_occlusion.py
+    .venv/bin/python -m benchmarks.bench_occlusion
 """
 
 from __future__ import annotations

@@ -17,7 +17,7 @@ add time, to either side):
 
 The outputs are checked to be identical (``created_at`` aside).
 
-    .venv/bin/python benchmarks/bench_ray.py [--repeat 3]
+    .venv/bin/python -m benchmarks.bench_ray [--repeat 3]
 """
 
 from __future__ import annotations

@@ -12,7 +12,7 @@ Target: <= 5 s per scene on one core at 20 parts, with the same images. "The sam
   - ideal depth: at most 0.1% of pixels more than 0.01 mm apart;
   - gt.json: the same poses, occlusion rates within 0.001.
 
-    .venv/bin/python benchmarks/bench_synth.py [--scenes N]
+    .venv/bin/python -m benchmarks.bench_synth [--scenes N]
 """
 
 from __future__ import annotations

@@ -24,8 +24,8 @@ settled frame differs from the one on screen at the key, the frame is at least 3
 way there (the overall test alone passes a frame still showing the old overlay). Nudges are
 also pressed 0.3 s apart, as one repeats a key, without waiting for the page to settle.
 
-    .venv/bin/python benchmarks/bench_viewer.py            # switches, then repairs
-    .venv/bin/python benchmarks/bench_viewer.py --repair   # repairs only
+    .venv/bin/python -m benchmarks.bench_viewer            # switches, then repairs
+    .venv/bin/python -m benchmarks.bench_viewer --repair   # repairs only
 """
 
 from __future__ import annotations

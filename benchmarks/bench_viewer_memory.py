@@ -10,7 +10,7 @@ For each: the server's resident memory (VmRSS) before, at its peak while the pag
 connected, and once they have left (the lowest of :data:`SETTLE_SECONDS` of samples after
 the last page left). Target: after the pages leave, within 0.5 GB of before.
 
-    .venv/bin/python benchmarks/bench_viewer_memory.py
+    .venv/bin/python -m benchmarks.bench_viewer_memory
 """
 
 from __future__ import annotations
