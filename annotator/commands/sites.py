@@ -111,6 +111,8 @@ def _json(survey: SitesSurvey, written: list[str]) -> dict[str, Any]:
         if spread is None
         else {"mm": round(spread[0], 4), "deg": round(spread[1], 3)},
         "instances": [m.to_json() for m in survey.measured],
+        "rounds": survey.rounds,
+        "round_moves_mm": [round(m, 4) for m in survey.moves],
         "flagged_markers": survey.flagged,
         "written": written,
         "failures": dict(sorted(survey.report.failed.items())),
@@ -124,9 +126,14 @@ def _last_line(args: argparse.Namespace, survey: SitesSurvey, written: list[str]
         if spread is None
         else (f" (gluing moved them by {spread[0]:.2f} mm and {spread[1]:.1f} deg, 1-sigma)")
     )
+    settled = (
+        f"; {survey.rounds} rounds (the last moved the sites by {survey.moves[-1]:.3f} mm RMS)"
+        if survey.moves
+        else ""
+    )
     return (
         f"sites: {len(survey.measured)} instances measured from {len(survey.report.done)} "
-        f"scenes{told}, {survey.flagged} markers flagged; "
+        f"scenes{told}{settled}, {survey.flagged} markers flagged; "
         + (
             f"wrote {len(written)} object.yaml; run `annotator annotate {args.dataset}` again"
             if written

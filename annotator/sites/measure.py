@@ -123,6 +123,8 @@ def measure_sites(
     detections: dict[str, list[tuple[int, int, np.ndarray]]],
     *,
     settings: SiteSettings | None = None,
+    annotations: dict[str, SceneAnnotation] | None = None,
+    spread: tuple[float, float] | None = None,
 ) -> tuple[list[InstanceSites], tuple[float, float] | None]:
     """Measure every instance seen in ``scenes`` (which must carry an annotation.json), and
     the gluing spread (mm, degrees; None if no marker was seen) used as the prior.
@@ -130,17 +132,24 @@ def measure_sites(
     Args:
         detections: Per scene id, the markers read in it: ``(camera index, id, corners)``
             (see :class:`DetectJob`).
+        annotations: Per scene id, the poses and markers to use instead of the scene's
+            annotation.json (a scene annotated again with sites measured before).
+        spread: The gluing spread to use as the prior, known already (an earlier round's):
+            one solve per instance instead of two.
     """
     settings = settings or SiteSettings()
     gathered: dict[tuple[str, str], InstanceData] = {}
     read: dict[tuple[str, str], dict[int, int]] = defaultdict(lambda: defaultdict(int))
     for scene in scenes:
-        _gather_scene(ds, scene, detections.get(scene.id, []), gathered, read)
+        ann = (annotations or {}).get(scene.id) or SceneAnnotation.read(scene.annotation_path)
+        _gather_scene(ds, scene, ann, detections.get(scene.id, []), gathered, read)
     items = sorted(gathered.items())
-    solutions = [_solve(ds, key, data, settings) for key, data in items]
-    # The prior's width, as gluing spreads the markers of this dataset (empirical Bayes):
-    # exact sites then keep their layout, stickers glued by hand get what the data say.
-    spread = glue_spread(solutions)
+    if spread is None:
+        solutions = [_solve(ds, key, data, settings) for key, data in items]
+        # The prior's width, as gluing spreads the markers of this dataset (empirical
+        # Bayes): exact sites then keep their layout, stickers glued by hand get what the
+        # data say.
+        spread = glue_spread(solutions)
     if spread is not None:
         settings = replace(settings, prior_mm=spread[0], prior_deg=spread[1])
         solutions = [_solve(ds, key, data, settings) for key, data in items]
@@ -198,11 +207,11 @@ MIN_SPREAD = (0.02, 0.1)
 def _gather_scene(
     ds: Dataset,
     scene: Scene,
+    ann: SceneAnnotation,
     found: list[tuple[int, int, np.ndarray]],
     gathered: dict[tuple[str, str], InstanceData],
     read: dict[tuple[str, str], dict[int, int]],
 ) -> None:
-    ann = SceneAnnotation.read(scene.annotation_path)
     if not ann.instances:
         return
     names = [c.name for c in ds.rig.cameras]

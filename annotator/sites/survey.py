@@ -15,7 +15,8 @@ from annotator.dataset.validity import unknown_name
 from annotator.errors import UserError
 from annotator.io.documents import unified_diff
 from annotator.runner import BatchReport, run_batch
-from annotator.sites.measure import DetectJob, InstanceSites, measure_sites, updated_object_yaml
+from annotator.sites.measure import DetectJob, InstanceSites, updated_object_yaml
+from annotator.sites.rounds import measure_in_rounds
 from annotator.sites.solve import SiteSettings
 
 
@@ -39,6 +40,8 @@ class SitesSurvey:
     measured: list[InstanceSites]
     spread: tuple[float, float] | None
     updates: list[ObjectUpdate]
+    rounds: int = 1  # measurements made until the sites settled (annotator.sites.rounds)
+    moves: tuple[float, ...] = ()  # the largest site move of each round after the first, mm
 
     @property
     def flagged(self) -> int:
@@ -54,8 +57,9 @@ def annotated_scenes(ds: Dataset, pattern: str) -> list[Scene]:
 def survey_sites(
     ds: Dataset, scenes: list[Scene], *, max_move_mm: float, workers: int, quiet: bool
 ) -> SitesSurvey:
-    """Read the markers of ``scenes`` (annotated), measure every instance's sites, and the
-    new text of each object.yaml whose sites change."""
+    """Read the markers of ``scenes`` (annotated), measure every instance's sites until they
+    settle (:func:`annotator.sites.rounds.measure_in_rounds`), and the new text of each
+    object.yaml whose sites change."""
     require_meshes(ds)
     report = run_batch(
         DetectJob(str(ds.root)),
@@ -70,13 +74,25 @@ def survey_sites(
         if problem is not None:  # its poses cannot be matched to sites: the rest goes on
             del detections[scene.id]
             report.failed[scene.id] = problem
-    measured, spread = measure_sites(
+    found = measure_in_rounds(
         ds,
         [s for s in scenes if s.id in detections],
         detections,
         settings=SiteSettings(max_move_mm=max_move_mm),
+        workers=workers,
+        quiet=quiet,
     )
-    return SitesSurvey(scenes, report, measured, spread, object_updates(ds, measured))
+    for sid, why in found.failed.items():  # its annotation.json served in the later rounds
+        report.failed[sid] = f"annotated again with the measured sites: {why}"
+    return SitesSurvey(
+        scenes,
+        report,
+        found.measured,
+        found.spread,
+        object_updates(ds, found.measured),
+        found.rounds,
+        tuple(found.moves),
+    )
 
 
 def _unknown_instance(ds: Dataset, scene: Scene) -> str | None:
