@@ -117,7 +117,7 @@ def test_review_page_end_to_end(browser, served) -> None:
     page = _open(browser, app.url)
     try:
         session = _session(app)
-        assert _shows(page, lambda: _as_sent(session._picture[1].image)), (
+        assert _shows(page, lambda: _as_sent(session.shown.mosaic[1].image)), (
             "the mosaic is not on the canvas"
         )
         img, _ = _canvas_rgb(page)
@@ -153,14 +153,14 @@ def test_a_collapsed_panel_leaves_the_picture_on_the_canvas(browser, served) -> 
     page = _open(browser, app.url)
     try:
         session = _session(app)
-        assert _shows(page, lambda: _as_sent(session._picture[1].image))
+        assert _shows(page, lambda: _as_sent(session.shown.mosaic[1].image))
         narrow = session.viewport
         session.client.gui.main_panel.minimize()
         session.client.flush()
         t0 = time.monotonic()
         assert wait_until(lambda: session.viewport[0] > narrow[0] * 1.2)
         assert page.locator("[data-review-picture]").count() == 0  # gone with the panel
-        assert _shows(page, lambda: _as_sent(session._picture[1].image), timeout=10)
+        assert _shows(page, lambda: _as_sent(session.shown.mosaic[1].image), timeout=10)
         assert time.monotonic() - t0 < pictures.BACKGROUND_QUIET
     finally:
         page.close()
@@ -203,16 +203,18 @@ def test_zoom_on_a_clicked_instance_then_no_pose_here(browser, served) -> None:
     page = _open(browser, app.url)
     try:
         session = _session(app)
-        assert _shows(page, lambda: _as_sent(session._picture[1].image))
-        picture, prep = session._picture[1], session._prep
+        assert _shows(page, lambda: _as_sent(session.shown.mosaic[1].image))
+        picture, prep = session.shown.mosaic[1], session.shown.prep
         # A click on an instance's silhouette in the mosaic opens the zoom on it.
         tile, k = picture.tiles[0], 0
         u, v = tile.to_picture(*_interior_pixel(prep.layers[0].instance == k))
         _, box = _canvas_rgb(page)
         page.mouse.click(box["x"] + u + 0.5, box["y"] + v + 0.5)
         assert wait_until(lambda: session.nav.zoom and session.nav.selected == prep.keys[k])
-        assert wait_until(lambda: session._zoom is not None and session._on_canvas[0] == "zoom")
-        z = session._zoom[1]
+        assert wait_until(
+            lambda: session.shown.zoom is not None and session.shown.on_canvas[0] == "zoom"
+        )
+        z = session.shown.zoom[1]
         assert _shows(page, lambda: z.image), "the zoom is not on the canvas"
         img, _ = _canvas_rgb(page)
         # Its outline: the pending colour, on the canvas where the zoom drew it, one pixel wide.
@@ -224,7 +226,7 @@ def test_zoom_on_a_clicked_instance_then_no_pose_here(browser, served) -> None:
         assert thick.sum() < 0.02 * drawn.sum(), "the outline is more than one pixel wide"
         assert f"| ▶ | {prep.keys[k]} |" in session.panel.table.content
         page.keyboard.press("o")  # fill instead of outline
-        assert wait_until(lambda: session._on_canvas[1][-1] is True)
+        assert wait_until(lambda: session.shown.on_canvas[1][-1] is True)
 
         # "A part has no pose here": M, then a click on the zoom; the pixel is recorded.
         zt = z.tiles[1]  # the second camera's crop, magnified
@@ -245,7 +247,7 @@ def test_zoom_on_a_clicked_instance_then_no_pose_here(browser, served) -> None:
         assert abs(mark["pixel"][1] - y) <= 1.0 / zt.scale
         page.get_by_text(f"no pose here: {zt.camera}").first.wait_for(timeout=5000)
         page.keyboard.press("z")  # back to the mosaic
-        assert wait_until(lambda: session._on_canvas[0] == "mosaic")
+        assert wait_until(lambda: session.shown.on_canvas[0] == "mosaic")
     finally:
         page.close()
 

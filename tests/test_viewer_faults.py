@@ -182,8 +182,8 @@ def test_a_hostile_canvas_is_drawn_within_8k_and_forgotten_when_the_page_leaves(
         try:
             page = weakref.ref(_session(app))  # the test must not keep the page alive
             assert page().viewport == (4320, 4320)
-            assert wait_until(lambda: page()._picture is not None)
-            assert page()._picture[1].image.shape == (4320, 4320, 3)
+            assert wait_until(lambda: page().shown.mosaic is not None)
+            assert page().shown.mosaic[1].image.shape == (4320, 4320, 3)
             # Drawn ahead for this canvas too, within the cache's bytes.
             assert wait_until(lambda: len(app.cache.values()) >= 2)
             assert app.cache.nbytes() <= CACHE_BYTES
@@ -193,7 +193,7 @@ def test_a_hostile_canvas_is_drawn_within_8k_and_forgotten_when_the_page_leaves(
         assert wait_until(lambda: not app.sessions and page()._closed)
         assert wait_until(lambda: _drawn(app) == 0)
         assert all(prep.nbytes < 40e6 for prep in app.cache.values())  # full resolution only
-        assert page()._picture is None and page()._prep is None
+        assert page().shown.mosaic is None and page().shown.prep is None
         # viser lets go of its client after the page's disconnect callback.
         assert wait_until(lambda: gc.collect() >= 0 and page() is None), "the closed page is kept"
 
@@ -203,7 +203,7 @@ def test_pages_that_never_read_are_let_go_when_they_leave(sample_copy) -> None:
         pages = [open_page(app.port, width=30000, height=30000) for _ in range(5)]
         try:
             assert wait_until(lambda: len(app.sessions) == 5)
-            assert wait_until(lambda: all(s._picture is not None for s in app.sessions.values()))
+            assert wait_until(lambda: all(s.shown.mosaic is not None for s in app.sessions.values()))
         finally:
             for ws in pages:
                 drop(ws)

@@ -389,7 +389,9 @@ def _page_on(app: ReviewApp, sid: str, key: str) -> tuple[ClientConnection, Sess
     while session.nav.current != sid:
         session.next()
     session.select(key)
-    assert wait_until(lambda: session._shown_zoom is not None and session._shown_zoom[0] == sid)
+    assert wait_until(
+        lambda: session.shown.zoom_for is not None and session.shown.zoom_for[0] == sid
+    )
     assert wait_until(lambda: not session._rendering)  # the next render is the key's own
     return ws, session
 
@@ -423,7 +425,7 @@ def test_a_nudge_is_shown_first_and_on_disk_when_its_key_is_done(sample_copy, mo
         assert order[:2] == ["pixels", "write"], order
         rec = json.loads(_review_path(sample_copy).read_text())["poses"][KEY]
         assert np.allclose(rec["cam_t_m2c"], before + [1.0, 0.0, 0.0])
-        assert ReviewState(sample_copy).info(SCENE).view == session._shown_zoom[1]
+        assert ReviewState(sample_copy).info(SCENE).view == session.shown.zoom_for[1]
         assert not session.unsaved and len(session.editor.history[SCENE]) == 1
         ws.close()
     finally:
@@ -450,7 +452,7 @@ def test_a_nudge_that_cannot_be_written_is_said_so_and_taken_back(sample_copy, m
         )
         assert not _review_path(sample_copy).exists()
         # The page shows the pose the file holds again, and there is nothing to undo.
-        assert app.state.info(SCENE).view == shown and session._shown_zoom[1] == shown
+        assert app.state.info(SCENE).view == shown and session.shown.zoom_for[1] == shown
         assert not session.editor.history.get(SCENE)
         # The next change that can be written clears the red notice.
         monkeypatch.undo()

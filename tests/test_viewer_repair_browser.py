@@ -107,9 +107,9 @@ def _auto(root: Path, key: str) -> tuple[np.ndarray, np.ndarray]:
 
 def _on_screen(session) -> np.ndarray:
     """What the page should show now: the zoom (sent exact) or the mosaic (as JPEG)."""
-    if session._on_canvas is not None and session._on_canvas[0] == "zoom":
-        return session._zoom[1].image
-    return _as_sent(session._picture[1].image)
+    if session.shown.on_canvas is not None and session.shown.on_canvas[0] == "zoom":
+        return session.shown.zoom[1].image
+    return _as_sent(session.shown.mosaic[1].image)
 
 
 def _select(page, session, key: str) -> None:
@@ -139,7 +139,7 @@ def test_refine_undo_redo_and_export(browser, moved, tmp_path) -> None:
 
             page.keyboard.press("u")  # back to the moved auto pose
             assert wait_until(lambda: _saved(moved, MOVED) is None)
-            assert wait_until(lambda: session.displayed == SCENE and session._prep is not None)
+            assert wait_until(lambda: session.displayed == SCENE and session.shown.prep is not None)
             shown = app.state.info(SCENE).pose(MOVED)
             assert np.allclose(shown.R, moved_R) and np.allclose(shown.t, moved_t)
             # The page shows the moved pose's overlay again.
@@ -209,8 +209,8 @@ def test_a_deleted_instance_is_added_back_with_m_a_click_and_r(browser, moved) -
         page = _open(browser, app.url)
         try:
             session = _session(app)
-            assert _shows(page, lambda: _as_sent(session._picture[1].image))
-            tile = session._picture[1].tiles[0]
+            assert _shows(page, lambda: _as_sent(session.shown.mosaic[1].image))
+            tile = session.shown.mosaic[1].tiles[0]
             assert tile.camera == cam.name
             u, v = tile.to_picture(x, y)
             _, box = _canvas_rgb(page)

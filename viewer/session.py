@@ -42,16 +42,17 @@ from viewer import repair
 from viewer.editor import Offer, RepairEditor
 from viewer.host import ReviewHost
 from viewer.memory import picture_size
-from viewer.mosaic import Picture, compose
+from viewer.mosaic import compose
 from viewer.navigation import Navigator
 from viewer.overlays import Prepared
 from viewer.panel import Panel
 from viewer.panel_text import PanelView, panel_view
 from viewer.pictures import Pictures
 from viewer.scene3d import Scene3D
+from viewer.shown import Shown
 from viewer.state import FILTERS, SaveError, SceneInfo
 from viewer.style import Look
-from viewer.zoom import Zoom, zoom
+from viewer.zoom import zoom
 
 DEFAULT_VIEWPORT = (1280, 960)
 #: How long a page's closing waits for its render under way (it is dropped after it).
@@ -81,12 +82,7 @@ class Session:
         self._dirty = False
         self._rendering = False
         self._closed = False
-        self._shown: tuple | None = None  # what the mosaic was made for
-        self._shown_zoom: tuple | None = None  # what the zoom was made for
-        self._on_canvas: tuple | None = None  # which picture is shown: ("mosaic" | "zoom", ...)
-        self._picture: tuple[str, Picture] | None = None
-        self._zoom: tuple[str, Zoom] | None = None
-        self._prep: Prepared | None = None
+        self.shown = Shown()
         self.blinking = False
         self.editor = RepairEditor(self)
         self.panel = Panel(client.gui, self)
@@ -168,9 +164,7 @@ class Session:
         scene shown before are taken off the page, so that none is mistaken for it."""
         with self._lock:
             flt, selected = self.nav.filter, self.nav.selected
-            self._picture = self._zoom = self._prep = None
-            self._shown = self._shown_zoom = None
-            self._on_canvas = ("none", sid)
+            self.shown.clear(on_canvas=("none", sid))
             self.blinking = False
         self.pictures.clear()
         view = self._panel_view(info, None, flt, selected)
@@ -198,33 +192,37 @@ class Session:
             self._show_without_pictures(sid, info, f"{info.error}: nothing to decide")
             return
         prep = self.app.prepared(sid, info)  # a failure is shown by request_render
-        self._prep = prep
+        self.shown.prep = prep
         look = Look.of(info, selected)
         self.viewport = self._viewport(self.viewport)  # the canvas may have changed since
         w, h = self.viewport
         base = (sid, info.view, look, (w, h))
         zkey = (*base, fill) if zoom_open and selected else None
-        if selected is not None and zkey is not None and zkey != self._shown_zoom:
-            shown = self._zoom[1] if self._zoom is not None and self._zoom[0] == sid else None
+        if selected is not None and zkey is not None and zkey != self.shown.zoom_for:
+            shown = (
+                self.shown.zoom[1]
+                if self.shown.zoom is not None and self.shown.zoom[0] == sid
+                else None
+            )
             z = zoom(prep, selected, look, w, h, fill=fill, keep=shown)
-            self._zoom = (sid, z) if z is not None else None
-            self._shown_zoom = zkey if z is not None else None
-        if zkey is None or self._zoom is None:
-            picture = self._picture
-            if base != self._shown or picture is None:
-                picture = self._picture = (sid, compose(prep, look, w, h))
-                self._shown = base
+            self.shown.zoom = (sid, z) if z is not None else None
+            self.shown.zoom_for = zkey if z is not None else None
+        if zkey is None or self.shown.zoom is None:
+            picture = self.shown.mosaic
+            if base != self.shown.mosaic_for or picture is None:
+                picture = self.shown.mosaic = (sid, compose(prep, look, w, h))
+                self.shown.mosaic_for = base
                 self.app.drew()
-            if ("mosaic", base) != self._on_canvas:
+            if ("mosaic", base) != self.shown.on_canvas:
                 self.pictures.show_mosaic(picture[1].image)
-                self._on_canvas = ("mosaic", base)
+                self.shown.on_canvas = ("mosaic", base)
             with self._lock:
                 self.blinking = False  # blinking belongs to a zoom
-        elif ("zoom", zkey) != self._on_canvas:
-            z = self._zoom[1]
+        elif ("zoom", zkey) != self.shown.on_canvas:
+            z = self.shown.zoom[1]
             self.pictures.show_zoom(z)
-            self._on_canvas = ("zoom", zkey)
-        self.pictures.blink(blinking and self._on_canvas[0] == "zoom")
+            self.shown.on_canvas = ("zoom", zkey)
+        self.pictures.blink(blinking and self.shown.on_canvas[0] == "zoom")
         self.panel.show(self._panel_view(info, prep, flt, selected), [p.key for p in info.poses])
         with self._lock:
             self.displayed = sid
@@ -396,7 +394,7 @@ class Session:
             return self.nav.current, self.nav.selected
 
     def prepared_scene(self) -> Prepared | None:
-        return self._prep
+        return self.shown.prep
 
     def show_repair(self, text: str, nudges: str) -> None:
         self.panel.show_repair(text, nudges)
@@ -485,8 +483,7 @@ class Session:
     def clicked_canvas(self, x: float, y: float) -> None:
         """A click on the canvas at (x, y) in 0-1 of its size: on the picture shown."""
         with self._lock:
-            shown = self._on_canvas
-        picture = self._zoom if shown and shown[0] == "zoom" else self._picture
+            picture = self.shown.on_screen()
         if picture is not None:
             h, w = picture[1].image.shape[:2]
             self.clicked(x * w - 0.5, y * h - 0.5)
@@ -495,10 +492,9 @@ class Session:
         """A click at (u, v) of the picture shown (the mosaic or the zoom)."""
         with self._lock:
             sid = self.nav.current
-            zoomed = self._on_canvas is not None and self._on_canvas[0] == "zoom"
-            shown = self._zoom if zoomed else self._picture
+            shown = self.shown.on_screen()
             armed = self.armed
-        prep = self._prep
+        prep = self.shown.prep
         if shown is None or shown[0] != sid or prep is None or prep.scene_id != sid:
             return
         located = shown[1].locate(u, v)
@@ -559,5 +555,4 @@ class Session:
         self.pictures.close()
         self.editor.close()
         with self._lock:
-            self._picture = self._zoom = self._prep = None
-            self._shown = self._shown_zoom = self._on_canvas = None
+            self.shown.clear()
