@@ -121,7 +121,9 @@ def test_evaluate_cli_is_the_api(copies: tuple[Path, Path], tmp_path: Path) -> N
     )
     gt = annotator.read_ground_truth(api)
     results = annotator.annotations_as_results(api, gt)
-    from_api = annotator.evaluate(gt, results, annotator.EvaluationOptions(max_results=(1, 3))).to_json()
+    from_api = annotator.evaluate(
+        gt, results, annotator.EvaluationOptions(max_results=(1, 3))
+    ).to_json()
     assert json.loads(report.read_text()) == json.loads(json.dumps(from_api))
 
 

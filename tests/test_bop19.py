@@ -255,7 +255,9 @@ def test_export_files_for_bop_tools(export: Path) -> None:
 
 
 # webdataset's tar reader leaves the shard's file for the garbage collector to close.
-@pytest.mark.filterwarnings("ignore::ResourceWarning", "ignore::pytest.PytestUnraisableExceptionWarning")
+@pytest.mark.filterwarnings(
+    "ignore::ResourceWarning", "ignore::pytest.PytestUnraisableExceptionWarning"
+)
 def test_webdataset_layout(sample: Path, tmp_path: Path, export: Path) -> None:
     import webdataset as wds
 

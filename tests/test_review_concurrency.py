@@ -150,7 +150,13 @@ def test_a_pages_undo_after_another_reviewers_edit_is_refused_and_said(sample_co
         # the page then shows the other's pose, and a nudge from it goes through.
         seen = app.state.info(SCENE)
         other.set_pose(SCENE, KEY, _moved(other, KEY, 1.0), [], by="page-other")
-        session.editor._edit(SCENE, KEY, _moved(app.state, KEY, 1.0), RepairStep.from_json({"op": "nudge"}), seen=seen)
+        session.editor._edit(
+            SCENE,
+            KEY,
+            _moved(app.state, KEY, 1.0),
+            RepairStep.from_json({"op": "nudge"}),
+            seen=seen,
+        )
         assert "page-other" in session.unsaved[SCENE]
         session.nudge(0, +1)
         assert SCENE not in session.unsaved

@@ -203,7 +203,9 @@ def test_pages_that_never_read_are_let_go_when_they_leave(sample_copy) -> None:
         pages = [open_page(app.port, width=30000, height=30000) for _ in range(5)]
         try:
             assert wait_until(lambda: len(app.sessions) == 5)
-            assert wait_until(lambda: all(s.shown.mosaic is not None for s in app.sessions.values()))
+            assert wait_until(
+                lambda: all(s.shown.mosaic is not None for s in app.sessions.values())
+            )
         finally:
             for ws in pages:
                 drop(ws)

@@ -172,7 +172,9 @@ def _dedupe(obs: list[Observation], err: np.ndarray, thr: float) -> list[int]:
     return sorted(best.values())
 
 
-def _ambiguous(cams: Sequence[Camera], used: list[Observation], T: np.ndarray, s: AnnotateSettings) -> bool:
+def _ambiguous(
+    cams: Sequence[Camera], used: list[Observation], T: np.ndarray, s: AnnotateSettings
+) -> bool:
     """True if a single marker in a single camera explains two different poses about equally
     well (the two IPPE solutions' reprojection errors within ``ambiguity_ratio``)."""
     if len({o.camera for o in used}) > 1 or len({o.marker_id for o in used}) > 1:

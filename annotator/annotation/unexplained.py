@@ -89,7 +89,9 @@ def _background(
     return support_depth(measured, cam.pixel_rays(step)), "the support plane found in the depth"
 
 
-def _min_region_px(ds: Dataset, cam: Camera, measured: np.ndarray, settings: AnnotateSettings) -> float:
+def _min_region_px(
+    ds: Dataset, cam: Camera, measured: np.ndarray, settings: AnnotateSettings
+) -> float:
     """The smallest region reported: a fraction of the smallest part's mean silhouette, seen
     at the scene's median depth."""
     z = float(np.nanmedian(measured)) if np.isfinite(measured).any() else 1000.0

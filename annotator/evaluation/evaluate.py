@@ -122,7 +122,9 @@ def thresholds_for(gt: GroundTruth, options: EvaluationOptions) -> dict[str, flo
     return out
 
 
-def evaluate(gt: GroundTruth, results: PoseResults, options: EvaluationOptions = EvaluationOptions()) -> EvaluationReport:
+def evaluate(
+    gt: GroundTruth, results: PoseResults, options: EvaluationOptions = EvaluationOptions()
+) -> EvaluationReport:
     """Score ``results`` against ``gt`` (see :mod:`annotator.evaluation.metrics`)."""
     of_type(gt, GroundTruth, name="gt", what="a GroundTruth (annotator.read_ground_truth)")
     of_type(results, PoseResults, name="results", what="PoseResults (annotator.read_results)")
@@ -161,7 +163,10 @@ def evaluate(gt: GroundTruth, results: PoseResults, options: EvaluationOptions =
 
 
 def format_table(
-    report: EvaluationReport, *, per_object: bool = True, others: dict[str, EvaluationReport] | None = None
+    report: EvaluationReport,
+    *,
+    per_object: bool = True,
+    others: dict[str, EvaluationReport] | None = None,
 ) -> str:
     """A table like the paper's table 3: one row per object (if ``per_object``) and ``all``.
 
