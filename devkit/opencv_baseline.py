@@ -39,6 +39,22 @@ class StereoResult:
     rms_px: float
 
 
+def _calibrate_alone(
+    board: BoardSpec, views: Sequence[View], size: tuple[int, int], flags: int = 0
+) -> tuple[np.ndarray, np.ndarray]:
+    """One camera's ``calibrateCamera`` on its views: K and the first five distortion terms."""
+    _, K, dist, _, _ = cv2.calibrateCamera(
+        [board.corners[v.ids].astype(np.float32).reshape(-1, 1, 3) for v in views],
+        [v.corners.astype(np.float32).reshape(-1, 1, 2) for v in views],
+        tuple(size),
+        None,
+        None,
+        flags=flags,
+        criteria=_CRITERIA,
+    )
+    return np.asarray(K, float), np.asarray(dist, float).reshape(-1)[:5]
+
+
 def opencv_stereo(
     views: Sequence[View],
     board: BoardSpec,
@@ -50,19 +66,8 @@ def opencv_stereo(
     """OpenCV's two-step (``joint=False``) or joint (``joint=True``) stereo calibration of
     cameras 0 and 1 from the same detections the rig calibration uses."""
     good = [v for v in views if len(v.ids) >= min_corners and v.camera in (0, 1)]
-    Ks, dists = [], []
-    for c in (0, 1):
-        mine = [v for v in good if v.camera == c]
-        _, K, dist, _, _ = cv2.calibrateCamera(
-            [board.corners[v.ids].astype(np.float32).reshape(-1, 1, 3) for v in mine],
-            [v.corners.astype(np.float32).reshape(-1, 1, 2) for v in mine],
-            tuple(sizes[c]),
-            None,
-            None,
-            criteria=_CRITERIA,
-        )
-        Ks.append(K)
-        dists.append(np.asarray(dist, float).reshape(-1)[:5])
+    alone = [_calibrate_alone(board, [v for v in good if v.camera == c], sizes[c]) for c in (0, 1)]
+    Ks, dists = [K for K, _ in alone], [d for _, d in alone]
     by_shot: dict[int, dict[int, View]] = {}
     for v in good:
         by_shot.setdefault(v.shot, {})[v.camera] = v
@@ -112,20 +117,11 @@ def opencv_rig(
     corners both found). ``views`` must already be read right (a mirrored camera's corners
     flipped: :func:`annotator.calibration.readings.decide_readings`)."""
     good = [v for v in views if len(v.ids) >= min_corners and not v.rejected]
-    Ks, dists = [], []
-    for c in range(len(names)):
-        mine = [v for v in good if v.camera == c]
-        _, K, dist, _, _ = cv2.calibrateCamera(
-            [board.corners[v.ids].astype(np.float32).reshape(-1, 1, 3) for v in mine],
-            [v.corners.astype(np.float32).reshape(-1, 1, 2) for v in mine],
-            tuple(sizes[c]),
-            None,
-            None,
-            flags=cv2.CALIB_FIX_K3,
-            criteria=_CRITERIA,
-        )
-        Ks.append(np.asarray(K, float))
-        dists.append(np.asarray(dist, float).reshape(-1)[:5])
+    alone = [
+        _calibrate_alone(board, [v for v in good if v.camera == c], sizes[c], cv2.CALIB_FIX_K3)
+        for c in range(len(names))
+    ]
+    Ks, dists = [K for K, _ in alone], [d for _, d in alone]
     by_shot: dict[int, dict[int, View]] = {}
     for v in good:
         by_shot.setdefault(v.shot, {})[v.camera] = v

@@ -11,23 +11,11 @@ instance.
 
 from __future__ import annotations
 
-from typing import Protocol
-
 import numpy as np
 
 from annotator.dataset.model import Dataset
+from annotator.dataset.review import Posed
 from annotator.errors import UserError
-
-
-class _Posed(Protocol):
-    @property
-    def object(self) -> str: ...
-    @property
-    def instance(self) -> str: ...
-    @property
-    def R(self) -> np.ndarray: ...  # noqa: N802 - matrix name
-    @property
-    def t(self) -> np.ndarray: ...
 
 
 def unknown_name(ds: Dataset, object_name: str, instance: str) -> str | None:
@@ -44,7 +32,7 @@ def unknown_name(ds: Dataset, object_name: str, instance: str) -> str | None:
     return None
 
 
-def pose_problem(ds: Dataset, pose: _Posed) -> str | None:
+def pose_problem(ds: Dataset, pose: Posed) -> str | None:
     """Why ``pose`` cannot be right in ``ds`` (see the module docstring), or None."""
     unknown = unknown_name(ds, pose.object, pose.instance)
     if unknown is not None:

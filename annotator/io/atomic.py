@@ -97,7 +97,7 @@ def _flock(fd: int, *, blocking: bool) -> bool:
 
 def _sweep_once(folder: Path) -> None:
     """Remove the temporary files that killed writers left in ``folder`` (once a process)."""
-    key = os.path.realpath(folder)
+    key = os.fspath(folder)  # as spelt: a folder spelt twice is only swept twice
     if key in _SWEPT:
         return
     _SWEPT.add(key)
