@@ -96,6 +96,20 @@ def test_synth_writes_the_same_bytes_as_one_local_worker(cluster, tmp_path, caps
     assert "3 scenes" in capsys.readouterr().out.splitlines()[-1]
 
 
+def test_synth_sequences_write_the_same_bytes_as_one_local_worker(
+    cluster, tmp_path, capsys
+) -> None:
+    """A job per scene (the drops) and then one per frame (``<scene>/<frame>``)."""
+    args = ["--size", "320x256", "--instances", "3-4", "--scenes", "2", "--frames", "3"]
+    args += ["--supersample", "1", "--motion-blur", "0.34", "--seed", "5", "--quiet"]
+    assert main(["synth", str(tmp_path / "local"), *args, "--workers", "1"]) == 0
+    assert main(["synth", str(tmp_path / "ray"), *args, "--ray", cluster.address]) == 0
+    local, remote = _files(tmp_path / "local"), _files(tmp_path / "ray")
+    assert "scenes/000001/frames/000002/left.png" in local and local.keys() == remote.keys()
+    assert [k for k in local if local[k] != remote[k]] == []
+    assert "2 sequences of 3 frames" in capsys.readouterr().out.splitlines()[-1]
+
+
 def test_twins_write_the_same_bytes_as_one_local_worker(cluster, sample_copy, tmp_path) -> None:
     """``synth --twin`` reads one dataset and writes another: the task writes into a folder
     of its own and the driver into the output folder."""

@@ -58,6 +58,15 @@ def _add_scene_options(parser: argparse.ArgumentParser) -> None:
         default=0,
         help="random seed: same seed, same dataset (default 0)",
     )
+    group.add_argument(
+        "--frames",
+        type=whole(low=1),
+        default=None,
+        metavar="N",
+        help="sequences: a moving rig (rig.moving: true) carried by hand over each scene's "
+        "bin, N frames per scene in scenes/<id>/frames/<frame>/ (gt.json in the first "
+        "frame's camera, with every frame's scene_T_rig)",
+    )
 
 
 def _add_rendering_options(parser: argparse.ArgumentParser) -> None:
@@ -89,6 +98,22 @@ def _add_rendering_options(parser: argparse.ArgumentParser) -> None:
         help="markers glued by hand: each marker of each instance moved in its own plane by "
         "N(0, MM) along both axes and turned by N(0, DEG) about its normal, the same in every "
         f"scene; the true sites go to OUT/{GLUED_SITES} (default 0,0: exactly on the layout)",
+    )
+    group.add_argument(
+        "--supersample",
+        type=whole(low=1, high=8),
+        default=SynthConfig.supersample,
+        metavar="N",
+        help="sub-pixel rays per side on marker edges (default "
+        f"{SynthConfig.supersample}; 1 is quick, for tests)",
+    )
+    group.add_argument(
+        "--motion-blur",
+        type=number(low=0, high=1),
+        default=None,
+        metavar="FRACTION",
+        help="--frames: the fraction of each sequence's frames taken with a long exposure, "
+        "blurred along their true image motion (default 0.25)",
     )
     group.add_argument("--no-depth", action="store_true", help="skip the active-stereo depth maps")
     group.add_argument(
@@ -221,7 +246,16 @@ def _config(args: argparse.Namespace) -> SynthConfig:
         depth=not args.no_depth,
         glue=args.glue,
         markers=not args.no_markers,
+        supersample=args.supersample,
+        frames=args.frames or 0,
+        motion_blur=(MOTION_BLUR if args.motion_blur is None else args.motion_blur)
+        if args.frames
+        else 0.0,
     )
+
+
+#: ``--motion-blur``'s default: a quarter of a sequence's frames are blurred.
+MOTION_BLUR = 0.25
 
 
 def run(args: argparse.Namespace) -> int:
@@ -231,11 +265,20 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(
             f"--no-markers does not apply to {'--twin' if args.twin else '--calibration'}"
         )
+    if args.frames and (args.twin or args.calibration):
+        raise UserError(
+            f"--frames does not apply to {'--twin' if args.twin else '--calibration'} "
+            "(sequences are made of new scenes)"
+        )
+    if args.motion_blur is not None and not args.frames:
+        raise UserError("--motion-blur applies to sequences only: give --frames N too")
     if args.twin:
         from annotator.commands.twin import synth_twin
 
         return synth_twin(args)
     config = _config(args)
+    if config.frames:
+        return _sequences(args, config)
     check_output_folder(out, command="synth", overwrite=args.overwrite)
     if args.calibration:
         if args.ray is not None:
@@ -277,6 +320,23 @@ def run(args: argparse.Namespace) -> int:
         f"{t['rendering']} s, depth {t['depth']} s, occlusion rates {t['occlusion']} s",
         as_json=args.json,
     )
+
+
+def _sequences(args: argparse.Namespace, config: SynthConfig) -> int:
+    """``annotator synth --frames N OUT``: sequences of a moving rig
+    (:func:`annotator.synthesis.sequence.synthesize_sequences`)."""
+    from annotator.synthesis.sequence import synthesize_sequences
+
+    done = synthesize_sequences(
+        args.out,
+        config,
+        overwrite=args.overwrite,
+        workers=args.workers,
+        quiet=args.quiet,
+        ray_address=args.ray,
+        ray_wait=args.ray_wait,
+    )
+    return finish_batch(done.report, done.to_json(), done.line(), as_json=args.json)
 
 
 def _calibration_captures(args: argparse.Namespace, config: Any) -> int:

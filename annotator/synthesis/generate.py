@@ -7,7 +7,7 @@ order by any number of worker processes and the dataset is the same byte for byt
 from __future__ import annotations
 
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -67,6 +67,11 @@ class SynthConfig:
     #: (the noise does not depend on what is drawn), so the same seed gives the same scene,
     #: pixel for pixel, away from the markers: the twin the marker removal is measured on.
     markers: bool = True
+    #: Sequences (a moving rig, ``rig.moving: true``): each scene's parts are seen in this
+    #: many frames along a hand-held path (:mod:`annotator.synthesis.sequence`); 0: a fixed rig.
+    frames: int = 0
+    #: Sequences: the fraction of each scene's frames taken with a long exposure (motion blur).
+    motion_blur: float = 0.0
 
 
 @dataclass
@@ -153,8 +158,9 @@ def write_dataset_files(plan: DatasetPlan, root: Path) -> None:
                 for part, insts, glued in zip(plan.parts, plan.instances, plan.glued)
             },
         )
-    rig = plan.setup.rig
-    if plan.config.depth and rig.depth is not None:
+    rig = replace(plan.setup.rig, moving=plan.config.frames > 0)
+    # The empty bin's depth is a fixed rig's: a moving rig sees it from everywhere.
+    if plan.config.depth and rig.depth is not None and not rig.moving:
         surfaces = _setting(plan)
         views = [
             render_view(cam, invert(world_T_cam), surfaces, fixed=len(surfaces))
@@ -181,7 +187,9 @@ def write_dataset_files(plan: DatasetPlan, root: Path) -> None:
             k: v if not isinstance(v, tuple) else list(v)
             for k, v in plan.config.__dict__.items()
             # recorded only when used
-            if not (k == "glue" and v == (0.0, 0.0)) and not (k == "markers" and v)
+            if not (k == "glue" and v == (0.0, 0.0))
+            and not (k == "markers" and v)
+            and not (k in ("frames", "motion_blur") and not plan.config.frames)
         },
     )
 
@@ -213,6 +221,7 @@ class _BinContents:
     chosen: list[tuple[int, int]]
     meshes: list[Mesh]
     world_T: list[np.ndarray | None]
+    clutter: tuple[int, ...] = ()  # the clutter's part indices (after the instances' meshes)
 
 
 def make_scene(
@@ -227,22 +236,50 @@ def make_scene(
     contents = _fill_bin(plan, rng)
     timing.physics = time.perf_counter() - t0
     staged = _stage(plan, contents)
-    poses = staged.poses
+    views = write_shot(plan, staged, folder, rng, timing)
+    staged_occlusion(plan, staged, views, timing)
+    write_poses(folder / "gt.json", staged.poses, format=FORMAT_VERSION)
+    return staged.poses, timing
+
+
+#: ``smear(k, camera, image, view)``: what happens to camera ``k``'s rendered image (float32,
+#: 0..1) before the sensor's blur and noise (a sequence's motion blur).
+Smear = Callable[[int, Camera, np.ndarray, View], np.ndarray]
+
+
+def write_shot(
+    plan: DatasetPlan,
+    staged: _Staged,
+    folder: Path,
+    rng: np.random.Generator,
+    timing: SceneTiming,
+    *,
+    smear: Smear | None = None,
+) -> list[View]:
+    """Render what ``plan``'s rig sees of ``staged`` into ``folder`` (each camera's image,
+    and with depth the simulated and exact depth maps), timed into ``timing``; the views."""
     t0 = time.perf_counter()
-    views = _write_images(plan, staged, folder, rng)
+    views = _write_images(plan, staged, folder, rng, smear=smear)
     timing.rendering = time.perf_counter() - t0
     if plan.config.depth:
         t0 = time.perf_counter()
         _write_depth(plan, staged, views, folder, rng)
         timing.depth = time.perf_counter() - t0
+    return views
+
+
+def staged_occlusion(
+    plan: DatasetPlan, staged: _Staged, views: list[View], timing: SceneTiming
+) -> None:
+    """Set the true occlusion rates of ``staged.poses`` (:func:`add_true_occlusion`) as the
+    rig of ``plan`` saw them in ``views``, timed into ``timing``."""
     t0 = time.perf_counter()
+    poses = staged.poses
     meshes = [plan.parts[plan.config.parts.index(p.object)].mesh for p in poses]
     # The posed parts follow the fixed surfaces: their casts serve the occlusion rates.
     casts = {cam.name: view.own[: len(poses)] for cam, view in zip(plan.setup.rig.cameras, views)}
     add_true_occlusion(plan.setup.rig, poses, meshes, views[0].hits.depth, casts=casts)
     timing.occlusion = time.perf_counter() - t0
-    write_poses(folder / "gt.json", poses, format=FORMAT_VERSION)
-    return poses, timing
 
 
 def _fill_bin(plan: DatasetPlan, rng: np.random.Generator) -> _BinContents:
@@ -257,7 +294,8 @@ def _fill_bin(plan: DatasetPlan, rng: np.random.Generator) -> _BinContents:
         counts[p] += 1
     clutter = [int(p) for p in rng.integers(0, len(plan.parts), size=cfg.clutter)]
     meshes = [plan.parts[p].mesh for p, _ in chosen] + [plan.parts[p].mesh for p in clutter]
-    return _BinContents(chosen, meshes, drop_parts(meshes, bin=plan.bin, rng=rng))
+    world_T = drop_parts(meshes, bin=plan.bin, rng=rng)
+    return _BinContents(chosen, meshes, world_T, tuple(clutter))
 
 
 @dataclass(frozen=True)
@@ -297,12 +335,17 @@ def _stage(plan: DatasetPlan, contents: _BinContents) -> _Staged:
 
 
 def _write_images(
-    plan: DatasetPlan, staged: _Staged, folder: Path, rng: np.random.Generator
+    plan: DatasetPlan,
+    staged: _Staged,
+    folder: Path,
+    rng: np.random.Generator,
+    *,
+    smear: Smear | None = None,
 ) -> list[View]:
     """Each camera's image, blurred and noisy, into ``folder``; the views rendered."""
     cfg = plan.config
     views = []
-    for cam, world_T_cam in zip(plan.setup.rig.cameras, plan.setup.world_T_cams):
+    for k, (cam, world_T_cam) in enumerate(zip(plan.setup.rig.cameras, plan.setup.world_T_cams)):
         img, view = render_intensity(
             cam,
             invert(world_T_cam),
@@ -310,6 +353,8 @@ def _write_images(
             supersample=cfg.supersample,
             fixed=staged.fixed,
         )
+        if smear is not None:
+            img = smear(k, cam, img, view)
         write_png(
             folder / f"{cam.name}.png", finish_image(img, blur=cfg.blur, noise=cfg.noise, rng=rng)
         )
