@@ -48,6 +48,12 @@ _HOMES = {
     "check_dataset": "annotator.dataset.check",
     "CheckReport": "annotator.dataset.check",
     "Problem": "annotator.dataset",
+    # sequences: synthetic ones, and recorded ones into a moving rig's dataset
+    "SynthConfig": "annotator.synthesis.generate",
+    "synthesize_sequences": "annotator.synthesis.sequence",
+    "SequenceSummary": "annotator.synthesis.sequence",
+    "ingest_scene": "annotator.ingest.scene",
+    "IngestSummary": "annotator.ingest.scene",
     # marker detection and auto-annotation
     "MarkerDetector": "annotator.detection",
     "annotate_scene": "annotator.annotation.scene",

@@ -67,6 +67,17 @@ from annotator.formats.base import (
 from annotator.formats.ours import (
     annotations_as_results as annotations_as_results,
 )
+from annotator.ingest.scene import (
+    IngestSummary as IngestSummary,
+    ingest_scene as ingest_scene,
+)
+from annotator.synthesis.generate import (
+    SynthConfig as SynthConfig,
+)
+from annotator.synthesis.sequence import (
+    SequenceSummary as SequenceSummary,
+    synthesize_sequences as synthesize_sequences,
+)
 from annotator.values import (
     BadValue as BadValue,
 )

@@ -49,6 +49,11 @@ COMMANDS: tuple[tuple[str, str, str], ...] = (
         "generate synthetic bin-picking scenes with exact ground truth",
     ),
     (
+        "ingest",
+        "annotator.commands.ingest",
+        "a recorded sequence (video or RealSense/ROS images) into a moving rig's dataset",
+    ),
+    (
         "annotate",
         "annotator.commands.annotate",
         "propose a pose for every instance from its markers",

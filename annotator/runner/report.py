@@ -33,16 +33,16 @@ def describe_failure(exc: BaseException) -> str:
     return f"{type(exc).__name__}: {exc}{where}"
 
 
-def progress_bar(total: int, desc: str, quiet: bool) -> tqdm:
-    """The batch progress bar: scenes finished (done or failed), on stderr when it is a
-    terminal."""
+def progress_bar(total: int, desc: str, quiet: bool, *, unit: str = "scene") -> tqdm:
+    """The batch progress bar: scenes (``unit``s) finished (done or failed), on stderr when
+    it is a terminal."""
     # Imported here: tqdm costs every command's start-up, and only batches draw a bar.
     from tqdm import tqdm
 
     return tqdm(
         total=total,
         desc=desc,
-        unit="scene",
+        unit=unit,
         disable=quiet or not sys.stderr.isatty(),
         file=sys.stderr,
     )

@@ -1,0 +1,97 @@
+"""``annotator ingest DATASET SOURCE --scene ID``: a recorded sequence into a moving rig's
+dataset (:func:`annotator.ingest.scene.ingest_scene`)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+from annotator.commands import number, whole
+from annotator.ingest.selection import BLUR_THRESHOLD
+from annotator.ingest.sources import PAIR_TOLERANCE_S
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("dataset", help="dataset folder whose dataset.yaml says rig.moving: true")
+    parser.add_argument(
+        "source",
+        help="a video file (.mp4 .avi .mkv .mov .webm) or a folder of colour images, with "
+        "depth images beside them or in a depth/ folder (RealSense, ROS image_saver and bag "
+        "export names)",
+    )
+    parser.add_argument(
+        "--scene", required=True, metavar="ID", help="the scene to write: scenes/ID/"
+    )
+    parser.add_argument(
+        "--camera",
+        metavar="NAME",
+        help="the rig camera the images are of (needed when the rig has several; also picks "
+        "the stream of that name in a folder of several)",
+    )
+    parser.add_argument(
+        "--every",
+        type=whole(low=1),
+        default=1,
+        metavar="N",
+        help="take every N-th frame of the source (default 1: all)",
+    )
+    parser.add_argument(
+        "--blur-threshold",
+        type=number(low=0),
+        default=BLUR_THRESHOLD,
+        metavar="F",
+        help="drop a frame whose sharpness (variance of the Laplacian) is below F times the "
+        f"running median of its neighbours' (default {BLUR_THRESHOLD:g}; 0 keeps every frame)",
+    )
+    parser.add_argument(
+        "--depth-scale",
+        type=number(low=0, above=True),
+        default=1.0,
+        metavar="MM",
+        help="millimetres per unit of the source's depth images (default 1, as RealSense "
+        "writes them); depth.png is written at the rig's rig.depth.scale",
+    )
+    parser.add_argument(
+        "--tolerance-ms",
+        type=number(low=0),
+        default=PAIR_TOLERANCE_S * 1000,
+        metavar="MS",
+        help="how far apart in time a colour image and its depth partner may be, when their "
+        f"names do not share a number (default {PAIR_TOLERANCE_S * 1000:g})",
+    )
+    parser.add_argument(
+        "--fps",
+        type=number(low=0, above=True),
+        help="the frame rate of a folder whose names are frame indices (frame0000.jpg): "
+        "gives the frames their times",
+    )
+    parser.add_argument("--no-depth", action="store_true", help="leave the depth images out")
+    parser.add_argument(
+        "--overwrite", action="store_true", help="replace the scene if ingest wrote it"
+    )
+    parser.add_argument("--json", action="store_true", help="print the summary as JSON")
+    parser.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
+def run(args: argparse.Namespace) -> int:
+    from annotator.ingest.scene import ingest_scene
+
+    summary = ingest_scene(
+        args.dataset,
+        args.source,
+        args.scene,
+        camera=args.camera,
+        every=args.every,
+        blur_threshold=args.blur_threshold,
+        depth=not args.no_depth,
+        depth_scale=args.depth_scale,
+        tolerance_s=args.tolerance_ms / 1000.0,
+        fps=args.fps,
+        overwrite=args.overwrite,
+        quiet=args.quiet,
+    )
+    if args.json:
+        print(json.dumps(summary.to_json(), indent=1))
+    else:
+        print(summary.line())
+    return 0
