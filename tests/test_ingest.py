@@ -232,6 +232,10 @@ def test_an_existing_scene_is_replaced_only_when_ingest_wrote_it(
     assert "replaces only a scene that `annotator ingest` wrote" in line
     assert (mine / "notes.txt").read_text() == "keep"
     assert not [p for p in (ds / "scenes").iterdir() if p.name.startswith(".")]
+    inside = ds / "scenes" / "s" / "frames"
+    (ds / "scenes" / "s" / "review.json").unlink()
+    line = one_error_line(["ingest", str(ds), str(inside), "--scene", "s", "--overwrite"], capsys)
+    assert "lies in the scene it would be written to" in line
 
 
 def test_selection_helpers() -> None:

@@ -17,6 +17,7 @@ from annotator.cli import main
 from annotator.dataset import load_dataset, read_poses
 from annotator.dataset.frames import frames_from_json, poses_in_frame
 from annotator.detection import MarkerDetector
+from annotator.ingest.selection import sharpness
 from annotator.synthesis.sequence import (
     DISTANCE_MM,
     TILT,
@@ -72,6 +73,10 @@ def test_the_sequences_load_as_a_moving_rig_dataset(small: Path) -> None:
         assert len(blurred) == 2  # --motion-blur 0.5 of 4 frames
         for n in blurred:
             assert table[n].extra["exposure_s"] > 0
+        # The frames said to be blurred are the blurred ones (ingest's sharpness measure).
+        left = ds.rig.cameras[0]
+        sharp = {f.name: sharpness(f.read_image(left)) for f in frames}
+        assert max(sharp[n] for n in blurred) < min(v for n, v in sharp.items() if n not in blurred)
         for p in poses:
             assert 0.0 <= p.extra["occlusion"]["rate"] <= 1.0
             assert set(p.extra["occlusion"]["per_camera"]) == {"left", "right"}

@@ -72,7 +72,7 @@ class IngestSummary:
 
     def line(self) -> str:
         """The one line the command prints."""
-        stride = "every frame" if self.every == 1 else f"every {self.every}th"
+        stride = "every frame" if self.every == 1 else f"one frame in {self.every}"
         return (
             f"ingest: {self.written} frames of {self.source} ({self.kind}, {self.source_frames} "
             f"frames, {stride}) written to {self.scene}; {len(self.blurred)} dropped as blurred "
@@ -133,6 +133,12 @@ def ingest_scene(
     cam = _camera(ds, camera)
     folder = ds.root / SCENES_DIR / scene_id
     check_replaceable(folder, overwrite=overwrite)
+    real = Path(source).resolve()
+    if real == folder.resolve() or folder.resolve() in real.parents:
+        raise UserError(
+            "lies in the scene it would be written to; move it out of the dataset first",
+            path=source,
+        )
     src = open_source(
         source,
         stream=cam.name,

@@ -36,7 +36,7 @@ from pathlib import Path
 import numpy as np
 
 from annotator.errors import UserError
-from annotator.io.images import read_image
+from annotator.io.images import native_stderr_hidden, read_image
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp")
 VIDEO_SUFFIXES = (".mp4", ".avi", ".mkv", ".mov", ".webm")
@@ -136,7 +136,8 @@ def _video_index(path: Path) -> list[SourceFrame]:
     counts can be wrong)."""
     import cv2
 
-    cap = cv2.VideoCapture(str(path))
+    with native_stderr_hidden():  # FFmpeg's own lines about a broken file
+        cap = cv2.VideoCapture(str(path))
     if not cap.isOpened():
         raise UserError("not a readable video", path=path)
     fps = cap.get(cv2.CAP_PROP_FPS) or 0.0
@@ -160,7 +161,8 @@ def _video_frames(
     """Decode the video once, yielding the wanted frames (increasing indices)."""
     import cv2
 
-    cap = cv2.VideoCapture(str(path))
+    with native_stderr_hidden():
+        cap = cv2.VideoCapture(str(path))
     if not cap.isOpened():
         raise UserError("not a readable video", path=path)
     try:

@@ -89,7 +89,9 @@ def stored_colour(img: np.ndarray) -> np.ndarray:
     return img
 
 
-def check_size(img: np.ndarray, camera: Camera, where: Path | str, first: Any) -> None:
+def check_size(
+    img: np.ndarray, camera: Camera, where: Path | str, first: Any, *, hint: str = ""
+) -> None:
     """Refuse an image whose size is not the rig camera's (ingest does not resize) in one
     line naming it (``where``: the file, or ``video, frame i``); ``first`` (the first
     frame's ``(size, where)``, or None) tells frames of different sizes apart."""
@@ -106,7 +108,7 @@ def check_size(img: np.ndarray, camera: Camera, where: Path | str, first: Any) -
         )
     raise UserError(
         f"image is {w}x{h} but camera {camera.name} in dataset.yaml is {cw}x{ch}: ingest "
-        "does not resize (record at the calibrated resolution)",
+        f"does not resize ({hint or 'record at the calibrated resolution'})",
         path=where,
     )
 
@@ -121,7 +123,7 @@ def read_source_depth(path: Path, camera: Camera, scale_mm: float) -> np.ndarray
         raise UserError(
             f"depth image must be single-channel uint16, got {raw.dtype} {raw.shape}", path=path
         )
-    check_size(raw, camera, path, None)
+    check_size(raw, camera, path, None, hint="record depth aligned to the colour images")
     mm = raw.astype(np.float64) * scale_mm
     mm[raw == 0] = np.nan
     return mm

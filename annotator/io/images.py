@@ -30,7 +30,7 @@ def read_image(path: str | Path) -> np.ndarray:
         data = np.fromfile(path, dtype=np.uint8)
     except OSError as exc:
         raise UserError(f"cannot read ({exc.strerror or exc})", path=path) from None
-    with _native_stderr_hidden():
+    with native_stderr_hidden():
         img = cv2.imdecode(data, cv2.IMREAD_UNCHANGED) if data.size else None
     if img is None:
         raise UserError("unreadable or corrupt image", path=path)
@@ -50,10 +50,10 @@ _STDERR = threading.Lock()
 
 
 @contextmanager
-def _native_stderr_hidden() -> Iterator[None]:
+def native_stderr_hidden() -> Iterator[None]:
     """Silence what native code writes to file descriptor 2 meanwhile.
 
-    libpng and OpenCV print their own lines ("libpng error: ...", "[ WARN:0] ...") on a
+    libpng, OpenCV and FFmpeg (under ``cv2.VideoCapture``) print their own lines ("libpng error: ...", "[ WARN:0] ...") on a
     corrupt file before returning the failure that we report as one clear line. (Output of
     other threads in these few milliseconds is lost too; batch workers decode in their own
     processes.)
