@@ -182,3 +182,22 @@ def test_frames_with_calibration_or_twin_is_one_line(tmp_path: Path, capsys, sam
     line = one_error_line(["synth", str(tmp_path / "x"), "--motion-blur", "0.5"], capsys)
     assert "--motion-blur applies to sequences only" in line
     assert not (tmp_path / "x").exists()
+
+
+def test_one_camera_like_an_rgbd_sensor(tmp_path: Path) -> None:
+    out = tmp_path / "one"
+    args = ["synth", str(out), "--scenes", "1", "--frames", "2", "--cameras", "1"]
+    args += ["--size", "320x256", "--supersample", "1", "--instances", "4-5", "--quiet"]
+    assert main([*args, "--workers", "1"]) == 0
+    ds = load_dataset(out)
+    assert [c.name for c in ds.rig.cameras] == ["left"] and ds.rig.moving
+    for frame in ds.scenes()[0].frames():
+        assert sorted(p.name for p in frame.path.iterdir()) == [
+            "depth.png",
+            "depth_ideal.png",
+            "left.png",
+        ]
+        depth = frame.read_depth(ds.rig)
+        assert depth is not None and np.isfinite(depth).mean() > 0.5  # the stereo pair's
+    for p in read_poses(ds.scenes()[0].gt_path):
+        assert set(p.extra["occlusion"]["per_camera"]) == {"left"}

@@ -100,6 +100,14 @@ def _add_rendering_options(parser: argparse.ArgumentParser) -> None:
         f"scene; the true sites go to OUT/{GLUED_SITES} (default 0,0: exactly on the layout)",
     )
     group.add_argument(
+        "--cameras",
+        type=int,
+        choices=(1, 2),
+        default=2,
+        help="the rig's cameras: 2 (default), or 1, the reference camera alone like an RGB-D "
+        "sensor's colour camera (its depth still from the simulated stereo pair)",
+    )
+    group.add_argument(
         "--supersample",
         type=whole(low=1, high=8),
         default=SynthConfig.supersample,
@@ -247,6 +255,7 @@ def _config(args: argparse.Namespace) -> SynthConfig:
         glue=args.glue,
         markers=not args.no_markers,
         supersample=args.supersample,
+        cameras=args.cameras,
         frames=args.frames or 0,
         motion_blur=(MOTION_BLUR if args.motion_blur is None else args.motion_blur)
         if args.frames
@@ -270,6 +279,8 @@ def run(args: argparse.Namespace) -> int:
             f"--frames does not apply to {'--twin' if args.twin else '--calibration'} "
             "(sequences are made of new scenes)"
         )
+    if args.cameras != 2 and (args.twin or args.calibration):
+        raise UserError(f"--cameras does not apply to {'--twin' if args.twin else '--calibration'}")
     if args.motion_blur is not None and not args.frames:
         raise UserError("--motion-blur applies to sequences only: give --frames N too")
     if args.twin:

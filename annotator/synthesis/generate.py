@@ -72,6 +72,10 @@ class SynthConfig:
     frames: int = 0
     #: Sequences: the fraction of each scene's frames taken with a long exposure (motion blur).
     motion_blur: float = 0.0
+    #: The rig's cameras in dataset.yaml and the scenes: 2, or 1 (the reference camera alone,
+    #: as an RGB-D sensor's colour camera: its depth still comes from the simulated stereo
+    #: pair, whose second camera is then rendered for the depth only).
+    cameras: int = 2
 
 
 @dataclass
@@ -158,7 +162,7 @@ def write_dataset_files(plan: DatasetPlan, root: Path) -> None:
                 for part, insts, glued in zip(plan.parts, plan.instances, plan.glued)
             },
         )
-    rig = replace(plan.setup.rig, moving=plan.config.frames > 0)
+    rig = replace(written_rig(plan), moving=plan.config.frames > 0)
     # The empty bin's depth is a fixed rig's: a moving rig sees it from everywhere.
     if plan.config.depth and rig.depth is not None and not rig.moving:
         surfaces = _setting(plan)
@@ -190,8 +194,15 @@ def write_dataset_files(plan: DatasetPlan, root: Path) -> None:
             if not (k == "glue" and v == (0.0, 0.0))
             and not (k == "markers" and v)
             and not (k in ("frames", "motion_blur") and not plan.config.frames)
+            and not (k == "cameras" and v == 2)
         },
     )
+
+
+def written_rig(plan: DatasetPlan) -> Rig:
+    """The rig as dataset.yaml gives it: the simulated one's first ``config.cameras``."""
+    rig = plan.setup.rig
+    return replace(rig, cameras=rig.cameras[: plan.config.cameras])
 
 
 def _box_mesh(size: np.ndarray) -> Mesh:
@@ -277,8 +288,9 @@ def staged_occlusion(
     poses = staged.poses
     meshes = [plan.parts[plan.config.parts.index(p.object)].mesh for p in poses]
     # The posed parts follow the fixed surfaces: their casts serve the occlusion rates.
-    casts = {cam.name: view.own[: len(poses)] for cam, view in zip(plan.setup.rig.cameras, views)}
-    add_true_occlusion(plan.setup.rig, poses, meshes, views[0].hits.depth, casts=casts)
+    rig = written_rig(plan)
+    casts = {cam.name: view.own[: len(poses)] for cam, view in zip(rig.cameras, views)}
+    add_true_occlusion(rig, poses, meshes, views[0].hits.depth, casts=casts)
     timing.occlusion = time.perf_counter() - t0
 
 
@@ -342,10 +354,14 @@ def _write_images(
     *,
     smear: Smear | None = None,
 ) -> list[View]:
-    """Each camera's image, blurred and noisy, into ``folder``; the views rendered."""
+    """Each camera's image, blurred and noisy, into ``folder``; the views rendered (those of
+    the cameras not written too, for the depth)."""
     cfg = plan.config
     views = []
     for k, (cam, world_T_cam) in enumerate(zip(plan.setup.rig.cameras, plan.setup.world_T_cams)):
+        if k >= cfg.cameras:
+            views.append(render_view(cam, invert(world_T_cam), staged.surfaces, fixed=staged.fixed))
+            continue
         img, view = render_intensity(
             cam,
             invert(world_T_cam),
