@@ -4,7 +4,6 @@ bytes with any number of workers, a smooth hand-held path, truthful motion blur.
 
 from __future__ import annotations
 
-import hashlib
 import json
 from pathlib import Path
 
@@ -12,6 +11,7 @@ import cv2
 import numpy as np
 import pytest
 from cli_calls import one_error_line
+from test_synth import _digest  # the same bytes, counted the same way
 
 from annotator.cli import main
 from annotator.dataset import load_dataset, read_poses
@@ -29,15 +29,6 @@ from annotator.synthesis.sequence import (
 
 SMALL = ["--scenes", "2", "--frames", "4", "--size", "320x256", "--supersample", "1"]
 SMALL += ["--instances", "4-6", "--seed", "3", "--motion-blur", "0.5", "--quiet"]
-
-
-def _digest(folder: Path) -> str:
-    h = hashlib.sha256()
-    for p in sorted(folder.rglob("*")):
-        if p.is_file():
-            h.update(p.relative_to(folder).as_posix().encode())
-            h.update(p.read_bytes())
-    return h.hexdigest()
 
 
 @pytest.fixture(scope="module")
