@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from annotator.annotation.scene import annotate_scene
+from annotator.annotation.sequence_batch import annotate_sequences
 from annotator.annotation.settings import AnnotateSettings
 from annotator.dataset import Dataset, Scene, as_dataset, cached_dataset, require_meshes
 from annotator.dataset.annotation import WarningKind
@@ -41,10 +42,11 @@ def description_digest(ds: Dataset) -> str:
 
 
 def scene_inputs(ds: Dataset, scene: Scene) -> list[Path]:
-    """The scene's own files an annotation depends on: its images and depth map."""
-    files = [scene.image_path(c) for c in ds.rig.cameras]
-    if scene.depth_path.exists():
-        files.append(scene.depth_path)
+    """The scene's own files an annotation depends on: its images and depth map (every
+    frame's, for a sequence)."""
+    shots = scene.frames() if ds.rig.moving else [scene]
+    files = [shot.image_path(c) for shot in shots for c in ds.rig.cameras]
+    files += [shot.depth_path for shot in shots if shot.depth_path.exists()]
     return files
 
 
@@ -199,15 +201,27 @@ def annotate_dataset(
     require_meshes(ds)
     job = AnnotateJob.for_dataset(ds, settings)
     todo = [s.id for s in chosen if force or not is_up_to_date(ds, s, job.digest)]
-    report = run_batch(
-        job,
-        todo,
-        workers=workers,
-        desc="annotate",
-        quiet=quiet,
-        ray_address=ray_address,
-        ray_wait=ray_wait,
-    )
+    if ds.rig.moving:
+        report = annotate_sequences(
+            ds,
+            [ds.scene(s) for s in todo],
+            digest=job.digest,
+            workers=workers,
+            settings=job.settings,
+            quiet=quiet,
+            ray_address=ray_address,
+            ray_wait=ray_wait,
+        )
+    else:
+        report = run_batch(
+            job,
+            todo,
+            workers=workers,
+            desc="annotate",
+            quiet=quiet,
+            ray_address=ray_address,
+            ray_wait=ray_wait,
+        )
     for link in ds.broken_scene_links():
         if fnmatch.fnmatch(link.name, scenes):
             report.failed[link.name] = f"{link}: {BROKEN_LINK}"

@@ -41,6 +41,9 @@ class Flag(StrEnum):
     HIGH_UNCERTAINTY = "high_uncertainty"
     #: Another copy of the part is posed in the same place (a marker on the wrong copy).
     OVERLAP = "overlap"
+    #: A sequence's frames disagree about the part: it moved while the rig moved (the pose
+    #: is the one most frames agree with).
+    MOVED = "moved"
 
 
 class WarningKind(StrEnum):

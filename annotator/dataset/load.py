@@ -245,9 +245,18 @@ def _parse_rig(p: _Parser, rig: dict[str, Any] | None) -> Rig | None:
     depth = None
     if "depth" in rig and rig["depth"] is not None:
         depth = _parse_depth(p, rig["depth"], parsed)
+    moving = rig.get("moving", False)
+    if not isinstance(moving, bool):
+        p.problem(f"rig.moving must be true (a moving rig: scenes are sequences) or false, got {moving!r}")
+        moving = False
     if not parsed.cameras:
         return None
-    return Rig(cameras=tuple(parsed.cameras), depth=depth, flipped=frozenset(parsed.flipped))
+    return Rig(
+        cameras=tuple(parsed.cameras),
+        depth=depth,
+        flipped=frozenset(parsed.flipped),
+        moving=moving,
+    )
 
 
 def _parse_cameras(p: _Parser, cams_doc: list[Any]) -> _RigCameras:

@@ -62,6 +62,7 @@ class Rig:
     cameras: tuple[Camera, ...]
     depth: DepthSpec | None = None
     flipped: frozenset[str] = frozenset()
+    moving: bool = False  # ``rig.moving``: scenes are sequences of frames (FORMAT.md)
 
     def camera(self, name: str) -> Camera:
         """The camera called ``name`` (KeyError if none)."""
@@ -134,17 +135,16 @@ class ObjectModel:
         raise KeyError(name)
 
 
-@dataclass(frozen=True)
-class Scene:
-    """A scene folder; the files in it are found by name (FORMAT.md layout).
+#: The folder of a sequence's scene that holds one folder per frame (FORMAT.md, sequences).
+FRAMES_DIR = "frames"
 
-    ``flipped``: the rig's mirrored cameras (:attr:`Rig.flipped`), whose images
-    :meth:`read_image` flips, so that every reader of images gets them as calibrated.
-    """
 
-    id: str
+class Capture:
+    """What one shot of the rig is on disk: a folder with an image per camera and an
+    optional depth map (a fixed rig's scene, or one frame of a sequence)."""
+
     path: Path
-    flipped: frozenset[str] = field(default=frozenset(), compare=False)
+    flipped: frozenset[str]
 
     def image_path(self, camera: Camera | str) -> Path:
         """Path of the intensity image of ``camera``."""
@@ -154,6 +154,66 @@ class Scene:
     @property
     def depth_path(self) -> Path:
         return self.path / "depth.png"
+
+    def read_image(self, camera: Camera) -> np.ndarray:
+        """The camera's intensity image, as stored but flipped back for a mirrored camera
+        (``flip: horizontal``); UserError if missing, corrupt or mis-sized."""
+        from annotator.errors import UserError
+        from annotator.io.images import read_image
+
+        path = self.image_path(camera)
+        img = read_image(path)
+        if img.shape[1] != camera.width or img.shape[0] != camera.height:
+            raise UserError(
+                f"image is {img.shape[1]}x{img.shape[0]}, the rig says {camera.width}x{camera.height}",
+                path=path,
+            )
+        return orient_image(img, camera.name in self.flipped)
+
+    def read_depth(self, rig: Rig) -> np.ndarray | None:
+        """The depth map in mm (NaN = no measurement), or None if the shot has none."""
+        from annotator.errors import UserError
+        from annotator.io.images import read_depth
+
+        if rig.depth is None or not self.depth_path.exists():
+            return None
+        depth = read_depth(self.depth_path, rig.depth.scale)
+        cam = rig.camera(rig.depth.camera)
+        if depth.shape != (cam.height, cam.width):
+            raise UserError(
+                f"depth map is {depth.shape[1]}x{depth.shape[0]}, the rig says {cam.width}x{cam.height}",
+                path=self.depth_path,
+            )
+        return depth
+
+
+@dataclass(frozen=True)
+class Frame(Capture):
+    """One frame of a sequence: ``scenes/<scene>/frames/<name>/`` (FORMAT.md, sequences)."""
+
+    scene: str
+    name: str
+    path: Path
+    flipped: frozenset[str] = field(default=frozenset(), compare=False)
+
+    @property
+    def id(self) -> str:
+        """``<scene>/<frame>``: how messages and exports name the frame."""
+        return f"{self.scene}/{self.name}"
+
+
+@dataclass(frozen=True)
+class Scene(Capture):
+    """A scene folder; the files in it are found by name (FORMAT.md layout).
+
+    ``flipped``: the rig's mirrored cameras (:attr:`Rig.flipped`), whose images
+    :meth:`read_image` flips, so that every reader of images gets them as calibrated.
+    A moving rig's scene holds its images in :meth:`frames` instead.
+    """
+
+    id: str
+    path: Path
+    flipped: frozenset[str] = field(default=frozenset(), compare=False)
 
     @property
     def gt_path(self) -> Path:
@@ -176,36 +236,17 @@ class Scene:
         """The scene with its paths relative to the dataset's root (what a Ray task ships)."""
         return cls(scene_id, Path(SCENES_DIR) / scene_id)
 
-    def read_image(self, camera: Camera) -> np.ndarray:
-        """The camera's intensity image, as stored but flipped back for a mirrored camera
-        (``flip: horizontal``); UserError if missing, corrupt or mis-sized."""
-        from annotator.errors import UserError
-        from annotator.io.images import read_image
-
-        path = self.image_path(camera)
-        img = read_image(path)
-        if img.shape[1] != camera.width or img.shape[0] != camera.height:
-            raise UserError(
-                f"image is {img.shape[1]}x{img.shape[0]}, the rig says {camera.width}x{camera.height}",
-                path=path,
-            )
-        return orient_image(img, camera.name in self.flipped)
-
-    def read_depth(self, rig: Rig) -> np.ndarray | None:
-        """The depth map in mm (NaN = no measurement), or None if the scene has none."""
-        from annotator.errors import UserError
-        from annotator.io.images import read_depth
-
-        if rig.depth is None or not self.depth_path.exists():
-            return None
-        depth = read_depth(self.depth_path, rig.depth.scale)
-        cam = rig.camera(rig.depth.camera)
-        if depth.shape != (cam.height, cam.width):
-            raise UserError(
-                f"depth map is {depth.shape[1]}x{depth.shape[0]}, the rig says {cam.width}x{cam.height}",
-                path=self.depth_path,
-            )
-        return depth
+    def frames(self) -> list[Frame]:
+        """A sequence's frame folders (``frames/<frame>/``), in sorted order; empty for a
+        fixed rig's scene."""
+        folder = self.path / FRAMES_DIR
+        if not folder.is_dir():
+            return []
+        return [
+            Frame(self.id, p.name, p, self.flipped)
+            for p in sorted(folder.iterdir())
+            if p.is_dir() and not p.name.startswith(".")
+        ]
 
 
 @dataclass(eq=False)

@@ -9,6 +9,7 @@
      "reason": "a part has no pose",
      "missing": [{"camera": "left", "pixel": [612.0, 433.5], "at": "2026-11-22T16:03:58+00:00"}],
      "decided_by": "page-3f9a2c-1",
+     "frames": {"<frame>": "rejected"},
      "poses": {"<object>/<instance>": {"cam_R_m2c": [9 floats], "cam_t_m2c": [3 floats],
                "source": "edited", "steps": [{"op": "refine", ...}, ...],
                "decided_by": "page-3f9a2c-1", "at": "2026-11-22T16:04:10+00:00",
@@ -27,7 +28,8 @@ they have a value:
   annotation.json's pose of that instance for the export and the evaluation (annotation.json
   stays what ``annotate`` wrote). ``auto_fingerprint`` is that of the instance's auto pose
   the edit started from (null: an instance ``annotate`` did not pose, added by hand); when
-  the auto pose is no longer that one, the edit is *stale* (:func:`apply_edits`).
+  the auto pose is no longer that one, the edit is *stale* (:func:`apply_edits`);
+- ``frames``: a sequence's frames rejected on their own (the scene's other frames go on).
 
 A decision is *stale* when the scene's annotation.json no longer has the fingerprint the
 decision was made on (its poses have changed since). Unknown keys are kept (``extra``) and
@@ -186,11 +188,20 @@ class Review:
     missing: list[MissingPart] = field(default_factory=list)
     decided_by: str | None = None
     poses: dict[str, EditedPose] = field(default_factory=dict)
+    #: A sequence's frames a reviewer rejected on their own (frame -> ``rejected``): left out
+    #: of the export while the rest of the scene goes.
+    frames: dict[str, ReviewStatus] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         # Callers may pass plain strings; keep the enum inside.
         self.status = ReviewStatus(self.status)
         self.instances = {k: ReviewStatus(v) for k, v in self.instances.items()}
+        self.frames = {k: ReviewStatus(v) for k, v in self.frames.items()}
+
+    @property
+    def rejected_frames(self) -> set[str]:
+        """The frames rejected on their own."""
+        return {f for f, v in self.frames.items() if v == ReviewStatus.REJECTED}
 
     def is_stale(self, fingerprint: str | None) -> bool:
         """True if a decision was made on poses other than those with ``fingerprint``."""
@@ -212,6 +223,8 @@ class Review:
             out["decided_by"] = self.decided_by
         if self.poses:
             out["poses"] = {k: v.to_json() for k, v in sorted(self.poses.items())}
+        if self.frames:
+            out["frames"] = {k: v.value for k, v in sorted(self.frames.items())}
         return out
 
 
@@ -402,7 +415,11 @@ def read_review(path: str | Path) -> Review | None:
         if doc.get(name) is not None and not isinstance(doc[name], str):
             raise UserError(f"'{name}' must be a string", path=path)
     decided_by = doc.get("decided_by")
+    frames = doc.get("frames", {})
+    if not isinstance(frames, dict) or any(v != ReviewStatus.REJECTED for v in frames.values()):
+        raise UserError("'frames' must map a frame to rejected", path=path)
     known = {
+        "frames",
         "status",
         "instances",
         "decided_at",
@@ -422,6 +439,7 @@ def read_review(path: str | Path) -> Review | None:
         missing=_missing_parts(doc.get("missing", []), path),
         decided_by=None if decided_by is None else str(decided_by),
         poses=_edited_poses(doc.get("poses", {}), path),
+        frames={str(k): ReviewStatus(v) for k, v in frames.items()},
     )
 
 

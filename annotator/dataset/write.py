@@ -36,6 +36,8 @@ def rig_to_yaml(rig: Rig) -> dict[str, Any]:
         for c in rig.cameras
     ]
     out: dict[str, Any] = {"cameras": cams}
+    if rig.moving:
+        out["moving"] = True
     if rig.depth is not None:
         out["depth"] = {"camera": rig.depth.camera, "scale": float(rig.depth.scale)}
         if rig.depth.background is not None:

@@ -29,6 +29,7 @@ from __future__ import annotations
 import json
 import shutil
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -39,8 +40,9 @@ from pycocotools import mask as coco_mask
 from scipy.spatial import ConvexHull
 
 from annotator.dataset import Dataset
+from annotator.dataset.frames import Shot
 from annotator.errors import UserError
-from annotator.export.inputs import read_scene_inputs
+from annotator.export.inputs import SceneInputs, read_scene_inputs
 from annotator.export.markers import MarkerRegion
 from annotator.export.options import LAYOUTS, Layout
 from annotator.export.removal import remove_scene_markers
@@ -118,9 +120,13 @@ def export_bop(
     ids: dict[str, str] = {}
     failed: dict[str, str] = {}
     targets: list[dict[str, int]] = []
+    images: list[dict[str, int]] = []
     for item in selected:
-        try:
-            inputs = read_scene_inputs(ds, item.scene, cameras)
+        try:  # every shot read before anything of the scene is written
+            shots = [
+                (_image_id(item, shot), shot, read_scene_inputs(ds, shot.capture, cameras))
+                for shot in item.shots
+            ]
         except UserError as exc:
             failed[item.scene.id] = str(exc)
         else:
@@ -129,14 +135,13 @@ def export_bop(
             scene = _SceneWriter(ds, rig, cameras, obj_ids, out / "test" / f"{bop_id:06d}")
             scene.remove_markers, scene.fill = remove_markers, fill
             scene.markers_filled = markers_filled
-            targets += scene.write(item, inputs, bop_id)
+            targets += scene.write(item, shots, bop_id)
+            images += [{"scene_id": bop_id, "im_id": im_id} for im_id, _, _ in shots]
         if progress:
             progress()
     write_json(out / "test" / "scene_ids.json", ids)
     write_json(out / "test_targets_bop19.json", targets)
-    write_json(
-        out / "test_targets_bop24.json", [{"scene_id": int(k), "im_id": 0} for k in sorted(ids)]
-    )
+    write_json(out / "test_targets_bop24.json", images)
     if layout != "scenewise":
         _imagewise(out / "test", out / "test_imagewise", cameras)
         if layout == "webdataset":
@@ -187,9 +192,46 @@ class _SceneWriter:
         self.fill = "surface"
         self.markers_filled: Callable[[int], None] | None = None
 
-    def write(self, item: Selected, inputs: Any, bop_id: int) -> list[dict[str, int]]:
-        """Write the scene; returns its entries of test_targets_bop19.json (for the first
-        camera: BOP's targets name one image per scene here)."""
+    def write(
+        self, item: Selected, shots: list[tuple[int, Shot, SceneInputs]], bop_id: int
+    ) -> list[dict[str, int]]:
+        """Write the scene, one BOP image per shot (a fixed rig's scene is image 0, a
+        sequence's frame ``k`` image ``k``); returns its entries of test_targets_bop19.json
+        (for the first camera: BOP's targets name one image per shot here)."""
+        files = {c: _CameraFiles() for c in self.cameras}
+        targets: list[dict[str, int]] = []
+        for im_id, shot, inputs in shots:
+            poses = shot.poses(item.poses)
+            markers, vis, images = self._shot(item, shot, poses, inputs)
+            for ci, name in enumerate(self.cameras):
+                visib = self._write_camera(
+                    ci,
+                    name,
+                    im_id,
+                    shot,
+                    poses,
+                    images[name],
+                    inputs.depth,
+                    vis,
+                    markers[name],
+                    files[name],
+                )
+                if ci == 0:
+                    ids = [self.obj_ids[p.object] for p in poses]
+                    targets += _targets(bop_id, im_id, ids, visib)
+        multi = len(self.cameras) > 1
+        for name, f in files.items():
+            sfx = suffix(name, multi)
+            write_json(self.folder / f"scene_camera{sfx}.json", f.camera)
+            write_json(self.folder / f"scene_gt{sfx}.json", f.gt)
+            write_json(self.folder / f"scene_gt_info{sfx}.json", f.gt_info)
+            write_json(self.folder / f"scene_gt_coco{sfx}.json", f.coco)
+        return targets
+
+    def _shot(
+        self, item: Selected, shot: Shot, poses: list[Any], inputs: SceneInputs
+    ) -> tuple[dict[str, list[MarkerRegion] | None], Any, dict[str, np.ndarray]]:
+        """One shot's markers (with ``remove_markers``), visibility and images to write."""
         depth = inputs.depth
         images = inputs.images
         markers: dict[str, list[MarkerRegion] | None] = {c: None for c in self.cameras}
@@ -198,7 +240,7 @@ class _SceneWriter:
                 self.ds,
                 self.rig,
                 item.scene,
-                item.poses,
+                poses,
                 images,
                 cameras=self.cameras,
                 depth=depth,
@@ -208,49 +250,49 @@ class _SceneWriter:
             if self.markers_filled:
                 self.markers_filled(removed.filled)
             sfx = len(self.cameras) > 1
+            im = _image_name(shot, item)
             for name, m in removed.markers.items():
                 mask = m.mask.astype(np.uint8) * 255
-                write_png(self.folder / f"mask_markers{suffix(name, sfx)}" / "000000.png", mask)
+                write_png(self.folder / f"mask_markers{suffix(name, sfx)}" / f"{im}.png", mask)
                 markers[name] = m.regions
         else:
-            meshes = [self.ds.objects[p.object].mesh for p in item.poses]
+            meshes = [self.ds.objects[p.object].mesh for p in poses]
             vis = scene_visibility(
                 self.rig,
                 meshes,
-                [p.T for p in item.poses],
+                [p.T for p in poses],
                 depth=depth,
                 cameras=self.cameras,
                 masks=True,
             )
-        targets: list[dict[str, int]] = []
-        for ci, name in enumerate(self.cameras):
-            visib = self._write_camera(ci, name, item, images[name], depth, vis, markers[name])
-            if ci == 0:
-                targets = _targets(bop_id, [self.obj_ids[p.object] for p in item.poses], visib)
-        return targets
+        return markers, vis, images
 
     def _write_camera(
         self,
         ci: int,
         name: str,
-        item: Selected,
+        im_id: int,
+        shot: Shot,
+        poses: list[Any],
         img: np.ndarray,
         depth: Any,
         vis: Any,
-        markers: list[MarkerRegion] | None = None,
+        markers: list[MarkerRegion] | None,
+        files: _CameraFiles,
     ) -> list[float]:
         sfx = suffix(name, len(self.cameras) > 1)
         cam = self.rig.camera(name)
         d = self.folder
+        im = f"{im_id:06d}"
         kind = "gray" if img.ndim == 2 else "rgb"
-        write_png(d / f"{kind}{sfx}" / "000000.png", img)
+        write_png(d / f"{kind}{sfx}" / f"{im}.png", img)
         has_depth = (
             depth is not None and self.ds.rig.depth is not None and name == self.ds.rig.depth.camera
         )
         if has_depth:
-            write_png(d / f"depth{sfx}" / "000000.png", encode_depth(depth, self.depth_scale))
+            write_png(d / f"depth{sfx}" / f"{im}.png", encode_depth(depth, self.depth_scale))
         gts, infos, coco = [], [], []
-        for k, (p, v) in enumerate(zip(item.poses, vis)):
+        for k, (p, v) in enumerate(zip(poses, vis)):
             cv = v.cameras[ci]
             M = cam.cam_T_rig @ p.T
             gts.append(
@@ -274,44 +316,81 @@ class _SceneWriter:
                     "visib_fract": fract,
                 }
             )
-            write_png(d / f"mask{sfx}" / f"000000_{k:06d}.png", cv.mask_all.astype(np.uint8) * 255)
+            write_png(d / f"mask{sfx}" / f"{im}_{k:06d}.png", cv.mask_all.astype(np.uint8) * 255)
             write_png(
-                d / f"mask_visib{sfx}" / f"000000_{k:06d}.png",
+                d / f"mask_visib{sfx}" / f"{im}_{k:06d}.png",
                 cv.mask_visib.astype(np.uint8) * 255,
             )
             coco.append((self.obj_ids[p.object], cv.mask_all, cv.mask_visib, fract))
+        # The world of a sequence is its scene frame; a fixed rig's is its reference camera.
+        w2c = cam.cam_T_rig if shot.frame is None else cam.cam_T_rig @ shot.rig_T_scene
         cam_rec: dict[str, Any] = {
             "cam_K": cam.K.ravel().tolist(),
-            "cam_R_w2c": cam.cam_T_rig[:3, :3].ravel().tolist(),
-            "cam_t_w2c": cam.cam_T_rig[:3, 3].tolist(),
+            "cam_R_w2c": w2c[:3, :3].ravel().tolist(),
+            "cam_t_w2c": w2c[:3, 3].tolist(),
         }
         if has_depth:
             cam_rec["depth_scale"] = self.depth_scale
-        write_json(d / f"scene_camera{sfx}.json", {"0": cam_rec})
-        write_json(d / f"scene_gt{sfx}.json", {"0": gts})
-        write_json(d / f"scene_gt_info{sfx}.json", {"0": infos})
-        write_json(
-            d / f"scene_gt_coco{sfx}.json",
+        files.camera[str(im_id)] = cam_rec
+        files.gt[str(im_id)] = gts
+        files.gt_info[str(im_id)] = infos
+        files.add_coco(
             coco_scene(
                 coco,
-                f"{kind}{sfx}/000000.png",
+                f"{kind}{sfx}/{im}.png",
                 cam.width,
                 cam.height,
                 self.obj_ids,
                 markers=markers,
-                marker_objects=[self.obj_ids[p.object] for p in item.poses],
-            ),
+                marker_objects=[self.obj_ids[p.object] for p in poses],
+                image_id=im_id,
+            )
         )
         return [c[3] for c in coco]
 
 
-def _targets(scene_id: int, obj_ids: list[int], visib: list[float]) -> list[dict[str, int]]:
+@dataclass
+class _CameraFiles:
+    """One camera's scene-level JSON files, filled image by image."""
+
+    camera: dict[str, Any] = field(default_factory=dict)
+    gt: dict[str, Any] = field(default_factory=dict)
+    gt_info: dict[str, Any] = field(default_factory=dict)
+    coco: dict[str, Any] = field(default_factory=dict)
+
+    def add_coco(self, doc: dict[str, Any]) -> None:
+        """One image's COCO document merged in (annotation ids kept unique)."""
+        if not self.coco:
+            self.coco = doc
+            return
+        first = len(self.coco["annotations"])
+        for k, a in enumerate(doc["annotations"]):
+            a["id"] = first + k + 1
+        self.coco["images"] += doc["images"]
+        self.coco["annotations"] += doc["annotations"]
+
+
+def _image_id(item: Selected, shot: Shot) -> int:
+    """A shot's BOP image id: 0 for a fixed rig's scene, the frame's place among the
+    sequence's frame folders for a frame (a rejected frame leaves its number unused)."""
+    if shot.frame is None:
+        return 0
+    return [f.name for f in item.scene.frames()].index(shot.frame)
+
+
+def _image_name(shot: Shot, item: Selected) -> str:
+    return f"{_image_id(item, shot):06d}"
+
+
+def _targets(
+    scene_id: int, im_id: int, obj_ids: list[int], visib: list[float]
+) -> list[dict[str, int]]:
     counts: dict[int, int] = {}
     for oid, v in zip(obj_ids, visib):
         if v >= TARGET_MIN_VISIB:
             counts[oid] = counts.get(oid, 0) + 1
     return [
-        {"scene_id": scene_id, "im_id": 0, "obj_id": oid, "inst_count": n}
+        {"scene_id": scene_id, "im_id": im_id, "obj_id": oid, "inst_count": n}
         for oid, n in counts.items()
     ]
 
@@ -350,6 +429,7 @@ def coco_scene(
     *,
     markers: Sequence[MarkerRegion] | None = None,
     marker_objects: Sequence[int] = (),
+    image_id: int = 0,
 ) -> dict[str, Any]:
     """A scene_gt_coco.json of one image: per instance (object id, full mask, visible mask,
     visible fraction); instances with nothing visible are left out, as bop_toolkit does.
@@ -364,7 +444,7 @@ def coco_scene(
         annotations.append(
             {
                 "id": len(annotations) + 1,
-                "image_id": 0,
+                "image_id": image_id,
                 "category_id": oid,
                 "iscrowd": 0,
                 "area": int(visib.sum()),
@@ -387,7 +467,7 @@ def coco_scene(
             annotations.append(
                 {
                     "id": len(annotations) + 1,
-                    "image_id": 0,
+                    "image_id": image_id,
                     "category_id": marker_id,
                     "iscrowd": 0,
                     "area": int(len(m.pixels)),
@@ -407,7 +487,9 @@ def coco_scene(
         "info": {"description": "annotator export", "url": "", "version": "0.1.0"},
         "licenses": [],
         "categories": categories,
-        "images": [{"id": 0, "file_name": file_name, "width": int(width), "height": int(height)}],
+        "images": [
+            {"id": image_id, "file_name": file_name, "width": int(width), "height": int(height)}
+        ],
         "annotations": annotations,
     }
 
@@ -422,34 +504,40 @@ def marker_category(obj_ids: dict[str, int]) -> int:
 
 def _imagewise(scenes: Path, out: Path, cameras: Sequence[str]) -> None:
     """bop_toolkit's bop_imagewise files from the scene-wise export: one image per (scene,
-    camera), the camera's index as image id."""
+    image, camera), numbered ``image * cameras + camera`` (a fixed rig's cameras are images
+    0, 1, ... of their scene)."""
     multi = len(cameras) > 1
     for scene in sorted(p for p in scenes.iterdir() if p.is_dir()):
         for ci, name in enumerate(cameras):
             sfx = suffix(name, multi)
-            key = f"{scene.name}_{ci:06d}"
-            for what in ("camera", "gt", "gt_info"):
-                doc = json.loads((scene / f"scene_{what}{sfx}.json").read_text())["0"]
-                write_json(out / f"{key}.{what}.json", doc)
-            for what in ("mask", "mask_visib"):
-                files = sorted((scene / f"{what}{sfx}").glob("000000_*.png"))
-                masks = {str(k): rle(read_image(f) > 0) for k, f in enumerate(files)}
-                write_json(out / f"{key}.{what}.json", masks)
-            if (scene / f"rgb{sfx}").is_dir():
-                shutil.copy(scene / f"rgb{sfx}" / "000000.png", out / f"{key}.rgb.png")
-            else:  # bop_imagewise reads grey images as TIFF only
-                gray = read_image(scene / f"gray{sfx}" / "000000.png")
-                # uncompressed: imageio's TIFF reader needs an extra codec package for LZW
-                ok, buf = cv2.imencode(".tiff", gray, [cv2.IMWRITE_TIFF_COMPRESSION, 1])
-                if not ok:
-                    raise OSError(f"{key}: TIFF encoding failed")
-                write_bytes(out / f"{key}.gray.tiff", buf.tobytes())
-            if (scene / f"depth{sfx}").is_dir():
-                shutil.copy(scene / f"depth{sfx}" / "000000.png", out / f"{key}.depth.png")
-            if (scene / f"mask_markers{sfx}").is_dir():
-                shutil.copy(
-                    scene / f"mask_markers{sfx}" / "000000.png", out / f"{key}.mask_markers.png"
-                )
+            docs = {
+                what: json.loads((scene / f"scene_{what}{sfx}.json").read_text())
+                for what in ("camera", "gt", "gt_info")
+            }
+            for image in sorted(docs["camera"], key=int):
+                im = f"{int(image):06d}"
+                key = f"{scene.name}_{int(image) * len(cameras) + ci:06d}"
+                for what, doc in docs.items():
+                    write_json(out / f"{key}.{what}.json", doc[image])
+                for what in ("mask", "mask_visib"):
+                    files = sorted((scene / f"{what}{sfx}").glob(f"{im}_*.png"))
+                    masks = {str(k): rle(read_image(f) > 0) for k, f in enumerate(files)}
+                    write_json(out / f"{key}.{what}.json", masks)
+                if (scene / f"rgb{sfx}").is_dir():
+                    shutil.copy(scene / f"rgb{sfx}" / f"{im}.png", out / f"{key}.rgb.png")
+                else:  # bop_imagewise reads grey images as TIFF only
+                    gray = read_image(scene / f"gray{sfx}" / f"{im}.png")
+                    # uncompressed: imageio's TIFF reader needs an extra codec package for LZW
+                    ok, buf = cv2.imencode(".tiff", gray, [cv2.IMWRITE_TIFF_COMPRESSION, 1])
+                    if not ok:
+                        raise OSError(f"{key}: TIFF encoding failed")
+                    write_bytes(out / f"{key}.gray.tiff", buf.tobytes())
+                if (scene / f"depth{sfx}").is_dir():
+                    shutil.copy(scene / f"depth{sfx}" / f"{im}.png", out / f"{key}.depth.png")
+                if (scene / f"mask_markers{sfx}").is_dir():
+                    shutil.copy(
+                        scene / f"mask_markers{sfx}" / f"{im}.png", out / f"{key}.mask_markers.png"
+                    )
 
 
 def _webdataset(imagewise: Path, out: Path) -> None:

@@ -120,6 +120,12 @@ def export_dataset(
         raise UserError(f"unknown layout {layout!r} (expected one of {', '.join(LAYOUTS)})")
     if layout != "scenewise" and format != "bop":
         raise UserError("--layout is for --format bop")
+    if format == "sileane" and ds.rig.moving:
+        raise UserError(
+            "the Siléane format holds one shot per scene: export a moving rig's sequences "
+            "with --format bop (one BOP image per frame)",
+            path=ds.root,
+        )
     if fill not in FILLS:
         raise UserError(f"unknown marker fill {fill!r} (expected one of {', '.join(FILLS)})")
     names = [c.name for c in ds.rig.cameras]

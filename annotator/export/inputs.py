@@ -13,7 +13,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from annotator.dataset import Dataset, Scene
+from annotator.dataset import Dataset
+from annotator.dataset.model import Capture
 from annotator.export.undistort import undistort_depth, undistort_image
 
 
@@ -31,9 +32,10 @@ class SceneInputs:
 
 
 def read_scene_inputs(
-    ds: Dataset, scene: Scene, cameras: Sequence[str], *, depth: bool = True
+    ds: Dataset, scene: Capture, cameras: Sequence[str], *, depth: bool = True
 ) -> SceneInputs:
-    """Read and undistort the images of ``cameras`` and (with ``depth``) the depth map."""
+    """Read and undistort the images of ``cameras`` and (with ``depth``) the depth map of
+    a scene, or of one frame of a sequence."""
     images = {}
     for name in cameras:
         cam = ds.rig.camera(name)

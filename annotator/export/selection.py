@@ -7,6 +7,7 @@ scenes, ``drop_rejected_instances`` exports scenes with rejected instances witho
 Poses a reviewer repaired in the viewer (review.json ``poses``) replace annotation.json's,
 and instances added by hand are exported with the others; a scene with a stale edit (made
 on an auto pose that ``annotate`` has changed since) is left out, as a stale decision is.
+A sequence's frames a reviewer rejected on their own are left out of it (its other frames go).
 A scene with a pose that cannot be right (:mod:`annotator.dataset.validity`: an unknown
 object or instance, a part behind the camera) is left out and named.
 """
@@ -16,7 +17,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from annotator.dataset import Dataset, InstancePose, Scene
-from annotator.dataset.poses import read_poses
+from annotator.dataset.frames import Shot, frames_from_json, scene_shots
+from annotator.dataset.poses import read_pose_file
 from annotator.dataset.review import ReviewStatus, apply_edits, poses_fingerprint, read_review
 from annotator.dataset.validity import pose_problem
 from annotator.errors import UserError
@@ -24,8 +26,13 @@ from annotator.errors import UserError
 
 @dataclass
 class Selected:
+    """A scene to export: its poses (the scene frame for a sequence, else the reference
+    camera) and its shots (:func:`~annotator.dataset.frames.scene_shots`: the scene itself,
+    or every posed frame a reviewer did not reject)."""
+
     scene: Scene
     poses: list[InstancePose]
+    shots: list[Shot] = field(default_factory=list)
 
 
 @dataclass
@@ -55,8 +62,14 @@ def select_scenes(
             sel.skipped[scene.id] = f"no {path.name}"
             continue
         try:
-            poses = read_poses(path)
+            poses, top = read_pose_file(path)
             review = read_review(scene.review_path)
+            shots = scene_shots(
+                ds,
+                scene,
+                frames_from_json(top.get("frames"), path),
+                rejected=review.rejected_frames if review else (),
+            )
         except UserError as exc:
             sel.skipped[scene.id] = f"error: {exc}"
             continue
@@ -93,5 +106,8 @@ def select_scenes(
             edited = review is not None and key in review.poses
             sel.skipped[scene.id] = f"error: {scene.review_path if edited else path}: {problem}"
             continue
-        sel.scenes.append(Selected(scene, kept))
+        if not shots:
+            sel.skipped[scene.id] = "every frame rejected or unposed"
+            continue
+        sel.scenes.append(Selected(scene, kept, shots))
     return sel

@@ -6,7 +6,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-from annotator.dataset import Scene, cached_dataset, read_poses
+from annotator.dataset import Dataset, InstancePose, Scene, cached_dataset
+from annotator.dataset.frames import frames_from_json, scene_shots
+from annotator.dataset.model import Capture
+from annotator.dataset.poses import read_pose_file
 from annotator.errors import UserError
 from annotator.io.atomic import write_json
 from annotator.occlusion import scene_visibility
@@ -38,10 +41,18 @@ class VisibilityJob:
         return description_files(cached_dataset(self.root))
 
     def scene_files(self, scene_id: str) -> list[str]:
-        """The poses (annotation.json or gt.json) and the depth map."""
+        """The poses (annotation.json or gt.json) and the depth map (every frame's, and the
+        frame folders' images, which tell which frames there are, for a sequence)."""
         scene = Scene.relative(scene_id)
         src = scene.annotation_path if self.poses == "annotation" else scene.gt_path
-        return [src.as_posix(), scene.depth_path.as_posix()]
+        files = [src.as_posix(), scene.depth_path.as_posix()]
+        ds = cached_dataset(self.root)
+        if ds.rig.moving:
+            for frame in ds.scene(scene_id).frames():
+                rel = scene.path / "frames" / frame.name
+                files += [(rel / "depth.png").as_posix()]
+                files += [(rel / f"{c.name}.png").as_posix() for c in ds.rig.cameras[:1]]
+        return files
 
     def output_files(self, scene_id: str) -> list[str]:
         """visibility.json."""
@@ -53,15 +64,29 @@ class VisibilityJob:
         src = scene.annotation_path if self.poses == "annotation" else scene.gt_path
         if not src.exists():
             raise UserError(f"no {src.name}", path=scene.path)
-        poses = read_poses(src)
+        poses, top = read_pose_file(src)
+        out: dict[str, Any] = {"depth_tolerance_mm": self.tolerance}
+        if not ds.rig.moving:
+            out["instances"] = self._instances(ds, scene, poses)
+        else:  # a sequence: every posed frame as its rig saw the scene (FORMAT.md)
+            shots = scene_shots(ds, scene, frames_from_json(top.get("frames"), src))
+            out["frames"] = {
+                s.frame: {"instances": self._instances(ds, s.capture, s.poses(poses))}
+                for s in shots
+            }
+        write_json(scene.path / VISIBILITY_FILE, out)
+        return {"instances": len(poses)}
+
+    def _instances(self, ds: Dataset, capture: Capture, poses: list[InstancePose]) -> list[dict]:
+        """Per instance: its occlusion rate and, per camera, pixel counts, boxes and rates."""
         vis = scene_visibility(
             ds.rig,
             [ds.objects[p.object].mesh for p in poses],
             [p.T for p in poses],
-            depth=scene.read_depth(ds.rig),
+            depth=capture.read_depth(ds.rig),
             depth_tolerance=self.tolerance,
         )
-        out: dict[str, Any] = {"depth_tolerance_mm": self.tolerance, "instances": []}
+        out = []
         for p, v in zip(poses, vis):
             cams = {}
             for c in v.cameras:
@@ -76,7 +101,7 @@ class VisibilityJob:
                     if c.occlusion_depth is None
                     else round(c.occlusion_depth, 5),
                 }
-            out["instances"].append(
+            out.append(
                 {
                     "object": p.object,
                     "instance": p.instance,
@@ -84,5 +109,4 @@ class VisibilityJob:
                     "cameras": cams,
                 }
             )
-        write_json(scene.path / VISIBILITY_FILE, out)
-        return {"instances": len(poses)}
+        return out

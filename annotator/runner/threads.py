@@ -1,4 +1,4 @@
-"""One thread for OpenCV and the ray caster in a worker: the workers are the parallelism
+"""One thread for OpenCV, the ray caster and numpy's BLAS in a worker: the workers are the parallelism
 (threads inside one process scale much worse).
 
 OpenCV and the ray caster (open3d) are imported when a batch starts, not when this module is:
@@ -21,13 +21,15 @@ def available_cpus() -> int:
 
 
 def one_thread() -> None:
-    """OpenCV and the ray caster on one thread, in this process."""
+    """OpenCV, the ray caster and numpy's BLAS on one thread, in this process."""
     import cv2
+    from threadpoolctl import threadpool_limits
 
     from annotator.rendering import raycast
 
     cv2.setNumThreads(1)
     raycast.set_threads(1)
+    threadpool_limits(1, user_api="blas")
 
 
 @contextmanager
@@ -37,10 +39,14 @@ def one_thread_meanwhile() -> Iterator[None]:
 
     from annotator.rendering import raycast
 
+    from threadpoolctl import threadpool_limits
+
     before = cv2.getNumThreads(), raycast.get_threads()
+    blas = threadpool_limits(1, user_api="blas")
     one_thread()
     try:
         yield
     finally:
         cv2.setNumThreads(before[0])
         raycast.set_threads(before[1])
+        blas.restore_original_limits()

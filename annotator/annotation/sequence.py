@@ -1,0 +1,958 @@
+"""Annotating a sequence (one moving rig, FORMAT.md sequences): every frame's rig pose and every
+instance's pose from the markers, in three steps.
+
+1. :func:`read_frame`: the markers of every camera of one frame (and the measured depth at
+   the centre of each marker the depth camera sees); frames are read independently, in any
+   order, by any number of workers.
+2. :func:`solve_sequence`: each frame's instances posed on their own (the fixed rig's robust
+   consensus, :func:`~annotator.annotation.consensus.pose_instance`); a first frame fixes the
+   scene frame; the other frames are placed one at a time, the one that sees most of what is
+   already placed first, each from the hypothesis most of those markers agree with; every
+   instance is then started from the frame whose pose of it most markers of all frames agree
+   with; one bundle adjustment (:mod:`annotator.pnp.bundle`) refines everything over every
+   corner and depth; observations that still disagree are left out and the solve repeated.
+   A frame nothing connects to the rest keeps ``scene_T_rig: null`` and says why; an instance
+   whose markers agree with its pose in some frames and not in others is flagged ``moved``.
+3. :func:`frame_visibility`: occlusion rates and depth agreement of every instance as each
+   frame sees it (the fixed rig's :func:`~annotator.annotation.visibility.add_visibility`).
+
+:func:`annotate_sequence` runs the three on one scene in this process; ``annotator annotate``
+runs them as batches over frames and scenes (:mod:`annotator.annotation.batch`).
+"""
+
+from __future__ import annotations
+
+from collections import defaultdict
+from collections.abc import Sequence
+from dataclasses import dataclass, field, replace
+
+import cv2
+import numpy as np
+
+from annotator.annotation.consensus import pose_instance
+from annotator.annotation.scene import _image_quality, _sort_markers
+from annotator.annotation.settings import AnnotateSettings
+from annotator.annotation.visibility import MIN_DEPTH_PIXELS
+from annotator.dataset import Dataset, Scene
+from annotator.dataset.annotation import (
+    Flag,
+    ImageQuality,
+    InstanceAnnotation,
+    MarkerUse,
+    Occlusion,
+    Reprojection,
+    SceneAnnotation,
+    SceneWarning,
+    WarningKind,
+    sort_flags,
+)
+from annotator.dataset.frames import FramePose, frames_to_json
+from annotator.dataset.model import Frame
+from annotator.detection import MarkerDetector
+from annotator.detection.aruco import Detection, ImageReading
+from annotator.errors import UserError
+from annotator.geometry.camera import Camera
+from annotator.geometry.transforms import invert, make_transform
+from annotator.io.images import to_gray8
+from annotator.occlusion import scene_visibility
+from annotator.pnp import (
+    Observation,
+    iter_candidate_poses,
+    refine_pose,
+    reprojection_errors,
+    rms_uncertainty,
+)
+from annotator.pnp.bundle import BundleObservations, bundle_adjust
+
+__all__ = [
+    "FrameFlag",
+    "FrameReading",
+    "SequenceSolution",
+    "annotate_sequence",
+    "frame_visibility",
+    "read_frame",
+    "sequence_annotation",
+    "solve_sequence",
+]
+
+#: A frame whose corners reproject worse than this (RMS, px) after the solve is flagged.
+HIGH_REPROJECTION_PX = 1.5
+
+#: A frame posed on fewer marker observations than this is flagged ``few_markers``.
+FEW_MARKERS = 3
+
+#: An instance whose markers disagree with its pose in at least this share of the frames
+#: that see it (and in two frames or more) moved during the sequence.
+MOVED_SHARE = 0.2
+
+#: A frame whose pose is more uncertain than this (1-sigma, mm or degrees) is not posed:
+#: a guess is not written.
+FRAME_MAX_UNCERTAINTY_MM = 5.0
+FRAME_MAX_UNCERTAINTY_DEG = 1.0
+
+#: Each frame's occlusion rates from every this-many-th pixel at most (a sequence has many
+#: frames; ``annotator occlusion`` gives every frame's exact rates).
+FRAME_VISIBILITY_STEP = 4
+
+#: Rounds of bundle adjustment, each leaving out what the previous one found disagreeing.
+SOLVE_ROUNDS = 3
+
+
+class FrameFlag:
+    """Why a reviewer should look at a frame (``frames[f].flags`` in annotation.json)."""
+
+    #: No marker of a known instance was read: ``scene_T_rig`` is null, not a guess.
+    NO_KNOWN_MARKERS = "no_known_markers"
+    #: Its markers belong to instances no other frame connects to the rest: null too.
+    UNCONNECTED = "unconnected"
+    #: Left out of the solve (``reason`` says why): null too.
+    OUTLIER = "outlier"
+    #: Corners reproject worse than :data:`HIGH_REPROJECTION_PX` after the solve.
+    HIGH_REPROJECTION = "high_reprojection"
+    #: Posed on fewer than :data:`FEW_MARKERS` marker observations.
+    FEW_MARKERS = "few_markers"
+
+
+@dataclass
+class FrameReading:
+    """What one frame's cameras read: per camera its :class:`ImageReading` (markers only:
+    the unread candidates are dropped), the measured depth (mm, NaN: none) at the centre of
+    each marker of the depth camera, in the order of its markers, and image quality."""
+
+    frame: str
+    readings: list[ImageReading]
+    marker_depth: np.ndarray
+    quality: dict[str, ImageQuality]
+    size_problem: str | None = None
+
+
+def read_frame(ds: Dataset, frame: Frame, detector: MarkerDetector) -> FrameReading:
+    """Read the markers of every camera of ``frame`` (UserError for a missing or mis-sized
+    image, naming the file)."""
+    grays = [to_gray8(frame.read_image(cam)) for cam in ds.rig.cameras]
+    readings = [detector.read(g) for g in grays]
+    quality = _image_quality(ds, readings, grays)
+    kept = [
+        ImageReading(
+            r.markers, np.zeros((0, 4, 2)), np.zeros((0, 1, 1), bool), np.zeros(0), r.blur_px
+        )
+        for r in readings
+    ]
+    depth = frame.read_depth(ds.rig)
+    marker_depth = np.zeros(0)
+    if depth is not None and ds.rig.depth is not None:
+        j = [c.name for c in ds.rig.cameras].index(ds.rig.depth.camera)
+        marker_depth = np.array([_depth_at(depth, d) for d in readings[j].markers])
+    return FrameReading(frame.name, kept, marker_depth, quality)
+
+
+def _depth_at(depth: np.ndarray, d: Detection) -> float:
+    """The median measured depth (mm) in the 5x5 pixels round a marker's centre (NaN: none)."""
+    u, v = np.round(d.corners.mean(axis=0)).astype(int)
+    h, w = depth.shape
+    patch = depth[max(v - 2, 0) : min(v + 3, h), max(u - 2, 0) : min(u + 3, w)]
+    good = patch[np.isfinite(patch)]
+    return float(np.median(good)) if good.size >= 5 else float("nan")
+
+
+@dataclass
+class _Edge:
+    """One instance as one frame saw it: its pose in that frame's rig (the fixed rig's
+    consensus) and the observations that consensus used."""
+
+    rig_T_model: np.ndarray
+    obs: list[Observation]
+
+
+@dataclass
+class _Seen:
+    """One frame: every observation of each instance (with the measured depth at each
+    marker, NaN where none), and each instance as the frame's own consensus poses it
+    (:meth:`edge`, worked out when first asked: most frames are placed by tracking)."""
+
+    raw: dict[tuple[str, str], list[tuple[Observation, float]]]
+    _edges: dict[tuple[str, str], _Edge | None] = field(default_factory=dict)
+
+    def edge(self, ds: Dataset, key: tuple[str, str], s: AnnotateSettings) -> _Edge | None:
+        """The instance posed from this frame alone (None: its markers do not pose it)."""
+        if key not in self._edges:
+            cams = ds.rig.cameras
+            obs = [o for o, _ in self.raw[key]]
+            r = pose_instance(ds, key[0], key[1], obs, s)
+            edge = None
+            if r is not None:
+                used = {(c.name, i) for c in cams for i in r.markers.get(c.name, MarkerUse()).used}
+                kept = [o for o in obs if (cams[o.camera].name, o.marker_id) in used]
+                edge = _Edge(r.T, kept)
+            self._edges[key] = edge
+        return self._edges[key]
+
+    def edges(self, ds: Dataset, s: AnnotateSettings) -> dict[tuple[str, str], _Edge]:
+        """Every instance the frame poses on its own."""
+        found = {k: self.edge(ds, k, s) for k in sorted(self.raw)}
+        return {k: e for k, e in found.items() if e is not None}
+
+
+@dataclass
+class SequenceSolution:
+    """The solved sequence: instance poses in the scene frame, every frame's pose and
+    figures, and the instances' records (markers, reprojection, uncertainty, flags)."""
+
+    reference: str | None
+    instances: list[InstanceAnnotation]
+    frames: dict[str, FramePose]
+    warnings: list[SceneWarning] = field(default_factory=list)
+    unknown_markers: dict[str, list[int]] = field(default_factory=dict)
+    duplicates: dict[str, list[int]] = field(default_factory=dict)
+
+
+def solve_sequence(
+    ds: Dataset, readings: list[FrameReading], *, settings: AnnotateSettings = AnnotateSettings()
+) -> SequenceSolution:
+    """Every frame's ``scene_T_rig`` and every instance's pose from the frames' readings (in
+    frame order): see the module's docstring."""
+    cams = ds.rig.cameras
+    depth_cam = None if ds.rig.depth is None else [c.name for c in cams].index(ds.rig.depth.camera)
+    names = [r.frame for r in readings]
+    frames_seen: list[_Seen] = []
+    unknown: dict[str, set[int]] = defaultdict(set)
+    duplicates: dict[str, set[int]] = defaultdict(set)
+    for reading in readings:
+        markers = _sort_markers(ds, reading.readings)
+        for cam, ids in markers.unknown.items():
+            unknown[cam].update(ids)
+        for cam, ids in markers.duplicates.items():
+            duplicates[cam].update(ids)
+        depth_of = _depth_lookup(reading, depth_cam)
+        seen = _Seen({})
+        for key, obs in sorted(markers.per_instance.items()):
+            seen.raw[key] = [(o, depth_of.get((o.camera, o.marker_id), np.nan)) for o in obs]
+        frames_seen.append(seen)
+    out = SequenceSolution(
+        None,
+        [],
+        {},
+        unknown_markers={c: sorted(v) for c, v in sorted(unknown.items())},
+        duplicates={c: sorted(v) for c, v in sorted(duplicates.items())},
+    )
+    placed = _place(ds, frames_seen, settings)
+    if placed is None:
+        for name in names:
+            out.frames[name] = FramePose(name, None, {"flags": [FrameFlag.NO_KNOWN_MARKERS]})
+        out.warnings.append(
+            SceneWarning(WarningKind.NO_MARKERS, "no marker of a known instance in any frame")
+        )
+        return out
+    _bundle(ds, frames_seen, placed, depth_cam, settings, out, names)
+    return out
+
+
+def _depth_lookup(reading: FrameReading, depth_cam: int | None) -> dict[tuple[int, int], float]:
+    if depth_cam is None or reading.marker_depth.size == 0:
+        return {}
+    markers = reading.readings[depth_cam].markers
+    return {(depth_cam, d.id): float(z) for d, z in zip(markers, reading.marker_depth)}
+
+
+@dataclass
+class _Placed:
+    """The initial graph: the reference frame, every frame's ``scene_T_rig`` (None: not
+    placed, with the reason) and every instance's ``scene_T_model``."""
+
+    reference: int
+    frames: list[np.ndarray | None]
+    reasons: list[str | None]
+    models: dict[tuple[str, str], np.ndarray]
+
+
+def _place(ds: Dataset, seen: list[_Seen], s: AnnotateSettings) -> _Placed | None:
+    """Place the frames one at a time, then start every instance from all the frames."""
+    cams = ds.rig.cameras
+    first = next((f for f, e in enumerate(seen) if e.edges(ds, s)), None)
+    if first is None:
+        return None
+    frames: list[np.ndarray | None] = [None] * len(seen)
+    frames[first] = np.eye(4)
+    models = {k: e.rig_T_model for k, e in seen[first].edges(ds, s).items()}
+    while True:
+        # Next: the frame that sees most of what is placed.
+        best, best_count = None, 0
+        for f, here in enumerate(seen):
+            if frames[f] is None:
+                count = sum(len(obs) for k, obs in here.raw.items() if k in models)
+                if count > best_count:
+                    best, best_count = f, count
+        if best is None:
+            break
+        T = _place_frame(ds, seen[best], models, s)
+        if T is None:  # nothing here agrees with what is placed: not placeable from it
+            frames[best] = np.full((4, 4), np.nan)
+            continue
+        frames[best] = T
+        for k in seen[best].raw:
+            if k not in models and (e := seen[best].edge(ds, k, s)) is not None:
+                models[k] = T @ e.rig_T_model
+    reasons: list[str | None] = []
+    for f, T in enumerate(frames):
+        if T is None:
+            reasons.append(FrameFlag.NO_KNOWN_MARKERS if not seen[f].raw else FrameFlag.UNCONNECTED)
+            frames[f] = None
+        elif np.isnan(T).any():
+            reasons.append(FrameFlag.OUTLIER)
+            frames[f] = None
+        else:
+            reasons.append(None)
+    for key in list(models):
+        start = _instance_start(cams, seen, frames, key, s)
+        if start is None:
+            del models[key]
+        else:
+            models[key] = start
+    return _Placed(first, frames, reasons, models)
+
+
+#: A frame is placed from the markers of all its placed instances at once when this share
+#: of them agree with that pose; else from the poses its instances have in it.
+JOINT_SHARE = 0.6
+
+
+def _place_frame(
+    ds: Dataset,
+    here: _Seen,
+    models: dict[tuple[str, str], np.ndarray],
+    s: AnnotateSettings,
+) -> np.ndarray | None:
+    """``scene_T_rig`` of a frame from the placed instances it sees: every placed marker's
+    corners are points of the scene frame, so each camera's RANSAC PnP over all of them is a
+    hypothesis; when those do not hold, each placed instance's pose in the frame is one. The
+    one most markers agree with is refined on them."""
+    cams = ds.rig.cameras
+    obs: list[Observation] = []
+    for k, raw in here.raw.items():
+        if k in models:
+            obs += _in_scene([o for o, _ in raw], models[k])
+    hyps = _joint_hypotheses(cams, obs, s)
+    best, best_n = _best_hypothesis(cams, obs, hyps, s)
+    if best_n < JOINT_SHARE * len(obs):
+        hyps = []
+        for k in here.raw:
+            if k in models and (e := here.edge(ds, k, s)) is not None:
+                hyps.append(e.rig_T_model @ invert(models[k]))
+        more, more_n = _best_hypothesis(cams, obs, hyps, s)
+        if more_n > best_n:
+            best, best_n = more, more_n
+    if best is None:
+        return None
+    inliers = [o for o, e in zip(obs, reprojection_errors(cams, obs, best)) if e < s.inlier_px]
+    est = refine_pose(cams, inliers, best)
+    return invert(est.T)
+
+
+def _joint_hypotheses(
+    cams: Sequence[Camera], obs: list[Observation], s: AnnotateSettings
+) -> list[np.ndarray]:
+    """``rig_T_scene`` from each camera's RANSAC PnP over every observation it has (at least
+    two markers)."""
+    out = []
+    for j, cam in enumerate(cams):
+        mine = [o for o in obs if o.camera == j]
+        if len(mine) < 2:
+            continue
+        X = np.concatenate([o.model_corners for o in mine]).astype(np.float64)
+        x = np.concatenate([o.image_corners for o in mine]).astype(np.float64)
+        try:
+            ok, rvec, tvec, inl = cv2.solvePnPRansac(
+                X,
+                x,
+                cam.K,
+                cam.dist,
+                reprojectionError=s.inlier_px,
+                iterationsCount=200,
+                confidence=0.999,
+            )
+        except cv2.error:
+            continue
+        if ok and inl is not None and len(inl) >= 8:
+            out.append(cam.rig_T_cam @ make_transform(cv2.Rodrigues(rvec)[0], tvec.ravel()))
+    return out
+
+
+def _best_hypothesis(
+    cams: Sequence[Camera], obs: list[Observation], hyps: list[np.ndarray], s: AnnotateSettings
+) -> tuple[np.ndarray | None, int]:
+    """The hypothesis most observations agree with (within ``inlier_px``), and how many."""
+    best, best_n = None, 0
+    for H in hyps:
+        n = int(np.sum(reprojection_errors(cams, obs, H) < s.inlier_px))
+        if n > best_n:
+            best, best_n = H, n
+    return best, best_n
+
+
+def _in_scene(obs: list[Observation], scene_T_model: np.ndarray) -> list[Observation]:
+    """Observations with their corners in the scene frame."""
+    R, t = scene_T_model[:3, :3], scene_T_model[:3, 3]
+    return [replace(o, model_corners=o.model_corners @ R.T + t) for o in obs]
+
+
+#: At most this many candidate poses are scored when an instance is started from all frames.
+MAX_CANDIDATES = 120
+
+
+def _virtual_rig(
+    cams: Sequence[Camera], seen: list[_Seen], frames: list[np.ndarray | None], key: tuple[str, str]
+) -> tuple[list[Camera], list[Observation]]:
+    """Every placed frame's cameras that saw ``key`` as cameras of one rig in the scene frame,
+    and the instance's observations renumbered to them."""
+    virtual: list[Camera] = []
+    obs: list[Observation] = []
+    for f, here in enumerate(seen):
+        T = frames[f]
+        if T is None or key not in here.raw:
+            continue
+        index: dict[int, int] = {}
+        for o, _ in here.raw[key]:
+            if o.camera not in index:
+                c = cams[o.camera]
+                index[o.camera] = len(virtual)
+                virtual.append(Camera(c.name, c.width, c.height, c.K, c.dist, T @ c.rig_T_cam))
+            obs.append(replace(o, camera=index[o.camera]))
+    return virtual, obs
+
+
+def _instance_start(
+    cams: Sequence[Camera],
+    seen: list[_Seen],
+    frames: list[np.ndarray | None],
+    key: tuple[str, str],
+    s: AnnotateSettings,
+) -> np.ndarray | None:
+    """An instance's pose from all the frames at once: the frames' cameras as one rig in the
+    scene frame, the fixed rig's consensus over them (every camera's candidates scored by
+    how many of the instance's markers in every frame agree, the best refined on them); a
+    lone marker's mirror-image pose, or a marker misread in a few frames, loses."""
+    virtual, obs = _virtual_rig(cams, seen, frames, key)
+    if not obs:
+        return None
+    best, best_n = None, 0
+    for n_tried, H in enumerate(iter_candidate_poses(virtual, obs)):
+        n = int(np.sum(reprojection_errors(virtual, obs, H) < s.inlier_px))
+        if n > best_n:
+            best, best_n = H, n
+        if n_tried >= MAX_CANDIDATES or best_n >= 0.9 * len(obs):
+            break
+    if best is None:
+        return None
+    if all(o.soft for o, e in zip(obs, reprojection_errors(virtual, obs, best)) if e < s.inlier_px):
+        if best_n < 2:  # one blurred reading alone is not evidence enough
+            return None
+    inliers = [o for o, e in zip(obs, reprojection_errors(virtual, obs, best)) if e < s.inlier_px]
+    return refine_pose(virtual, inliers, best).T
+
+
+def _bundle(
+    ds: Dataset,
+    seen: list[_Seen],
+    placed: _Placed,
+    depth_cam: int | None,
+    s: AnnotateSettings,
+    out: SequenceSolution,
+    names: list[str],
+) -> None:
+    """The bundle adjustment over every placed frame and instance, its outliers left out and
+    the instances it disowns started again from the adjusted frames."""
+    cams = ds.rig.cameras
+    keys = sorted(placed.models)
+    index = {k: i for i, k in enumerate(keys)}
+    live = [f for f, T in enumerate(placed.frames) if T is not None]
+    fidx = {f: n for n, f in enumerate(live)}
+    rows: list[tuple[int, int, Observation, float]] = []
+    for f in live:
+        for k, obs in seen[f].raw.items():
+            if k in index:
+                rows += [(fidx[f], index[k], o, z) for o, z in obs]
+    all_obs = BundleObservations(
+        np.array([r[0] for r in rows], dtype=int),
+        np.array([r[1] for r in rows], dtype=int),
+        np.array([r[2].camera for r in rows], dtype=int),
+        np.stack([r[2].model_corners for r in rows]).astype(np.float64),
+        np.stack([r[2].image_corners for r in rows]).astype(np.float64),
+        np.array([r[3] for r in rows], dtype=np.float64),
+    )
+    frames0 = np.stack([placed.frames[f] for f in live])
+    models0 = np.stack([placed.models[k] for k in keys])
+    err = _residuals(cams, all_obs, frames0, models0)
+    keep = err < s.inlier_px
+    result = None
+    for round_ in range(SOLVE_ROUNDS):
+        result = bundle_adjust(
+            cams,
+            all_obs.subset(keep),
+            frames0,
+            models0,
+            fixed_frame=fidx[placed.reference],
+            depth_camera=depth_cam,
+        )
+        frames0, models0 = result.scene_T_rig, result.scene_T_model
+        err = _residuals(cams, all_obs, frames0, models0)
+        limit = max(s.final_inlier_px, 4 * result.sigma_px)
+        # An observation is left out with the rest of its frame's view of its instance: a
+        # part that moved disagrees as a whole.
+        bad_edge = _edge_rms(all_obs, err) > limit
+        new_keep = (err < 2 * limit) & ~bad_edge[all_obs.frame, all_obs.instance]
+        if round_ == 0:
+            models0 = _restart_disowned(
+                cams, seen, live, frames0, models0, keys, all_obs, new_keep, s
+            )
+            err = _residuals(cams, all_obs, frames0, models0)
+            bad_edge = _edge_rms(all_obs, err) > limit
+            new_keep = (err < 2 * limit) & ~bad_edge[all_obs.frame, all_obs.instance]
+        if np.array_equal(new_keep, keep):
+            break
+        keep = new_keep
+    assert result is not None
+    ids = np.array([r[2].marker_id for r in rows], dtype=int)
+    limit = max(s.final_inlier_px, 4 * result.sigma_px)
+    moved = _moved(cams, seen, live, frames0, keys, all_obs, keep, limit, s)
+    _records(ds, keys, live, all_obs, ids, keep, result, err, placed, s, out, names, moved)
+
+
+def _moved(
+    cams: Sequence[Camera],
+    seen: list[_Seen],
+    live: list[int],
+    frames: np.ndarray,
+    keys: list[tuple[str, str]],
+    obs: BundleObservations,
+    keep: np.ndarray,
+    limit: float,
+    s: AnnotateSettings,
+) -> set[int]:
+    """The instances that moved: the frames that disagree with the pose (at least two, and
+    :data:`MOVED_SHARE` of those that see it) agree with another pose among themselves. A
+    few blurred frames disagree too, but not on one other pose."""
+    out: set[int] = set()
+    for i, key in enumerate(keys):
+        mine = obs.instance == i
+        order = sorted(set(obs.frame[mine].tolist()))
+        agreeing = set(obs.frame[mine & keep].tolist())
+        bad = _moved_run(order, [f in agreeing for f in order])
+        if bad is None:
+            continue
+        placed: list[np.ndarray | None] = [None] * len(seen)
+        for n in bad:
+            placed[live[n]] = frames[n]
+        other = _instance_start(cams, seen, placed, key, s)
+        if other is None:
+            continue
+        explained = [
+            n for n in bad if _frame_agrees(cams, seen[live[n]].raw[key], frames[n], other, limit)
+        ]
+        if len(explained) >= max(2, 0.8 * len(bad)):
+            out.add(i)
+    return out
+
+
+def _moved_run(order: list[int], agree: list[bool]) -> list[int] | None:
+    """The frames after (or before) a moment of the sequence that disagree with the pose,
+    when that split explains at least nine frames in ten and leaves at least two frames
+    (and :data:`MOVED_SHARE` of them) on the disagreeing side; None otherwise. Blurred
+    frames disagree here and there, a part that moved from a moment on."""
+    n = len(order)
+    best: tuple[int, list[int]] | None = None
+    for k in range(1, n):
+        for before_agrees in (True, False):
+            score = sum(a == before_agrees for a in agree[:k]) + sum(
+                a != before_agrees for a in agree[k:]
+            )
+            side = order[k:] if before_agrees else order[:k]
+            if best is None or score > best[0]:
+                best = (score, side)
+    if best is None or best[0] < 0.9 * n:
+        return None
+    side = best[1]
+    if len(side) < 2 or len(side) < MOVED_SHARE * n:
+        return None
+    return side
+
+
+def _frame_agrees(
+    cams: Sequence[Camera],
+    obs: list[tuple[Observation, float]],
+    scene_T_rig: np.ndarray,
+    scene_T_model: np.ndarray,
+    limit: float,
+) -> bool:
+    """True if most of a frame's observations of an instance agree with this pose."""
+    err = reprojection_errors(cams, [o for o, _ in obs], invert(scene_T_rig) @ scene_T_model)
+    return bool(np.mean(err < limit) > 0.5)
+
+
+def _restart_disowned(
+    cams: Sequence[Camera],
+    seen: list[_Seen],
+    live: list[int],
+    frames: np.ndarray,
+    models: np.ndarray,
+    keys: list[tuple[str, str]],
+    obs: BundleObservations,
+    keep: np.ndarray,
+    s: AnnotateSettings,
+) -> np.ndarray:
+    """Instances of which the solve keeps less than half the observations started again from
+    the adjusted frames (their first start came from frames placed less well)."""
+    models = models.copy()
+    placed: list[np.ndarray | None] = [None] * len(seen)
+    for n, f in enumerate(live):
+        placed[f] = frames[n]
+    for i, key in enumerate(keys):
+        mine = obs.instance == i
+        if mine.any() and keep[mine].mean() < 0.5:
+            start = _instance_start(cams, seen, placed, key, s)
+            if start is not None:
+                models[i] = start
+    return models
+
+
+def _residuals(
+    cams: Sequence[Camera], obs: BundleObservations, frames: np.ndarray, models: np.ndarray
+) -> np.ndarray:
+    """RMS corner reprojection error (px) of every observation at these poses."""
+    err = np.empty(len(obs))
+    M = np.einsum("nij,njk->nik", invert(frames[obs.frame]), models[obs.instance])
+    for j, cam in enumerate(cams):
+        sel = np.flatnonzero(obs.camera == j)
+        if sel.size == 0:
+            continue
+        C = cam.cam_T_rig @ M[sel]
+        pc = np.einsum("nij,nkj->nki", C[:, :3, :3], obs.model_corners[sel]) + C[:, None, :3, 3]
+        uv = cam.project(pc)
+        e = np.sqrt(np.mean(np.sum((uv - obs.image_corners[sel]) ** 2, axis=-1), axis=-1))
+        err[sel] = np.where(np.isfinite(e), e, np.inf)
+    return err
+
+
+def _edge_rms(obs: BundleObservations, err: np.ndarray) -> np.ndarray:
+    """(frames, instances) RMS over each frame's observations of each instance (0: none)."""
+    shape = (int(obs.frame.max()) + 1, int(obs.instance.max()) + 1)
+    sq = np.zeros(shape)
+    n = np.zeros(shape)
+    np.add.at(sq, (obs.frame, obs.instance), np.minimum(err, 1e6) ** 2)
+    np.add.at(n, (obs.frame, obs.instance), 1)
+    return np.where(n > 0, np.sqrt(sq / np.maximum(n, 1)), 0.0)
+
+
+def _rejected_markers(
+    obs: BundleObservations, ids: np.ndarray, mine: np.ndarray, keep: np.ndarray
+) -> bool:
+    """True if a marker of the instance was read in two frames or more and never kept."""
+    used = set(ids[mine & keep].tolist())
+    frames: dict[int, set[int]] = defaultdict(set)
+    for k in np.flatnonzero(mine & ~keep):
+        if int(ids[k]) not in used:
+            frames[int(ids[k])].add(int(obs.frame[k]))
+    return any(len(f) >= 2 for f in frames.values())
+
+
+def _records(
+    ds: Dataset,
+    keys: list[tuple[str, str]],
+    live: list[int],
+    obs: BundleObservations,
+    ids: np.ndarray,
+    keep: np.ndarray,
+    result,
+    err: np.ndarray,
+    placed: _Placed,
+    s: AnnotateSettings,
+    out: SequenceSolution,
+    names: list[str],
+    moved: set[int],
+) -> None:
+    """annotation.json's records from the solve: per instance and per frame."""
+    cams = ds.rig.cameras
+    out.reference = names[placed.reference]
+    seen = np.zeros((len(live), len(keys)), dtype=bool)
+    seen[obs.frame, obs.instance] = True
+    agree = np.zeros_like(seen)
+    agree[obs.frame[keep], obs.instance[keep]] = True
+    for i, (obj, inst) in enumerate(keys):
+        mine = obs.instance == i
+        used = mine & keep
+        if not used.any():
+            continue
+        T = result.scene_T_model[i]
+        model = ds.objects[obj]
+        unc = rms_uncertainty(model.mesh.moments, T[:3, :3], result.instance_covariance[i])
+        markers: dict[str, MarkerUse] = {}
+        per_cam: dict[str, float] = {}
+        for j, cam in enumerate(cams):
+            u = used & (obs.camera == j)
+            r = mine & ~keep & (obs.camera == j)
+            if u.any() or r.any():
+                good = {int(x) for x in ids[u]}
+                markers[cam.name] = MarkerUse(sorted(good), sorted({int(x) for x in ids[r]} - good))
+            if u.any():
+                per_cam[cam.name] = round(float(np.sqrt(np.mean(err[u] ** 2))), 4)
+        rms = float(np.sqrt(np.mean(err[used] ** 2)))
+        flags: list[Flag | str] = []
+        if i in moved:
+            flags.append(Flag.MOVED)
+        if rms > s.high_residual_px:
+            flags.append(Flag.HIGH_RESIDUAL)
+        # A marker left out in a blurred frame is noise; one that two frames or more read
+        # and none agrees with is not (glued elsewhere, or another copy's).
+        if _rejected_markers(obs, ids, mine, keep):
+            flags.append(Flag.REJECTED_MARKERS)
+        if not unc < s.high_uncertainty_fraction * model.mesh.moments.diameter:
+            flags.append(Flag.HIGH_UNCERTAINTY)
+        if int(agree[:, i].sum()) == 1 and len(per_cam) == 1:
+            flags.append(Flag.SINGLE_VIEW)
+        out.instances.append(
+            InstanceAnnotation(
+                obj,
+                inst,
+                T[:3, :3].copy(),
+                T[:3, 3].copy(),
+                uncertainty_mm=round(unc, 4) if np.isfinite(unc) else None,
+                reprojection=Reprojection(round(rms, 4), round(float(err[used].max()), 4), per_cam),
+                markers=markers,
+                views=len(per_cam),
+                flags=sort_flags(flags),
+                extra={"frames_seen": int(agree[:, i].sum())},
+            )
+        )
+    if any(Flag.MOVED in r.flags for r in out.instances):
+        moved = [r.key for r in out.instances if Flag.MOVED in r.flags]
+        out.warnings.append(
+            SceneWarning(
+                WarningKind.NOTE,
+                f"parts moved during the sequence: {', '.join(moved)} (their markers disagree "
+                "with their pose in part of the frames; the pose is the one most frames agree with)",
+            )
+        )
+    by_live = {f: n for n, f in enumerate(live)}
+    for f, name in enumerate(names):
+        if f not in by_live:
+            reason = placed.reasons[f]
+            extra = {"flags": [reason]}
+            if reason == FrameFlag.OUTLIER:
+                extra["reason"] = "its markers agree with no placed instance's pose"
+            out.frames[name] = FramePose(name, None, extra)
+            continue
+        n = by_live[f]
+        mine = (obs.frame == n) & keep
+        T = result.scene_T_rig[n]
+        cov = result.frame_covariance[n]
+        flags_f: list[str] = []
+        if not mine.any():
+            out.frames[name] = FramePose(
+                name,
+                None,
+                {
+                    "flags": [FrameFlag.OUTLIER],
+                    "reason": "none of its markers agree with the solve",
+                },
+            )
+            continue
+        unc_mm = float(np.sqrt(max(np.trace(cov[3:, 3:]), 0.0)))
+        unc_deg = float(np.degrees(np.sqrt(max(np.trace(cov[:3, :3]), 0.0))))
+        if not (unc_mm <= FRAME_MAX_UNCERTAINTY_MM and unc_deg <= FRAME_MAX_UNCERTAINTY_DEG):
+            out.frames[name] = FramePose(
+                name,
+                None,
+                {
+                    "flags": [FrameFlag.OUTLIER],
+                    "reason": f"its {int(mine.sum())} marker observations leave its pose "
+                    f"uncertain (1-sigma {unc_mm:.3g} mm, {unc_deg:.3g} degrees)",
+                },
+            )
+            continue
+        rms_f = float(np.sqrt(np.mean(err[mine] ** 2)))
+        if rms_f > HIGH_REPROJECTION_PX:
+            flags_f.append(FrameFlag.HIGH_REPROJECTION)
+        if int(mine.sum()) < FEW_MARKERS:
+            flags_f.append(FrameFlag.FEW_MARKERS)
+        counts = np.bincount(obs.instance[mine], minlength=len(keys))
+        out.frames[name] = FramePose(
+            name,
+            T,
+            {
+                "instance_markers": {"/".join(keys[i]): int(c) for i, c in enumerate(counts) if c},
+                "reprojection_px": round(rms_f, 4),
+                "markers_used": int(mine.sum()),
+                "uncertainty_mm": round(unc_mm, 4),
+                "uncertainty_deg": round(unc_deg, 4),
+                "instances": {},
+                "flags": flags_f,
+            },
+        )
+
+
+def frame_visibility(
+    ds: Dataset,
+    frame: Frame,
+    instances: list[InstanceAnnotation],
+    scene_T_rig: np.ndarray,
+    *,
+    settings: AnnotateSettings = AnnotateSettings(),
+) -> dict[str, dict]:
+    """What ``frame`` sees of the posed instances (scene frame): per instance whose silhouette
+    falls in one of its cameras, ``{"occlusion": {camera: rate}, "depth_agreement": a}``."""
+    if not instances:
+        return {}
+    rig_T_scene = invert(np.asarray(scene_T_rig, dtype=np.float64))
+    local = [
+        InstanceAnnotation(
+            r.object, r.instance, (rig_T_scene @ r.T)[:3, :3], (rig_T_scene @ r.T)[:3, 3]
+        )
+        for r in instances
+    ]
+    depth = frame.read_depth(ds.rig)
+    vis = scene_visibility(
+        ds.rig,
+        [ds.objects[r.object].mesh for r in local],
+        [r.T for r in local],
+        depth=depth,
+        agreement_tolerance=settings.depth_tolerance_mm,
+        step=max(settings.visibility_step, FRAME_VISIBILITY_STEP),
+    )
+    out: dict[str, dict] = {}
+    depth_cam = None if ds.rig.depth is None else ds.rig.depth.camera
+    for r, v in zip(instances, vis):
+        if not any(c.px_all > 0 for c in v.cameras):
+            continue
+        entry: dict = {"occlusion": {c.camera: round(c.occlusion, 4) for c in v.cameras}}
+        cv = next((c for c in v.cameras if c.camera == depth_cam), None)
+        if (
+            depth is not None
+            and cv is not None
+            and cv.depth_agreement is not None
+            and cv.depth_pixels >= MIN_DEPTH_PIXELS
+        ):
+            entry["depth_agreement"] = round(cv.depth_agreement, 4)
+        out[r.key] = entry
+    return out
+
+
+def sequence_annotation(
+    solution: SequenceSolution,
+    readings: list[FrameReading],
+    seen: dict[str, dict[str, dict]],
+    *,
+    settings: AnnotateSettings = AnnotateSettings(),
+) -> SceneAnnotation:
+    """annotation.json of a sequence from its solve and, per posed frame, what
+    :func:`frame_visibility` found: each frame's ``instances`` (with how many of the
+    instance's markers it used), each instance's least occluded view and median depth
+    agreement (``depth_disagreement`` below the settings' minimum)."""
+    frames = {
+        name: FramePose(f.frame, f.scene_T_rig, dict(f.extra))
+        for name, f in solution.frames.items()
+    }
+    used_per_frame = {name: f.extra.get("instance_markers", {}) for name, f in frames.items()}
+    best: dict[str, tuple[float, dict[str, float]]] = {}
+    agreements: dict[str, list[float]] = defaultdict(list)
+    for name, found in seen.items():
+        entry = frames[name].extra
+        per = {}
+        for key, v in sorted(found.items()):
+            per[key] = {
+                "markers_used": int(used_per_frame[name].get(key, 0)),
+                "occlusion": v["occlusion"],
+            }
+            rate = min(v["occlusion"].values())
+            if key not in best or rate < best[key][0]:
+                best[key] = (rate, v["occlusion"])
+            if "depth_agreement" in v:
+                agreements[key].append(v["depth_agreement"])
+        entry["instances"] = per
+        entry.pop("instance_markers", None)
+    for f in frames.values():
+        f.extra.pop("instance_markers", None)
+    instances = []
+    unconfirmed: dict[str, set[int]] = defaultdict(set)
+    for r in solution.instances:
+        if _contradicted_lone(r, agreements.get(r.key), settings) or _phantom(r, seen):
+            for cam, m in r.markers.items():
+                unconfirmed[cam].update(m.used)
+            continue
+        if r.key in best:
+            rate, per_cam = best[r.key]
+            r.occlusion = Occlusion(round(rate, 4), per_cam)
+        flags = [f for f in r.flags if f != Flag.DEPTH_DISAGREEMENT]
+        if agreements.get(r.key):
+            a = float(np.median(agreements[r.key]))
+            r.extra["depth_agreement_median"] = round(a, 4)
+            if a < settings.depth_min_agreement:
+                flags.append(Flag.DEPTH_DISAGREEMENT)
+        r.flags = sort_flags(flags)
+        instances.append(r)
+    quality = {r.frame: {c: q.to_json() for c, q in r.quality.items()} for r in readings}
+    for name, q in quality.items():
+        frames[name].extra["image_quality"] = q
+    return SceneAnnotation(
+        instances=instances,
+        warnings=list(solution.warnings),
+        unknown_markers=solution.unknown_markers,
+        unconfirmed_markers={c: sorted(v) for c, v in sorted(unconfirmed.items())},
+        duplicates=solution.duplicates,
+        extra={"scene_frame": solution.reference, "frames": frames_to_json(frames)},
+    )
+
+
+def _contradicted_lone(
+    r: InstanceAnnotation, agreements: list[float] | None, s: AnnotateSettings
+) -> bool:
+    """A pose on one marker read once (one camera, one frame of many) that the measured
+    depth disagrees with: a misread or stray marker, not a part (its id is listed as
+    unconfirmed; a part really there shows unposed, not wrongly posed)."""
+    lone = r.extra.get("frames_seen") == 1 and r.count("used") == 1
+    return lone and bool(agreements) and float(np.median(agreements)) < s.depth_min_agreement
+
+
+#: A pose on one reading whose part other frames should see, this many of them, and read
+#: no marker of, is a misread or stray marker.
+PHANTOM_FRAMES = 3
+
+
+def _phantom(r: InstanceAnnotation, seen: dict[str, dict[str, dict]]) -> bool:
+    """A pose on one marker read once (one camera, one frame) that other frames see mostly
+    unhidden (:data:`PHANTOM_FRAMES` of them) without reading any of its markers."""
+    if not (r.extra.get("frames_seen") == 1 and r.count("used") == 1):
+        return False
+    unread = sum(
+        1
+        for found in seen.values()
+        if r.key in found and min(found[r.key]["occlusion"].values()) < 0.5
+    )
+    return unread - 1 >= PHANTOM_FRAMES
+
+
+def annotate_sequence(
+    ds: Dataset,
+    scene: Scene,
+    detector: MarkerDetector,
+    *,
+    settings: AnnotateSettings = AnnotateSettings(),
+) -> SceneAnnotation:
+    """Annotate one sequence in this process: read every frame, solve, see every frame.
+
+    Raises:
+        UserError: the scene has no frame folder, or a frame's image is missing or mis-sized.
+    """
+    frames = scene.frames()
+    if not frames:
+        raise UserError(
+            "a moving rig's scene holds its images in frames/<frame>/: none found", path=scene.path
+        )
+    readings = [read_frame(ds, f, detector) for f in frames]
+    solution = solve_sequence(ds, readings, settings=settings)
+    seen = {
+        f.name: frame_visibility(
+            ds, f, solution.instances, solution.frames[f.name].scene_T_rig, settings=settings
+        )
+        for f in frames
+        if solution.frames[f.name].scene_T_rig is not None
+    }
+    return sequence_annotation(solution, readings, seen, settings=settings)

@@ -1,0 +1,215 @@
+"""``annotate`` over a moving rig's dataset: the steps of :mod:`annotator.annotation.sequence`
+as batches, so that every core (or a Ray cluster) works on one long sequence.
+
+1. every frame of every chosen scene is read (:class:`FrameReadJob`, one unit per frame);
+2. every scene is solved (:class:`SequenceSolveJob`, one unit per scene);
+3. every posed frame is seen (:class:`FrameSeeJob`, one unit per frame);
+4. each scene's annotation.json is written here, atomically: a scene any of whose frames
+   failed is reported with that frame's one-line error and keeps its old file.
+
+Units of frame jobs are ``<scene>/<frame>``: what the progress bar counts and failures name.
+"""
+
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass, field
+from typing import Any
+
+from annotator.annotation.sequence import (
+    FrameReading,
+    SequenceSolution,
+    frame_visibility,
+    read_frame,
+    sequence_annotation,
+    solve_sequence,
+)
+from annotator.annotation.settings import AnnotateSettings
+from annotator.dataset import Dataset, Scene, cached_dataset
+from annotator.dataset.annotation import InstanceAnnotation, WarningKind
+from annotator.dataset.model import FRAMES_DIR, SCENES_DIR, Frame
+from annotator.dataset.review import now_iso
+from annotator.detection import MarkerDetector
+from annotator.runner import BatchReport, run_batch
+from annotator.runner.bundle import description_files
+
+__all__ = ["FrameReadJob", "FrameSeeJob", "SequenceSolveJob", "annotate_sequences"]
+
+
+def _frame(ds: Dataset, unit: str) -> Frame:
+    scene, name = unit.rsplit("/", 1)
+    return Frame(scene, name, ds.root / SCENES_DIR / scene / FRAMES_DIR / name, ds.rig.flipped)
+
+
+def _frame_files(ds: Dataset, unit: str) -> list[str]:
+    scene, name = unit.rsplit("/", 1)
+    folder = f"{SCENES_DIR}/{scene}/{FRAMES_DIR}/{name}"
+    return [f"{folder}/{c.name}.png" for c in ds.rig.cameras] + [f"{folder}/depth.png"]
+
+
+@functools.cache
+def _detector(dictionary: str) -> MarkerDetector:
+    return MarkerDetector(dictionary)
+
+
+@dataclass(frozen=True)
+class FrameReadJob:
+    """Step 1: the markers of one frame (unit ``<scene>/<frame>``); writes nothing."""
+
+    root: str
+
+    def shared_files(self) -> list[str]:
+        return description_files(cached_dataset(self.root))
+
+    def scene_files(self, scene_id: str) -> list[str]:
+        return _frame_files(cached_dataset(self.root), scene_id)
+
+    def output_files(self, scene_id: str) -> list[str]:
+        return []
+
+    def __call__(self, scene_id: str) -> dict[str, Any]:
+        ds = cached_dataset(self.root)
+        return {"reading": read_frame(ds, _frame(ds, scene_id), _detector(ds.dictionary))}
+
+
+@dataclass(frozen=True)
+class SequenceSolveJob:
+    """Step 2: one scene's solve from its frames' readings (carried by the job)."""
+
+    root: str
+    readings: dict[str, list[FrameReading]]
+    settings: AnnotateSettings = AnnotateSettings()
+
+    def shared_files(self) -> list[str]:
+        return description_files(cached_dataset(self.root))
+
+    def scene_files(self, scene_id: str) -> list[str]:
+        return []
+
+    def output_files(self, scene_id: str) -> list[str]:
+        return []
+
+    def __call__(self, scene_id: str) -> dict[str, Any]:
+        ds = cached_dataset(self.root)
+        return {"solution": solve_sequence(ds, self.readings[scene_id], settings=self.settings)}
+
+
+@dataclass(frozen=True)
+class FrameSeeJob:
+    """Step 3: what one posed frame sees of its scene's instances (unit ``<scene>/<frame>``)."""
+
+    root: str
+    solutions: dict[str, SequenceSolution]
+    settings: AnnotateSettings = AnnotateSettings()
+
+    def shared_files(self) -> list[str]:
+        return description_files(cached_dataset(self.root))
+
+    def scene_files(self, scene_id: str) -> list[str]:
+        return _frame_files(cached_dataset(self.root), scene_id)
+
+    def output_files(self, scene_id: str) -> list[str]:
+        return []
+
+    def __call__(self, scene_id: str) -> dict[str, Any]:
+        ds = cached_dataset(self.root)
+        scene, name = scene_id.rsplit("/", 1)
+        sol = self.solutions[scene]
+        T = sol.frames[name].scene_T_rig
+        assert T is not None  # only posed frames are units
+        seen = frame_visibility(ds, _frame(ds, scene_id), sol.instances, T, settings=self.settings)
+        return {"seen": seen}
+
+
+@dataclass
+class _Run:
+    """Where each scene stands: its frames, and the first failure of any of its steps."""
+
+    frames: dict[str, list[str]]
+    failed: dict[str, str] = field(default_factory=dict)
+
+    def units(self) -> list[str]:
+        return [
+            f"{s}/{f}" for s, names in self.frames.items() if s not in self.failed for f in names
+        ]
+
+    def absorb(self, report: BatchReport) -> None:
+        for unit, message in sorted(report.failed.items()):
+            scene, _, frame = unit.rpartition("/")
+            scene = scene or unit
+            self.failed.setdefault(scene, f"frame {frame}: {message}" if frame else message)
+
+
+def annotate_sequences(
+    ds: Dataset,
+    scenes: list[Scene],
+    *,
+    digest: str,
+    workers: int = 1,
+    settings: AnnotateSettings = AnnotateSettings(),
+    quiet: bool = True,
+    ray_address: str | None = None,
+    ray_wait: float | None = None,
+) -> BatchReport:
+    """Annotate the sequences ``scenes`` (steps 1-4 of the module's docstring); each done
+    scene's result has the counts ``annotate --json`` sums."""
+    run = _Run({s.id: [f.name for f in s.frames()] for s in scenes})
+    for s in scenes:
+        if not run.frames[s.id]:
+            run.failed[s.id] = (
+                f"{s.path}: a moving rig's scene holds its images in {FRAMES_DIR}/<frame>/: none found"
+            )
+    batch = functools.partial(
+        run_batch, workers=workers, quiet=quiet, ray_address=ray_address, ray_wait=ray_wait
+    )
+    report = batch(FrameReadJob(str(ds.root)), run.units(), desc="read frames")
+    run.absorb(report)
+    readings = {
+        s: [report.done[f"{s}/{f}"]["reading"] for f in names]
+        for s, names in run.frames.items()
+        if s not in run.failed
+    }
+    solved = batch(SequenceSolveJob(str(ds.root), readings, settings), list(readings), desc="solve")
+    run.absorb(solved)
+    solutions = {s: r["solution"] for s, r in solved.done.items() if s not in run.failed}
+    posed = [
+        f"{s}/{f}"
+        for s, sol in solutions.items()
+        for f in run.frames[s]
+        if sol.frames[f].scene_T_rig is not None
+    ]
+    seen_report = batch(FrameSeeJob(str(ds.root), solutions, settings), posed, desc="see frames")
+    run.absorb(seen_report)
+    out = BatchReport(failed=dict(run.failed))
+    for s, sol in sorted(solutions.items()):
+        if s in run.failed:
+            continue
+        seen = {
+            f: seen_report.done[f"{s}/{f}"]["seen"]
+            for f in run.frames[s]
+            if f"{s}/{f}" in seen_report.done
+        }
+        ann = sequence_annotation(sol, readings[s], seen, settings=settings)
+        scene = ds.scene(s)
+        if not ann.instances:
+            out.failed[s] = f"{scene.path}: no marker of any known instance detected in any frame"
+            continue
+        ann.created_at = now_iso()
+        ann.description_digest = digest
+        ann.write(scene.annotation_path)
+        scene.unexplained_path.unlink(missing_ok=True)  # a fixed rig's mask does not apply
+        out.done[s] = _counts(ann.instances, bool(ann.warnings), sol)
+    return out
+
+
+def _counts(
+    instances: list[InstanceAnnotation], warned: bool, sol: SequenceSolution
+) -> dict[str, Any]:
+    frames = list(sol.frames.values())
+    return {
+        "instances": len(instances),
+        "flagged": sum(1 for i in instances if i.flags),
+        "warned": warned or any(w.kind == WarningKind.NO_MARKERS for w in sol.warnings),
+        "frames": len(frames),
+        "frames_posed": sum(1 for f in frames if f.scene_T_rig is not None),
+    }

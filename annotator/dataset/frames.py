@@ -1,0 +1,176 @@
+"""The frames of a sequence (FORMAT.md, sequences): each frame's ``scene_T_rig``, and the
+instance poses as one frame's rig sees them.
+
+A sequence's pose files hold every instance once, in the *scene frame* (the reference
+camera of the first frame), and under ``frames`` where the rig was for each frame. Whatever
+works on one shot of a fixed rig (occlusion, export, evaluation, the review page) works on a
+frame by taking the poses through :func:`poses_in_frame`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Collection, Mapping
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from annotator.dataset.model import Capture, Dataset, Scene
+from annotator.dataset.poses import InstancePose, read_pose_file
+from annotator.errors import UserError
+from annotator.geometry.transforms import invert, is_rotation
+
+__all__ = [
+    "FramePose",
+    "Shot",
+    "frames_from_json",
+    "frames_to_json",
+    "poses_in_frame",
+    "read_frames",
+    "scene_shots",
+]
+
+
+@dataclass(frozen=True)
+class FramePose:
+    """Where the rig was for one frame: ``scene_T_rig`` (4x4, mm), None for a frame that
+    could not be posed (FORMAT.md: flagged ``no_known_markers``, never guessed); ``extra``
+    holds the other fields of the frame's entry untouched."""
+
+    frame: str
+    scene_T_rig: np.ndarray | None
+    extra: dict[str, Any] = field(default_factory=dict, compare=False)
+
+    def to_json(self) -> dict[str, Any]:
+        T = self.scene_T_rig
+        out: dict[str, Any] = {
+            "scene_T_rig": None if T is None else [float(x) for x in np.asarray(T).reshape(16)]
+        }
+        out.update(self.extra)
+        return out
+
+
+def frames_from_json(doc: Any, path: Path) -> dict[str, FramePose]:
+    """The ``frames`` mapping of a pose file (an empty dict when absent).
+
+    Raises:
+        UserError: naming the file and the frame, for an entry that is not a mapping or a
+            ``scene_T_rig`` that is not null or 16 finite numbers of a rigid transform.
+    """
+    if doc is None:
+        return {}
+    if not isinstance(doc, dict):
+        raise UserError("frames must map frame -> {scene_T_rig: [16 floats], ...}", path=path)
+    out: dict[str, FramePose] = {}
+    for name, entry in doc.items():
+        if not isinstance(entry, dict) or "scene_T_rig" not in entry:
+            raise UserError(f"frames[{name!r}] needs scene_T_rig (16 floats or null)", path=path)
+        raw = entry["scene_T_rig"]
+        T = None
+        if raw is not None:
+            try:
+                T = np.asarray(raw, dtype=np.float64).reshape(4, 4)
+            except (TypeError, ValueError):
+                raise UserError(
+                    f"frames[{name!r}].scene_T_rig must be 16 numbers or null", path=path
+                ) from None
+            if (
+                not np.all(np.isfinite(T))
+                or not is_rotation(T[:3, :3], tol=1e-3)
+                or np.any(np.abs(T[3] - [0, 0, 0, 1]) > 1e-6)
+            ):
+                raise UserError(
+                    f"frames[{name!r}].scene_T_rig is not a finite rigid transform", path=path
+                )
+        extra = {k: v for k, v in entry.items() if k != "scene_T_rig"}
+        out[str(name)] = FramePose(str(name), T, extra)
+    return out
+
+
+def frames_to_json(frames: Mapping[str, FramePose]) -> dict[str, Any]:
+    """The ``frames`` mapping to write, in sorted frame order."""
+    return {name: frames[name].to_json() for name in sorted(frames)}
+
+
+def poses_in_frame(poses: list[InstancePose], scene_T_rig: np.ndarray) -> list[InstancePose]:
+    """The instance poses (scene frame) as that frame's reference camera sees them:
+    ``inverse(scene_T_rig) @ scene_T_model``, each record's other fields kept.
+
+    >>> import numpy as np
+    >>> p = InstancePose("part", "01", np.eye(3), np.array([0.0, 0.0, 500.0]))
+    >>> T = np.eye(4); T[2, 3] = 100.0  # the rig moved 100 mm forward
+    >>> poses_in_frame([p], T)[0].t.tolist()
+    [0.0, 0.0, 400.0]
+    """
+    rig_T_scene = invert(np.asarray(scene_T_rig, dtype=np.float64))
+    out = []
+    for p in poses:
+        T = rig_T_scene @ p.T
+        out.append(replace(p, R=T[:3, :3].copy(), t=T[:3, 3].copy()))
+    return out
+
+
+@dataclass(frozen=True)
+class Shot:
+    """One shot of a scene's rig with its images and where the scene is in its rig: the
+    scene itself for a fixed rig (``frame`` None, ``rig_T_scene`` the identity), or one
+    posed frame of a sequence. What works on one shot (occlusion, export, the review page)
+    takes the poses through :meth:`poses`."""
+
+    scene: Scene
+    capture: Capture
+    frame: str | None
+    rig_T_scene: np.ndarray
+
+    @property
+    def id(self) -> str:
+        """``<scene>`` or ``<scene>/<frame>``: how messages name the shot."""
+        return self.scene.id if self.frame is None else f"{self.scene.id}/{self.frame}"
+
+    def poses(self, scene_poses: list[InstancePose]) -> list[InstancePose]:
+        """The scene's poses as this shot's rig sees them."""
+        if self.frame is None:
+            return scene_poses
+        return poses_in_frame(scene_poses, invert(self.rig_T_scene))
+
+
+def read_frames(path: str | Path) -> dict[str, FramePose]:
+    """The ``frames`` mapping of a pose file (gt.json, annotation.json); UserError naming
+    the file if it is malformed."""
+    _, top = read_pose_file(path)
+    return frames_from_json(top.get("frames"), Path(path))
+
+
+def scene_shots(
+    ds: Dataset,
+    scene: Scene,
+    frames: Mapping[str, FramePose] | None = None,
+    *,
+    rejected: Collection[str] = (),
+) -> list[Shot]:
+    """The scene's shots: the scene itself for a fixed rig; for a moving rig every frame
+    folder that ``frames`` (the pose file's mapping) poses and that is not ``rejected``.
+
+    Raises:
+        UserError: a moving rig's scene whose pose file has no ``frames``, or names a frame
+            folder that is not there.
+    """
+    if not ds.rig.moving:
+        return [Shot(scene, scene, None, np.eye(4))]
+    frames = frames or {}
+    if not frames:
+        raise UserError(
+            "a moving rig's pose file needs 'frames' (each frame's scene_T_rig)", path=scene.path
+        )
+    folders = {f.name: f for f in scene.frames()}
+    missing = sorted(set(frames) - set(folders))
+    if missing:
+        raise UserError(f"frames {', '.join(missing[:3])} have no frame folder", path=scene.path)
+    out = []
+    for name in sorted(frames):
+        T = frames[name].scene_T_rig
+        if T is None or name in rejected:
+            continue
+        out.append(Shot(scene, folders[name], name, invert(T)))
+    return out
