@@ -32,6 +32,7 @@ import re
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -131,15 +132,23 @@ def open_source(
     return Source(path, _folder_frames(path, stream, depth, tolerance_s, fps), video=False)
 
 
-def _video_index(path: Path) -> list[SourceFrame]:
-    """Every frame of the video with its time, by decoding it once (containers' frame
-    counts can be wrong)."""
+def _open_video(path: Path) -> Any:
+    """An opened ``cv2.VideoCapture`` of the file (UserError if it is not a video)."""
     import cv2
 
     with native_stderr_hidden():  # FFmpeg's own lines about a broken file
         cap = cv2.VideoCapture(str(path))
     if not cap.isOpened():
         raise UserError("not a readable video", path=path)
+    return cap
+
+
+def _video_index(path: Path) -> list[SourceFrame]:
+    """Every frame of the video with its time, by decoding it once (containers' frame
+    counts can be wrong)."""
+    import cv2
+
+    cap = _open_video(path)
     fps = cap.get(cv2.CAP_PROP_FPS) or 0.0
     frames: list[SourceFrame] = []
     try:
@@ -159,12 +168,7 @@ def _video_frames(
     path: Path, frames: list[SourceFrame]
 ) -> Iterator[tuple[SourceFrame, np.ndarray]]:
     """Decode the video once, yielding the wanted frames (increasing indices)."""
-    import cv2
-
-    with native_stderr_hidden():
-        cap = cv2.VideoCapture(str(path))
-    if not cap.isOpened():
-        raise UserError("not a readable video", path=path)
+    cap = _open_video(path)
     try:
         at = 0
         for f in frames:
