@@ -14,8 +14,9 @@ from pathlib import Path
 
 import numpy as np
 
+from annotator.dataset.frames import frames_from_json, scene_shots
 from annotator.dataset.load import Problem, read_dataset
-from annotator.dataset.model import Dataset, ObjectModel
+from annotator.dataset.model import Capture, Dataset, ObjectModel
 from annotator.errors import UserError
 from annotator.geometry.mesh import Mesh
 
@@ -172,39 +173,60 @@ def _check_sites(obj: ObjectModel, mesh: Mesh) -> list[Problem]:
     return out
 
 
+def _check_capture(ds: Dataset, capture: Capture) -> list[Problem]:
+    """A scene's (or a frame's) images and depth map: there, readable, of the rig's sizes."""
+    out: list[Problem] = []
+    for cam in ds.rig.cameras:
+        try:
+            capture.read_image(cam)
+        except UserError as exc:
+            out.append(Problem(exc.path or capture.image_path(cam), exc.message))
+    declared = isinstance(ds.raw.get("rig"), dict) and ds.raw["rig"].get("depth") is not None
+    if capture.depth_path.exists():
+        if ds.rig.depth is None and declared:
+            pass  # rig.depth is there but unusable: reported once, for dataset.yaml
+        elif ds.rig.depth is None:
+            out.append(
+                Problem(
+                    capture.depth_path,
+                    "depth map present but dataset.yaml has no rig.depth (camera and scale)",
+                )
+            )
+        else:
+            try:
+                capture.read_depth(ds.rig)
+            except UserError as exc:
+                out.append(Problem(exc.path or capture.depth_path, exc.message))
+    return out
+
+
 def _check_scene(ds: Dataset, scene) -> list[Problem]:
     from annotator.dataset.poses import InstancePose, read_pose_file
     from annotator.dataset.review import read_review
     from annotator.dataset.validity import pose_problem
 
     out: list[Problem] = []
-    for cam in ds.rig.cameras:
-        try:
-            scene.read_image(cam)
-        except UserError as exc:
-            out.append(Problem(exc.path or scene.image_path(cam), exc.message))
-    declared = isinstance(ds.raw.get("rig"), dict) and ds.raw["rig"].get("depth") is not None
-    if scene.depth_path.exists():
-        if ds.rig.depth is None and declared:
-            pass  # rig.depth is there but unusable: reported once, for dataset.yaml
-        elif ds.rig.depth is None:
+    if ds.rig.moving:
+        frames = scene.frames()
+        if not frames:
             out.append(
                 Problem(
-                    scene.depth_path,
-                    "depth map present but dataset.yaml has no rig.depth (camera and scale)",
+                    scene.path,
+                    "a moving rig's scene holds its images in frames/<frame>/: none found",
                 )
             )
-        else:
-            try:
-                scene.read_depth(ds.rig)
-            except UserError as exc:
-                out.append(Problem(exc.path or scene.depth_path, exc.message))
+        for frame in frames:
+            out += _check_capture(ds, frame)
+    else:
+        out += _check_capture(ds, scene)
     for path in (scene.gt_path, scene.annotation_path):
         if path.exists():
             try:
-                poses, _ = read_pose_file(path)
+                poses, top = read_pose_file(path)
+                if ds.rig.moving:
+                    scene_shots(ds, scene, frames_from_json(top.get("frames"), path))
             except UserError as exc:
-                out.append(Problem(path, exc.message))
+                out.append(Problem(exc.path if exc.path == path else path, exc.message))
                 continue
             for p in poses:
                 problem = pose_problem(ds, p)

@@ -12,6 +12,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from annotator.errors import UserError
 from annotator.evaluation.metrics import SceneCurve, Summary, scene_curve, summarise
 from annotator.formats.base import GroundTruth, PoseResults, PoseSet
@@ -237,9 +239,14 @@ def plot_curves(report: EvaluationReport, path: str | Path) -> None:
 
 def per_instance_errors(root: Path) -> list[dict[str, Any]]:
     """For each annotated instance with a true pose: the pose error (mm, the paper's distance),
-    the estimated uncertainty, the diameter and the flags."""
-    from annotator.dataset import load_dataset, read_poses
+    the estimated uncertainty, the diameter and the flags. In a sequence the error is the
+    median over the frames both files pose of the error as each frame's rig sees the part
+    (what an export of that frame holds), whatever the scene frame's own error."""
+    from annotator.dataset import load_dataset
     from annotator.dataset.annotation import InstanceAnnotation, SceneAnnotation
+    from annotator.dataset.frames import frames_from_json
+    from annotator.dataset.poses import read_pose_file
+    from annotator.geometry.transforms import invert
     from annotator.symmetry import PoseSpace
 
     ds = load_dataset(root)
@@ -248,18 +255,33 @@ def per_instance_errors(root: Path) -> list[dict[str, Any]]:
     for sc in ds.scenes():
         if not (sc.annotation_path.exists() and sc.gt_path.exists()):
             continue
-        gt = {p.key: InstanceAnnotation.from_pose(p) for p in read_poses(sc.gt_path)}
-        for i in SceneAnnotation.read(sc.annotation_path).instances:
+        true_poses, top = read_pose_file(sc.gt_path)
+        gt = {p.key: InstanceAnnotation.from_pose(p) for p in true_poses}
+        ann = SceneAnnotation.read(sc.annotation_path)
+        pairs: list[tuple[np.ndarray, np.ndarray]] | None = None  # a fixed rig: as they are
+        if ds.rig.moving:
+            truth = frames_from_json(top.get("frames"), sc.gt_path)
+            found = frames_from_json(ann.extra.get("frames"), sc.annotation_path)
+            pairs = [
+                (invert(f.scene_T_rig), invert(truth[name].scene_T_rig))
+                for name, f in sorted(found.items())
+                if f.scene_T_rig is not None
+                and name in truth
+                and truth[name].scene_T_rig is not None
+            ]
+        for i in ann.instances:
             g = gt.get(i.key)
-            if g is None:
+            if g is None or pairs == []:
                 continue
             sp = spaces[i.object]
-            err = float(sp.distance(i.R[None], i.t[None], g.R[None], g.t[None])[0])
+            A = i.T[None] if pairs is None else np.stack([a @ i.T for a, _ in pairs])
+            B = g.T[None] if pairs is None else np.stack([b @ g.T for _, b in pairs])
+            errs = sp.distance(A[:, :3, :3], A[:, :3, 3], B[:, :3, :3], B[:, :3, 3])
             out.append(
                 {
                     "scene": sc.id,
                     "instance": i.key,
-                    "error_mm": err,
+                    "error_mm": float(np.median(errs)),
                     "uncertainty_mm": i.uncertainty_mm,
                     "diameter_mm": sp.diameter,
                     "occlusion": g.occlusion_rate,

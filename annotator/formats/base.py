@@ -88,6 +88,8 @@ class GroundTruth:
     #: The (scene, object) pairs to score when the dataset lists its targets (BOP's
     #: test_targets files); None: every pair.
     targets: set[tuple[str, str]] | None = None
+    #: The folder the ground truth was read from (our format: results name its scenes).
+    root: Path | None = None
 
 
 @dataclass
@@ -259,23 +261,26 @@ def read_json_lists(
     *,
     scale: float,
     scene_key: Callable[[str], str] = lambda stem: stem,
+    nested: bool = False,
 ) -> PoseResults:
     """A folder of ``<scene>.json`` files, each a list of ``{"object"?, "R", "t", "score"}``
     (the paper's results format; ``object`` may be left out when there is one object).
-    ``t`` is multiplied by ``scale`` to give millimetres."""
+    ``t`` is multiplied by ``scale`` to give millimetres. ``nested``: a sequence's
+    ``<scene>/<frame>.json`` instead, named ``<scene>/<frame>``."""
     table: Table = {}
     unknown = []
     mentioned = set()
     known = set(gt.scenes)
     single = next(iter(gt.spaces)) if len(gt.spaces) == 1 else None
     projected = total = 0
-    for f in sorted(folder.glob("*.json")):
+    for f in sorted(folder.glob("*/*.json" if nested else "*.json")):
         doc = read_json(f)
         if not isinstance(doc, list):
             raise UserError("expected a JSON list of {R, t, score}", path=f)
-        key = scene_key(f.stem)
+        stem = f"{f.parent.name}/{f.stem}" if nested else f.stem
+        key = scene_key(stem)
         if key not in known:
-            unknown.append(f.stem)
+            unknown.append(stem)
             continue
         mentioned.add(key)
         objects, scores = _objects_and_scores(doc, gt, single, f)

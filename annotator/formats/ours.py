@@ -18,6 +18,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from annotator.dataset.frames import frames_from_json, scene_shots
+from annotator.dataset.poses import read_pose_file
 from annotator.dataset.review import (
     Review,
     ReviewStatus,
@@ -45,7 +47,7 @@ def _occlusion(extra: dict) -> float:
 
 
 def read_ground_truth(path: Path, *, symmetry: str | None = None) -> GroundTruth:
-    from annotator.dataset import load_dataset, read_poses
+    from annotator.dataset import load_dataset
     from annotator.symmetry import PoseSpace
 
     ds = load_dataset(path)
@@ -57,28 +59,61 @@ def read_ground_truth(path: Path, *, symmetry: str | None = None) -> GroundTruth
         src = sc.gt_path if sc.gt_path.exists() else sc.annotation_path
         if not src.exists():
             continue
-        poses = read_poses(src)
+        poses, top = read_pose_file(src)
+        review = read_review(sc.review_path) if src == sc.annotation_path else None
         if src == sc.annotation_path:
-            review = read_review(sc.review_path)
             why = _rejected(review, poses)
             if why is not None:
                 left_out[why] = left_out.get(why, 0) + 1
                 continue
             poses = apply_edits(poses, review).poses
-        scenes.append(sc.id)
         for i, p in enumerate(poses):
             if p.object not in spaces:
                 raise UserError(
                     f"instances[{i}]: unknown object {p.object!r} (objects: {', '.join(spaces)})",
                     path=src,
                 )
-            table.setdefault((sc.id, p.object), PoseSet()).add(p.R, p.t, _occlusion(p.extra))
+        for key, shot_poses, occlusion in _shots(ds, sc, src, top, poses, review):
+            scenes.append(key)
+            for p in shot_poses:
+                table.setdefault((key, p.object), PoseSet()).add(p.R, p.t, occlusion(p))
     ids = {k + 1: n for k, n in enumerate(ds.objects)}
     notes = [
         f"{n} scene(s) without gt.json left out of the ground truth: {why}"
         for why, n in sorted(left_out.items())
     ]
-    return GroundTruth(spaces, table, scenes, NAME, "mm", ids, notes=notes)
+    return GroundTruth(spaces, table, scenes, NAME, "mm", ids, notes=notes, root=Path(path))
+
+
+def _shots(ds, sc, src: Path, top: dict, poses: list, review: Review | None):
+    """The evaluation's scenes of one scene folder: the scene itself, or (a sequence) each
+    posed frame not rejected on its own, keyed ``<scene>/<frame>``, with its poses as that
+    frame's rig saw them and each instance's occlusion rate there (the reference camera's)."""
+    if not ds.rig.moving:
+        yield sc.id, poses, lambda p: _occlusion(p.extra)
+        return
+    frames = frames_from_json(top.get("frames"), src)
+    ref = ds.rig.cameras[0].name
+    rejected = review.rejected_frames if review is not None else ()
+    for shot in scene_shots(ds, sc, frames, rejected=rejected):
+        seen = frames[shot.frame].extra.get("instances") or {}
+
+        def occlusion(p, seen=seen):
+            rate = (seen.get(p.key) or {}).get("occlusion", {}).get(ref)
+            return float(rate) if isinstance(rate, (int, float)) else 1.0
+
+        yield shot.id, shot.poses(poses), occlusion
+
+
+def frame_keys(root: Path) -> dict[str, list[str]]:
+    """A moving rig's dataset: each scene's frame names in order (a BOP image id is a
+    frame's place among them, as ``export`` numbers them); empty for a fixed rig."""
+    from annotator.dataset import load_dataset
+
+    ds = load_dataset(root)
+    if not ds.rig.moving:
+        return {}
+    return {sc.id: [f.name for f in sc.frames()] for sc in ds.scenes()}
 
 
 def _rejected(review: Review | None, poses: list) -> str | None:
@@ -94,20 +129,40 @@ def _rejected(review: Review | None, poses: list) -> str | None:
 
 
 def read_results(path: Path, gt: GroundTruth) -> PoseResults:
+    """Results as a folder of ``<scene>.json`` lists (a sequence: ``<scene>/<frame>.json``)
+    or a BOP CSV (a sequence's ``im_id``: the frame's place among its frame folders)."""
+    frames = frame_keys(gt.root) if gt.root is not None else {}
     if path.is_dir():
-        return read_json_lists(path, gt, scale=1.0, scene_key=lambda stem: _scene_key(stem, gt))
+        return read_json_lists(
+            path,
+            gt,
+            scale=1.0,
+            scene_key=lambda stem: _scene_key(stem, gt),
+            nested=bool(frames),
+        )
     from annotator.formats.bop import read_csv_results
 
-    return read_csv_results(path, gt, scene_key=lambda sid, im: _scene_key(sid, gt))
+    def key(sid: str, im: int) -> str:
+        scene = _scene_key(sid, gt, frames)
+        names = frames.get(scene)
+        if names is None:
+            return scene
+        return f"{scene}/{names[im]}" if 0 <= im < len(names) else f"{scene}/#{im}"
+
+    return read_csv_results(path, gt, scene_key=key)
 
 
-def _scene_key(scene_id: str, gt: GroundTruth) -> str:
+def _scene_key(scene_id: str, gt: GroundTruth, frames: dict | None = None) -> str:
     """Our scene folder for a results id: the same name, or the same number (``12`` for
-    ``000012``)."""
-    if scene_id in gt.scenes:
+    ``000012``); a sequence's frame ``<scene>/<frame>`` likewise, part by part."""
+    if "/" in scene_id:
+        scene, frame = scene_id.rsplit("/", 1)
+        return f"{_scene_key(scene, gt, frames)}/{frame}"
+    names = list(frames) if frames else gt.scenes
+    if scene_id in names:
         return scene_id
     if scene_id.isdigit():
-        for s in gt.scenes:
+        for s in names:
             if s.isdigit() and int(s) == int(scene_id):
                 return s
     return scene_id
@@ -115,7 +170,8 @@ def _scene_key(scene_id: str, gt: GroundTruth) -> str:
 
 def annotations_as_results(root: Path, gt: GroundTruth) -> PoseResults:
     """annotation.json poses (repaired ones applied) as results, scored ``1 / (1 +
-    uncertainty_mm)`` (an instance added by hand has none: score 0)."""
+    uncertainty_mm)`` (an instance added by hand has none: score 0); a sequence's in each
+    of its posed frames."""
     from annotator.dataset import load_dataset
     from annotator.dataset.annotation import SceneAnnotation
 
@@ -124,9 +180,19 @@ def annotations_as_results(root: Path, gt: GroundTruth) -> PoseResults:
     for sc in ds.scenes():
         if not sc.annotation_path.exists():
             continue
-        instances = SceneAnnotation.read(sc.annotation_path).instances
-        for i in apply_edits(instances, read_review(sc.review_path)).poses:
-            unc = getattr(i, "uncertainty_mm", None)
-            score = 1.0 / (1.0 + float(unc)) if unc is not None else 0.0
-            table.setdefault((sc.id, i.object), PoseSet()).add(i.R, i.t, score)
+        ann = SceneAnnotation.read(sc.annotation_path)
+        review = read_review(sc.review_path)
+        edited = apply_edits(ann.instances, review).poses
+        score = {
+            i.key: (
+                1.0 / (1.0 + float(u))
+                if (u := getattr(i, "uncertainty_mm", None)) is not None
+                else 0.0
+            )
+            for i in edited
+        }
+        poses = [i.pose if hasattr(i, "pose") else i for i in edited]
+        for key, shot_poses, _ in _shots(ds, sc, sc.annotation_path, ann.extra, poses, review):
+            for p in shot_poses:
+                table.setdefault((key, p.object), PoseSet()).add(p.R, p.t, score[p.key])
     return PoseResults(table)
