@@ -238,6 +238,22 @@ def test_an_existing_scene_is_replaced_only_when_ingest_wrote_it(
     assert "lies in the scene it would be written to" in line
 
 
+def test_a_folder_of_two_streams_needs_one_chosen(tmp_path: Path, sample: Path, capsys) -> None:
+    src = tmp_path / "stereo"
+    src.mkdir()
+    for k in range(3):
+        cv2.imwrite(str(src / f"left{k:04d}.png"), _picture(k))
+        cv2.imwrite(str(src / f"right{k:04d}.png"), _picture(k + 8))
+    ds = _dataset(tmp_path / "ds", sample)
+    line = one_error_line(["ingest", str(ds), str(src), "--scene", "s"], capsys)
+    assert "several streams ('left', 'right')" in line and "--stream" in line
+    args = ["ingest", str(ds), str(src), "--scene", "s", "--stream", "right", "--json"]
+    code, out, err = run_cli(args, capsys)
+    assert code == 0, err
+    doc = json.loads((ds / "scenes" / "s" / "frames.json").read_text())
+    assert [e["source"] for e in doc["frames"].values()] == [f"right{k:04d}.png" for k in range(3)]
+
+
 def test_selection_helpers() -> None:
     assert running_median([5.0], window=15).tolist() == [5.0]
     s = select([0, 5, 10], [1.0, 1.0, 0.1], threshold=0.5)

@@ -25,8 +25,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--camera",
         metavar="NAME",
-        help="the rig camera the images are of (needed when the rig has several; also picks "
-        "the stream of that name in a folder of several)",
+        help="the rig camera the images are of (needed when the rig has several)",
+    )
+    parser.add_argument(
+        "--stream",
+        metavar="NAME",
+        help="in a folder of several colour streams (left0000.png, right0000.png), the one "
+        "to take (default: the one named like the camera)",
     )
     parser.add_argument(
         "--every",
@@ -81,6 +86,7 @@ def run(args: argparse.Namespace) -> int:
         args.source,
         args.scene,
         camera=args.camera,
+        stream=args.stream,
         every=args.every,
         blur_threshold=args.blur_threshold,
         depth=not args.no_depth,

@@ -87,6 +87,7 @@ def ingest_scene(
     scene_id: str,
     *,
     camera: str | None = None,
+    stream: str | None = None,
     every: int = 1,
     blur_threshold: float = BLUR_THRESHOLD,
     depth: bool = True,
@@ -104,6 +105,8 @@ def ingest_scene(
         source: The video file or image folder.
         scene_id: The scene to write (``scenes/<scene_id>/``).
         camera: The rig camera the images are of (needed when the rig has several).
+        stream: The colour stream to take from a folder of several (``left``...; default:
+            the one named like the camera).
         every: Take every ``every``-th frame of the source.
         blur_threshold: Drop a candidate whose sharpness is below this times the running
             median of its neighbours' (0 keeps every candidate).
@@ -141,7 +144,7 @@ def ingest_scene(
         )
     src = open_source(
         source,
-        stream=cam.name,
+        stream=cam.name if stream is None else stream,
         depth=depth,
         tolerance_s=tolerance_s,
         fps=fps,

@@ -19,7 +19,7 @@ sub-folders (``color/``, ``depth/``...; one level). Each file's name is read as
   (RealSense), one with a fraction or of 9 to 11 digits a time in seconds (ROS), a shorter
   integer a frame index (no time, unless ``fps`` is given).
 - *stream*: what is left (``left``, ``frame``, the device's serial...); colour images of
-  several streams are told apart by it (``--camera`` picks the stream named like it).
+  several streams are told apart by it (``--stream``, or the stream named like the camera).
 
 A depth image is the partner of the colour image with the same number; failing that, of the
 one nearest in time within ``tolerance_s``. Frames are in time order (number order without
@@ -283,8 +283,8 @@ def _one_stream(root: Path, colour: list[_Named], stream: str | None) -> list[_N
         return [c for c in colour if c.stream == stream]
     shown = ", ".join(repr(s) for s in streams)
     raise UserError(
-        f"holds colour images of several streams ({shown}): name the camera like one of them "
-        "with --camera, or give a folder of one stream",
+        f"holds colour images of several streams ({shown}): choose one with --stream (or "
+        "name the rig camera like it), or give a folder of one stream",
         path=root,
     )
 
