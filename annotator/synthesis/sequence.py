@@ -1,9 +1,11 @@
 """Synthetic sequences: the parts of a scene seen by one rig moved by hand over the bin.
 
 A sequence's scene is dropped into the bin as a fixed rig's is (:mod:`.generate`); then the
-rig (its two cameras and the dot projector, mounted together like an active-stereo sensor)
-is carried along a smooth hand-held path and renders every frame, with the sensor's blur and
-noise, the simulated stereo depth, and on some frames motion blur (FORMAT.md, sequences).
+rig (its two cameras and the dot projector, mounted together like an active-stereo sensor;
+with ``SynthConfig.cameras`` 1 only the first camera's images are written, as an RGB-D
+sensor's) is carried along a smooth hand-held path and renders every frame, with the
+sensor's blur and noise, the simulated stereo depth, and on some frames motion blur
+(FORMAT.md, sequences).
 
 Conventions of the path (all in the world, i.e. bin frame: z up, the floor's top at z = 0,
 mm, radians, seconds):
@@ -16,9 +18,9 @@ mm, radians, seconds):
   (:func:`annotator.synthesis.rig.look_at`), then turns by ``roll`` about its optical axis
   (positive: the camera's x axis turns towards its y axis).
 - Seven quantities (:data:`PATH_FIELDS`) are given at *knots* (irregular times: the hand
-  speeds up and slows down; :func:`draw_knots` draws them) and interpolated piecewise-cubically (monotone between knots,
-  so that bounded quantities stay within their bounds, with continuous velocity); frame
-  ``k`` is taken at ``k * FRAME_INTERVAL_S``.
+  speeds up and slows down; :func:`draw_knots` draws them) and interpolated
+  piecewise-cubically (monotone between knots, so that bounded quantities stay within their
+  bounds, with continuous velocity); frame ``k`` is taken at ``k * FRAME_INTERVAL_S``.
 
 Motion blur: a blurred frame is one taken with a long exposure. The blur is the true image
 motion of that frame: every pixel's point (at its exact depth) is followed from the start to
