@@ -126,7 +126,7 @@ class ReviewApp:
         self.server.scene.configure_environment_map(hdri=None)
         self.server.scene.configure_default_lights(enabled=True, cast_shadow=False)
         self._lock = threading.Lock()
-        self._repair: dict[str, RepairInputs] = {}
+        self._repair: dict[tuple[str, tuple[str, ...]], RepairInputs] = {}
         self._ahead: dict[str, str] = {}  # scene -> the poses (view) prepared ahead for it
         self.sessions: dict[int, Session] = {}
         self._give_back_later: threading.Timer | None = None
@@ -206,7 +206,7 @@ class ReviewApp:
 
     # ---------------------------------------------------------------- scenes
     def _make(self, sid: str, info: SceneInfo):
-        ds = self.state.ds
+        ds = self.state.dataset_of(sid)
 
         def make() -> Prepared:
             prep = prepare(ds, self.state.scene(sid), list(info.poses))
@@ -249,13 +249,14 @@ class ReviewApp:
     def repair_inputs(self, sid: str) -> RepairInputs:
         """The markers as detected and the depth of scene ``sid`` (made once, kept for the
         last few scenes: what R, A and adding a part start from)."""
+        key = (sid, self.state.info(sid).shown)  # a sequence's: of the frames shown
         with self._lock:
-            hit = self._repair.get(sid)
+            hit = self._repair.get(key)
         if hit is not None:
             return hit
-        inputs = RepairInputs.read(self.state.ds, self.state.scene(sid))
+        inputs = RepairInputs.read(self.state.dataset_of(sid), self.state.scene(sid))
         with self._lock:
-            self._repair[sid] = inputs
+            self._repair[key] = inputs
             while len(self._repair) > REPAIR_SCENES:
                 self._repair.pop(next(iter(self._repair)))
         return inputs

@@ -234,7 +234,7 @@ class RepairEditor:
         if self.host.cache.ready((sid, info.view)):  # poses shown before (undo, redo, A)
             prep = None
         if prep is not None and prep.scene_id == sid and key in {p.key for p in info.poses}:
-            new = repose(self.host.state.ds, prep, list(info.poses), key)
+            new = repose(self.host.state.dataset_of(sid), prep, list(info.poses), key)
             if new is not None:
                 self.host.reposed(sid, info, new, before=before)
         self.page.request_render()
@@ -256,7 +256,7 @@ class RepairEditor:
             state = self.host.state
             inputs = self.host.repair_inputs(sid)
             seen = state.info(sid)
-            result = repair.refine(state.ds, seen, key, inputs)
+            result = repair.refine(state.dataset_of(sid), seen, key, inputs)
             residuals = f"before: {result.before.text()}; after: {result.after.text()}"
             if result.converged:
                 if self._edit(sid, key, result.T, result.step(), seen=seen):
@@ -312,7 +312,9 @@ class RepairEditor:
             hit = self._cycle.get(ck)
         if hit is None:
             state = self.host.state
-            found = repair.candidates(state.ds, info, key, self.host.repair_inputs(sid))
+            found = repair.candidates(
+                state.dataset_of(sid), info, key, self.host.repair_inputs(sid)
+            )
             with self._lock:
                 hit = self._cycle.setdefault(ck, (found, 0))
         return ck, *hit
@@ -352,7 +354,7 @@ class RepairEditor:
             if not self.host.cache.ready((sid, view)):
                 with self._ahead_done:
                     self._ahead_making = view
-                new = repose(self.host.state.ds, prep, poses, key, parallel=False)
+                new = repose(self.host.state.dataset_of(sid), prep, poses, key, parallel=False)
                 if new is not None:
                     self.host.ahead(sid, view, new)
         except Exception as exc:  # only a head start: A makes it itself then
@@ -370,7 +372,7 @@ class RepairEditor:
         sid, key = target
         step = repair.step_of(self.nudge_kind, axis, sign, self.large)
         info = self.host.state.info(sid)
-        T = repair.nudge(self.host.state.ds, info, key, step)
+        T = repair.nudge(self.host.state.dataset_of(sid), info, key, step)
         if self._edit(sid, key, T, step.step(), seen=info):
             unit = "mm" if step.kind == "move" else "°"
             self.say(f"{key}: {step.kind} {step.amount:+g} {unit} along {'xyz'[axis]}")
@@ -456,7 +458,9 @@ class RepairEditor:
             return
         state = self.host.state
         info = state.info(sid)
-        found = repair.start(state.ds, info, key, camera, pixel, self.host.repair_inputs(sid))
+        found = repair.start(
+            state.dataset_of(sid), info, key, camera, pixel, self.host.repair_inputs(sid)
+        )
         if found is None:
             self.say(f"⚠ {key}: no marker and no depth near the click to start it from")
             return

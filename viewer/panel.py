@@ -28,6 +28,9 @@ G      nudges move / turn (about the part's centre)
 L      small (1 mm, 1 degree) / large (10 mm, 10 degrees) nudges
 U      undo the last pose edit of this scene (Shift+U: redo)
 X      reset the selected instance to the auto-annotation
+P      a sequence: show the next frames side by side (Shift+P: the previous ones)
+H      a sequence: reject the first frame shown on its own (again: take it back);
+       Y accepts the scene as a whole, its rejected frames left out of the export
 =====  ==========================================================================
 """
 
@@ -69,6 +72,9 @@ HOTKEYS: tuple[tuple[str, str, str], ...] = (
     ("L", "Small / large nudges", "toggle_nudge_size"),
     ("U", "Undo a pose edit", "undo"),
     ("X", "Reset the instance to the auto-annotation", "reset_pose"),
+    # A sequence's scene: which frames are shown, and one frame rejected on its own.
+    ("P", "Show the next frames of the sequence", "next_frames"),
+    ("H", "Reject / restore the first frame shown", "toggle_frame"),
 )
 #: Nudge keys: (key, camera axis, sign).
 NUDGE_KEYS: tuple[tuple[str, int, int], ...] = (
@@ -112,6 +118,9 @@ class PanelActions(Protocol):
     def reset_pose(self) -> None: ...
     def nudge(self, axis: int, sign: int) -> None: ...
     def add_missing(self, key: str) -> None: ...
+    def next_frames(self) -> None: ...
+    def previous_frames(self) -> None: ...
+    def toggle_frame(self) -> None: ...
 
 
 class Panel:
@@ -149,6 +158,8 @@ class Panel:
             self._button("Next (J)", actions.next)
             self._button("Next flagged (F)", actions.next_flagged)
             self._button("No pose here… (M, then click)", actions.arm_missing)
+            self._button("Next frames of a sequence (P)", actions.next_frames)
+            self._button("Reject / restore the first frame shown (H)", actions.toggle_frame)
         self.filter.on_update(self._callback(lambda: actions.set_filter(self.filter.value)))
 
     def _instances_folder(self, actions: PanelActions) -> None:
@@ -197,6 +208,10 @@ class Panel:
             cmd.on_trigger(self._callback(getattr(actions, name)))
         redo = gui.add_command("Redo a pose edit", hotkey="U", modifier="shift")
         redo.on_trigger(self._callback(actions.redo))
+        back = gui.add_command(
+            "Show the previous frames of the sequence", hotkey="P", modifier="shift"
+        )
+        back.on_trigger(self._callback(actions.previous_frames))
         for key, axis, sign in NUDGE_KEYS:
             cmd = gui.add_command(
                 f"Nudge {'-+'[sign > 0]}{'xyz'[axis]}",

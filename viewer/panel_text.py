@@ -111,6 +111,8 @@ def panel_view(
     if info.review.reason:
         status += f" — {info.review.reason}"
     title = f"## Scene {sid}\n{status} · {position[0]} of {position[1]} · filter: {filter}"
+    if info.shown:
+        title += "\n\n" + frames_text(info)
     red = ([f"⛔ {unsaved}"] if unsaved else []) + [f"⚠ {a}" for a in alerts]
     messages = list(messages)
     if not info.annotated and not info.gone:
@@ -142,4 +144,24 @@ def panel_view(
         warnings=warnings_text(info),
         repair=repair,
         offer=offer.instances if offer is not None else (),
+    )
+
+
+def frames_text(info: SceneInfo) -> str:
+    """A sequence's line: the frames shown (each ``<frame>:<camera>`` in the pictures), the
+    first one's own decision, and how many frames are posed and rejected.
+
+    >>> from viewer.state import SceneInfo
+    >>> from annotator.dataset.review import Review
+    >>> info = SceneInfo("s", True, (), Review(frames={"000004": "rejected"}), False, False, None,
+    ...                  frames={"000000": None, "000004": None}, shown=("000004", "000000"))
+    >>> frames_text(info)
+    'frames shown: **000004 (rejected)**, 000000 · 2 frames, 1 rejected · P: next frames, H: reject / restore 000004'
+    """
+    rejected = info.rejected_frames
+    shown = [f"{f} (rejected)" if f in rejected else f for f in info.shown]
+    shown[0] = f"**{shown[0]}**"
+    return (
+        f"frames shown: {', '.join(shown)} · {len(info.frames)} frames, {len(rejected)} "
+        f"rejected · P: next frames, H: reject / restore {info.shown[0]}"
     )

@@ -353,6 +353,45 @@ class Session:
         )
         self.set_instance(new)
 
+    # ---------------------------------------------------------------- sequences
+    def next_frames(self) -> None:
+        self._shift_frames(+1)
+
+    def previous_frames(self) -> None:
+        self._shift_frames(-1)
+
+    def _shift_frames(self, step: int) -> None:
+        """A sequence's pages show the frames ``step`` on (the pictures of every frame
+        shown are made again; a repair made meanwhile is in the scene frame, so in all)."""
+        with self._lock:
+            sid = self.nav.current
+        if sid is None or not self.app.state.info(sid).shown:
+            return
+        self.app.state.shift_frames(sid, step)
+        self.app.changed(self, {sid})
+        self.request_render()
+
+    def toggle_frame(self) -> None:
+        """Reject the first frame shown on its own, or take the rejection back."""
+        sid = self.shown_scene("frame")
+        if sid is None:
+            return
+        shown = self.app.state.info(sid).shown
+        if not shown:
+            return
+        frame = shown[0]
+        self.write(
+            sid,
+            f"frame {frame}",
+            lambda: self._toggle_frame(sid, frame),
+            decision=False,
+        )
+        self.request_render()
+
+    def _toggle_frame(self, sid: str, frame: str) -> Any:
+        self.app.state.toggle_frame(sid, frame, by=self.id)
+        return self.app.state.info(sid).review
+
     def arm_missing(self) -> None:
         with self._lock:
             self.armed = not self.armed
@@ -369,7 +408,7 @@ class Session:
             f"no pose at {camera} ({x:.0f}, {y:.0f})",
             lambda: self.app.state.mark_missing(sid, camera, (x, y), by=self.id),
         )
-        keys = repair.unposed(self.app.state.ds, self.app.state.info(sid))
+        keys = repair.unposed(self.app.state.dataset_of(sid), self.app.state.info(sid))
         if saved and keys:
             mark = self.app.state.info(sid).review.missing[-1]
             with self._lock:

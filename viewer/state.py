@@ -40,14 +40,15 @@ import contextlib
 import os
 import threading
 import time
-from collections.abc import Iterator
-from dataclasses import dataclass, replace
+from collections.abc import Iterator, Mapping
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 
-from annotator.dataset import Scene, load_dataset
+from annotator.dataset import Dataset, Scene, load_dataset
 from annotator.dataset.annotation import InstanceAnnotation, SceneAnnotation, SceneWarning
+from annotator.dataset.frames import FramePose, frames_from_json, frames_view, shown_frames
 from annotator.dataset.review import (
     NO_POSE_REASON,
     EditedPose,
@@ -146,6 +147,15 @@ class SceneInfo:
     edited: frozenset[str] = frozenset()  # instances whose pose is a reviewer's edit
     stale_edits: frozenset[str] = frozenset()  # edits made on an auto pose changed since
     view: str = ""  # fingerprint of the poses shown (edits applied): what pictures are made of
+    #: A sequence's frames (annotation.json ``frames``) and those the pages show side by side
+    #: (:func:`annotator.dataset.frames.shown_frames`); empty for a fixed rig's scene.
+    frames: Mapping[str, FramePose] = field(default_factory=dict)
+    shown: tuple[str, ...] = ()
+
+    @property
+    def rejected_frames(self) -> set[str]:
+        """The sequence's frames a reviewer rejected on their own."""
+        return self.review.rejected_frames
 
     @property
     def status(self) -> ReviewStatus:
@@ -179,7 +189,14 @@ class SceneInfo:
             replace(p, R=np.array(T[:3, :3]), t=np.array(T[:3, 3])) if p.key == key else p
             for p in self.poses
         ]
-        return poses, poses_fingerprint(poses)
+        return poses, view_key(poses, self.shown)
+
+
+def view_key(poses: list[InstanceAnnotation], shown: tuple[str, ...]) -> str:
+    """What a scene's pictures are made of: the poses shown and, for a sequence, which
+    frames (:attr:`SceneInfo.view`)."""
+    key = poses_fingerprint(poses)
+    return f"{key}@{','.join(shown)}" if shown else key
 
 
 def _added(obj: str, inst: str, R: object, t: object) -> InstanceAnnotation:
@@ -223,14 +240,58 @@ class ReviewState:
         self._flocks: dict[str, list[int]] = {}
         self.started = time.time()
         self.decided = 0  # decisions made through this server
+        # A sequence's scene -> how many frames on the pages' frames start (shift_frames).
+        self._offsets: dict[str, int] = {}
+        self._views: dict[tuple[str, tuple[str, ...]], tuple[Dataset, Scene]] = {}
 
     def _stamps(self, sid: str) -> tuple[_Stamp, _Stamp]:
         annotation, review = self._paths[sid]
         return (_stamp(annotation), _stamp(review))
 
     def scene(self, sid: str) -> Scene:
-        """The scene's folder (which may have gone since: :attr:`SceneInfo.gone`)."""
-        return self._scenes[sid]
+        """The scene's folder (which may have gone since: :attr:`SceneInfo.gone`); a
+        sequence's as its shown frames make it (:meth:`dataset_of`)."""
+        return self.view(sid)[1]
+
+    def dataset_of(self, sid: str) -> Dataset:
+        """The dataset as the scene's pages work on it: the dataset itself, or for a
+        sequence its shown frames' cameras as one rig in the scene frame
+        (:func:`annotator.dataset.frames.frames_view`), so that overlays and repairs are
+        made in the scene frame and show in every frame."""
+        return self.view(sid)[0]
+
+    def view(self, sid: str) -> tuple[Dataset, Scene]:
+        """:meth:`dataset_of` and :meth:`scene` together."""
+        scene = self._scenes[sid]
+        if not self.ds.rig.moving:
+            return self.ds, scene
+        info = self.info(sid)
+        if not info.shown:
+            return self.ds, scene
+        key = (sid, info.shown)
+        with self._lock:
+            if key not in self._views:
+                self._views[key] = frames_view(self.ds, scene, info.frames, info.shown)
+            return self._views[key]
+
+    def shift_frames(self, sid: str, step: int) -> tuple[str, ...]:
+        """Show the sequence's frames ``step`` frames on (back, if negative); the frames now
+        shown (a view, not a decision: nothing is written)."""
+        with self._lock:
+            self._offsets[sid] = self._offsets.get(sid, 0) + step
+            self._cache.pop(sid, None)
+            return self.info(sid).shown
+
+    def toggle_frame(self, sid: str, frame: str, *, by: str | None = None) -> bool:
+        """Reject one frame of a sequence on its own, or take it back; True if it is now
+        rejected (the scene's other frames and its decision are not touched)."""
+        with self._changing(sid) as info:
+            frames = dict(info.review.frames)
+            rejected = frames.pop(frame, None) != ReviewStatus.REJECTED
+            if rejected:
+                frames[frame] = ReviewStatus.REJECTED
+            self._write(sid, self._next_review(info, frames=frames), by, decision=False)
+            return rejected
 
     def is_gone(self, sid: str) -> bool:
         """True if the scene's folder is no longer there."""
@@ -257,13 +318,17 @@ class ReviewState:
         poses: list[InstanceAnnotation] = []
         warnings: tuple[SceneWarning, ...] = ()
         annotated = key[0] is not None
+        frames: dict[str, FramePose] = {}
         if annotated:
             try:
                 ann = SceneAnnotation.read(sc.annotation_path)
                 poses = ann.instances
                 warnings = tuple(ann.warnings)
+                if self.ds.rig.moving:
+                    frames = frames_from_json(ann.extra.get("frames"), sc.annotation_path)
             except (UserError, OSError) as exc:  # OSError: it went between stat and read
                 error = str(exc)
+        shown = tuple(shown_frames(frames, offset=self._offsets.get(sid, 0)))
         try:
             review = read_review(sc.review_path) or Review()
         except (UserError, OSError) as exc:
@@ -291,7 +356,9 @@ class ReviewState:
             auto=tuple(poses),
             edited=frozenset(edits.edited),
             stale_edits=frozenset(edits.stale),
-            view=poses_fingerprint(edits.poses),
+            view=view_key(edits.poses, shown),
+            frames=frames,
+            shown=shown,
         )
         self._cache[sid] = (key, info)
         return info
@@ -407,6 +474,7 @@ class ReviewState:
             extra=dict(info.review.extra),
             missing=list(info.review.missing),
             poses=dict(info.review.poses),
+            frames=dict(info.review.frames),
         )
         return replace(base, **changes)  # type: ignore[arg-type]
 
@@ -581,7 +649,7 @@ class ReviewState:
                 stale=review.is_stale(info.fingerprint) or bool(edits.stale),
                 edited=frozenset(edits.edited),
                 stale_edits=frozenset(edits.stale),
-                view=poses_fingerprint(edits.poses),
+                view=view_key(edits.poses, info.shown),
             ),
             by,
         )

@@ -25,6 +25,7 @@ from __future__ import annotations
 from collections import defaultdict
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
+from typing import Any
 
 import cv2
 import numpy as np
@@ -479,7 +480,7 @@ def _bundle(
         np.stack([r[2].image_corners for r in rows]).astype(np.float64),
         np.array([r[3] for r in rows], dtype=np.float64),
     )
-    frames0 = np.stack([placed.frames[f] for f in live])
+    frames0 = np.stack([T for T in placed.frames if T is not None])
     models0 = np.stack([placed.models[k] for k in keys])
     err = _residuals(cams, all_obs, frames0, models0)
     keep = err < s.inlier_px
@@ -723,11 +724,11 @@ def _records(
             )
         )
     if any(Flag.MOVED in r.flags for r in out.instances):
-        moved = [r.key for r in out.instances if Flag.MOVED in r.flags]
+        which = [r.key for r in out.instances if Flag.MOVED in r.flags]
         out.warnings.append(
             SceneWarning(
                 WarningKind.NOTE,
-                f"parts moved during the sequence: {', '.join(moved)} (their markers disagree "
+                f"parts moved during the sequence: {', '.join(which)} (their markers disagree "
                 "with their pose in part of the frames; the pose is the one most frames agree with)",
             )
         )
@@ -735,7 +736,7 @@ def _records(
     for f, name in enumerate(names):
         if f not in by_live:
             reason = placed.reasons[f]
-            extra = {"flags": [reason]}
+            extra: dict[str, Any] = {"flags": [reason]}
             if reason == FrameFlag.OUTLIER:
                 extra["reason"] = "its markers agree with no placed instance's pose"
             out.frames[name] = FramePose(name, None, extra)
@@ -888,6 +889,10 @@ def sequence_annotation(
                 flags.append(Flag.DEPTH_DISAGREEMENT)
         r.flags = sort_flags(flags)
         instances.append(r)
+    kept = {r.key for r in instances}
+    for f in frames.values():  # a pose left out is in no frame either
+        if "instances" in f.extra:
+            f.extra["instances"] = {k: v for k, v in f.extra["instances"].items() if k in kept}
     quality = {r.frame: {c: q.to_json() for c, q in r.quality.items()} for r in readings}
     for name, q in quality.items():
         frames[name].extra["image_quality"] = q
@@ -908,7 +913,9 @@ def _contradicted_lone(
     depth disagrees with: a misread or stray marker, not a part (its id is listed as
     unconfirmed; a part really there shows unposed, not wrongly posed)."""
     lone = r.extra.get("frames_seen") == 1 and r.count("used") == 1
-    return lone and bool(agreements) and float(np.median(agreements)) < s.depth_min_agreement
+    if not lone or not agreements:
+        return False
+    return float(np.median(agreements)) < s.depth_min_agreement
 
 
 #: A pose on one reading whose part other frames should see, this many of them, and read
@@ -948,11 +955,9 @@ def annotate_sequence(
         )
     readings = [read_frame(ds, f, detector) for f in frames]
     solution = solve_sequence(ds, readings, settings=settings)
-    seen = {
-        f.name: frame_visibility(
-            ds, f, solution.instances, solution.frames[f.name].scene_T_rig, settings=settings
-        )
-        for f in frames
-        if solution.frames[f.name].scene_T_rig is not None
-    }
+    seen = {}
+    for f in frames:
+        T = solution.frames[f.name].scene_T_rig
+        if T is not None:
+            seen[f.name] = frame_visibility(ds, f, solution.instances, T, settings=settings)
     return sequence_annotation(solution, readings, seen, settings=settings)

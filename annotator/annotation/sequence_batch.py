@@ -181,24 +181,24 @@ def annotate_sequences(
     seen_report = batch(FrameSeeJob(str(ds.root), solutions, settings), posed, desc="see frames")
     run.absorb(seen_report)
     out = BatchReport(failed=dict(run.failed))
-    for s, sol in sorted(solutions.items()):
-        if s in run.failed:
+    for sid, sol in sorted(solutions.items()):
+        if sid in run.failed:
             continue
         seen = {
-            f: seen_report.done[f"{s}/{f}"]["seen"]
-            for f in run.frames[s]
-            if f"{s}/{f}" in seen_report.done
+            f: seen_report.done[f"{sid}/{f}"]["seen"]
+            for f in run.frames[sid]
+            if f"{sid}/{f}" in seen_report.done
         }
-        ann = sequence_annotation(sol, readings[s], seen, settings=settings)
-        scene = ds.scene(s)
+        ann = sequence_annotation(sol, readings[sid], seen, settings=settings)
+        scene = ds.scene(sid)
         if not ann.instances:
-            out.failed[s] = f"{scene.path}: no marker of any known instance detected in any frame"
+            out.failed[sid] = f"{scene.path}: no marker of any known instance detected in any frame"
             continue
         ann.created_at = now_iso()
         ann.description_digest = digest
         ann.write(scene.annotation_path)
         scene.unexplained_path.unlink(missing_ok=True)  # a fixed rig's mask does not apply
-        out.done[s] = _counts(ann.instances, bool(ann.warnings), sol)
+        out.done[sid] = _counts(ann.instances, bool(ann.warnings), sol)
     return out
 
 

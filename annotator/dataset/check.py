@@ -226,7 +226,7 @@ def _check_scene(ds: Dataset, scene) -> list[Problem]:
                 if ds.rig.moving:
                     scene_shots(ds, scene, frames_from_json(top.get("frames"), path))
             except UserError as exc:
-                out.append(Problem(exc.path if exc.path == path else path, exc.message))
+                out.append(Problem(path, exc.message))
                 continue
             for p in poses:
                 problem = pose_problem(ds, p)

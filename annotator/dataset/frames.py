@@ -9,26 +9,30 @@ frame by taking the poses through :func:`poses_in_frame`.
 
 from __future__ import annotations
 
-from collections.abc import Collection, Mapping
+from collections.abc import Collection, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from annotator.dataset.model import Capture, Dataset, Scene
+from annotator.dataset.model import FRAMES_DIR, Capture, Dataset, DepthSpec, Rig, Scene
 from annotator.dataset.poses import InstancePose, read_pose_file
 from annotator.errors import UserError
+from annotator.geometry.camera import Camera
 from annotator.geometry.transforms import invert, is_rotation
 
 __all__ = [
     "FramePose",
+    "FramesScene",
     "Shot",
     "frames_from_json",
     "frames_to_json",
     "poses_in_frame",
     "read_frames",
+    "frames_view",
     "scene_shots",
+    "shown_frames",
 ]
 
 
@@ -174,3 +178,73 @@ def scene_shots(
             continue
         out.append(Shot(scene, folders[name], name, invert(T)))
     return out
+
+
+#: How many of a sequence's frames a review page shows side by side.
+SHOWN_FRAMES = 3
+
+
+def shown_frames(
+    frames: Mapping[str, FramePose], *, count: int = SHOWN_FRAMES, offset: int = 0
+) -> list[str]:
+    """``count`` posed frames of a sequence spread evenly over it, the first ``offset``
+    frames on (a page steps through every posed frame by raising ``offset``)."""
+    posed = sorted(name for name, f in frames.items() if f.scene_T_rig is not None)
+    if not posed:
+        return []
+    n = min(count, len(posed))
+    stride = len(posed) / n
+    return [posed[(int(k * stride) + offset) % len(posed)] for k in range(n)]
+
+
+def view_camera_name(frame: str, camera: str) -> str:
+    """The name a frame's camera has in a :func:`frames_view`: ``<frame>:<camera>``."""
+    return f"{frame}:{camera}"
+
+
+@dataclass(frozen=True)
+class FramesScene(Scene):
+    """A sequence's scene as a :func:`frames_view` sees it: camera ``<frame>:<camera>``'s
+    image is that frame's, the depth map ``depth_frame``'s; its annotation and review files
+    are the scene's own."""
+
+    depth_frame: str | None = None
+
+    def image_path(self, camera: Camera | str) -> Path:
+        name = camera if isinstance(camera, str) else camera.name
+        frame, _, cam = name.partition(":")
+        return self.path / FRAMES_DIR / frame / f"{cam}.png"
+
+    @property
+    def depth_path(self) -> Path:
+        if self.depth_frame is None:
+            return self.path / FRAMES_DIR / ".none" / "depth.png"
+        return self.path / FRAMES_DIR / self.depth_frame / "depth.png"
+
+
+def frames_view(
+    ds: Dataset, scene: Scene, frames: Mapping[str, FramePose], shown: Sequence[str]
+) -> tuple[Dataset, FramesScene]:
+    """Some frames of a sequence as one fixed rig in the scene frame: every shown frame's
+    cameras (``<frame>:<camera>``, placed by the frame's ``scene_T_rig``), the first shown
+    frame's depth camera the depth camera. What works on a fixed rig's scene (the review
+    page's overlays and repairs) then works on poses in the scene frame, and a repair made
+    there shows in every frame.
+
+    Raises:
+        ValueError: a shown frame that ``frames`` does not pose.
+    """
+    cams: list[Camera] = []
+    for name in shown:
+        T = frames[name].scene_T_rig if name in frames else None
+        if T is None:
+            raise ValueError(f"frame {name!r} has no pose")
+        for c in ds.rig.cameras:
+            cams.append(replace(c, name=view_camera_name(name, c.name), rig_T_cam=T @ c.rig_T_cam))
+    depth = None
+    if ds.rig.depth is not None and shown:
+        depth = DepthSpec(view_camera_name(shown[0], ds.rig.depth.camera), ds.rig.depth.scale)
+    flipped = frozenset(view_camera_name(f, c) for f in shown for c in ds.rig.flipped)
+    rig = Rig(tuple(cams), depth, flipped)
+    view = replace(ds, rig=rig)
+    return view, FramesScene(scene.id, scene.path, flipped, shown[0] if shown else None)

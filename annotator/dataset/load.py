@@ -247,7 +247,9 @@ def _parse_rig(p: _Parser, rig: dict[str, Any] | None) -> Rig | None:
         depth = _parse_depth(p, rig["depth"], parsed)
     moving = rig.get("moving", False)
     if not isinstance(moving, bool):
-        p.problem(f"rig.moving must be true (a moving rig: scenes are sequences) or false, got {moving!r}")
+        p.problem(
+            f"rig.moving must be true (a moving rig: scenes are sequences) or false, got {moving!r}"
+        )
         moving = False
     if not parsed.cameras:
         return None

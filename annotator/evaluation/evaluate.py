@@ -262,13 +262,11 @@ def per_instance_errors(root: Path) -> list[dict[str, Any]]:
         if ds.rig.moving:
             truth = frames_from_json(top.get("frames"), sc.gt_path)
             found = frames_from_json(ann.extra.get("frames"), sc.annotation_path)
-            pairs = [
-                (invert(f.scene_T_rig), invert(truth[name].scene_T_rig))
-                for name, f in sorted(found.items())
-                if f.scene_T_rig is not None
-                and name in truth
-                and truth[name].scene_T_rig is not None
-            ]
+            pairs = []
+            for name, f in sorted(found.items()):
+                mine, true = f.scene_T_rig, truth[name].scene_T_rig if name in truth else None
+                if mine is not None and true is not None:
+                    pairs.append((invert(mine), invert(true)))
         for i in ann.instances:
             g = gt.get(i.key)
             if g is None or pairs == []:

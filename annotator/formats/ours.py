@@ -96,6 +96,7 @@ def _shots(ds, sc, src: Path, top: dict, poses: list, review: Review | None):
     ref = ds.rig.cameras[0].name
     rejected = review.rejected_frames if review is not None else ()
     for shot in scene_shots(ds, sc, frames, rejected=rejected):
+        assert shot.frame is not None  # a sequence's shots are frames
         seen = frames[shot.frame].extra.get("instances") or {}
 
         def occlusion(p, seen=seen):

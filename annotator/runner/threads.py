@@ -36,10 +36,9 @@ def one_thread() -> None:
 def one_thread_meanwhile() -> Iterator[None]:
     """:func:`one_thread` for the duration of the block, then the settings as they were."""
     import cv2
+    from threadpoolctl import threadpool_limits
 
     from annotator.rendering import raycast
-
-    from threadpoolctl import threadpool_limits
 
     before = cv2.getNumThreads(), raycast.get_threads()
     blas = threadpool_limits(1, user_api="blas")
