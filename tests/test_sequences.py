@@ -18,12 +18,12 @@ from annotator.annotation.sequence import FrameFlag, FrameReading, solve_sequenc
 from annotator.cli import main
 from annotator.dataset import load_dataset, read_poses
 from annotator.dataset.annotation import Flag, SceneAnnotation
-from annotator.dataset.frames import frames_from_json, poses_in_frame, read_frames
+from annotator.dataset.frames import frames_from_json, read_frames
 from annotator.detection.aruco import Detection, ImageReading
 from annotator.geometry.camera import Camera
 from annotator.geometry.transforms import invert, make_transform, rotvec_to_matrix
 from annotator.pnp.bundle import BundleObservations, bundle_adjust
-from annotator.symmetry import PoseSpace
+from devkit.sequence_truth import sequence_errors
 
 pytestmark = pytest.mark.slow
 
@@ -47,49 +47,9 @@ def copy(annotated: Path, tmp_path: Path) -> Path:
     return dst
 
 
-def _pose_errors(root: Path) -> tuple[list[float], list[float], list[float], int, int]:
-    """Per frame: rig position (mm) and turn (degrees) errors after the best rigid fit of
-    the solved path onto the true one; per instance: the median over frames of the error
-    (% of the diameter) as each frame's rig sees it; instances posed; posed not in the
-    scene."""
-    ds = load_dataset(root)
-    scene = ds.scenes()[0]
-    truth = read_frames(scene.gt_path)
-    found = read_frames(scene.annotation_path)
-    names = [n for n, f in found.items() if f.scene_T_rig is not None]
-    A = np.stack([found[n].scene_T_rig for n in names])
-    B = np.stack([truth[n].scene_T_rig for n in names])
-    # The rigid motion that best maps the solved path onto the true one: the chordal mean
-    # of the frames' turns, then the mean of their shifts.
-    M = np.einsum("nij,nkj->ik", B[:, :3, :3], A[:, :3, :3])
-    U, _, Vt = np.linalg.svd(M)
-    R = U @ np.diag([1, 1, np.sign(np.linalg.det(U @ Vt))]) @ Vt
-    S = make_transform(R, np.mean(B[:, :3, 3] - A[:, :3, 3] @ R.T, axis=0))
-    moved = S @ A
-    pos = np.linalg.norm(moved[:, :3, 3] - B[:, :3, 3], axis=1).tolist()
-    rel = np.einsum("nji,njk->nik", moved[:, :3, :3], B[:, :3, :3])
-    turn = np.degrees(np.arccos(np.clip((np.trace(rel, axis1=1, axis2=2) - 1) / 2, -1, 1)))
-    gt = {p.key: p for p in read_poses(scene.gt_path)}
-    errors, extra = [], 0
-    for p in read_poses(scene.annotation_path):
-        if p.key not in gt:
-            extra += 1
-            continue
-        obj = ds.objects[p.object]
-        space = PoseSpace.from_moments(obj.mesh.moments, obj.symmetry)
-        mine = poses_in_frame([p] * len(names), np.eye(4))
-        per = []
-        for n, pose in zip(names, mine):
-            x = poses_in_frame([pose], found[n].scene_T_rig)[0]
-            y = poses_in_frame([gt[p.key]], truth[n].scene_T_rig)[0]
-            d = space.distance(x.R[None], x.t[None], y.R[None], y.t[None])[0]
-            per.append(100 * float(d) / space.diameter)
-        errors.append(float(np.median(per)))
-    return pos, turn.tolist(), errors, len(errors), extra
-
-
 def test_a_rendered_sequence_is_annotated_frame_by_frame(annotated: Path) -> None:
-    pos, turn, errors, posed, extra = _pose_errors(annotated)
+    e = sequence_errors(annotated)
+    pos, turn, errors = e.position_mm, e.turn_deg, e.error_pct
     ann = json.loads((annotated / "scenes" / "000000" / "annotation.json").read_text())
     gt = json.loads((annotated / "scenes" / "000000" / "gt.json").read_text())
     assert ann["scene_frame"] == "000000"
@@ -100,7 +60,8 @@ def test_a_rendered_sequence_is_annotated_frame_by_frame(annotated: Path) -> Non
     # uncertainty 1.4 %: two markers).
     assert np.median(pos) < 0.6 and np.median(turn) < 0.1
     assert np.median(errors) < 0.5 and max(errors) < 5.0
-    assert extra == 0 and posed >= len(gt["instances"]) - 1
+    assert e.extra == 0 and len(errors) >= len(gt["instances"]) - 1
+    assert e.posed_visible == e.visible and e.gross_unflagged == 0
     for name, entry in ann["frames"].items():
         if entry["scene_T_rig"] is None:  # said why, never guessed
             assert entry["flags"] in (["no_known_markers"], ["unconnected"], ["outlier"])
