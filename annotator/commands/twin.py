@@ -1,4 +1,5 @@
-"""``annotator synth --twin DATASET OUT``: the synthetic twin of every accepted scene.
+"""``annotator synth --twin DATASET OUT``: the synthetic twin of every accepted scene (of a
+moving rig's sequence, every posed frame a reviewer did not reject).
 
 Called by :mod:`annotator.commands.synth`; see :mod:`annotator.twins.render`.
 """
@@ -15,6 +16,7 @@ def synth_twin(args: argparse.Namespace) -> int:
     from annotator.commands import finish_batch
     from annotator.dataset import load_dataset, require_meshes
     from annotator.export.selection import select_scenes
+    from annotator.geometry.transforms import invert
     from annotator.io.atomic import atomic_folder
     from annotator.io.output_folder import check_output_folder, write_manifest
     from annotator.runner import run_batch
@@ -40,11 +42,21 @@ def synth_twin(args: argparse.Namespace) -> int:
         ]
         for item in sel.scenes
     }
+    # A sequence's frames: those posed and not rejected on their own (the export's shots).
+    frames = {
+        item.scene.id: {
+            shot.frame: invert(shot.rig_T_scene).ravel().tolist()
+            for shot in item.shots
+            if shot.frame is not None
+        }
+        for item in sel.scenes
+        if ds.rig.moving
+    }
     settings = TwinSettings(blur=args.blur, noise=args.noise, seed=args.seed)
     with atomic_folder(out) as tmp:
         write_manifest(tmp, command="synth")
         write_twin_description(ds, tmp)
-        job = TwinJob(str(ds.root), str(tmp), poses, settings)
+        job = TwinJob(str(ds.root), str(tmp), poses, settings, frames)
         report = run_batch(
             job,
             sorted(poses),

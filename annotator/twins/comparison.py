@@ -1,6 +1,11 @@
 """A dataset against its twin, every scene (:func:`~annotator.twins.report.compare_scene`):
 the comparison behind ``annotator twin-report``, with its pictures (``<scene>.png``, the
-real image with each instance green or red, and ``histogram.png``) and its JSON document."""
+real image with each instance green or red, and ``histogram.png``) and its JSON document.
+
+A moving rig's sequence is compared frame by frame: every frame of the twin's gt.json
+``frames`` against the real frame of that name, the poses (scene frame) taken through the
+frame's ``scene_T_rig``; its rows are named ``<scene>/<frame>`` and its pictures
+``<scene>/<frame>.png``."""
 
 from __future__ import annotations
 
@@ -11,7 +16,9 @@ from typing import Any
 
 import numpy as np
 
-from annotator.dataset import Dataset, Scene, read_poses
+from annotator.dataset import Dataset, InstancePose, Scene, read_poses
+from annotator.dataset.frames import poses_in_frame, read_frames
+from annotator.dataset.model import FRAMES_DIR, Capture
 from annotator.errors import UserError
 from annotator.io.images import write_png
 from annotator.twins.report import SceneComparison, compare_scene, histogram_png, overlay
@@ -76,7 +83,20 @@ def compare_twin(
     folder = pictures if pictures is not None else twin.root / "report"
     rows = []
     for sid, tsc in sorted(twins.items()):
-        comp = _compare_pair(ds, twin, sid, tsc, tolerance_mm, max_disagreement, folder, warn)
+        if twin.rig.moving:
+            rows.extend(
+                _compare_sequence(ds, twin, sid, tsc, tolerance_mm, max_disagreement, folder, warn)
+            )
+            continue
+        try:
+            real_scene = ds.scene(sid)
+        except KeyError:
+            warn(f"warning: twin scene {sid} has no scene in {ds.root}")
+            continue
+        poses = read_poses(tsc.gt_path)
+        comp = _compare_pair(
+            ds, twin, sid, real_scene, tsc, poses, tolerance_mm, max_disagreement, folder, warn
+        )
         if comp is not None:
             rows.append(comp)
     if not rows:
@@ -86,7 +106,7 @@ def compare_twin(
     return TwinComparison(rows, diffs, tolerance_mm, max_disagreement, folder)
 
 
-def _compare_pair(
+def _compare_sequence(
     ds: Dataset,
     twin: Dataset,
     sid: str,
@@ -95,19 +115,71 @@ def _compare_pair(
     max_disagreement: float,
     folder: Path,
     warn: Callable[[str], None],
-) -> SceneComparison | None:
-    """One scene against its twin, and its picture; None (and a warning) if either lacks."""
+) -> list[SceneComparison]:
+    """A sequence against its twin, one row per twin frame (``<scene>/<frame>``)."""
+    if not ds.rig.moving:
+        warn(f"warning: twin scene {sid} is a sequence, {ds.root} has a fixed rig")
+        return []
     try:
-        real_scene = ds.scene(sid)
+        real_frames = {f.name: f for f in ds.scene(sid).frames()}
     except KeyError:
         warn(f"warning: twin scene {sid} has no scene in {ds.root}")
-        return None
+        return []
+    poses = read_poses(twin_scene.gt_path)
+    rows = []
+    for name, entry in sorted(read_frames(twin_scene.gt_path).items()):
+        fid = f"{sid}/{name}"
+        if entry.scene_T_rig is None:
+            continue
+        if name not in real_frames:
+            warn(f"warning: twin frame {fid} has no frame in {ds.root}")
+            continue
+        twin_frame = twin_scene.path / FRAMES_DIR / name
+        comp = _compare_pair(
+            ds,
+            twin,
+            fid,
+            real_frames[name],
+            _Folder(twin_frame, twin.rig.flipped),
+            poses_in_frame(poses, entry.scene_T_rig),
+            tolerance_mm,
+            max_disagreement,
+            folder,
+            warn,
+        )
+        if comp is not None:
+            rows.append(comp)
+    return rows
+
+
+@dataclass(frozen=True)
+class _Folder(Capture):
+    """A shot's folder (one twin frame)."""
+
+    path: Path
+    flipped: frozenset[str] = frozenset()
+
+
+def _compare_pair(
+    ds: Dataset,
+    twin: Dataset,
+    sid: str,
+    real_scene: Capture,
+    twin_scene: Capture,
+    poses: list[InstancePose],
+    tolerance_mm: float,
+    max_disagreement: float,
+    folder: Path,
+    warn: Callable[[str], None],
+) -> SceneComparison | None:
+    """One shot (a scene, or a sequence's frame ``<scene>/<frame>``) against its twin with
+    ``poses`` in its rig, and its picture ``<sid>.png``; None (and a warning) if either
+    lacks a depth map."""
     real = real_scene.read_depth(ds.rig)
     sim = twin_scene.read_depth(twin.rig)
     if real is None or sim is None:
         warn(f"warning: scene {sid} has no depth map to compare")
         return None
-    poses = read_poses(twin_scene.gt_path)
     comp, front = compare_scene(ds, sid, real, sim, poses, tolerance_mm=tolerance_mm)
     depth_cam = ds.rig.depth_camera
     assert depth_cam is not None  # rig.depth is set

@@ -14,17 +14,28 @@ along the reference camera's axis (as in ``synth``). Images get the renderer's d
 and noise. A twin dataset is a dataset: the same objects and rig, and per scene the two
 images, ``depth.png`` (simulated), ``depth_ideal.png`` (exact) and ``gt.json`` holding the
 annotated poses, so that the twin's ground truth *is* the annotation.
+
+A moving rig's sequence (FORMAT.md, sequences) has a twin frame for every posed frame a
+reviewer did not reject: the instance poses (scene frame) taken through the frame's
+``scene_T_rig`` and rendered as above into ``frames/<frame>/``, the setting the support plane
+fitted to that frame's own measured depth (a background depth is a fixed rig's). The twin's
+gt.json holds the poses in the scene frame and ``frames`` with each twin frame's
+``scene_T_rig`` and the instances in its view (``instances``: occlusion per camera), each
+instance's ``occlusion`` the least any frame saw, as ``synth --frames`` writes it.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Mapping
+from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from annotator.dataset import Dataset, InstancePose, Scene
-from annotator.dataset.model import FORMAT_VERSION, SCENES_DIR, orient_image
+from annotator.dataset.frames import FramePose, frames_to_json, poses_in_frame
+from annotator.dataset.model import FORMAT_VERSION, FRAMES_DIR, SCENES_DIR, Capture, orient_image
 from annotator.geometry.mesh import Mesh
 from annotator.io.images import encode_depth, write_png
 from annotator.markers.dictionary import is_predefined
@@ -51,16 +62,17 @@ def twin_setup(ds: Dataset) -> RigSetup:
     return RigSetup(ds.rig, world_T_cams, T, K, (w, h))
 
 
-def background_mesh(ds: Dataset, scene: Scene) -> Mesh | None:
-    """The setting of ``scene`` as a mesh in the reference camera's frame (see the module
-    docstring): the dataset's background, the same for every scene (made once), or the
-    plane fitted to the scene's own measured depth."""
+def background_mesh(ds: Dataset, scene: Capture) -> Mesh | None:
+    """The setting of ``scene`` (a fixed rig's scene, or one frame of a sequence) as a mesh
+    in the reference camera's frame (see the module docstring): the dataset's background,
+    the same for every scene (made once), or the plane fitted to the shot's own measured
+    depth (always, for a moving rig's frame)."""
     from annotator.annotation.completeness import fit_support_plane
 
     cam = ds.rig.depth_camera
     if cam is None:  # no depth: neither a background depth nor the scene's
         return None
-    depth = ds.background_depth
+    depth = None if ds.rig.moving else ds.background_depth
     if depth is not None:
         hit = _BACKGROUND.get(id(depth))
         if hit is None or hit[0] is not depth:
@@ -87,7 +99,8 @@ def background_mesh(ds: Dataset, scene: Scene) -> Mesh | None:
     corners = np.array(
         [c + a * u + b * v for a, b in ((-1e3, -1e3), (1e3, -1e3), (1e3, 1e3), (-1e3, 1e3))]
     )
-    return Mesh(corners, np.array([[0, 1, 2], [0, 2, 3]], np.int32))
+    # Wound so that the faces look back at the camera (n points away from it).
+    return Mesh(corners, np.array([[0, 2, 1], [0, 3, 2]], np.int32))
 
 
 _BACKGROUND: dict[int, tuple[np.ndarray, Mesh]] = {}
@@ -132,12 +145,29 @@ def make_twin_scene(
 ) -> None:
     """Render the twin of ``scene`` with ``poses`` into the scene folder ``out``."""
     from annotator.dataset.poses import write_poses
+
+    rng = np.random.default_rng([settings.seed, int.from_bytes(scene.id.encode()[:8], "little")])
+    truth = _render_shot(ds, scene, poses, out, settings=settings, rng=rng)
+    write_poses(Scene("", out).gt_path, truth, format=FORMAT_VERSION)
+
+
+def _render_shot(
+    ds: Dataset,
+    shot: Capture,
+    poses: list[InstancePose],
+    out: Path,
+    *,
+    settings: TwinSettings,
+    rng: np.random.Generator,
+) -> list[InstancePose]:
+    """Render one shot of the rig (``poses`` in its reference camera) into the folder
+    ``out``: an image per camera and the simulated and exact depth; the poses rendered,
+    each with its true ``occlusion`` in the shot."""
     from annotator.synthesis.generate import add_true_occlusion, simulate_depth
 
     setup = twin_setup(ds)
-    rng = np.random.default_rng([settings.seed, int.from_bytes(scene.id.encode()[:8], "little")])
     surfaces: list[Surface] = []
-    bg = background_mesh(ds, scene)
+    bg = background_mesh(ds, shot)
     if bg is not None:
         surfaces.append(Surface(bg, np.eye(4), BACKGROUND_ALBEDO))
     fixed = len(surfaces)  # the background, rendered once per camera while it stays the same
@@ -178,19 +208,76 @@ def make_twin_scene(
     meshes = [ds.objects[p.object].mesh for p in truth]
     casts = {cam.name: view.own for cam, view in zip(ds.rig.cameras, views)}
     add_true_occlusion(ds.rig, truth, meshes, views[0].hits.depth, casts=casts)
-    write_poses(Scene("", out).gt_path, truth, format=FORMAT_VERSION)
+    return truth
+
+
+def make_twin_sequence(
+    ds: Dataset,
+    scene: Scene,
+    poses: list[InstancePose],
+    frames: Mapping[str, np.ndarray],
+    out: Path,
+    *,
+    settings: TwinSettings = TwinSettings(),
+) -> None:
+    """Render the twin of a moving rig's ``scene`` into the scene folder ``out``: every
+    frame of ``frames`` (frame -> ``scene_T_rig``) into ``out/frames/<frame>/`` with
+    ``poses`` (scene frame) as that frame's rig sees them, and gt.json with the poses in the
+    scene frame and ``frames`` (see the module docstring).
+
+    Raises:
+        KeyError: a frame of ``frames`` that the scene has no folder for.
+    """
+    from annotator.dataset.poses import write_poses
+
+    folders = {f.name: f for f in scene.frames()}
+    entries: dict[str, FramePose] = {}
+    seen: dict[str, list[dict[str, Any]]] = {p.key: [] for p in poses}
+    sid = int.from_bytes(scene.id.encode()[:8], "little")
+    for name in sorted(frames):
+        T = np.asarray(frames[name], dtype=np.float64).reshape(4, 4)
+        fid = int.from_bytes(name.encode()[:8], "little")
+        rng = np.random.default_rng([settings.seed, sid, fid])
+        folder = out / FRAMES_DIR / name
+        folder.mkdir(parents=True, exist_ok=True)
+        truth = _render_shot(
+            ds, folders[name], poses_in_frame(poses, T), folder, settings=settings, rng=rng
+        )
+        in_view = {}
+        for p in truth:
+            occ = p.extra["occlusion"]
+            seen[p.key].append(occ)
+            if occ["rate"] < 1.0:
+                in_view[p.key] = {"occlusion": occ["per_camera"]}
+        entries[name] = FramePose(name, T, {"instances": in_view})
+    truth = [InstancePose(p.object, p.instance, p.R, p.t) for p in poses]
+    for p in truth:
+        occs = seen[p.key]
+        if occs:
+            p.extra["occlusion"] = {
+                "rate": min(o["rate"] for o in occs),
+                "per_camera": {
+                    c: min(o["per_camera"][c] for o in occs) for c in occs[0]["per_camera"]
+                },
+            }
+    write_poses(
+        Scene("", out).gt_path, truth, format=FORMAT_VERSION, frames=frames_to_json(entries)
+    )
 
 
 @dataclass(frozen=True)
 class TwinJob:
     """Render the twin of one scene of ``root`` into ``out`` (picklable, for workers).
 
-    ``poses`` holds, per scene id, the poses to render (the accepted annotation)."""
+    ``poses`` holds, per scene id, the poses to render (the accepted annotation; a
+    sequence's in the scene frame); ``frames``, per sequence, the frames to render, each with
+    its ``scene_T_rig`` (16 floats, row-major)."""
 
     root: str
     out: str
     poses: dict[str, list[tuple[str, str, list[float], list[float]]]]
     settings: TwinSettings = TwinSettings()
+    frames: dict[str, dict[str, list[float]]] = field(default_factory=dict)
 
     def prepare(self) -> None:
         """Load the dataset and tabulate the cameras' rays once, before workers fork."""
@@ -213,7 +300,9 @@ class TwinJob:
 
     def scene_files(self, scene_id: str) -> list[str]:
         """The scene's measured depth (the support plane is fitted to it when the dataset
-        has no background depth)."""
+        has no background depth); a sequence's, every rendered frame's."""
+        if scene_id in self.frames:
+            return [f"scenes/{scene_id}/{FRAMES_DIR}/{f}/depth.png" for f in self.frames[scene_id]]
         return [f"scenes/{scene_id}/depth.png"]
 
     def output_files(self, scene_id: str) -> list[str]:
@@ -230,6 +319,14 @@ class TwinJob:
         ]
         folder = Path(self.out) / SCENES_DIR / scene_id
         folder.mkdir(parents=True, exist_ok=True)
+        if scene_id in self.frames:
+            frames = {
+                f: np.asarray(T, float).reshape(4, 4) for f, T in self.frames[scene_id].items()
+            }
+            make_twin_sequence(
+                ds, ds.scene(scene_id), poses, frames, folder, settings=self.settings
+            )
+            return {"instances": len(poses), "frames": len(frames)}
         make_twin_scene(ds, ds.scene(scene_id), poses, folder, settings=self.settings)
         return {"instances": len(poses)}
 
