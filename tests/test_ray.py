@@ -110,6 +110,31 @@ def test_synth_sequences_write_the_same_bytes_as_one_local_worker(
     assert "2 sequences of 3 frames" in capsys.readouterr().out.splitlines()[-1]
 
 
+def test_sequences_are_annotated_on_the_cluster_as_locally(cluster, tmp_path, capsys) -> None:
+    """A sequence's three steps as tasks (frames read, the scene solved, frames seen), and
+    occlusion per frame."""
+    args = ["--size", "480x384", "--instances", "4-5", "--scenes", "1", "--frames", "4"]
+    args += ["--supersample", "1", "--seed", "5", "--quiet"]
+    assert main(["synth", str(tmp_path / "local"), *args, "--workers", "2"]) == 0
+    shutil.copytree(tmp_path / "local", tmp_path / "ray")
+    assert main(["annotate", str(tmp_path / "local"), "--workers", "1", "--quiet"]) == 0
+    capsys.readouterr()
+    assert (
+        main(["annotate", str(tmp_path / "ray"), "--ray", cluster.address, "--json", "--quiet"])
+        == 0
+    )
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["done"] == 1 and summary["failed"] == 0 and summary["instances_posed"] >= 3
+    name = "scenes/000000/annotation.json"
+    a, b = (tmp_path / "local" / name).read_bytes(), (tmp_path / "ray" / name).read_bytes()
+    assert _without_created_at(a) == _without_created_at(b)
+    for root in ("local", "ray"):
+        flag = ["--ray", cluster.address] if root == "ray" else ["--workers", "1"]
+        assert main(["occlusion", str(tmp_path / root), *flag, "--quiet"]) == 0
+    name = "scenes/000000/visibility.json"
+    assert (tmp_path / "local" / name).read_bytes() == (tmp_path / "ray" / name).read_bytes()
+
+
 def test_twins_write_the_same_bytes_as_one_local_worker(cluster, sample_copy, tmp_path) -> None:
     """``synth --twin`` reads one dataset and writes another: the task writes into a folder
     of its own and the driver into the output folder."""

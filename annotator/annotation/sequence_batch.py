@@ -53,8 +53,10 @@ def _detector(dictionary: str) -> MarkerDetector:
 
 
 @dataclass(frozen=True)
-class FrameReadJob:
-    """Step 1: the markers of one frame (unit ``<scene>/<frame>``); writes nothing."""
+class _Step:
+    """What every step's job declares for a Ray cluster: the dataset description shared,
+    a frame's images and depth as its unit's inputs, nothing written (the results come
+    back as data)."""
 
     root: str
 
@@ -66,6 +68,11 @@ class FrameReadJob:
 
     def output_files(self, scene_id: str) -> list[str]:
         return []
+
+
+@dataclass(frozen=True)
+class FrameReadJob(_Step):
+    """Step 1: the markers of one frame (unit ``<scene>/<frame>``)."""
 
     def __call__(self, scene_id: str) -> dict[str, Any]:
         ds = cached_dataset(self.root)
@@ -73,21 +80,14 @@ class FrameReadJob:
 
 
 @dataclass(frozen=True)
-class SequenceSolveJob:
+class SequenceSolveJob(_Step):
     """Step 2: one scene's solve from its frames' readings (carried by the job)."""
 
-    root: str
-    readings: dict[str, list[FrameReading]]
+    readings: dict[str, list[FrameReading]] = field(default_factory=dict)
     settings: AnnotateSettings = AnnotateSettings()
 
-    def shared_files(self) -> list[str]:
-        return description_files(cached_dataset(self.root))
-
     def scene_files(self, scene_id: str) -> list[str]:
-        return []
-
-    def output_files(self, scene_id: str) -> list[str]:
-        return []
+        return []  # a scene unit, not a frame: everything it needs is in the job
 
     def __call__(self, scene_id: str) -> dict[str, Any]:
         ds = cached_dataset(self.root)
@@ -95,21 +95,11 @@ class SequenceSolveJob:
 
 
 @dataclass(frozen=True)
-class FrameSeeJob:
+class FrameSeeJob(_Step):
     """Step 3: what one posed frame sees of its scene's instances (unit ``<scene>/<frame>``)."""
 
-    root: str
-    solutions: dict[str, SequenceSolution]
+    solutions: dict[str, SequenceSolution] = field(default_factory=dict)
     settings: AnnotateSettings = AnnotateSettings()
-
-    def shared_files(self) -> list[str]:
-        return description_files(cached_dataset(self.root))
-
-    def scene_files(self, scene_id: str) -> list[str]:
-        return _frame_files(cached_dataset(self.root), scene_id)
-
-    def output_files(self, scene_id: str) -> list[str]:
-        return []
 
     def __call__(self, scene_id: str) -> dict[str, Any]:
         ds = cached_dataset(self.root)
