@@ -15,6 +15,7 @@ from annotator.dataset.annotation import SceneAnnotation
 from annotator.detection import MarkerDetector
 from annotator.geometry.transforms import axis_angle, make_transform, matrix_to_rotvec
 from annotator.io.images import to_gray8
+from annotator.refinement import measured_points
 from annotator.rendering.raycast import PlacedMesh
 from annotator.repair import (
     Nudge,
@@ -25,7 +26,6 @@ from annotator.repair import (
     start_pose,
     used_observations,
 )
-from annotator.repair.refine import measured_points
 from annotator.symmetry import PoseSpace
 
 

@@ -3,15 +3,16 @@ scene's completeness.
 
 Modules, in the order a scene goes through them: :mod:`.scene` (the orchestration),
 :mod:`.consensus` (one instance's pose and trust), :mod:`.recovery` (markers read with the
-pose's help), :mod:`.visibility` (occlusion, depth agreement), :mod:`.unexplained` and
-:mod:`.completeness` (depth no pose explains, image quality), :mod:`.settings` (thresholds),
-:mod:`.batch` (a whole dataset).
+pose's help), :mod:`.visibility` (occlusion, depth agreement), :mod:`.refine` (poses on few
+markers refined against the depth), :mod:`.unexplained` and :mod:`.completeness` (depth no
+pose explains, image quality), :mod:`.settings` (thresholds), :mod:`.batch` (a whole dataset).
 
 ``annotation.json`` (docs/FORMAT.md) is read and written through the records of
 :mod:`annotator.dataset.annotation`; per instance, besides the pose:
 
 - ``uncertainty_mm``: estimated 1-sigma pose error as RMS surface displacement (mm), from the
-  joint refinement's covariance (the paper's distance, section 4.1);
+  joint refinement's covariance (the paper's distance, section 4.1; for a pose refined against
+  the depth, both terms' with the depth's offset and the markers' site errors);
 - ``reprojection_px``: ``{"rms", "max", "per_camera": {camera: rms}}`` over the markers used;
 - ``markers``: ``{camera: {"used": [ids], "rejected": [ids], "recovered": [ids]}}``
   (``recovered``: read through the blur model, with the support of the others);

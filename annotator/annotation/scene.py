@@ -1,5 +1,6 @@
 """Annotating one scene: detection in every camera, consensus per instance
 (:mod:`~annotator.annotation.consensus`), marker recovery (:mod:`~annotator.annotation.recovery`),
+poses on few markers refined against the depth (:mod:`~annotator.annotation.refine`),
 visibility and trust (:mod:`~annotator.annotation.visibility`), and the scene's completeness
 (:mod:`~annotator.annotation.unexplained`, :mod:`~annotator.annotation.completeness`).
 
@@ -20,6 +21,7 @@ import numpy as np
 from annotator.annotation.completeness import exposure, quality_warnings
 from annotator.annotation.consensus import flag_overlaps, pose_instance
 from annotator.annotation.recovery import recover_markers
+from annotator.annotation.refine import refine_few_marker_poses
 from annotator.annotation.settings import AnnotateSettings
 from annotator.annotation.unexplained import unexplained_depth
 from annotator.annotation.visibility import Renders, add_visibility
@@ -97,6 +99,9 @@ def annotate_scene(
         for r in doubtful:
             for cam_name, m in r.markers.items():
                 unconfirmed.setdefault(cam_name, []).extend(m.used)
+        renders = {}
+        add_visibility(ds, instances, depth, settings, renders)
+    if refine_few_marker_poses(ds, instances, markers.per_instance, depth, settings):
         renders = {}
         add_visibility(ds, instances, depth, settings, renders)
     quality = _image_quality(ds, readings, grays)

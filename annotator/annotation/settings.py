@@ -25,6 +25,20 @@ class AnnotateSettings:
         depth_min_agreement: Below this agreement an instance is ``depth_disagreement``.
         visibility_step: Occlusion and depth agreement from every ``visibility_step``-th pixel
             of every ``visibility_step``-th row; ``annotator occlusion`` gives the exact rates.
+        refine_max_markers: Poses on at most this many marker ids are refined against the
+            measured depth (:mod:`annotator.annotation.refine`); 0: none.
+        refine_inner_px: A refined pose fits the measured points of its visible region
+            shrunk by this many pixels.
+        refine_marker_px: A refined pose is kept only if its markers' RMS reprojection error
+            grew by at most this (and is not ``high_residual``).
+        measured_site_mm, measured_site_deg: 1-sigma of a site ``annotator sites`` measured
+            (each shift in its plane, the turn about its normal), in a refined pose's
+            uncertainty.
+        depth_correlation: In a refined pose's uncertainty, the measured points count as
+            this many times fewer independent ones (stereo depth is matched over windows).
+        depth_bias_mm: 1-sigma of an offset shared by all of a part's measured points along
+            their rays: the refinement solves for it (with this prior) and a refined pose's
+            uncertainty counts it.
         completeness: The completeness checks' own thresholds.
     """
 
@@ -36,4 +50,11 @@ class AnnotateSettings:
     depth_tolerance_mm: float = AGREEMENT_TOLERANCE_MM
     depth_min_agreement: float = 0.6
     visibility_step: int = 2
+    refine_max_markers: int = 2
+    refine_inner_px: int = 2
+    refine_marker_px: float = 0.5
+    measured_site_mm: float = 0.1
+    measured_site_deg: float = 0.5
+    depth_correlation: float = 30.0
+    depth_bias_mm: float = 0.2
     completeness: CompletenessSettings = field(default_factory=CompletenessSettings)

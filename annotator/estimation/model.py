@@ -21,7 +21,7 @@ import numpy as np
 
 from annotator.estimation.cloud import voxel_subsample
 from annotator.estimation.features import alignments, feature_keys, pair_angles, pair_features
-from annotator.geometry.mesh import Mesh
+from annotator.geometry.mesh import Mesh, surface_samples
 
 
 @dataclass(frozen=True, eq=False)
@@ -67,23 +67,6 @@ class PPFModel:
     @property
     def angle_step(self) -> float:
         return 2 * np.pi / self.angle_bins
-
-
-def surface_samples(
-    mesh: Mesh, spacing: float, *, density: float = 12.0, seed: int = 0
-) -> tuple[np.ndarray, np.ndarray]:
-    """Points (N, 3) and outward normals (N, 3) drawn on the surface, about ``density`` per
-    ``spacing``^2 of area, in proportion to area (seeded)."""
-    rng = np.random.default_rng(seed)
-    areas = mesh.face_areas
-    n = max(int(density * areas.sum() / spacing**2), 100)
-    face = rng.choice(len(areas), size=n, p=areas / areas.sum())
-    u, v = rng.random(n), rng.random(n)
-    flip = u + v > 1
-    u[flip], v[flip] = 1 - u[flip], 1 - v[flip]
-    tri = mesh.triangles[face]
-    pts = tri[:, 0] + u[:, None] * (tri[:, 1] - tri[:, 0]) + v[:, None] * (tri[:, 2] - tri[:, 0])
-    return pts, mesh.face_normals[face]
 
 
 _CACHE: dict[tuple, PPFModel] = {}

@@ -202,6 +202,23 @@ def load_mesh(path: str | Path) -> Mesh:
     return mesh
 
 
+def surface_samples(
+    mesh: Mesh, spacing: float, *, density: float = 12.0, seed: int = 0
+) -> tuple[np.ndarray, np.ndarray]:
+    """Points (N, 3) and outward normals (N, 3) drawn on the surface, about ``density`` per
+    ``spacing``^2 of area, in proportion to area (seeded)."""
+    rng = np.random.default_rng(seed)
+    areas = mesh.face_areas
+    n = max(int(density * areas.sum() / spacing**2), 100)
+    face = rng.choice(len(areas), size=n, p=areas / areas.sum())
+    u, v = rng.random(n), rng.random(n)
+    flip = u + v > 1
+    u[flip], v[flip] = 1 - u[flip], 1 - v[flip]
+    tri = mesh.triangles[face]
+    pts = tri[:, 0] + u[:, None] * (tri[:, 1] - tri[:, 0]) + v[:, None] * (tri[:, 2] - tri[:, 0])
+    return pts, mesh.face_normals[face]
+
+
 def closest_on_triangles(p: np.ndarray, tri: np.ndarray) -> np.ndarray:
     """The point of each triangle nearest to ``p``: ``p`` (..., 3) and ``tri`` (..., 3, 3)
     broadcast together; by the Voronoi regions of the vertices, edges and face (Ericson,

@@ -1,11 +1,12 @@
 """Repairing a pose: refinement against the measured depth and the markers
-(:mod:`.refine`), the other candidate poses of an instance and a start pose for a part that
+(:mod:`annotator.refinement`, which ``annotate`` uses too), the other candidate poses of an instance and a start pose for a part that
 has none (:mod:`.candidates`), and nudges in the reference camera's frame (:mod:`.nudge`).
 
 Pure functions of the dataset's records, images and depth: the viewer is a thin layer over
 them (and a script can repair poses the same way).
 """
 
+from annotator.refinement import Refinement, RefineSettings, Residuals, refine_instance
 from annotator.repair.candidates import (
     Candidate,
     alternatives,
@@ -14,7 +15,6 @@ from annotator.repair.candidates import (
     used_observations,
 )
 from annotator.repair.nudge import Nudge, NudgeKind, nudged
-from annotator.repair.refine import Refinement, RefineSettings, Residuals, refine_instance
 
 __all__ = [
     "Candidate",

@@ -10,7 +10,7 @@ A part without a pose is started where a reviewer clicked: from its own markers 
 read, else from unread marker squares near the click (each square tried on each of the
 part's marker sites and corner orders, both IPPE solutions), else at the depth under the
 click, in the 24 rotations of the axes; each start is scored by how many measured points
-near the click lie on its surface, then refined (:mod:`annotator.repair.refine`).
+near the click lie on its surface, then refined (:mod:`annotator.refinement`).
 """
 
 from __future__ import annotations
@@ -28,8 +28,8 @@ from annotator.geometry.mesh import Mesh
 from annotator.geometry.transforms import make_transform
 from annotator.pnp import Observation, iter_candidate_poses, refine_pose, reprojection_errors
 from annotator.pnp.multiview import lone_marker_poses
+from annotator.refinement import DepthTerm, RefineSettings, measured_points
 from annotator.rendering.raycast import PlacedMesh
-from annotator.repair.refine import RefineSettings, _DepthTerm, measured_points
 
 INLIER_PX = 2.5
 #: Two candidates closer than this share of the diameter (RMS surface displacement) are one.
@@ -193,7 +193,7 @@ def start_pose(
     pts = measured_points(dcam, depth, mesh, starts[-1][0], others, settings)
     if len(pts) < settings.min_points:
         return None
-    term = _DepthTerm(mesh, pts, dcam.rig_T_cam[:3, 3])
+    term = DepthTerm(mesh, pts, dcam.rig_T_cam[:3, 3])
     best: Candidate | None = None
     for T, source in starts:
         r, _, _ = term.residuals(T, settings.start_gate_mm / 2)

@@ -11,6 +11,13 @@ and ``annotate`` then finds the poses of the last round.
 
 The corrections of every round are measured from the object's layout, so a round only
 changes the sites through better poses and more markers, never by compounding its own.
+
+Every round, the first too, starts from poses made from the markers alone (the scenes are
+annotated again in memory, before the first round with the sites the dataset has): the
+solve refines each pose against the depth itself, and ``annotate``'s refinement of poses on
+few markers (:mod:`annotator.annotation.refine`), kept or not by a threshold, would make the
+sites hop between rounds. So the measurement does not depend on which ``annotate`` made
+annotation.json, and measuring again after the ``annotate`` that follows is one more round.
 """
 
 from __future__ import annotations
@@ -35,6 +42,9 @@ from annotator.sites.solve import SiteSettings
 SETTLED_MM = 0.01
 #: Rounds at most (the first is the measurement from annotate's own poses).
 MAX_ROUNDS = 3
+
+#: How the rounds annotate: poses from the markers alone (see the module docstring).
+ROUND_SETTINGS = AnnotateSettings(refine_max_markers=0)
 
 #: (object, instance) -> its measured sites, (S, 4, 3) mm.
 Sites = dict[tuple[str, str], np.ndarray]
@@ -111,7 +121,7 @@ class ReannotateJob:
     def __call__(self, scene_id: str) -> dict[str, Any]:
         ds = _with_sites(self.root, self.sites)
         detector = _detector(ds.dictionary)
-        result = annotate_scene(ds, ds.scene(scene_id), detector, settings=AnnotateSettings())
+        result = annotate_scene(ds, ds.scene(scene_id), detector, settings=ROUND_SETTINGS)
         return {"annotation": result.annotation}
 
 
@@ -137,21 +147,28 @@ def measure_in_rounds(
     quiet: bool,
 ) -> Rounds:
     """Measure the sites of ``scenes`` until they settle (see the module docstring)."""
-    annotations: dict[str, SceneAnnotation] = {}
-    measured, spread = measure_sites(ds, scenes, detections, settings=settings)
-    moves: list[float] = []
     failed: dict[str, str] = {}
-    rounds = 1
-    while rounds < MAX_ROUNDS and measured:
+
+    def annotated(measured: list[InstanceSites], desc: str) -> dict[str, SceneAnnotation]:
+        nonlocal failed
         report: BatchReport = run_batch(
             ReannotateJob.of(str(ds.root), measured),
             [s.id for s in scenes],
             workers=workers,
-            desc=f"sites: round {rounds + 1}",
+            desc=desc,
             quiet=quiet,
         )
-        failed = dict(report.failed)
-        annotations = {sid: r["annotation"] for sid, r in report.done.items()}
+        failed = dict(report.failed)  # these scenes' annotation.json is used instead
+        return {sid: r["annotation"] for sid, r in report.done.items()}
+
+    annotations = annotated([], "sites: markers")
+    measured, spread = measure_sites(
+        ds, scenes, detections, settings=settings, annotations=annotations
+    )
+    moves: list[float] = []
+    rounds = 1
+    while rounds < MAX_ROUNDS and measured:
+        annotations = annotated(measured, f"sites: round {rounds + 1}")
         again, _ = measure_sites(
             ds, scenes, detections, settings=settings, annotations=annotations, spread=spread
         )

@@ -1,18 +1,25 @@
 """Refining one instance's pose against the measured depth, jointly with its markers.
 
 The measured points are those of the depth map inside the instance's rendered silhouette
-(pixel-exact ray casting, :mod:`annotator.rendering.raycast`) grown by a margin, less the
-pixels that another posed part explains (rendered there in front of it, or at the measured
-depth): a neighbour's surface must not pull the part onto it. Each measured point is matched
-to its nearest model point (open3d's correspondence search, within a gate that shrinks over
-the iterations, model normals facing the camera only) and the pose minimises, by
-Gauss-Newton with Huber weights, the point-to-plane distances in mm together with the
-reprojection errors of the instance's markers in px (:mod:`annotator.pnp`), each over its
-noise. Where the depth alone is ambiguous (a cylinder about its axis, a face seen flat) the
-marker term keeps the pose; where there are no markers, the depth alone decides.
+(pixel-exact ray casting, :mod:`annotator.rendering.raycast`) grown by a margin (or shrunk,
+away from its edges), less the pixels that another posed part explains (rendered there in
+front of it, or at the measured depth): a neighbour's surface must not pull the part onto it.
+Each measured point is matched to its nearest model point (a k-d tree of the model's samples,
+within a gate that shrinks over the iterations, model normals facing the camera only) and the
+pose minimises, by Gauss-Newton with Huber weights, the point-to-plane distances in mm
+together with the reprojection errors of the instance's markers in px (:mod:`annotator.pnp`),
+each over its noise. Where the depth alone is ambiguous (a cylinder about its axis, a face
+seen flat) the marker term keeps the pose; where there are no markers, the depth alone
+decides.
+
+With ``RefineSettings.depth_offset_sigma_mm``, the measured points also share an offset along
+their rays, solved for with that prior: a depth map biased by a fraction of a millimetre then
+does not pull the pose along the view.
 
 The result is kept only when it converged: the steps became small, enough measured points
 lie on the refined surface, and the markers (if any) still reproject.
+:func:`pose_covariance` gives the refined pose's covariance from both terms, with what errors
+shared by many points or corners (the depth's offset, the markers' sites) do to it.
 """
 
 from __future__ import annotations
@@ -23,12 +30,11 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
-import open3d as o3d
+from scipy.spatial import cKDTree
 
 from annotator.dataset.review import RepairOp, RepairStep
-from annotator.estimation.model import surface_samples
 from annotator.geometry.camera import Camera
-from annotator.geometry.mesh import Mesh
+from annotator.geometry.mesh import Mesh, surface_samples
 from annotator.geometry.transforms import make_transform, rotvec_to_matrix
 from annotator.pnp.multiview import Observation, reprojection_errors, residuals_jacobian
 from annotator.rendering.raycast import PlacedMesh, cast_alone, clip_region, projected_bbox
@@ -42,7 +48,8 @@ MODEL_SPACING_MM = 0.7
 class RefineSettings:
     """Thresholds of the refinement (px, mm)."""
 
-    #: The silhouette grows by this many pixels: a pose a few mm off has its part beside it.
+    #: The silhouette grows by this many pixels: a pose a few mm off has its part beside it
+    #: (negative: the part's visible region shrinks by as many, away from its edges).
     margin_px: int = 15
     start_gate_mm: float = 15.0
     end_gate_mm: float = 3.0
@@ -60,6 +67,10 @@ class RefineSettings:
     max_marker_px: float = 2.0
     #: Converged when a step moves the residuals by less than this RMS (mm or px).
     converged_moves: float = 0.02
+    #: 0: the depth is taken as measured. Else the measured points share an offset along
+    #: their rays, solved for with a prior of this 1-sigma (mm): a biased depth map (a face
+    #: seen flat gets one disparity) then does not pull the pose along the view.
+    depth_offset_sigma_mm: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -104,6 +115,7 @@ class Refinement:
     after: Residuals
     why: str  # "" when converged, else the reason in a few words
     seconds: float
+    depth_offset_mm: float = 0.0  # the measured points' offset along their rays, solved for
 
     def step(self) -> RepairStep:
         """The step review.json records for it."""
@@ -115,19 +127,19 @@ class Refinement:
         return RepairStep(RepairOp.REFINE, details)
 
 
-_CLOUDS: dict[bytes, tuple[o3d.geometry.PointCloud, np.ndarray, np.ndarray]] = {}
+_CLOUDS: dict[bytes, tuple[cKDTree, np.ndarray, np.ndarray]] = {}
 
 
-def _model_cloud(mesh: Mesh) -> tuple[o3d.geometry.PointCloud, np.ndarray, np.ndarray]:
-    """Evenly spread surface samples of a mesh (about two per mm^2) with their face normals,
-    model frame, the same every time (seeded); kept by the mesh's content."""
+def _model_cloud(mesh: Mesh) -> tuple[cKDTree, np.ndarray, np.ndarray]:
+    """Evenly spread surface samples of a mesh (about two per mm^2), their search tree and
+    their face normals, model frame, the same every time (seeded); kept by the mesh's
+    content."""
     hit = _CLOUDS.get(mesh.digest)
     if hit is None:
         if len(_CLOUDS) >= 16:
             _CLOUDS.clear()
         pts, normals = surface_samples(mesh, MODEL_SPACING_MM, density=1.0)
-        cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts))
-        hit = _CLOUDS[mesh.digest] = (cloud, pts, normals)
+        hit = _CLOUDS[mesh.digest] = (cKDTree(pts), pts, normals)
     return hit
 
 
@@ -145,17 +157,19 @@ def measured_points(
     cam_T_model = camera.cam_T_rig @ rig_T_model
     box = projected_bbox(camera, mesh, cam_T_model)
     if box is None:
-        return np.zeros((0, 3))
+        return np.zeros((0, 6))
     m = settings.margin_px
+    grow = max(m, 0)
     x0, y0, x1, y1 = clip_region(
-        (box[0] - m, box[1] - m, box[2] + m, box[3] + m), camera.width, camera.height
+        (box[0] - grow, box[1] - grow, box[2] + grow, box[3] + grow), camera.width, camera.height
     )
     rays = camera.pixel_rays()[y0:y1, x0:x1]
     own = cast_alone(mesh, cam_T_model, rays).depth
-    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * m + 1, 2 * m + 1))
-    mask = cv2.dilate(np.isfinite(own).astype(np.uint8), kernel) > 0
+    mask = np.isfinite(own)
+    if m > 0:
+        kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * m + 1, 2 * m + 1))
+        mask = cv2.dilate(mask.astype(np.uint8), kernel) > 0
     measured = depth[y0:y1, x0:x1]
-    mask &= np.isfinite(measured) & (measured > 0)
     other = np.full(own.shape, np.inf, np.float32)
     for pm in others:
         cam_T_other = camera.cam_T_rig @ pm.cam_T_model
@@ -172,6 +186,10 @@ def measured_points(
         (np.abs(measured - other) < settings.explained_mm) | (other < own)
     )
     mask &= ~theirs
+    if m < 0:  # away from the edges of what the part shows (depth is least sure there)
+        kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (1 - 2 * m, 1 - 2 * m))
+        mask = cv2.erode(mask.astype(np.uint8), kernel, borderValue=0) > 0
+    mask &= np.isfinite(measured) & (measured > 0)
     grid = rays.astype(np.float64) * measured[..., None]
     normals = _grid_normals(grid)
     mask &= np.isfinite(normals).all(axis=-1)
@@ -212,29 +230,41 @@ def _perturb(T: np.ndarray, d: np.ndarray) -> np.ndarray:
 _SAME_NORMAL = float(np.cos(np.radians(45.0)))
 
 
-class _DepthTerm:
+class DepthTerm:
     """Point-to-plane residuals of the measured points against the model at a pose."""
 
     def __init__(self, mesh: Mesh, measured: np.ndarray, camera_centre: np.ndarray) -> None:
-        self.cloud, self.model, self.normals = _model_cloud(mesh)
+        self.tree, self.model, self.normals = _model_cloud(mesh)
         self.points = measured[:, :3]
         self.point_normals = measured[:, 3:]
-        self.scene = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(self.points))
         self.centre = camera_centre  # the depth camera's centre, reference frame
+        rays = self.points - camera_centre
+        self.rays = rays / np.maximum(np.linalg.norm(rays, axis=1, keepdims=True), 1e-12)
+        #: The measured points are taken this far (mm) along their rays from where measured.
+        self.offset = 0.0
+
+    def shifted(self) -> np.ndarray:
+        """The measured points moved by :attr:`offset` along their rays."""
+        return self.points + self.offset * self.rays if self.offset else self.points
+
+    def offset_derivative(self, J: np.ndarray, i: np.ndarray) -> np.ndarray:
+        """The derivative of the residuals (Jacobian ``J`` at scene indices ``i``, as
+        :meth:`residuals` gives them) with respect to :attr:`offset`."""
+        return -np.einsum("ij,ij->i", J[:, 3:], self.rays[i])
 
     def residuals(self, T: np.ndarray, gate: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Residuals (mm) and Jacobian (N, 6) of the matches within ``gate``, and their scene
         indices."""
         if len(self.points) == 0:
             return np.zeros(0), np.zeros((0, 6)), np.zeros(0, int)
-        inv = np.linalg.inv(T)
-        # open3d matches source (the measured points, brought to the model frame) to target.
-        reg = o3d.pipelines.registration.evaluate_registration(self.scene, self.cloud, gate, inv)
-        pairs = np.asarray(reg.correspondence_set, dtype=int).reshape(-1, 2)
-        if len(pairs) == 0:
-            return np.zeros(0), np.zeros((0, 6)), np.zeros(0, int)
-        i, j = pairs[:, 0], pairs[:, 1]
         R, t = T[:3, :3], T[:3, 3]
+        points = self.shifted()
+        # Each measured point, brought to the model frame, against its nearest model sample.
+        dist, nearest = self.tree.query((points - t) @ R, k=1, distance_upper_bound=gate)
+        i = np.flatnonzero(np.isfinite(dist))
+        if len(i) == 0:
+            return np.zeros(0), np.zeros((0, 6)), np.zeros(0, int)
+        j = nearest[i]
         y = self.model[j] @ R.T
         n = self.normals[j] @ R.T
         p = y + t
@@ -244,7 +274,7 @@ class _DepthTerm:
             np.einsum("ij,ij->i", n, self.point_normals[i]) > _SAME_NORMAL
         )
         i, y, n, p = i[ok], y[ok], n[ok], p[ok]
-        r = np.einsum("ij,ij->i", n, p - self.points[i])
+        r = np.einsum("ij,ij->i", n, p - points[i])
         J = np.concatenate([np.cross(y, n), n], axis=1)
         return r, J, i
 
@@ -274,7 +304,7 @@ def _huber(r: np.ndarray, k: float) -> np.ndarray:
 
 def residuals_at(
     T: np.ndarray,
-    depth: _DepthTerm | None,
+    depth: DepthTerm | None,
     cameras: Sequence[Camera],
     obs: Sequence[Observation],
     settings: RefineSettings,
@@ -304,6 +334,7 @@ def refine_instance(
     cameras: Sequence[Camera] = (),
     observations: Sequence[Observation] = (),
     settings: RefineSettings = RefineSettings(),
+    points: np.ndarray | None = None,
 ) -> Refinement:
     """Refine one instance's pose ``rig_T_model`` (see the module docstring).
 
@@ -314,15 +345,21 @@ def refine_instance(
         others: The other posed parts, placed in the reference frame.
         cameras, observations: The rig's cameras and the instance's markers as detected
             (:func:`annotator.repair.instance_observations`); none: depth only.
+        points: The measured points, if already found (:func:`measured_points` at
+            ``rig_T_model``).
     """
     started = time.perf_counter()
     T0 = np.array(rig_T_model, float)
     obs = list(observations)
     term = None
     if depth is not None and depth_camera is not None:
-        pts = measured_points(depth_camera, depth, mesh, T0, others, settings)
+        pts = (
+            measured_points(depth_camera, depth, mesh, T0, others, settings)
+            if points is None
+            else points
+        )
         if len(pts) >= settings.min_points:
-            term = _DepthTerm(mesh, pts, depth_camera.rig_T_cam[:3, 3])
+            term = DepthTerm(mesh, pts, depth_camera.rig_T_cam[:3, 3])
     before = residuals_at(T0, term, cameras, obs, settings)
     if term is None and not obs:
         why = "no measured depth and no marker on it"
@@ -341,6 +378,7 @@ def refine_instance(
         after,
         why,
         time.perf_counter() - started,
+        term.offset if term is not None and converged else 0.0,
     )
 
 
@@ -358,11 +396,12 @@ class _MarkerTerm:
 
 def _gauss_newton(
     T0: np.ndarray,
-    term: _DepthTerm | None,
+    term: DepthTerm | None,
     markers: _MarkerTerm | None,
     settings: RefineSettings,
 ) -> tuple[np.ndarray, int, bool]:
-    """Iterate from ``T0``: the pose reached, the iterations made, and whether it converged."""
+    """Iterate from ``T0``: the pose reached, the iterations made, and whether it converged
+    (the depth term's offset, when solved for, is left in it)."""
     T = T0.copy()
     k = 0
     for k in range(1, settings.iterations + 1):
@@ -372,7 +411,9 @@ def _gauss_newton(
         if not np.any(H):
             return T, k, False
         step = _solve(H, g)
-        T = _perturb(T, step)
+        T = _perturb(T, step[:6])
+        if len(step) > 6 and term is not None:
+            term.offset += float(step[6])
         # Converged when the step moves the residuals (mm, px) by a few hundredths RMS: a
         # motion the data hardly sees (a faceted cylinder turning about its axis, snapping
         # from facet to facet) does not count.
@@ -384,25 +425,36 @@ def _gauss_newton(
 
 def _normal_equations(
     T: np.ndarray,
-    term: _DepthTerm | None,
+    term: DepthTerm | None,
     markers: _MarkerTerm | None,
     gate: float,
     settings: RefineSettings,
 ) -> tuple[np.ndarray, np.ndarray, list[np.ndarray]]:
     """The Huber-weighted Gauss-Newton system ``H step = g`` of the depth and marker terms
-    at ``T``, and the Jacobian of each term that has residuals."""
-    H = np.zeros((6, 6))
-    g = np.zeros(6)
+    at ``T``, and the Jacobian of each term that has residuals; with
+    ``depth_offset_sigma_mm``, the depth's offset is a 7th unknown, with its prior."""
+    sigma_b = settings.depth_offset_sigma_mm
+    n = 7 if term is not None and sigma_b > 0 else 6
+    H = np.zeros((n, n))
+    g = np.zeros(n)
     jacobians = []
+    if n == 7:
+        assert term is not None
+        H[6, 6] = 1.0 / sigma_b**2
+        g[6] = term.offset / sigma_b**2
     if term is not None:
-        r, J, _ = term.residuals(T, gate)
+        r, J, i = term.residuals(T, gate)
         if len(r):
+            if n == 7:
+                J = np.concatenate([J, term.offset_derivative(J, i)[:, None]], axis=1)
             w = _huber(r, 1.5 * settings.depth_sigma_mm) / settings.depth_sigma_mm**2
             H += J.T @ (J * w[:, None])
             g += J.T @ (r * w)
             jacobians.append(J)
     if markers is not None:
         r, J = markers.residuals(T)
+        if n == 7:
+            J = np.concatenate([J, np.zeros((len(J), 1))], axis=1)
         w = _huber(r, 3.0 * settings.marker_sigma_px) / settings.marker_sigma_px**2
         H += J.T @ (J * w[:, None])
         g += J.T @ (r * w)
@@ -424,3 +476,106 @@ def _why_not_kept(
     if has_markers and not (after.marker_rms_px or 0.0) <= settings.max_marker_px:
         return f"the markers reproject {after.marker_rms_px:.1f} px off"
     return ""
+
+
+@dataclass(frozen=True)
+class Noise:
+    """What the covariance of a refined pose assumes (px, mm, rad).
+
+    Attributes:
+        marker_px: Floor of the corners' standard deviation (the residuals' own is taken when
+            larger: with few corners they underestimate it).
+        depth_mm: Floor of the measured points' point-to-plane standard deviation.
+        depth_correlation: The measured points count as this many times fewer independent
+            ones: stereo depth is matched over windows and smoothed, so neighbouring points
+            share their errors.
+        depth_bias_mm: 1-sigma of an offset all of the part's measured points share along
+            their rays (a face seen flat gets one disparity: its depth is off by one amount).
+    """
+
+    marker_px: float = 0.3
+    depth_mm: float = 0.1
+    depth_correlation: float = 30.0
+    depth_bias_mm: float = 0.2
+
+
+def pose_covariance(
+    T: np.ndarray,
+    *,
+    depth: DepthTerm | None,
+    cameras: Sequence[Camera],
+    observations: Sequence[Observation],
+    site_sigmas: dict[int, tuple[float, float]] | None = None,
+    noise: Noise = Noise(),
+    settings: RefineSettings = RefineSettings(),
+) -> np.ndarray:
+    """The 6x6 covariance of ``(w, v)`` (the perturbation of :mod:`annotator.pnp`) of a pose
+    refined against markers and depth: the inverse of both terms' information (depth
+    within the end gate, Huber-weighted, its points counted ``depth_correlation`` times
+    fewer), plus what errors that many points or corners share do to it: an offset of the
+    depth along its rays (``noise.depth_bias_mm``), and the markers' site errors
+    (``site_sigmas`` maps a marker id to the 1-sigma of its site's shifts in its plane, mm,
+    each of two, and of its turn about its normal, rad; a marker's error is the same in every
+    camera that sees it). Infinite where the terms leave a motion free."""
+    obs = list(observations)
+    H = np.zeros((6, 6))
+    B = np.zeros((6, 0))
+    if obs:
+        x = np.stack([o.image_corners for o in obs])
+        r, Jm = residuals_jacobian(cameras, obs, T, x)
+        dof = max(r.size - 6, 1)
+        sm = max(float(np.sqrt(r @ r / dof)), noise.marker_px)
+        H += Jm.T @ Jm / sm**2
+        if site_sigmas:
+            Js, scale = _site_jacobian(cameras, obs, T, site_sigmas)
+            B = Jm.T @ (Js * scale) / sm**2
+    if depth is not None:
+        rd, Jd, i = depth.residuals(T, settings.end_gate_mm)
+        if len(rd):
+            sd = max(float(np.sqrt(np.mean(rd**2))), noise.depth_mm)
+            w = _huber(rd, 1.5 * sd) / (sd**2 * noise.depth_correlation)
+            H += Jd.T @ (Jd * w[:, None])
+            # The residuals' derivative with respect to the measured points' common offset
+            # along their rays: r = n . (model point - measured point).
+            dr = depth.offset_derivative(Jd, i)
+            B = np.concatenate([B, (Jd.T @ (w * dr))[:, None] * noise.depth_bias_mm], axis=1)
+    if np.linalg.cond(H) > 1e12:
+        return np.full((6, 6), np.inf)
+    Hinv = np.linalg.inv(H)
+    return Hinv + Hinv @ B @ B.T @ Hinv
+
+
+def _site_jacobian(
+    cameras: Sequence[Camera],
+    obs: list[Observation],
+    T: np.ndarray,
+    site_sigmas: dict[int, tuple[float, float]],
+) -> tuple[np.ndarray, np.ndarray]:
+    """The corner residuals' derivatives (8 len(obs), 3 M) with respect to the M markers'
+    site errors (shift along the top edge, along the left edge, turn about the normal through
+    the site's centre), and each column's 1-sigma (3 M,)."""
+    ids = sorted({o.marker_id for o in obs})
+    x = np.stack([o.image_corners for o in obs])
+    r0, _ = residuals_jacobian(cameras, obs, T, x)
+    J = np.zeros((r0.size, 3 * len(ids)))
+    scale = np.zeros(3 * len(ids))
+    eps = 1e-3  # mm, rad: the projection is smooth at this scale
+    for m, mid in enumerate(ids):
+        shift, turn = site_sigmas.get(mid, (0.0, 0.0))
+        scale[3 * m : 3 * m + 3] = (shift, shift, turn)
+        X = next(o.model_corners for o in obs if o.marker_id == mid)
+        u = (X[1] - X[0]) / np.linalg.norm(X[1] - X[0])
+        v = (X[3] - X[0]) / np.linalg.norm(X[3] - X[0])
+        n = np.cross(v, u)
+        c = X.mean(axis=0)
+        moves = (np.broadcast_to(u, X.shape), np.broadcast_to(v, X.shape), np.cross(n, X - c))
+        for k, d in enumerate(moves):
+            moved = [
+                Observation(o.camera, o.marker_id, o.model_corners + eps * d, o.image_corners)
+                if o.marker_id == mid
+                else o
+                for o in obs
+            ]
+            r1, _ = residuals_jacobian(cameras, moved, T, x)
+            J[:, 3 * m + k] = (r1 - r0) / eps
+    return J, scale

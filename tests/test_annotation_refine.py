@@ -1,0 +1,190 @@
+"""Poses on few markers refined against the measured depth inside ``annotate``
+(annotator.annotation.refine, over annotator.refinement), on the sample scenes: a lone
+marker's pose, what its uncertainty counts, which poses may be refined, and a biased depth
+map whose offset is solved for."""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+
+import numpy as np
+import pytest
+
+from annotator.annotation.refine import refinable, site_sigmas
+from annotator.annotation.scene import annotate_scene
+from annotator.annotation.settings import AnnotateSettings
+from annotator.dataset import load_dataset, read_poses
+from annotator.dataset.annotation import DepthCheck, Flag, InstanceAnnotation, SceneAnnotation
+from annotator.detection import MarkerDetector
+from annotator.io.images import to_gray8
+from annotator.pnp import Observation, rms_uncertainty
+from annotator.refinement import DepthTerm, RefineSettings, measured_points, refine_instance
+from annotator.refinement.depth import Noise, pose_covariance
+from annotator.rendering.raycast import PlacedMesh
+from annotator.repair import instance_observations, used_observations
+from annotator.symmetry import PoseSpace
+
+#: In the sample scene 000003, brick/01 is posed on one marker.
+SCENE, LONE = "000003", "brick/01"
+
+
+@functools.cache
+def _annotated(root: str, refine_max_markers: int) -> SceneAnnotation:
+    ds = load_dataset(root)
+    settings = AnnotateSettings(refine_max_markers=refine_max_markers)
+    return annotate_scene(
+        ds, ds.scene(SCENE), MarkerDetector(ds.dictionary), settings=settings
+    ).annotation
+
+
+def _error(ds, inst: InstanceAnnotation) -> float:
+    """Pose error against gt.json, as a fraction of the diameter."""
+    g = next(p for p in read_poses(ds.scene(SCENE).gt_path) if p.key == inst.key)
+    o = ds.objects[inst.object]
+    space = PoseSpace.from_moments(o.mesh.moments, o.symmetry)
+    return float(space.distance(inst.R[None], inst.t[None], g.R[None], g.t[None])[0]) / (
+        space.diameter
+    )
+
+
+def test_a_lone_marker_pose_is_refined_and_the_others_stay(sample) -> None:
+    ds = load_dataset(sample)
+    before = {i.key: i for i in _annotated(str(sample), 0).instances}
+    after = {i.key: i for i in _annotated(str(sample), 2).instances}
+    assert before.keys() == after.keys()
+    b, a = before[LONE], after[LONE]
+    assert len(a.marker_ids()) == 1
+    assert _error(ds, a) < 0.5 * _error(ds, b)
+    # Its uncertainty says so, honestly: within 3x of the error, and no longer flagged.
+    assert a.uncertainty_mm is not None and b.uncertainty_mm is not None
+    assert a.uncertainty_mm < b.uncertainty_mm
+    error_mm = _error(ds, a) * ds.objects[a.object].mesh.moments.diameter
+    assert error_mm < 3 * a.uncertainty_mm
+    assert Flag.HIGH_UNCERTAINTY in b.flags and Flag.HIGH_UNCERTAINTY not in a.flags
+    assert a.depth is not None and b.depth is not None
+    assert a.depth.median_abs_mm < b.depth.median_abs_mm
+    # Poses on three markers or more are those of the markers alone, to the bit.
+    for key, x in before.items():
+        if len(x.marker_ids()) > 2:
+            assert np.array_equal(x.T, after[key].T), key
+            assert x.uncertainty_mm == after[key].uncertainty_mm, key
+
+
+def _lone_inputs(sample):
+    """The lone marker's pose as annotated, its observations and the depth term."""
+    ds = load_dataset(sample)
+    sc = ds.scene(SCENE)
+    ann = _annotated(str(sample), 2)
+    inst = next(i for i in ann.instances if i.key == LONE)
+    detector = MarkerDetector(ds.dictionary)
+    readings = [detector.read(to_gray8(sc.read_image(c))) for c in ds.rig.cameras]
+    mesh = ds.objects[inst.object].mesh
+    obs = instance_observations(ds, readings, inst.object, inst.instance)
+    used = used_observations(ds.rig.cameras, mesh, obs, inst.markers)
+    others = [PlacedMesh(ds.objects[i.object].mesh, i.T) for i in ann.instances if i is not inst]
+    cam = ds.rig.depth_camera
+    points = measured_points(cam, sc.read_depth(ds.rig), mesh, inst.T, others, RefineSettings())
+    return ds, inst, used, DepthTerm(mesh, points, cam.rig_T_cam[:3, 3])
+
+
+def test_the_depth_bias_and_the_site_errors_widen_the_uncertainty(sample) -> None:
+    ds, inst, used, term = _lone_inputs(sample)
+    moments = ds.objects[inst.object].mesh.moments
+    (marker,) = inst.marker_ids()
+
+    def unc(sites=None, bias: float = 0.0) -> float:
+        cov = pose_covariance(
+            inst.T,
+            depth=term,
+            cameras=ds.rig.cameras,
+            observations=used,
+            site_sigmas=sites,
+            noise=Noise(depth_bias_mm=bias),
+        )
+        return rms_uncertainty(moments, inst.R, cov)
+
+    alone = unc()
+    assert np.isfinite(alone) and alone > 0
+    assert unc({marker: (0.0, 0.0)}) == pytest.approx(alone)
+    assert unc(bias=0.3) > alone
+    glued = unc({marker: (0.7, np.radians(2.0))})
+    measured = unc({marker: (0.1, np.radians(0.5))})
+    assert alone < measured < glued
+    # A lone marker's site error goes into the pose whole: at least the shift itself.
+    assert glued > 0.7
+
+
+def test_the_sites_a_refined_pose_counts(sample) -> None:
+    """Without measured sites the layout is exact; a site ``sites`` moved is known to
+    ``measured_site_mm``; one it left on the layout only to the spread of those it moved."""
+    ds = load_dataset(sample)
+    brick = ds.objects["brick"]
+    assert brick.markers is not None
+    s = AnnotateSettings()
+    first, second = brick.instances[0], brick.instances[1]
+    ids = first.marker_ids
+
+    def obs(marker_id: int) -> Observation:
+        return Observation(0, marker_id, np.zeros((4, 3)), np.zeros((4, 2)))
+
+    assert site_sigmas(brick, first.name, [obs(ids[0])], s) == {ids[0]: (0.0, 0.0)}
+    moved = brick.markers.corners.copy()
+    moved[0] += [0.5, 0.0, 0.0]
+    measured = dataclasses.replace(
+        brick,
+        instances=(dataclasses.replace(first, sites=moved), *brick.instances[1:]),
+    )
+    got = site_sigmas(measured, first.name, [obs(ids[0]), obs(ids[1])], s)
+    assert got[ids[0]] == (s.measured_site_mm, pytest.approx(np.radians(s.measured_site_deg)))
+    shift, turn = got[ids[1]]
+    assert shift == pytest.approx(0.5 / np.sqrt(2))
+    assert turn == pytest.approx(shift / (brick.markers.size / np.sqrt(2)))
+    # Another copy without sites of its own: its layout is as doubtful.
+    other = site_sigmas(measured, second.name, [obs(second.marker_ids[0])], s)
+    assert other[second.marker_ids[0]] == got[ids[1]]
+
+
+def test_which_poses_the_depth_may_refine() -> None:
+    def inst(*flags: Flag, depth: bool = True) -> InstanceAnnotation:
+        check = DepthCheck(0.9, 0.5, 1000) if depth else None
+        return InstanceAnnotation("o", "1", np.eye(3), np.zeros(3), depth=check, flags=[*flags])
+
+    assert refinable(inst())
+    assert refinable(inst(Flag.HIGH_UNCERTAINTY, Flag.SINGLE_VIEW))
+    assert not refinable(inst(depth=False))
+    assert not refinable(inst(Flag.DEPTH_DISAGREEMENT))  # a stray or misread marker, maybe
+    assert not refinable(inst(Flag.OVERLAP))
+    assert refinable(inst(Flag.AMBIGUOUS, Flag.DEPTH_DISAGREEMENT))  # the flip the depth shows
+
+
+def test_a_biased_depth_map_does_not_pull_the_pose_with_its_offset_solved(sample) -> None:
+    ds = load_dataset(sample)
+    sc = ds.scene(SCENE)
+    gt = read_poses(sc.gt_path)
+    g = next(p for p in gt if p.key == LONE)
+    mesh = ds.objects[g.object].mesh
+    others = [PlacedMesh(ds.objects[p.object].mesh, p.T) for p in gt if p.key != LONE]
+    _, _, used, _ = _lone_inputs(sample)
+    depth = sc.read_depth(ds.rig)
+    assert depth is not None
+    far = depth + 1.0  # the whole map 1 mm too far along the optical axis (near the rays)
+
+    def refined(offset_sigma: float):
+        return refine_instance(
+            mesh,
+            g.T,
+            depth_camera=ds.rig.depth_camera,
+            depth=far,
+            others=others,
+            cameras=ds.rig.cameras,
+            observations=used,
+            settings=RefineSettings(margin_px=-2, depth_offset_sigma_mm=offset_sigma),
+        )
+
+    plain, solved = refined(0.0), refined(5.0)
+    assert plain.converged and solved.converged
+    assert plain.depth_offset_mm == 0.0
+    assert solved.depth_offset_mm == pytest.approx(-1.0, abs=0.15)
+    moved = [np.linalg.norm(r.T[:3, 3] - g.t) for r in (plain, solved)]
+    assert moved[1] < 0.5 * moved[0]
