@@ -62,6 +62,8 @@ def test_a_rendered_sequence_is_annotated_frame_by_frame(annotated: Path) -> Non
     assert np.median(errors) < 0.5 and max(errors) < 5.0
     assert e.extra == 0 and len(errors) >= len(gt["instances"]) - 1
     assert e.posed_visible == e.visible and e.gross_unflagged == 0
+    # Honest uncertainties: as each frame sees the part, its markers' own errors counted.
+    assert np.mean(np.array(errors) <= 3 * np.array(e.uncertainty_pct)) >= 0.85
     for name, entry in ann["frames"].items():
         if entry["scene_T_rig"] is None:  # said why, never guessed
             assert entry["flags"] in (["no_known_markers"], ["unconnected"], ["outlier"])

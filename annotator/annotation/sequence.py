@@ -31,7 +31,7 @@ import cv2
 import numpy as np
 
 from annotator.annotation.consensus import pose_instance
-from annotator.annotation.scene import _image_quality, _sort_markers
+from annotator.annotation.scene import CONTRADICTED, _image_quality, _sort_markers
 from annotator.annotation.settings import AnnotateSettings
 from annotator.annotation.visibility import MIN_DEPTH_PIXELS
 from annotator.dataset import Dataset, Scene
@@ -53,6 +53,7 @@ from annotator.detection import MarkerDetector
 from annotator.detection.aruco import Detection, ImageReading
 from annotator.errors import UserError
 from annotator.geometry.camera import Camera
+from annotator.geometry.mesh import SurfaceMoments
 from annotator.geometry.transforms import invert, make_transform
 from annotator.io.images import to_gray8
 from annotator.occlusion import scene_visibility
@@ -61,9 +62,9 @@ from annotator.pnp import (
     iter_candidate_poses,
     refine_pose,
     reprojection_errors,
-    rms_uncertainty,
 )
-from annotator.pnp.bundle import BundleObservations, bundle_adjust
+from annotator.pnp.bundle import BundleObservations, BundleResult, bundle_adjust
+from annotator.pnp.uncertainty import relative_rms_uncertainty
 
 __all__ = [
     "FrameFlag",
@@ -88,8 +89,8 @@ MOVED_SHARE = 0.2
 
 #: A frame whose pose is more uncertain than this (1-sigma, mm or degrees) is not posed:
 #: a guess is not written.
-FRAME_MAX_UNCERTAINTY_MM = 5.0
-FRAME_MAX_UNCERTAINTY_DEG = 1.0
+FRAME_MAX_UNCERTAINTY_MM = 2.0
+FRAME_MAX_UNCERTAINTY_DEG = 0.5
 
 #: Each frame's occlusion rates from every this-many-th pixel at most (a sequence has many
 #: frames; ``annotator occlusion`` gives every frame's exact rates).
@@ -643,6 +644,58 @@ def _edge_rms(obs: BundleObservations, err: np.ndarray) -> np.ndarray:
     return np.where(n > 0, np.sqrt(sq / np.maximum(n, 1)), 0.0)
 
 
+def _uncertainty(
+    moments: SurfaceMoments,
+    result: BundleResult,
+    instance: int,
+    frames: np.ndarray,
+    sites: np.ndarray,
+) -> float:
+    """An instance's uncertainty as the frames that see it do (what a frame's export holds):
+    the median over them of the RMS surface displacement of its pose relative to the frame's,
+    from the joint covariance (a part's pose and the frames' are known together), plus what
+    its markers' own errors on the part give (:func:`_site_covariance`: the same in every
+    frame, so more frames do not average them out); infinite where a direction nothing fixes
+    is involved. ``sites``: the centres (model frame) of the markers it was posed on."""
+    T = result.scene_T_model[instance]
+    on_part = _site_covariance(T[:3, :3], sites, SITE_SIGMA_MM)
+    values = []
+    for f in frames.tolist():
+        cov = result.joint_covariance(instance, f)
+        cov[:6, :6] += on_part
+        if not np.isfinite(cov).all():
+            values.append(np.inf)
+            continue
+        values.append(relative_rms_uncertainty(moments, T, result.scene_T_rig[f], cov))
+    return float(np.median(values)) if values else float("inf")
+
+
+#: How well a marker's place on its part is known (mm, 1-sigma, each marker on its own):
+#: printing, gluing flat, the corner fit's bias. It does not average out over frames.
+SITE_SIGMA_MM = 0.1
+
+
+def _site_covariance(R: np.ndarray, centres: np.ndarray, sigma: float) -> np.ndarray:
+    """The ``(w, v)`` covariance of a pose fitted to marker centres each off by ``sigma``
+    (mm, isotropic) on the part: ``sigma^2 (sum B_k^T B_k)^-1`` with ``B_k = [-[R x_k]x, I]``
+    (three or more markers fix it; fewer leave a direction free: its variance infinite)."""
+    if len(centres) == 0:
+        return np.full((6, 6), np.inf)
+    A = np.zeros((6, 6))
+    for x in centres:
+        y = R @ x
+        B = np.hstack([-_skew(y), np.eye(3)])
+        A += B.T @ B
+    try:
+        return np.linalg.inv(A + 1e-9 * np.eye(6)) * sigma**2
+    except np.linalg.LinAlgError:
+        return np.full((6, 6), np.inf)
+
+
+def _skew(a: np.ndarray) -> np.ndarray:
+    return np.array([[0, -a[2], a[1]], [a[2], 0, -a[0]], [-a[1], a[0], 0]])
+
+
 def _rejected_markers(
     obs: BundleObservations, ids: np.ndarray, mine: np.ndarray, keep: np.ndarray
 ) -> bool:
@@ -684,7 +737,11 @@ def _records(
             continue
         T = result.scene_T_model[i]
         model = ds.objects[obj]
-        unc = rms_uncertainty(model.mesh.moments, T[:3, :3], result.instance_covariance[i])
+        centres = np.stack([obs.model_corners[k].mean(axis=0) for k in np.flatnonzero(used)])
+        _, first = np.unique(ids[used], return_index=True)
+        unc = _uncertainty(
+            model.mesh.moments, result, i, np.unique(obs.frame[used]), centres[first]
+        )
         markers: dict[str, MarkerUse] = {}
         per_cam: dict[str, float] = {}
         for j, cam in enumerate(cams):
@@ -758,16 +815,17 @@ def _records(
             continue
         unc_mm = float(np.sqrt(max(np.trace(cov[3:, 3:]), 0.0)))
         unc_deg = float(np.degrees(np.sqrt(max(np.trace(cov[:3, :3]), 0.0))))
-        if not (unc_mm <= FRAME_MAX_UNCERTAINTY_MM and unc_deg <= FRAME_MAX_UNCERTAINTY_DEG):
-            out.frames[name] = FramePose(
-                name,
-                None,
-                {
-                    "flags": [FrameFlag.OUTLIER],
-                    "reason": f"its {int(mine.sum())} marker observations leave its pose "
-                    f"uncertain (1-sigma {unc_mm:.3g} mm, {unc_deg:.3g} degrees)",
-                },
+        why = None
+        if len(set(ids[mine].tolist())) < 2:
+            # One square's two mirror poses fit it about equally well: not evidence enough.
+            why = f"it is posed on one marker only ({int(mine.sum())} observations)"
+        elif not (unc_mm <= FRAME_MAX_UNCERTAINTY_MM and unc_deg <= FRAME_MAX_UNCERTAINTY_DEG):
+            why = (
+                f"its {int(mine.sum())} marker observations leave its pose uncertain "
+                f"(1-sigma {unc_mm:.3g} mm, {unc_deg:.3g} degrees)"
             )
+        if why is not None:
+            out.frames[name] = FramePose(name, None, {"flags": [FrameFlag.OUTLIER], "reason": why})
             continue
         rms_f = float(np.sqrt(np.mean(err[mine] ** 2)))
         if rms_f > HIGH_REPROJECTION_PX:
@@ -910,12 +968,15 @@ def _contradicted_lone(
     r: InstanceAnnotation, agreements: list[float] | None, s: AnnotateSettings
 ) -> bool:
     """A pose on one marker read once (one camera, one frame of many) that the measured
-    depth disagrees with: a misread or stray marker, not a part (its id is listed as
-    unconfirmed; a part really there shows unposed, not wrongly posed)."""
-    lone = r.extra.get("frames_seen") == 1 and r.count("used") == 1
-    if not lone or not agreements:
+    depth disagrees with, or on two readings that it contradicts outright: a misread or
+    stray marker, not a part (its ids are listed as unconfirmed; a part really there shows
+    unposed, not wrongly posed)."""
+    if not agreements:
         return False
-    return float(np.median(agreements)) < s.depth_min_agreement
+    agreement = float(np.median(agreements))
+    if r.extra.get("frames_seen") == 1 and r.count("used") == 1:
+        return agreement < s.depth_min_agreement
+    return r.extra.get("frames_seen", 3) <= 2 and r.count("used") <= 2 and agreement < CONTRADICTED
 
 
 #: A pose on one reading whose part other frames should see, this many of them, and read

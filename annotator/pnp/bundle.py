@@ -21,7 +21,7 @@ The solve is Levenberg-Marquardt on the sparse normal equations, with Huber weig
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
@@ -85,6 +85,7 @@ class BundleResult:
         residual_px: (N,) RMS corner reprojection error of each observation.
         sigma_px: Robust standard deviation of the corner residuals (never below the floor).
         iterations: Levenberg-Marquardt steps taken.
+        covariance: The whole covariance of every unknown (:meth:`joint_covariance`).
     """
 
     scene_T_rig: np.ndarray
@@ -94,6 +95,22 @@ class BundleResult:
     residual_px: np.ndarray
     sigma_px: float
     iterations: int
+    covariance: np.ndarray = field(repr=False, default_factory=lambda: np.zeros((0, 0)))
+    fixed_frame: int = 0
+
+    def joint_covariance(self, instance: int, frame: int) -> np.ndarray:
+        """The 12x12 covariance of instance ``instance``'s ``(w, v)`` then frame ``frame``'s,
+        cross terms included (zero for the fixed frame's: it defines the scene frame)."""
+        layout = _Layout(len(self.scene_T_rig), len(self.scene_T_model), self.fixed_frame)
+        m = layout.model_slice(instance)
+        f = layout.frame_slice(frame)
+        out = np.zeros((12, 12))
+        out[:6, :6] = self.covariance[m, m]
+        if f is not None:
+            out[6:, 6:] = self.covariance[f, f]
+            out[:6, 6:] = self.covariance[m, f]
+            out[6:, :6] = self.covariance[f, m]
+        return out
 
 
 def bundle_adjust(
@@ -175,7 +192,9 @@ def bundle_adjust(
     for i in range(n_models):
         s = layout.model_slice(i)
         inst_cov[i] = cov[s, s]
-    return BundleResult(frames, models, frame_cov, inst_cov, per_obs, sigma, iterations)
+    return BundleResult(
+        frames, models, frame_cov, inst_cov, per_obs, sigma, iterations, cov, fixed_frame
+    )
 
 
 @dataclass(frozen=True)

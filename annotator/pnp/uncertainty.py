@@ -35,3 +35,47 @@ def rms_uncertainty(moments: SurfaceMoments, R: np.ndarray, covariance: np.ndarr
     """Expected RMS surface displacement (mm) of a pose with covariance of ``(w, v)``."""
     value = float(np.trace(rms_displacement_matrix(moments, R) @ covariance))
     return float(np.sqrt(max(value, 0.0))) if np.isfinite(value) else float("inf")
+
+
+def relative_rms_uncertainty(
+    moments: SurfaceMoments,
+    scene_T_model: np.ndarray,
+    scene_T_rig: np.ndarray,
+    covariance: np.ndarray,
+) -> float:
+    """Expected RMS surface displacement (mm) of a part as a moving rig's frame sees it,
+    when both the part's pose and the frame's are uncertain: ``covariance`` is the joint
+    12x12 covariance of the part's ``(w, v)`` and the frame's (both left perturbations in
+    the scene frame; for the frame, ``v`` moves its camera centre, see
+    :mod:`annotator.pnp.bundle`), cross terms included (the part is known through the frames).
+
+    In the rig the point ``x`` of the part moves by ``w_m x R x + v_m + d x w_f - v_f`` with
+    ``d`` the point's offset from the frame's centre (the rig's rotation is norm-preserving).
+
+    >>> from annotator.geometry.mesh import SurfaceMoments
+    >>> m = SurfaceMoments(area=1.0, centroid=np.zeros(3), second=np.eye(3), radius=1.0)
+    >>> cov = np.zeros((12, 12)); cov[9:, 9:] = np.eye(3) * 0.01  # the frame's centre alone
+    >>> round(relative_rms_uncertainty(m, np.eye(4), np.eye(4), cov), 4)
+    0.1732
+    """
+    R, t = scene_T_model[:3, :3], scene_T_model[:3, 3]
+    c = np.asarray(scene_T_rig)[:3, 3]
+    ybar = R @ moments.centroid
+    S = R @ moments.second @ R.T + np.outer(ybar, ybar)  # E[y y^T], y = R x
+    A0 = np.zeros((3, 12))
+    A0[:, 3:6] = np.eye(3)
+    A0[:, 6:9] = _skew(t - c)
+    A0[:, 9:12] = -np.eye(3)
+    Ak = np.zeros((3, 3, 12))  # the part of A linear in y's components
+    for k in range(3):
+        e = np.eye(3)[k]
+        Ak[k, :, 0:3] = -_skew(e)
+        Ak[k, :, 6:9] = _skew(e)
+    Q = A0.T @ A0
+    for k in range(3):
+        cross = A0.T @ Ak[k] + Ak[k].T @ A0
+        Q += cross * ybar[k]
+        for j in range(3):
+            Q += Ak[k].T @ Ak[j] * S[k, j]
+    value = float(np.trace(Q @ covariance))
+    return float(np.sqrt(max(value, 0.0))) if np.isfinite(value) else float("inf")
