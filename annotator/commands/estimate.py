@@ -75,6 +75,12 @@ def run(args: argparse.Namespace) -> int:
             "the rig has no depth camera (rig.depth): the estimator works on depth maps",
             path=ds.root / "dataset.yaml",
         )
+    if ds.rig.moving:
+        raise UserError(
+            "the rig is a moving one (rig.moving): the baseline estimator works on a fixed "
+            "rig's scenes, one shot each, not on sequences",
+            path=ds.root / "dataset.yaml",
+        )
     scenes = [s for s in ds.scenes() if fnmatch.fnmatch(s.id, args.scenes)]
     if not scenes:
         raise UserError(f"no scene matches {args.scenes!r}", path=ds.root / SCENES_DIR)
