@@ -399,19 +399,29 @@ def _in_scene(obs: list[Observation], scene_T_model: np.ndarray) -> list[Observa
 
 #: At most this many candidate poses are scored when an instance is started from all frames.
 MAX_CANDIDATES = 120
+#: At most this many frames' observations start an instance.
+START_FRAMES = 24
 
 
 def _virtual_rig(
     cams: Sequence[Camera], seen: list[_Seen], frames: list[np.ndarray | None], key: tuple[str, str]
 ) -> tuple[list[Camera], list[Observation]]:
-    """Every placed frame's cameras that saw ``key`` as cameras of one rig in the scene frame,
-    and the instance's observations renumbered to them."""
+    """The placed frames' cameras that saw ``key`` as cameras of one rig in the scene frame,
+    and the instance's observations renumbered to them: at most :data:`START_FRAMES` frames,
+    those that read most of its markers, spread over the sequence (a start needs agreement,
+    not every frame: the bundle adjustment takes them all)."""
     virtual: list[Camera] = []
     obs: list[Observation] = []
-    for f, here in enumerate(seen):
-        T = frames[f]
-        if T is None or key not in here.raw:
-            continue
+    placed = [f for f, here in enumerate(seen) if frames[f] is not None and key in here.raw]
+    if len(placed) > START_FRAMES:
+        ranked = sorted(placed, key=lambda f: (-len(seen[f].raw[key]), f))
+        placed = sorted(ranked[: START_FRAMES // 2])
+        rest = [f for f in sorted(set(ranked) - set(placed))]
+        step = max(len(rest) // (START_FRAMES - len(placed)), 1)
+        placed = sorted(placed + rest[::step][: START_FRAMES - len(placed)])
+    for f in placed:
+        here, T = seen[f], frames[f]
+        assert T is not None
         index: dict[int, int] = {}
         for o, _ in here.raw[key]:
             if o.camera not in index:
