@@ -36,7 +36,7 @@ from viewer.overlays import Prepared, prepare
 from viewer.repair import RepairInputs
 from viewer.session import Session
 from viewer.startup import check_port, start_viser
-from viewer.state import ReviewState, SceneInfo
+from viewer.state import ReviewState, SceneInfo, frames_digest
 from viewer.style import Look
 
 # A page that closes while its scene is being sent: the rest of the scene goes nowhere, as
@@ -126,7 +126,7 @@ class ReviewApp:
         self.server.scene.configure_environment_map(hdri=None)
         self.server.scene.configure_default_lights(enabled=True, cast_shadow=False)
         self._lock = threading.Lock()
-        self._repair: dict[tuple[str, tuple[str, ...]], RepairInputs] = {}
+        self._repair: dict[tuple[str, tuple[str, ...], str], RepairInputs] = {}
         self._ahead: dict[str, str] = {}  # scene -> the poses (view) prepared ahead for it
         self.sessions: dict[int, Session] = {}
         self._give_back_later: threading.Timer | None = None
@@ -206,10 +206,12 @@ class ReviewApp:
 
     # ---------------------------------------------------------------- scenes
     def _make(self, sid: str, info: SceneInfo):
-        ds = self.state.dataset_of(sid)
+        # ``info``'s own view of the scene (a sequence: the frames it shows), whatever the
+        # scene shows by the time this runs.
+        ds, scene = self.state.view(sid, info)
 
         def make() -> Prepared:
-            prep = prepare(ds, self.state.scene(sid), list(info.poses))
+            prep = prepare(ds, scene, list(info.poses))
             look = Look.of(self.state.info(sid))
             for w, h in self.viewports():  # the mosaic for the pages' canvases, ahead of time
                 compose(prep, look, w, h)
@@ -249,12 +251,14 @@ class ReviewApp:
     def repair_inputs(self, sid: str) -> RepairInputs:
         """The markers as detected and the depth of scene ``sid`` (made once, kept for the
         last few scenes: what R, A and adding a part start from)."""
-        key = (sid, self.state.info(sid).shown)  # a sequence's: of the frames shown
+        info = self.state.info(sid)
+        # A sequence's: of the frames shown, where the annotation put them.
+        key = (sid, info.shown, frames_digest(info.frames, info.shown) if info.shown else "")
         with self._lock:
             hit = self._repair.get(key)
         if hit is not None:
             return hit
-        inputs = RepairInputs.read(self.state.dataset_of(sid), self.state.scene(sid))
+        inputs = RepairInputs.read(*self.state.view(sid, info))
         with self._lock:
             self._repair[key] = inputs
             while len(self._repair) > REPAIR_SCENES:
@@ -269,6 +273,13 @@ class ReviewApp:
         """Prepare a scene in the background (not one whose folder has gone)."""
         info = self.state.info(sid)
         if not info.gone:
+            self.cache.prefetch((sid, info.view), self._make(sid, info))
+
+    def prefetch_frames(self, sid: str, step: int = 1) -> None:
+        """Prepare in the background the frames of sequence ``sid`` that P (``step`` 1) or
+        Shift+P (-1) would show next (nothing for a fixed rig's scene)."""
+        info = self.state.shifted(sid, step)
+        if info is not None and not info.gone:
             self.cache.prefetch((sid, info.view), self._make(sid, info))
 
     def stop(self) -> None:

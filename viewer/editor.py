@@ -233,8 +233,18 @@ class RepairEditor:
             self._ahead_done.wait_for(lambda: self._ahead_making != info.view, AHEAD_WAIT)
         if self.host.cache.ready((sid, info.view)):  # poses shown before (undo, redo, A)
             prep = None
-        if prep is not None and prep.scene_id == sid and key in {p.key for p in info.poses}:
-            new = repose(self.host.state.dataset_of(sid), prep, list(info.poses), key)
+        ds = self.host.state.view(sid, info)[0]
+        # A sequence's page may show other frames by now (P): then the scene is prepared anew.
+        same_cameras = prep is not None and {la.name for la in prep.layers} == {
+            c.name for c in ds.rig.cameras
+        }
+        if (
+            prep is not None
+            and prep.scene_id == sid
+            and same_cameras
+            and key in {p.key for p in info.poses}
+        ):
+            new = repose(ds, prep, list(info.poses), key)
             if new is not None:
                 self.host.reposed(sid, info, new, before=before)
         self.page.request_render()
@@ -354,7 +364,8 @@ class RepairEditor:
             if not self.host.cache.ready((sid, view)):
                 with self._ahead_done:
                     self._ahead_making = view
-                new = repose(self.host.state.dataset_of(sid), prep, poses, key, parallel=False)
+                ds = self.host.state.view(sid, info)[0]  # the frames ``prep`` shows
+                new = repose(ds, prep, poses, key, parallel=False)
                 if new is not None:
                     self.host.ahead(sid, view, new)
         except Exception as exc:  # only a head start: A makes it itself then

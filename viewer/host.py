@@ -45,6 +45,10 @@ class ReviewHost(Protocol):
         """Prepare scene ``sid`` in the background (a page is heading there)."""
         ...
 
+    def prefetch_frames(self, sid: str, step: int = 1) -> None:
+        """Prepare the frames P (Shift+P: ``step`` -1) would show of sequence ``sid``."""
+        ...
+
     def changed(self, origin: Any, sids: set[str]) -> None:
         """Scenes ``sids`` changed through page ``origin``: tell the other pages."""
         ...

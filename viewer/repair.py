@@ -16,6 +16,7 @@ import numpy as np
 from annotator.dataset import Dataset, Scene
 from annotator.detection import MarkerDetector
 from annotator.detection.aruco import ImageReading
+from annotator.geometry.transforms import invert
 from annotator.io.images import to_gray8
 from annotator.rendering.raycast import PlacedMesh
 from annotator.repair import (
@@ -101,10 +102,17 @@ def candidates(ds: Dataset, info: SceneInfo, key: str, inputs: RepairInputs) -> 
 
 
 def nudge(ds: Dataset, info: SceneInfo, key: str, step: Nudge) -> np.ndarray:
-    """The shown pose of ``key`` moved by ``step``."""
+    """The shown pose of ``key`` moved by ``step`` along the reference camera's axes: for a
+    sequence's frames view (``ds`` the view, :meth:`viewer.state.ReviewState.dataset_of`)
+    those of the first shown frame's reference camera, the top-left picture, not the scene
+    frame's (the first frame's, perhaps not shown and seen from elsewhere)."""
     pose = info.pose(key)
     assert pose is not None
-    return nudged(pose.T, step, ds.objects[pose.object].mesh.moments.centroid)
+    centroid = ds.objects[pose.object].mesh.moments.centroid
+    if not info.shown:
+        return nudged(pose.T, step, centroid)
+    scene_T_cam = ds.rig.cameras[0].rig_T_cam  # the view's rig frame is the scene frame
+    return scene_T_cam @ nudged(invert(scene_T_cam) @ pose.T, step, centroid)
 
 
 def step_of(kind: NudgeKind, axis: int, sign: int, large: bool) -> Nudge:

@@ -228,7 +228,8 @@ class Session:
             self.displayed = sid
         self.client.flush()  # the new picture is on its way before anything else is done
         self.pictures.send_background_soon()
-        self.scene.show_3d_scene(info.poses, look, prep.cloud, (sid, info.fingerprint))
+        # A sequence's cloud is the first shown frame's depth: sent again when P shows others.
+        self.scene.show_3d_scene(info.poses, look, prep.cloud, (sid, info.fingerprint, info.shown))
         self.scene.show_gizmo(info.pose(selected) if selected else None)
         if selected and prep.scene_id == sid and info.pose(selected) is not None:
             self.editor.work_ahead(sid, selected, info)
@@ -236,6 +237,8 @@ class Session:
             upcoming = self.nav.upcoming()
         for other in reversed(upcoming):  # the cache starts with the last asked for
             self.app.prefetch(other)
+        if info.shown:  # a sequence: P's frames first, as J's scenes are for a fixed rig
+            self.app.prefetch_frames(sid, +1)
 
     def _panel_view(
         self, info: SceneInfo, prep: Prepared | None, flt: str, selected: str | None

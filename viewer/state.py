@@ -37,6 +37,7 @@ gone) is known as :attr:`SceneInfo.gone`: it is shown as gone, and a decision fo
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import os
 import threading
 import time
@@ -96,6 +97,8 @@ ANY = object()
 
 #: How long a change waits for another server's lock on the scene.
 LOCK_WAIT_S = 5.0
+#: Frames views of sequences kept (:meth:`ReviewState.view`): a few pages, each on a scene.
+VIEWS_KEPT = 16
 
 
 def same_edit(a: EditedPose | None, b: EditedPose | None) -> bool:
@@ -189,14 +192,32 @@ class SceneInfo:
             replace(p, R=np.array(T[:3, :3]), t=np.array(T[:3, 3])) if p.key == key else p
             for p in self.poses
         ]
-        return poses, view_key(poses, self.shown)
+        return poses, view_key(poses, self.shown, self.frames)
 
 
-def view_key(poses: list[InstanceAnnotation], shown: tuple[str, ...]) -> str:
+def view_key(
+    poses: list[InstanceAnnotation],
+    shown: tuple[str, ...],
+    frames: Mapping[str, FramePose] | None = None,
+) -> str:
     """What a scene's pictures are made of: the poses shown and, for a sequence, which
-    frames (:attr:`SceneInfo.view`)."""
+    frames and where the rig was for each (a new annotation may move a frame and no part:
+    :attr:`SceneInfo.view`)."""
     key = poses_fingerprint(poses)
-    return f"{key}@{','.join(shown)}" if shown else key
+    if not shown:
+        return key
+    return f"{key}#{frames_digest(frames or {}, shown)}@{','.join(shown)}"
+
+
+def frames_digest(frames: Mapping[str, FramePose], shown: tuple[str, ...]) -> str:
+    """A short digest of the shown frames' ``scene_T_rig`` (missing or unposed: none)."""
+    h = hashlib.sha256()
+    for name in shown:
+        T = frames[name].scene_T_rig if name in frames else None
+        h.update(name.encode() + b"\0")
+        if T is not None:
+            h.update(np.ascontiguousarray(T, dtype=np.float64).tobytes())
+    return h.hexdigest()[:16]
 
 
 def _added(obj: str, inst: str, R: object, t: object) -> InstanceAnnotation:
@@ -242,7 +263,9 @@ class ReviewState:
         self.decided = 0  # decisions made through this server
         # A sequence's scene -> how many frames on the pages' frames start (shift_frames).
         self._offsets: dict[str, int] = {}
-        self._views: dict[tuple[str, tuple[str, ...]], tuple[Dataset, Scene]] = {}
+        #: (scene, shown frames, their digest) -> the frames view (:meth:`view`), the latest
+        #: few kept.
+        self._views: dict[tuple[str, tuple[str, ...], str], tuple[Dataset, Scene]] = {}
 
     def _stamps(self, sid: str) -> tuple[_Stamp, _Stamp]:
         annotation, review = self._paths[sid]
@@ -260,19 +283,26 @@ class ReviewState:
         made in the scene frame and show in every frame."""
         return self.view(sid)[0]
 
-    def view(self, sid: str) -> tuple[Dataset, Scene]:
-        """:meth:`dataset_of` and :meth:`scene` together."""
+    def view(self, sid: str, info: SceneInfo | None = None) -> tuple[Dataset, Scene]:
+        """:meth:`dataset_of` and :meth:`scene` together; with ``info``, as that version
+        of the scene shows it (the frames it shows, where its annotation put them), not
+        as the scene is now (pictures being prepared for it while P shows other frames)."""
         scene = self._scenes[sid]
         if not self.ds.rig.moving:
             return self.ds, scene
-        info = self.info(sid)
+        if info is None:
+            info = self.info(sid)
         if not info.shown:
             return self.ds, scene
-        key = (sid, info.shown)
+        key = (sid, info.shown, frames_digest(info.frames, info.shown))
         with self._lock:
-            if key not in self._views:
-                self._views[key] = frames_view(self.ds, scene, info.frames, info.shown)
-            return self._views[key]
+            hit = self._views.pop(key, None)
+            if hit is None:
+                hit = frames_view(self.ds, scene, info.frames, info.shown)
+            self._views[key] = hit  # the latest last
+            while len(self._views) > VIEWS_KEPT:
+                self._views.pop(next(iter(self._views)))
+            return hit
 
     def shift_frames(self, sid: str, step: int) -> tuple[str, ...]:
         """Show the sequence's frames ``step`` frames on (back, if negative); the frames now
@@ -281,6 +311,20 @@ class ReviewState:
             self._offsets[sid] = self._offsets.get(sid, 0) + step
             self._cache.pop(sid, None)
             return self.info(sid).shown
+
+    def shifted(self, sid: str, step: int) -> SceneInfo | None:
+        """The scene as :meth:`shift_frames` ``(sid, step)`` would show it (its pictures can
+        be prepared ahead of P), nothing changed; None for a fixed rig's scene, or when the
+        shift shows the same frames."""
+        info = self.info(sid)
+        if not info.shown:
+            return None
+        with self._lock:
+            offset = self._offsets.get(sid, 0) + step
+        shown = tuple(shown_frames(info.frames, offset=offset))
+        if shown == info.shown:
+            return None
+        return replace(info, shown=shown, view=view_key(list(info.poses), shown, info.frames))
 
     def toggle_frame(self, sid: str, frame: str, *, by: str | None = None) -> bool:
         """Reject one frame of a sequence on its own, or take it back; True if it is now
@@ -356,7 +400,7 @@ class ReviewState:
             auto=tuple(poses),
             edited=frozenset(edits.edited),
             stale_edits=frozenset(edits.stale),
-            view=view_key(edits.poses, shown),
+            view=view_key(edits.poses, shown, frames),
             frames=frames,
             shown=shown,
         )
@@ -649,7 +693,7 @@ class ReviewState:
                 stale=review.is_stale(info.fingerprint) or bool(edits.stale),
                 edited=frozenset(edits.edited),
                 stale_edits=frozenset(edits.stale),
-                view=view_key(edits.poses, info.shown),
+                view=view_key(edits.poses, info.shown, info.frames),
             ),
             by,
         )

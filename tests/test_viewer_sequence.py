@@ -1,0 +1,90 @@
+"""The review state of a sequence without a browser: pictures made for the frames a version
+of the scene showed (not those shown by the time they are made), a frame moved by a new
+annotation makes a new view, and nudges go along the first shown frame's camera."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from annotator.cli import main
+from annotator.repair import Nudge, NudgeKind
+from viewer import repair
+from viewer.state import ReviewState
+
+pytestmark = pytest.mark.slow
+
+
+@pytest.fixture(scope="module")
+def sequence(tmp_path_factory) -> Path:
+    """A synthetic sequence of 5 frames, annotated (read-only: tests use a copy)."""
+    root = tmp_path_factory.mktemp("viewseq") / "ds"
+    synth = ["synth", str(root), "--scenes", "1", "--frames", "5", "--size", "640x512"]
+    synth += ["--supersample", "1", "--instances", "4-6", "--seed", "5", "--quiet"]
+    assert main(synth) == 0
+    assert main(["annotate", str(root), "--quiet"]) == 0
+    return root
+
+
+@pytest.fixture()
+def copy(sequence: Path, tmp_path: Path) -> Path:
+    dst = tmp_path / "ds"
+    shutil.copytree(sequence, dst)
+    return dst
+
+
+def _cameras(state: ReviewState, sid: str, info=None) -> list[str]:
+    return [c.name for c in state.view(sid, info)[0].rig.cameras]
+
+
+def test_a_version_of_the_scene_keeps_its_own_frames(copy: Path) -> None:
+    state = ReviewState(copy)
+    sid = state.ids[0]
+    old = state.info(sid)
+    state.shift_frames(sid, 1)
+    new = state.info(sid)
+    assert new.shown != old.shown and new.view != old.view
+    assert _cameras(state, sid, old) == [f"{f}:{c}" for f in old.shown for c in ("left", "right")]
+    assert _cameras(state, sid) == [f"{f}:{c}" for f in new.shown for c in ("left", "right")]
+    view, scene = state.view(sid, old)
+    assert scene.depth_path.parent.name == old.shown[0]  # its depth is its first frame's
+
+
+def test_a_frame_moved_by_a_new_annotation_is_a_new_view(copy: Path) -> None:
+    state = ReviewState(copy)
+    sid = state.ids[0]
+    info = state.info(sid)
+    first = info.shown[0]
+    before = state.view(sid)[0].rig.cameras[0].rig_T_cam.copy()
+    path = copy / "scenes" / sid / "annotation.json"
+    doc = json.loads(path.read_text())
+    T = np.array(doc["frames"][first]["scene_T_rig"]).reshape(4, 4)
+    T[0, 3] += 5.0  # the frame placed 5 mm elsewhere; no instance pose changes
+    doc["frames"][first]["scene_T_rig"] = T.ravel().tolist()
+    path.write_text(json.dumps(doc))
+    after_info = state.info(sid)
+    assert after_info.fingerprint == info.fingerprint and after_info.view != info.view
+    after = state.view(sid)[0].rig.cameras[0].rig_T_cam
+    assert np.allclose(after[:3, 3] - before[:3, 3], [5.0, 0.0, 0.0])
+
+
+def test_a_nudge_goes_along_the_first_shown_frames_camera(copy: Path) -> None:
+    state = ReviewState(copy)
+    sid = state.ids[0]
+    state.shift_frames(sid, 1)
+    info = state.info(sid)
+    ds = state.dataset_of(sid)
+    pose = info.poses[0]
+    T = repair.nudge(ds, info, pose.key, Nudge(NudgeKind.MOVE, 0, 1.0))
+    scene_T_cam = ds.rig.cameras[0].rig_T_cam
+    assert not np.allclose(scene_T_cam[:3, :3], np.eye(3))  # not the scene frame's axes
+    assert np.allclose(T[:3, 3] - pose.t, scene_T_cam[:3, 0])
+    assert np.allclose(T[:3, :3], pose.R)
+    turned = repair.nudge(ds, info, pose.key, Nudge(NudgeKind.TURN, 2, 10.0))
+    axis = scene_T_cam[:3, 2]
+    dR = turned[:3, :3] @ pose.R.T
+    assert np.allclose(dR @ axis, axis, atol=1e-9)  # a turn about that camera's z
