@@ -64,7 +64,7 @@ from annotator.pnp import (
     reprojection_errors,
 )
 from annotator.pnp.bundle import BundleObservations, BundleResult, bundle_adjust
-from annotator.pnp.uncertainty import relative_rms_uncertainty
+from annotator.pnp.uncertainty import relative_rms_uncertainty, site_covariance
 
 __all__ = [
     "FrameFlag",
@@ -664,11 +664,11 @@ def _uncertainty(
     """An instance's uncertainty as the frames that see it do (what a frame's export holds):
     the median over them of the RMS surface displacement of its pose relative to the frame's,
     from the joint covariance (a part's pose and the frames' are known together), plus what
-    its markers' own errors on the part give (:func:`_site_covariance`: the same in every
+    its markers' own errors on the part give (:func:`~annotator.pnp.uncertainty.site_covariance`: the same in every
     frame, so more frames do not average them out); infinite where a direction nothing fixes
-    is involved. ``sites``: the centres (model frame) of the markers it was posed on."""
+    is involved. ``sites``: the corners (model frame) of the markers it was posed on."""
     T = result.scene_T_model[instance]
-    on_part = _site_covariance(T[:3, :3], sites, SITE_SIGMA_MM)
+    on_part = site_covariance(T[:3, :3], sites, SITE_SIGMA_MM)
     values = []
     for f in frames.tolist():
         cov = result.joint_covariance(instance, f)
@@ -680,30 +680,9 @@ def _uncertainty(
     return float(np.median(values)) if values else float("inf")
 
 
-#: How well a marker's place on its part is known (mm, 1-sigma, each marker on its own):
+#: How well each corner of a marker is known on its part (mm, 1-sigma, each on its own):
 #: printing, gluing flat, the corner fit's bias. It does not average out over frames.
-SITE_SIGMA_MM = 0.1
-
-
-def _site_covariance(R: np.ndarray, centres: np.ndarray, sigma: float) -> np.ndarray:
-    """The ``(w, v)`` covariance of a pose fitted to marker centres each off by ``sigma``
-    (mm, isotropic) on the part: ``sigma^2 (sum B_k^T B_k)^-1`` with ``B_k = [-[R x_k]x, I]``
-    (three or more markers fix it; fewer leave a direction free: its variance infinite)."""
-    if len(centres) == 0:
-        return np.full((6, 6), np.inf)
-    A = np.zeros((6, 6))
-    for x in centres:
-        y = R @ x
-        B = np.hstack([-_skew(y), np.eye(3)])
-        A += B.T @ B
-    try:
-        return np.linalg.inv(A + 1e-9 * np.eye(6)) * sigma**2
-    except np.linalg.LinAlgError:
-        return np.full((6, 6), np.inf)
-
-
-def _skew(a: np.ndarray) -> np.ndarray:
-    return np.array([[0, -a[2], a[1]], [a[2], 0, -a[0]], [-a[1], a[0], 0]])
+SITE_SIGMA_MM = 0.15
 
 
 def _rejected_markers(
@@ -747,11 +726,9 @@ def _records(
             continue
         T = result.scene_T_model[i]
         model = ds.objects[obj]
-        centres = np.stack([obs.model_corners[k].mean(axis=0) for k in np.flatnonzero(used)])
         _, first = np.unique(ids[used], return_index=True)
-        unc = _uncertainty(
-            model.mesh.moments, result, i, np.unique(obs.frame[used]), centres[first]
-        )
+        corners = obs.model_corners[np.flatnonzero(used)[first]].reshape(-1, 3)
+        unc = _uncertainty(model.mesh.moments, result, i, np.unique(obs.frame[used]), corners)
         markers: dict[str, MarkerUse] = {}
         per_cam: dict[str, float] = {}
         for j, cam in enumerate(cams):

@@ -79,3 +79,25 @@ def relative_rms_uncertainty(
             Q += Ak[k].T @ Ak[j] * S[k, j]
     value = float(np.trace(Q @ covariance))
     return float(np.sqrt(max(value, 0.0))) if np.isfinite(value) else float("inf")
+
+
+def site_covariance(R: np.ndarray, corners: np.ndarray, sigma: float) -> np.ndarray:
+    """The ``(w, v)`` covariance of a pose fitted to marker corners ``corners`` (model frame,
+    (n, 3)) each off by ``sigma`` (mm, isotropic) on the part, the pose's rotation ``R``:
+    ``sigma^2 (sum B_k^T B_k)^-1`` with ``B_k = [-[R x_k]x, I]``: what a part's markers'
+    own errors (printing, gluing) do to its pose, however often they are seen. Corners on one
+    line leave a turn free: its variance infinite.
+
+    >>> square = np.array([[-5.0, -5, 0], [5, -5, 0], [5, 5, 0], [-5, 5, 0]])
+    >>> cov = site_covariance(np.eye(3), square, 0.1)
+    >>> bool(np.all(np.isfinite(cov))), round(float(np.sqrt(cov[3, 3])), 4)
+    (True, 0.05)
+    """
+    A = np.zeros((6, 6))
+    for x in np.asarray(corners, dtype=float).reshape(-1, 3):
+        B = np.hstack([-_skew(R @ x), np.eye(3)])
+        A += B.T @ B
+    w, V = np.linalg.eigh(A)
+    if w[0] <= 1e-9 * max(float(w[-1]), 1e-300):
+        return np.full((6, 6), np.inf)
+    return (V / w) @ V.T * sigma**2
