@@ -175,3 +175,31 @@ def test_sequence_review_page_end_to_end(browser, served) -> None:
         assert key in _review(root)["poses"]
     finally:
         page.close()
+
+
+def test_the_3d_view_of_a_sequence_shows_the_shown_frames_cameras(browser, served) -> None:
+    """V: the parts, the first shown frame's depth points and the shown frames' cameras,
+    all in the scene frame; after P (in the 3D view) the new frames' cameras."""
+    app, _ = served
+    page = _open(browser, app.url, first=f"Scene {SCENE}")
+    try:
+        session = _session(app)
+        assert _shows(page, lambda: _as_sent(session.shown.mosaic[1].image))
+        page.get_by_text(f"Scene {SCENE}").first.click()
+        page.keyboard.press("v")
+        assert wait_until(lambda: session.scene.showing_3d)
+
+        def drawn() -> list[str]:
+            return [name for name, _ in session.scene._shown_cameras[0]]
+
+        shown = app.state.info(SCENE).shown
+        expected = [f"{f}:{c}" for f in shown for c in CAMERAS]
+        assert wait_until(lambda: drawn() == expected), drawn()
+        page.keyboard.press("p")
+        assert wait_until(lambda: app.state.info(SCENE).shown != shown)
+        now = app.state.info(SCENE).shown
+        assert wait_until(lambda: drawn() == [f"{f}:{c}" for f in now for c in CAMERAS])
+        page.keyboard.press("v")
+        assert wait_until(lambda: not session.scene.showing_3d)
+    finally:
+        page.close()

@@ -24,7 +24,8 @@ it is brought up to date when it is shown.
 from __future__ import annotations
 
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
+from typing import Any
 
 import numpy as np
 import viser
@@ -33,6 +34,7 @@ from scipy.spatial.transform import Rotation
 from annotator.dataset import Dataset
 from annotator.dataset.annotation import InstanceAnnotation
 from annotator.geometry import MM_PER_M
+from annotator.geometry.camera import Camera
 from annotator.geometry.transforms import invert, make_transform
 from viewer.style import SELECTED_COLOUR, Look
 
@@ -82,10 +84,19 @@ class Scene3D:
         self._lock = threading.RLock()
         self.showing_3d = False
         self._pending_3d: (
-            tuple[tuple[InstanceAnnotation, ...], Look, np.ndarray | None, object] | None
+            tuple[
+                tuple[InstanceAnnotation, ...],
+                Look,
+                np.ndarray | None,
+                object,
+                Sequence[Camera] | None,
+            ]
+            | None
         )
         self._pending_3d = None
         self._shown_cloud: object = None
+        #: The frustums drawn: (name, rig_T_cam bytes) per camera, and their handles.
+        self._shown_cameras: tuple[tuple[tuple[str, bytes], ...], list[Any]] = ((), [])
         self._cloud: viser.PointCloudHandle | None = None
         self._parts: dict[str, viser.BatchedMeshHandle] = {}
         self._slots: dict[str, list[str]] = {}  # object -> instance name per slot
@@ -99,18 +110,7 @@ class Scene3D:
         # Lighting for the parts' shading; the pictures need none (hence not sent before).
         scene.configure_environment_map("warehouse")
         self._root = scene.add_frame("/scene3d", show_axes=False, visible=False)
-        for cam in self._ds.rig.cameras:
-            scene.add_camera_frustum(
-                f"/scene3d/cameras/{cam.name}",
-                fov=float(2 * np.arctan(cam.height / 2 / cam.K[1, 1])),
-                aspect=cam.width / cam.height,
-                scale=0.04,
-                thickness=1.5,
-                thickness_units="screen",
-                color=(90, 90, 90),
-                wxyz=_wxyz(cam.rig_T_cam[:3, :3]),
-                position=tuple(cam.rig_T_cam[:3, 3] / MM_PER_M),
-            )
+        self._show_cameras(self._ds.rig.cameras)
         for name, obj in self._ds.objects.items():
             self._add_object(name, [i.name for i in obj.instances])
 
@@ -180,24 +180,51 @@ class Scene3D:
         look: Look,
         cloud: np.ndarray | None,
         cloud_key: object,
+        cameras: Sequence[Camera] | None = None,
     ) -> None:
         """The parts of a scene at their poses, coloured by ``look``, and its depth points
-        (reference frame, metres; None: none; sent again only when ``cloud_key`` changes).
-        Sent now if the 3D view is shown, else when it is."""
+        (reference frame, metres; None: none; sent again only when ``cloud_key`` changes);
+        ``cameras``: the frustums to draw (a sequence's shown frames' cameras in the scene
+        frame), None for the rig's own. Sent now if the 3D view is shown, else when it is."""
         with self._lock:
-            self._pending_3d = (poses, look, cloud, cloud_key)
+            self._pending_3d = (poses, look, cloud, cloud_key, cameras)
             if self.showing_3d:
                 self._flush_3d()
 
     def _flush_3d(self) -> None:
         if self._pending_3d is None:
             return
-        poses, look, cloud, cloud_key = self._pending_3d
+        poses, look, cloud, cloud_key, cameras = self._pending_3d
         self._pending_3d = None
         self._show_parts(poses, look)
         if cloud_key != self._shown_cloud:
             self._show_cloud(cloud)
             self._shown_cloud = cloud_key
+        self._show_cameras(self._ds.rig.cameras if cameras is None else cameras)
+
+    def _show_cameras(self, cameras: Sequence[Camera]) -> None:
+        """Frustums of ``cameras`` where they are, replacing those drawn for others."""
+        placed = tuple((c.name, c.rig_T_cam.tobytes()) for c in cameras)
+        if placed == self._shown_cameras[0]:
+            return
+        for handle in self._shown_cameras[1]:
+            handle.remove()
+        handles = []
+        for cam in cameras:
+            handles.append(
+                self._scene.add_camera_frustum(
+                    f"/scene3d/cameras/{cam.name}",
+                    fov=float(2 * np.arctan(cam.height / 2 / cam.K[1, 1])),
+                    aspect=cam.width / cam.height,
+                    scale=0.04,
+                    thickness=1.5,
+                    thickness_units="screen",
+                    color=(90, 90, 90),
+                    wxyz=_wxyz(cam.rig_T_cam[:3, :3]),
+                    position=tuple(cam.rig_T_cam[:3, 3] / MM_PER_M),
+                )
+            )
+        self._shown_cameras = (placed, handles)
 
     def _show_parts(self, poses: tuple[InstanceAnnotation, ...], look: Look) -> None:
         by_object: dict[str, list[InstanceAnnotation]] = {}

@@ -228,8 +228,12 @@ class Session:
             self.displayed = sid
         self.client.flush()  # the new picture is on its way before anything else is done
         self.pictures.send_background_soon()
-        # A sequence's cloud is the first shown frame's depth: sent again when P shows others.
-        self.scene.show_3d_scene(info.poses, look, prep.cloud, (sid, info.fingerprint, info.shown))
+        # A sequence's cloud is the first shown frame's depth, its frustums the shown frames'
+        # cameras: sent again when P shows others.
+        cameras = self.app.state.view(sid, info)[0].rig.cameras if info.shown else None
+        self.scene.show_3d_scene(
+            info.poses, look, prep.cloud, (sid, info.fingerprint, info.shown), cameras
+        )
         self.scene.show_gizmo(info.pose(selected) if selected else None)
         if selected and prep.scene_id == sid and info.pose(selected) is not None:
             self.editor.work_ahead(sid, selected, info)
