@@ -98,3 +98,29 @@ def test_twin_report_compares_frame_by_frame(sequence_twin, capsys) -> None:
     assert (out / "report" / "histogram.png").stat().st_size > 1000
     assert main(["twin-report", str(root), str(out)]) == 0
     assert f"000000/{twin_frames[0]}" in capsys.readouterr().out
+
+
+def test_the_twin_of_a_one_camera_sequence(tmp_path, capsys) -> None:
+    """One camera with depth (an RGB-D sensor's colour camera): the twin's depth comes from a
+    simulated stereo partner that is rendered for the depth only, never written."""
+    root = tmp_path / "ds"
+    synth = ["synth", str(root), "--scenes", "1", "--frames", "3", "--cameras", "1"]
+    synth += ["--size", "640x512", "--supersample", "1", "--instances", "4-6", "--seed", "5"]
+    assert main([*synth, "--quiet"]) == 0
+    assert main(["annotate", str(root), "--quiet"]) == 0
+    out = tmp_path / "twin"
+    args = ["synth", str(out), "--twin", str(root), "--include-pending", "--quiet"]
+    assert main(args) == 0
+    frames = load_dataset(out).scenes()[0].frames()
+    assert frames
+    for frame in frames:
+        assert sorted(p.name for p in frame.path.iterdir()) == [
+            "depth.png",
+            "depth_ideal.png",
+            "left.png",
+        ]
+    capsys.readouterr()
+    assert main(["twin-report", str(root), str(out), "--json"]) == 0
+    rep = json.loads(capsys.readouterr().out)
+    assert [r["scene"] for r in rep["scenes"]] == [f"000000/{f.name}" for f in frames]
+    assert rep["overall"]["valid_twin"] > 0.3 and rep["overall"]["median_abs_mm"] < 1.0

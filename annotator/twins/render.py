@@ -27,7 +27,7 @@ instance's ``occlusion`` the least any frame saw, as ``synth --frames`` writes i
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -41,25 +41,36 @@ from annotator.io.images import encode_depth, write_png
 from annotator.markers.dictionary import is_predefined
 from annotator.markers.texture import marker_bits
 from annotator.synthesis.rig import RigSetup, look_at
-from annotator.synthesis.shading import Surface, finish_image, render_intensity
+from annotator.synthesis.shading import Surface, finish_image, render_intensity, render_view
 
 BACKGROUND_ALBEDO = 0.45
 PART_ALBEDO = 0.8
 MESH_STEP = 4
+#: A one-camera rig's simulated stereo partner: this far to its right (mm), as synth's rig.
+STEREO_BASELINE_MM = 100.0
 STEP_MM = 8.0
 
 
 def twin_setup(ds: Dataset) -> RigSetup:
     """The dataset's rig in a world frame that is the reference camera's, with a projector
-    midway between the first two cameras."""
-    cams = ds.rig.cameras
+    midway between the first two cameras. A rig of one camera with depth (an RGB-D sensor's
+    colour camera) gets the simulated stereo pair's second camera, :data:`STEREO_BASELINE_MM`
+    to its right, rendered for the depth only (as ``synth --cameras 1`` does)."""
+    rig = ds.rig
+    if len(rig.cameras) == 1 and rig.depth is not None:
+        ref = rig.cameras[0]
+        shift = np.eye(4)
+        shift[0, 3] = STEREO_BASELINE_MM
+        partner = replace(ref, name=f"{ref.name}.stereo", rig_T_cam=ref.rig_T_cam @ shift)
+        rig = replace(rig, cameras=(ref, partner))
+    cams = rig.cameras
     world_T_cams = tuple(c.rig_T_cam for c in cams)
     centre = 0.5 * (world_T_cams[0][:3, 3] + world_T_cams[min(1, len(cams) - 1)][:3, 3])
     T = look_at(centre, centre + np.array([0.0, 0.0, 500.0]))
     w, h = cams[0].width, cams[0].height
     fp = w * 0.9
     K = np.array([[fp, 0, (w - 1) / 2], [0, fp, (h - 1) / 2], [0, 0, 1.0]])
-    return RigSetup(ds.rig, world_T_cams, T, K, (w, h))
+    return RigSetup(rig, world_T_cams, T, K, (w, h))
 
 
 def background_mesh(ds: Dataset, scene: Capture) -> Mesh | None:
@@ -178,7 +189,10 @@ def _render_shot(
         bits = np.stack([marker_bits(ds.dictionary, m) for m in ids]) if ids else None
         surfaces.append(Surface(obj.mesh, p.T, PART_ALBEDO, sites, bits))
     views = []
-    for cam, world_T_cam in zip(ds.rig.cameras, setup.world_T_cams):
+    for k, (cam, world_T_cam) in enumerate(zip(setup.rig.cameras, setup.world_T_cams)):
+        if k >= len(ds.rig.cameras):  # the stereo partner of a one-camera rig: depth only
+            views.append(render_view(cam, np.linalg.inv(world_T_cam), surfaces, fixed=fixed))
+            continue
         img, view = render_intensity(
             cam,
             np.linalg.inv(world_T_cam),
