@@ -88,3 +88,16 @@ def test_a_nudge_goes_along_the_first_shown_frames_camera(copy: Path) -> None:
     axis = scene_T_cam[:3, 2]
     dR = turned[:3, :3] @ pose.R.T
     assert np.allclose(dR @ axis, axis, atol=1e-9)  # a turn about that camera's z
+
+
+def test_a_sequence_not_annotated_yet_shows_its_first_frame(copy: Path) -> None:
+    from viewer.overlays import prepare
+
+    (copy / "scenes" / "000000" / "annotation.json").unlink()
+    state = ReviewState(copy)
+    info = state.info("000000")
+    assert not info.annotated and info.shown == ()
+    ds, scene = state.view("000000")
+    prep = prepare(ds, scene, list(info.poses))
+    assert not prep.messages  # no "left.png: image file is missing"
+    assert [layer.name for layer in prep.layers] == ["000000:left", "000000:right"]

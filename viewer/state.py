@@ -292,13 +292,20 @@ class ReviewState:
             return self.ds, scene
         if info is None:
             info = self.info(sid)
-        if not info.shown:
-            return self.ds, scene
-        key = (sid, info.shown, frames_digest(info.frames, info.shown))
+        frames, shown = info.frames, info.shown
+        if not shown:
+            # Not annotated yet (or no frame posed): its first frame's images, as they are,
+            # rather than the scene folder's, which a sequence does not have.
+            folders = scene.frames()
+            if not folders:
+                return self.ds, scene
+            first = folders[0].name
+            frames, shown = {first: FramePose(first, np.eye(4))}, (first,)
+        key = (sid, shown, frames_digest(frames, shown))
         with self._lock:
             hit = self._views.pop(key, None)
             if hit is None:
-                hit = frames_view(self.ds, scene, info.frames, info.shown)
+                hit = frames_view(self.ds, scene, frames, shown)
             self._views[key] = hit  # the latest last
             while len(self._views) > VIEWS_KEPT:
                 self._views.pop(next(iter(self._views)))
