@@ -25,6 +25,7 @@ from __future__ import annotations
 from collections import defaultdict
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
+from pathlib import Path
 from typing import Any
 
 import cv2
@@ -47,7 +48,7 @@ from annotator.dataset.annotation import (
     WarningKind,
     sort_flags,
 )
-from annotator.dataset.frames import FramePose, frames_to_json
+from annotator.dataset.frames import FramePose, frames_from_json, frames_to_json
 from annotator.dataset.model import Frame
 from annotator.detection import MarkerDetector
 from annotator.detection.aruco import Detection, ImageReading
@@ -71,6 +72,7 @@ __all__ = [
     "FrameReading",
     "SequenceSolution",
     "annotate_sequence",
+    "frame_annotations",
     "frame_visibility",
     "read_frame",
     "sequence_annotation",
@@ -1009,3 +1011,26 @@ def annotate_sequence(
         if T is not None:
             seen[f.name] = frame_visibility(ds, f, solution.instances, T, settings=settings)
     return sequence_annotation(solution, readings, seen, settings=settings)
+
+
+def frame_annotations(ann: SceneAnnotation) -> dict[str, SceneAnnotation]:
+    """A sequence's annotation as one fixed-rig annotation per posed frame (keyed by the
+    frame's name): the instances that frame read markers of, posed as its rig saw them, with
+    their markers' use (over the sequence) and figures. What works on a fixed rig's
+    annotated scene (``annotator sites``) then works on every frame of a sequence."""
+    frames = frames_from_json(ann.extra.get("frames"), Path("annotation.json"))
+    out = {}
+    for name, frame in sorted(frames.items()):
+        if frame.scene_T_rig is None:
+            continue
+        read = {
+            k for k, v in (frame.extra.get("instances") or {}).items() if v.get("markers_used")
+        }
+        rig_T_scene = invert(frame.scene_T_rig)
+        instances = []
+        for r in ann.instances:
+            if r.key in read:
+                T = rig_T_scene @ r.T
+                instances.append(replace(r, R=T[:3, :3].copy(), t=T[:3, 3].copy()))
+        out[name] = SceneAnnotation(instances=instances)
+    return out

@@ -133,7 +133,8 @@ def _last_line(args: argparse.Namespace, survey: SitesSurvey, written: list[str]
     )
     return (
         f"sites: {len(survey.measured)} instances measured from {len(survey.report.done)} "
-        f"scenes{told}{settled}, {survey.flagged} markers flagged; "
+        f"{'frames' if any('/' in u for u in survey.report.done) else 'scenes'}{told}{settled}, "
+        f"{survey.flagged} markers flagged; "
         + (
             f"wrote {len(written)} object.yaml; run `annotator annotate {args.dataset}` again"
             if written

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import functools
 from collections import defaultdict
+from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -34,6 +35,7 @@ from scipy import ndimage
 from annotator.annotation.visibility import render_poses
 from annotator.dataset import Dataset, Scene, cached_dataset
 from annotator.dataset.annotation import SceneAnnotation
+from annotator.dataset.model import FRAMES_DIR, SCENES_DIR, Capture, Frame
 from annotator.dataset.write import sites_to_yaml
 from annotator.detection import MarkerDetector
 from annotator.errors import UserError
@@ -119,15 +121,16 @@ class InstanceSites:
 
 def measure_sites(
     ds: Dataset,
-    scenes: list[Scene],
+    scenes: Sequence[Scene | Frame],
     detections: dict[str, list[tuple[int, int, np.ndarray]]],
     *,
     settings: SiteSettings | None = None,
     annotations: dict[str, SceneAnnotation] | None = None,
     spread: tuple[float, float] | None = None,
 ) -> tuple[list[InstanceSites], tuple[float, float] | None]:
-    """Measure every instance seen in ``scenes`` (which must carry an annotation.json), and
-    the gluing spread (mm, degrees; None if no marker was seen) used as the prior.
+    """Measure every instance seen in ``scenes`` (which must carry an annotation.json, or be
+    a sequence's frames given in ``annotations``), and the gluing spread (mm, degrees; None if
+    no marker was seen) used as the prior.
 
     Args:
         detections: Per scene id, the markers read in it: ``(camera index, id, corners)``
@@ -141,7 +144,13 @@ def measure_sites(
     gathered: dict[tuple[str, str], InstanceData] = {}
     read: dict[tuple[str, str], dict[int, int]] = defaultdict(lambda: defaultdict(int))
     for scene in scenes:
-        ann = (annotations or {}).get(scene.id) or SceneAnnotation.read(scene.annotation_path)
+        ann = (annotations or {}).get(scene.id)
+        if ann is None:
+            ann = (
+                SceneAnnotation.read(scene.annotation_path)
+                if isinstance(scene, Scene)
+                else SceneAnnotation()  # a frame its sequence's solve did not pose
+            )
         _gather_scene(ds, scene, ann, detections.get(scene.id, []), gathered, read)
     items = sorted(gathered.items())
     if spread is None:
@@ -206,7 +215,7 @@ MIN_SPREAD = (0.02, 0.1)
 
 def _gather_scene(
     ds: Dataset,
-    scene: Scene,
+    scene: Capture,
     ann: SceneAnnotation,
     found: list[tuple[int, int, np.ndarray]],
     gathered: dict[tuple[str, str], InstanceData],
@@ -303,7 +312,7 @@ class DetectJob:
 
     def __call__(self, scene_id: str) -> dict[str, Any]:
         ds = cached_dataset(self.root)
-        scene = ds.scene(scene_id)
+        scene = capture(ds, scene_id)
         detector = _detector(ds.dictionary)
         found = []
         for j, cam in enumerate(ds.rig.cameras):
@@ -311,6 +320,23 @@ class DetectJob:
                 if d.id in ds.marker_table:
                     found.append((j, int(d.id), np.asarray(d.corners, float)))
         return {"markers": found}
+
+
+def capture(ds: Dataset, unit: str) -> Capture:
+    """What a unit names: a fixed rig's scene, or (``<scene>/<frame>``) a sequence's frame."""
+    if ds.rig.moving and "/" in unit:
+        scene, frame = unit.rsplit("/", 1)
+        return Frame(
+            scene, frame, ds.root / SCENES_DIR / scene / FRAMES_DIR / frame, ds.rig.flipped
+        )
+    return ds.scene(unit)
+
+
+def units(ds: Dataset, scenes: list[Scene]) -> list[Scene | Frame]:
+    """What the sites are measured on: the scenes, or every frame of the sequences."""
+    if not ds.rig.moving:
+        return list[Scene | Frame](scenes)
+    return [frame for scene in scenes for frame in scene.frames()]
 
 
 @functools.cache

@@ -29,12 +29,13 @@ from typing import Any
 import numpy as np
 
 from annotator.annotation.scene import annotate_scene
+from annotator.annotation.sequence import annotate_sequence, frame_annotations
 from annotator.annotation.settings import AnnotateSettings
 from annotator.dataset import Dataset, Scene, cached_dataset
 from annotator.dataset.annotation import SceneAnnotation
 from annotator.detection import MarkerDetector
 from annotator.runner import BatchReport, run_batch
-from annotator.sites.measure import InstanceSites, measure_sites
+from annotator.sites.measure import InstanceSites, measure_sites, units
 from annotator.sites.solve import SiteSettings
 
 #: Rounds end once the site corners move by less than this between two rounds (mm, RMS):
@@ -119,9 +120,16 @@ class ReannotateJob:
         _with_sites(self.root, self.sites).marker_table  # noqa: B018  (cached property)
 
     def __call__(self, scene_id: str) -> dict[str, Any]:
+        """``{"annotation": SceneAnnotation}``; a sequence's: ``{"frames": {"<scene>/<frame>":
+        SceneAnnotation}}``, each posed frame as a fixed rig's annotation."""
         ds = _with_sites(self.root, self.sites)
         detector = _detector(ds.dictionary)
-        result = annotate_scene(ds, ds.scene(scene_id), detector, settings=ROUND_SETTINGS)
+        scene = ds.scene(scene_id)
+        if ds.rig.moving:
+            ann = annotate_sequence(ds, scene, detector, settings=ROUND_SETTINGS)
+            frames = frame_annotations(ann)
+            return {"frames": {f"{scene_id}/{name}": a for name, a in frames.items()}}
+        result = annotate_scene(ds, scene, detector, settings=ROUND_SETTINGS)
         return {"annotation": result.annotation}
 
 
@@ -159,18 +167,22 @@ def measure_in_rounds(
             quiet=quiet,
         )
         failed = dict(report.failed)  # these scenes' annotation.json is used instead
-        return {sid: r["annotation"] for sid, r in report.done.items()}
+        out: dict[str, SceneAnnotation] = {}
+        for sid, r in report.done.items():
+            out.update(r["frames"] if "frames" in r else {sid: r["annotation"]})
+        return out
 
     annotations = annotated([], "sites: markers")
+    shots = units(ds, scenes)  # a sequence's sites are measured on its frames
     measured, spread = measure_sites(
-        ds, scenes, detections, settings=settings, annotations=annotations
+        ds, shots, detections, settings=settings, annotations=annotations
     )
     moves: list[float] = []
     rounds = 1
     while rounds < MAX_ROUNDS and measured:
         annotations = annotated(measured, f"sites: round {rounds + 1}")
         again, _ = measure_sites(
-            ds, scenes, detections, settings=settings, annotations=annotations, spread=spread
+            ds, shots, detections, settings=settings, annotations=annotations, spread=spread
         )
         rounds += 1
         moves.append(rms_move(measured, again))

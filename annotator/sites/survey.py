@@ -15,7 +15,7 @@ from annotator.dataset.validity import unknown_name
 from annotator.errors import UserError
 from annotator.io.documents import unified_diff
 from annotator.runner import BatchReport, run_batch
-from annotator.sites.measure import DetectJob, InstanceSites, updated_object_yaml
+from annotator.sites.measure import DetectJob, InstanceSites, units, updated_object_yaml
 from annotator.sites.rounds import measure_in_rounds
 from annotator.sites.solve import SiteSettings
 
@@ -63,20 +63,26 @@ def survey_sites(
     require_meshes(ds)
     report = run_batch(
         DetectJob(str(ds.root)),
-        [s.id for s in scenes],
+        [u.id for u in units(ds, scenes)],  # a sequence's frames, each on its own
         workers=workers,
         desc="sites: markers",
         quiet=quiet,
     )
     detections = {sid: r["markers"] for sid, r in report.done.items()}
+    for unit in list(report.failed):  # a frame that failed fails its sequence
+        owner = unit.rsplit("/", 1)[0] if ds.rig.moving else unit
+        report.failed.setdefault(owner, report.failed.pop(unit))
+    usable = []
     for scene in scenes:
-        problem = _unknown_instance(ds, scene) if scene.id in detections else None
-        if problem is not None:  # its poses cannot be matched to sites: the rest goes on
-            del detections[scene.id]
-            report.failed[scene.id] = problem
+        problem = scene.id in report.failed or _unknown_instance(ds, scene)
+        if problem:  # its poses cannot be matched to sites: the rest goes on
+            if isinstance(problem, str):
+                report.failed[scene.id] = problem
+            continue
+        usable.append(scene)
     found = measure_in_rounds(
         ds,
-        [s for s in scenes if s.id in detections],
+        usable,
         detections,
         settings=SiteSettings(max_move_mm=max_move_mm),
         workers=workers,
