@@ -497,7 +497,6 @@ def _bundle(
     models0 = np.stack([placed.models[k] for k in keys])
     err = _residuals(cams, all_obs, frames0, models0)
     keep = err < s.inlier_px
-    result = None
     for round_ in range(SOLVE_ROUNDS):
         result = bundle_adjust(
             cams,
@@ -506,6 +505,7 @@ def _bundle(
             models0,
             fixed_frame=fidx[placed.reference],
             depth_camera=depth_cam,
+            covariance=False,
         )
         frames0, models0 = result.scene_T_rig, result.scene_T_model
         err = _residuals(cams, all_obs, frames0, models0)
@@ -524,7 +524,17 @@ def _bundle(
         if np.array_equal(new_keep, keep):
             break
         keep = new_keep
-    assert result is not None
+    # The last solve on what is kept, from where the rounds left the poses: its covariance.
+    result = bundle_adjust(
+        cams,
+        all_obs.subset(keep),
+        frames0,
+        models0,
+        fixed_frame=fidx[placed.reference],
+        depth_camera=depth_cam,
+    )
+    frames0, models0 = result.scene_T_rig, result.scene_T_model
+    err = _residuals(cams, all_obs, frames0, models0)
     ids = np.array([r[2].marker_id for r in rows], dtype=int)
     limit = max(s.final_inlier_px, 4 * result.sigma_px)
     moved = _moved(cams, seen, live, frames0, keys, all_obs, keep, limit, s)
@@ -956,14 +966,14 @@ def sequence_annotation(
 def _contradicted_lone(
     r: InstanceAnnotation, agreements: list[float] | None, s: AnnotateSettings
 ) -> bool:
-    """A pose on one marker read once (one camera, one frame of many) that the measured
-    depth disagrees with, or on two readings that it contradicts outright: a misread or
-    stray marker, not a part (its ids are listed as unconfirmed; a part really there shows
-    unposed, not wrongly posed)."""
+    """A pose on one marker (one id, however many frames read it: a misreading can repeat)
+    that the measured depth disagrees with, or on two readings that it contradicts outright:
+    a misread or stray marker, not a part (its ids are listed as unconfirmed; a part really
+    there shows unposed, not wrongly posed)."""
     if not agreements:
         return False
     agreement = float(np.median(agreements))
-    if r.extra.get("frames_seen") == 1 and r.count("used") == 1:
+    if len(r.marker_ids()) == 1:  # one marker, however many frames read it the same way
         return agreement < s.depth_min_agreement
     return r.extra.get("frames_seen", 3) <= 2 and r.count("used") <= 2 and agreement < CONTRADICTED
 

@@ -14,8 +14,11 @@ Conventions (the rest of :mod:`annotator.pnp` and FORMAT.md, sequences):
   marker's centre in the depth camera) is divided by ``depth_sigma_mm / corner_sigma_px``
   so that both weigh as their noise says.
 
-The solve is Levenberg-Marquardt on the sparse normal equations, with Huber weights
-(iteratively reweighted) so that a corner off by many pixels pulls with a bounded force.
+The solve is Levenberg-Marquardt with Huber weights (iteratively reweighted) so that a
+corner off by many pixels pulls with a bounded force. Frames see each other only through the
+instances, so the normal equations are built block by block (a frame's 6x6, an instance's,
+and each frame-instance pair's) and the frames are eliminated first (the Schur complement):
+what is left to solve is the size of the instances alone, whatever the number of frames.
 """
 
 from __future__ import annotations
@@ -25,14 +28,13 @@ from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
-import scipy.sparse as sp
 
 from annotator.geometry.camera import Camera
 from annotator.geometry.transforms import rotvec_to_matrix
 
 __all__ = ["BundleObservations", "BundleResult", "bundle_adjust"]
 
-#: Eigenvalues of ``J^T J`` scaled to a unit diagonal below this are directions the
+#: Eigenvalues of the normal matrix scaled to a unit diagonal below this are directions the
 #: observations do not fix.
 NULL_EIGENVALUE = 1e-9
 
@@ -85,7 +87,8 @@ class BundleResult:
         residual_px: (N,) RMS corner reprojection error of each observation.
         sigma_px: Robust standard deviation of the corner residuals (never below the floor).
         iterations: Levenberg-Marquardt steps taken.
-        covariance: The whole covariance of every unknown (:meth:`joint_covariance`).
+        cross_covariance: (F, I, 6, 6) between each frame's ``(w, v)`` (rows) and each
+            instance's (:meth:`joint_covariance`); empty when not asked for.
     """
 
     scene_T_rig: np.ndarray
@@ -95,21 +98,17 @@ class BundleResult:
     residual_px: np.ndarray
     sigma_px: float
     iterations: int
-    covariance: np.ndarray = field(repr=False, default_factory=lambda: np.zeros((0, 0)))
-    fixed_frame: int = 0
+    cross_covariance: np.ndarray = field(repr=False, default_factory=lambda: np.zeros(0))
 
     def joint_covariance(self, instance: int, frame: int) -> np.ndarray:
         """The 12x12 covariance of instance ``instance``'s ``(w, v)`` then frame ``frame``'s,
         cross terms included (zero for the fixed frame's: it defines the scene frame)."""
-        layout = _Layout(len(self.scene_T_rig), len(self.scene_T_model), self.fixed_frame)
-        m = layout.model_slice(instance)
-        f = layout.frame_slice(frame)
         out = np.zeros((12, 12))
-        out[:6, :6] = self.covariance[m, m]
-        if f is not None:
-            out[6:, 6:] = self.covariance[f, f]
-            out[:6, 6:] = self.covariance[m, f]
-            out[6:, :6] = self.covariance[f, m]
+        out[:6, :6] = self.instance_covariance[instance]
+        out[6:, 6:] = self.frame_covariance[frame]
+        cross = self.cross_covariance[frame, instance]
+        out[6:, :6] = cross
+        out[:6, 6:] = cross.T
         return out
 
 
@@ -125,17 +124,19 @@ def bundle_adjust(
     depth_sigma_mm: float = 2.0,
     huber_px: float = 1.0,
     max_iterations: int = 30,
+    covariance: bool = True,
 ) -> BundleResult:
     """Refine ``scene_T_rig`` (F, 4, 4) and ``scene_T_model`` (I, 4, 4) jointly over ``obs``.
 
     Frame ``fixed_frame`` defines the scene frame and is not moved. Frames and instances
     without observations keep their poses and get infinite covariance. ``depth_camera``: the
     rig camera whose observations' ``depth_mm`` constrain their marker's depth.
+    ``covariance``: False leaves the covariances out (zero), for a solve whose outliers are
+    still to be sorted out.
     """
     frames = np.array(scene_T_rig, dtype=np.float64, copy=True)
     models = np.array(scene_T_model, dtype=np.float64, copy=True)
-    n_frames, n_models = len(frames), len(models)
-    layout = _Layout(n_frames, n_models, fixed_frame)
+    shape = _Shape(len(frames), len(models), fixed_frame)
     depth_weight = corner_sigma_px / depth_sigma_mm
     has_depth = (
         np.isfinite(obs.depth_mm) & (obs.camera == depth_camera)
@@ -143,30 +144,22 @@ def bundle_adjust(
         else np.zeros(len(obs), dtype=bool)
     )
     lam = 1e-4
-    r, J = _linearise(cameras, obs, frames, models, layout, has_depth, depth_weight)
-    w = _huber_weights(r, huber_px)
-    cost = _robust_cost(r, huber_px)
+    lin = _linearise(cameras, obs, frames, models, has_depth, depth_weight)
+    cost = _robust_cost(lin.r, huber_px)
     iterations = 0
     while iterations < max_iterations:
         iterations += 1
-        A = (J.T @ sp.diags(w) @ J).toarray()
-        g = J.T @ (w * r)
-        diag = np.diag(A).copy()
-        free = diag > 0
-        step = np.zeros(layout.size)
-        if free.any():
-            Af = A[np.ix_(free, free)] + lam * np.diag(diag[free] + 1e-9)
-            try:
-                step[free] = np.linalg.solve(Af, -g[free])
-            except np.linalg.LinAlgError:
-                break
-        f_new, m_new = _apply(frames, models, step, layout)
-        r_new, J_new = _linearise(cameras, obs, f_new, m_new, layout, has_depth, depth_weight)
-        cost_new = _robust_cost(r_new, huber_px)
+        normal = _normal(lin, obs, _huber_weights(lin.r, huber_px), shape)
+        step = _solve(normal, lam)
+        if step is None:
+            break
+        f_new, m_new = _apply(frames, models, *step)
+        lin_new = _linearise(cameras, obs, f_new, m_new, has_depth, depth_weight)
+        cost_new = _robust_cost(lin_new.r, huber_px)
         if cost_new < cost:
-            done = cost - cost_new < 1e-10 * max(cost, 1e-12) or np.abs(step).max() < 1e-9
-            frames, models, r, J, cost = f_new, m_new, r_new, J_new, cost_new
-            w = _huber_weights(r, huber_px)
+            biggest = max(float(np.abs(step[0]).max(initial=0.0)), float(np.abs(step[1]).max()))
+            done = cost - cost_new < 1e-7 * max(cost, 1e-12) or biggest < 1e-8
+            frames, models, lin, cost = f_new, m_new, lin_new, cost_new
             lam = max(lam / 10, 1e-9)
             if done:
                 break
@@ -174,57 +167,44 @@ def bundle_adjust(
             lam *= 10
             if lam > 1e6:
                 break
-    corners = r[: 8 * len(obs)].reshape(-1, 4, 2)
+    corners = lin.r[: 8 * len(obs)].reshape(-1, 4, 2)
     per_obs = np.sqrt(np.mean(np.sum(corners**2, axis=-1), axis=-1))
     # The corner noise as the inliers show it (median absolute deviation, robust to the
     # few observations the Huber weights hold back).
     sigma = max(float(1.4826 * np.median(np.abs(corners))) if corners.size else 0.0, 0.0)
     sigma = max(sigma, corner_sigma_px / 3)
-    inlier_rows = np.repeat(per_obs < 4 * max(sigma, huber_px / 3), 8)
-    rows = np.concatenate([inlier_rows, np.ones(r.size - inlier_rows.size, dtype=bool)])
-    Ji = J[np.flatnonzero(rows)]
-    cov = _covariance(Ji, layout, sigma)
-    frame_cov = np.zeros((n_frames, 6, 6))
-    inst_cov = np.zeros((n_models, 6, 6))
-    for f in range(n_frames):
-        s = layout.frame_slice(f)
-        frame_cov[f] = np.zeros((6, 6)) if s is None else cov[s, s]
-    for i in range(n_models):
-        s = layout.model_slice(i)
-        inst_cov[i] = cov[s, s]
-    return BundleResult(
-        frames, models, frame_cov, inst_cov, per_obs, sigma, iterations, cov, fixed_frame
-    )
+    n_frames, n_models = shape.frames, shape.models
+    if not covariance:
+        zero_f, zero_m = np.zeros((n_frames, 6, 6)), np.zeros((n_models, 6, 6))
+        return BundleResult(frames, models, zero_f, zero_m, per_obs, sigma, iterations)
+    inliers = np.repeat(per_obs < 4 * max(sigma, huber_px / 3), 8).astype(float)
+    weights = np.concatenate([inliers, np.ones(lin.r.size - inliers.size)])
+    cov_f, cov_m, cross = _covariance(_normal(lin, obs, weights, shape), sigma)
+    return BundleResult(frames, models, cov_f, cov_m, per_obs, sigma, iterations, cross)
 
 
 @dataclass(frozen=True)
-class _Layout:
-    """Where each pose's six unknowns sit in the parameter vector (the fixed frame has none)."""
+class _Shape:
+    """How many frames and instances, and which frame is fixed (it has no unknowns)."""
 
-    n_frames: int
-    n_models: int
+    frames: int
+    models: int
     fixed: int
 
-    @property
-    def size(self) -> int:
-        return 6 * (self.n_frames - 1 + self.n_models)
 
-    def frame_column(self, f: np.ndarray) -> np.ndarray:
-        """First column of each frame's block (-1 for the fixed frame)."""
-        f = np.asarray(f)
-        col = 6 * np.where(f > self.fixed, f - 1, f)
-        return np.where(f == self.fixed, -1, col)
+@dataclass(frozen=True)
+class _Linear:
+    """Residuals (8 per observation, then one per depth measurement) and their Jacobian by
+    blocks: per observation, with respect to its instance's ``(w, v)`` and its frame's
+    (``jf`` zero for the fixed frame); per depth measurement (``depth``: which observation)
+    the same."""
 
-    def model_column(self, i: np.ndarray) -> np.ndarray:
-        return 6 * (self.n_frames - 1) + 6 * np.asarray(i)
-
-    def frame_slice(self, f: int) -> slice | None:
-        c = int(self.frame_column(np.array(f)))
-        return None if c < 0 else slice(c, c + 6)
-
-    def model_slice(self, i: int) -> slice:
-        c = int(self.model_column(np.array(i)))
-        return slice(c, c + 6)
+    r: np.ndarray
+    jm: np.ndarray  # (n, 8, 6)
+    jf: np.ndarray  # (n, 8, 6)
+    depth: np.ndarray  # (m,) observation indices
+    jm_depth: np.ndarray  # (m, 6)
+    jf_depth: np.ndarray  # (m, 6)
 
 
 def _linearise(
@@ -232,12 +212,10 @@ def _linearise(
     obs: BundleObservations,
     frames: np.ndarray,
     models: np.ndarray,
-    layout: _Layout,
     has_depth: np.ndarray,
     depth_weight: float,
-) -> tuple[np.ndarray, sp.csr_matrix]:
-    """Residuals (8 per observation, then one per depth measurement) and their sparse
-    Jacobian with respect to every frame's and instance's ``(w, v)``."""
+) -> _Linear:
+    """Residuals and Jacobian blocks at these poses (:class:`_Linear`)."""
     n = len(obs)
     Rm = models[obs.instance, :3, :3]
     tm = models[obs.instance, :3, 3]
@@ -266,69 +244,145 @@ def _linearise(
         Hz[sel] = np.broadcast_to(C[:, None, 2, :], (sel.size, 4, 3))
     r_px = (uv - obs.image_corners).reshape(-1)
     # Instance (w, v): dP = w x y + v;  frame (w, v): dQ = R_f^T ([d]x w - v).
-    Jw_m = np.cross(y[:, :, None, :], H)
-    Jv_m = H
-    Jw_f = np.cross(H, d[:, :, None, :])
-    Jv_f = -H
-    rows = np.arange(8 * n).reshape(n, 4, 2)
-    data = [np.concatenate([Jw_m, Jv_m], axis=-1), np.concatenate([Jw_f, Jv_f], axis=-1)]
-    cols = [layout.model_column(obs.instance), layout.frame_column(obs.frame)]
-    parts_r, parts_c, parts_v = [], [], []
-    for block, col in zip(data, cols):
-        keep = col >= 0
-        rr = np.broadcast_to(rows[keep][..., None], (*rows[keep].shape, 6))
-        cc = col[keep][:, None, None, None] + np.arange(6)
-        cc = np.broadcast_to(cc, rr.shape)
-        parts_r.append(rr.reshape(-1))
-        parts_c.append(cc.reshape(-1))
-        parts_v.append(block[keep].reshape(-1))
+    jm = np.concatenate([np.cross(y[:, :, None, :], H), H], axis=-1).reshape(n, 8, 6)
+    jf = np.concatenate([np.cross(H, d[:, :, None, :]), -H], axis=-1).reshape(n, 8, 6)
     residuals = [r_px]
     sel = np.flatnonzero(has_depth)
+    jm_d = jf_d = np.zeros((0, 6))
     if sel.size:
         # The marker's centre: the mean of its corners, its depth the mean of theirs.
-        zc = z[sel].mean(axis=1)
-        residuals.append(depth_weight * (zc - obs.depth_mm[sel]))
-        base = 8 * n + np.arange(sel.size)
+        residuals.append(depth_weight * (z[sel].mean(axis=1) - obs.depth_mm[sel]))
         hz = depth_weight * Hz[sel].mean(axis=1)  # (m, 3)
         yc, dc = y[sel].mean(axis=1), d[sel].mean(axis=1)
-        blocks = [
-            (
-                np.concatenate([np.cross(yc, hz), hz], axis=-1),
-                layout.model_column(obs.instance[sel]),
-            ),
-            (np.concatenate([np.cross(hz, dc), -hz], axis=-1), layout.frame_column(obs.frame[sel])),
-        ]
-        for block, col in blocks:
-            keep = col >= 0
-            parts_r.append(np.repeat(base[keep], 6))
-            parts_c.append((col[keep][:, None] + np.arange(6)).reshape(-1))
-            parts_v.append(block[keep].reshape(-1))
-    r = np.concatenate(residuals)
-    J = sp.csr_matrix(
-        (np.concatenate(parts_v), (np.concatenate(parts_r), np.concatenate(parts_c))),
-        shape=(r.size, layout.size),
-    )
-    return r, J
+        jm_d = np.concatenate([np.cross(yc, hz), hz], axis=-1)
+        jf_d = np.concatenate([np.cross(hz, dc), -hz], axis=-1)
+    return _Linear(np.concatenate(residuals), jm, jf, sel, jm_d, jf_d)
+
+
+@dataclass(frozen=True)
+class _Normal:
+    """The normal equations ``A x = -g`` by blocks (the fixed frame's rows left zero)."""
+
+    amm: np.ndarray  # (I, 6, 6)
+    aff: np.ndarray  # (F, 6, 6)
+    afm: np.ndarray  # (F, I, 6, 6): frame rows, instance columns
+    gm: np.ndarray  # (I, 6)
+    gf: np.ndarray  # (F, 6)
+    fixed: int
+
+
+def _normal(lin: _Linear, obs: BundleObservations, w: np.ndarray, shape: _Shape) -> _Normal:
+    """``J^T W J`` and ``J^T W r`` by blocks, ``w`` the weight of every residual."""
+    n = len(obs)
+    wc, rc = w[: 8 * n].reshape(n, 8), lin.r[: 8 * n].reshape(n, 8)
+    wm = np.swapaxes(lin.jm * wc[..., None], 1, 2)  # (n, 6, 8)
+    wf = np.swapaxes(lin.jf * wc[..., None], 1, 2)
+    pair = obs.frame * shape.models + obs.instance
+    amm = _sum_by(obs.instance, wm @ lin.jm, shape.models)
+    aff = _sum_by(obs.frame, wf @ lin.jf, shape.frames)
+    afm = _sum_by(pair, wf @ lin.jm, shape.frames * shape.models)
+    gm = _sum_by(obs.instance, (wm @ rc[..., None])[..., 0], shape.models)
+    gf = _sum_by(obs.frame, (wf @ rc[..., None])[..., 0], shape.frames)
+    if lin.depth.size:
+        k = lin.depth
+        wd, rd = w[8 * n :], lin.r[8 * n :]
+        jm, jf = lin.jm_depth, lin.jf_depth
+        wjm, wjf = jm * wd[:, None], jf * wd[:, None]
+        amm += _sum_by(obs.instance[k], wjm[:, :, None] * jm[:, None, :], shape.models)
+        aff += _sum_by(obs.frame[k], wjf[:, :, None] * jf[:, None, :], shape.frames)
+        afm += _sum_by(pair[k], wjf[:, :, None] * jm[:, None, :], shape.frames * shape.models)
+        gm += _sum_by(obs.instance[k], wjm * rd[:, None], shape.models)
+        gf += _sum_by(obs.frame[k], wjf * rd[:, None], shape.frames)
+    afm = afm.reshape(shape.frames, shape.models, 6, 6)
+    f = shape.fixed
+    aff[f], afm[f], gf[f] = 0.0, 0.0, 0.0
+    return _Normal(amm, aff, afm, gm, gf, f)
+
+
+def _sum_by(index: np.ndarray, values: np.ndarray, size: int) -> np.ndarray:
+    """``out[k] = sum of values[index == k]``, for ``k < size`` (sorted sums: many times
+    faster than ``np.add.at``)."""
+    out = np.zeros((size, *values.shape[1:]))
+    if len(index) == 0:
+        return out
+    order = np.argsort(index, kind="stable")
+    sorted_index = index[order]
+    starts = np.flatnonzero(np.r_[True, sorted_index[1:] != sorted_index[:-1]])
+    out[sorted_index[starts]] = np.add.reduceat(values[order], starts, axis=0)
+    return out
+
+
+def _frame_inverses(aff: np.ndarray, fixed: int) -> tuple[np.ndarray, np.ndarray]:
+    """Each frame block's inverse, and which frames the observations leave loose (a block
+    not of full rank, the fixed frame apart: their inverse zero)."""
+    inv = np.zeros_like(aff)
+    loose = np.zeros(len(aff), dtype=bool)
+    for f, block in enumerate(aff):
+        if f == fixed:
+            continue
+        scale = np.sqrt(np.maximum(np.diag(block), 1e-300))
+        w, V = np.linalg.eigh(block / scale[:, None] / scale[None, :])
+        if w[0] <= NULL_EIGENVALUE:
+            loose[f] = True
+            continue
+        inv[f] = ((V / w) @ V.T) / scale[:, None] / scale[None, :]
+    return inv, loose
+
+
+def _coupling(normal: _Normal) -> np.ndarray:
+    """Every frame's coupling to the instances as one matrix per frame, (F, 6, 6I)."""
+    n_frames, n_models = normal.afm.shape[:2]
+    return normal.afm.transpose(0, 2, 1, 3).reshape(n_frames, 6, 6 * n_models)
+
+
+def _reduced(
+    normal: _Normal, amm: np.ndarray, c: np.ndarray, B: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """The instances' system with the frames eliminated: ``S = A_mm - sum_f B_f^T C_f B_f``
+    (6I, 6I) and its right side, ``B`` the frames' coupling (:func:`_coupling`)."""
+    n_frames, n_models = B.shape[0], len(amm)
+    CB = c @ B
+    S = -(B.reshape(6 * n_frames, -1).T @ CB.reshape(6 * n_frames, -1))
+    for i in range(n_models):
+        S[6 * i : 6 * i + 6, 6 * i : 6 * i + 6] += amm[i]
+    Cg = np.einsum("fab,fb->fa", c, normal.gf)
+    rhs = normal.gm.reshape(-1) - B.reshape(6 * n_frames, -1).T @ Cg.reshape(-1)
+    return S, rhs
+
+
+def _solve(normal: _Normal, lam: float) -> tuple[np.ndarray, np.ndarray] | None:
+    """The damped step ``(frames (F, 6), instances (I, 6))``; None if it cannot be solved."""
+    eye = np.eye(6)
+
+    def damped(blocks: np.ndarray) -> np.ndarray:
+        diag = np.einsum("kii->ki", blocks)
+        return blocks + (lam * diag + 1e-9)[:, :, None] * eye
+
+    aff = damped(normal.aff)
+    aff[normal.fixed] = eye  # no unknowns: its step is 0 (its rows are zero)
+    c = np.linalg.inv(aff)
+    c[normal.fixed] = 0.0
+    B = _coupling(normal)
+    S, rhs = _reduced(normal, damped(normal.amm), c, B)
+    try:
+        dm = np.linalg.solve(S, -rhs)
+    except np.linalg.LinAlgError:
+        return None
+    df = -np.einsum("fab,fb->fa", c, normal.gf + B @ dm)
+    return df, dm.reshape(-1, 6)
 
 
 def _apply(
-    frames: np.ndarray, models: np.ndarray, step: np.ndarray, layout: _Layout
+    frames: np.ndarray, models: np.ndarray, df: np.ndarray, dm: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
-    """The poses moved by ``step`` (left perturbations in the scene frame)."""
-    frames, models = frames.copy(), models.copy()
-    for f in range(layout.n_frames):
-        s = layout.frame_slice(f)
-        if s is not None:
-            frames[f] = _perturb(frames[f], step[s])
-    for i in range(layout.n_models):
-        models[i] = _perturb(models[i], step[layout.model_slice(i)])
-    return frames, models
+    """The poses moved by the step (left perturbations in the scene frame)."""
+    return _perturbed(frames, df), _perturbed(models, dm)
 
 
-def _perturb(T: np.ndarray, d: np.ndarray) -> np.ndarray:
+def _perturbed(T: np.ndarray, d: np.ndarray) -> np.ndarray:
     out = T.copy()
-    out[:3, :3] = rotvec_to_matrix(d[:3]) @ T[:3, :3]
-    out[:3, 3] = T[:3, 3] + d[3:]
+    out[:, :3, :3] = rotvec_to_matrix(d[:, :3]) @ T[:, :3, :3]
+    out[:, :3, 3] = T[:, :3, 3] + d[:, 3:]
     return out
 
 
@@ -342,25 +396,39 @@ def _robust_cost(r: np.ndarray, k: float) -> float:
     return float(np.sum(np.where(a <= k, 0.5 * a**2, k * a - 0.5 * k**2)))
 
 
-def _covariance(J: sp.csr_matrix, layout: _Layout, sigma: float) -> np.ndarray:
-    """``sigma^2 (J^T J)^-1``. What the residuals do not fix (an unknown no residual touches,
-    or a frame and an instance that only see each other: their common motion is free) gets
-    infinite variance, not a number: the pseudo-inverse of the rest."""
-    A = (J.T @ J).toarray()
-    d = np.diag(A).copy()
+def _covariance(normal: _Normal, sigma: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``sigma^2 A^-1`` by blocks: each frame's, each instance's and each frame-instance
+    pair's. What the residuals do not fix (an unknown no residual touches, or a frame and an
+    instance that only see each other: their common motion is free) gets infinite variance,
+    not a number: the pseudo-inverse of the rest."""
+    n_models = normal.amm.shape[0]
+    c, loose_f = _frame_inverses(normal.aff, normal.fixed)
+    B = _coupling(normal)
+    S, _ = _reduced(normal, normal.amm, c, B)
+    d = np.diag(S).copy()
     touched = d > 0
-    # Scaled to a unit diagonal, radians and millimetres weigh alike: what is left near
-    # zero is a direction the observations do not fix, not a unit.
-    s = np.where(touched, 1.0 / np.sqrt(np.where(touched, d, 1.0)), 0.0)
-    B = A * s[:, None] * s[None, :]
-    w, V = np.linalg.eigh(B[np.ix_(touched, touched)])
+    scale = np.where(touched, 1.0 / np.sqrt(np.where(touched, d, 1.0)), 0.0)
+    idx = np.flatnonzero(touched)
+    w, V = np.linalg.eigh((S * scale[:, None] * scale[None, :])[np.ix_(idx, idx)])
     null = w <= NULL_EIGENVALUE
     inv_w = np.where(null, 0.0, 1.0 / np.where(null, 1.0, w))
-    cov = np.full(A.shape, np.inf)
-    sub = (V * inv_w) @ V.T
-    idx = np.flatnonzero(touched)
-    cov[np.ix_(idx, idx)] = sub * s[idx, None] * s[None, idx] * sigma**2
-    loose = idx[np.abs(V[:, null]).max(axis=1, initial=0.0) > 1e-3]
-    cov[loose, :] = np.inf
-    cov[:, loose] = np.inf
-    return cov
+    M = np.zeros_like(S)
+    M[np.ix_(idx, idx)] = (V * inv_w) @ V.T * scale[idx, None] * scale[None, idx]
+    loose_rows = np.ones(S.shape[0], dtype=bool)
+    loose_rows[idx] = np.abs(V[:, null]).max(axis=1, initial=0.0) > 1e-3
+    loose_m = np.asarray(loose_rows.reshape(n_models, 6).any(axis=1), dtype=bool)
+    M4 = M.reshape(n_models, 6, n_models, 6)
+    # Frames: with T = C B, their cross terms are -T M and their blocks C + T M T^T.
+    TM = (c @ B) @ M  # (F, 6, 6I)
+    cross = -TM.reshape(len(c), 6, n_models, 6).transpose(0, 2, 1, 3)  # (F, I, 6, 6)
+    cov_f = c + TM @ np.swapaxes(c @ B, 1, 2)
+    cov_m = np.stack([M4[i, :, i, :] for i in range(n_models)])
+    sees = np.abs(normal.afm).max(axis=(2, 3)) > 0  # (F, I): the frame read the instance
+    bad_f = loose_f | (sees & loose_m[None, :]).any(axis=1)
+    cov_m[loose_m] = np.inf
+    cov_f[bad_f] = np.inf
+    cross[bad_f] = np.inf
+    cross[:, loose_m] = np.inf
+    cov_f[normal.fixed] = 0.0
+    cross[normal.fixed] = 0.0
+    return cov_f * sigma**2, cov_m * sigma**2, cross * sigma**2
