@@ -497,42 +497,39 @@ def _bundle(
     models0 = np.stack([placed.models[k] for k in keys])
     err = _residuals(cams, all_obs, frames0, models0)
     keep = err < s.inlier_px
-    for round_ in range(SOLVE_ROUNDS):
-        result = bundle_adjust(
+
+    def solve(covariance: bool) -> BundleResult:
+        return bundle_adjust(
             cams,
             all_obs.subset(keep),
             frames0,
             models0,
             fixed_frame=fidx[placed.reference],
             depth_camera=depth_cam,
-            covariance=False,
+            covariance=covariance,
         )
-        frames0, models0 = result.scene_T_rig, result.scene_T_model
-        err = _residuals(cams, all_obs, frames0, models0)
-        limit = max(s.final_inlier_px, 4 * result.sigma_px)
+
+    def kept(err: np.ndarray, limit: float) -> np.ndarray:
         # An observation is left out with the rest of its frame's view of its instance: a
         # part that moved disagrees as a whole.
         bad_edge = _edge_rms(all_obs, err) > limit
-        new_keep = (err < 2 * limit) & ~bad_edge[all_obs.frame, all_obs.instance]
+        return (err < 2 * limit) & ~bad_edge[all_obs.frame, all_obs.instance]
+
+    for round_ in range(SOLVE_ROUNDS):
+        result = solve(covariance=False)
+        frames0, models0 = result.scene_T_rig, result.scene_T_model
+        limit = max(s.final_inlier_px, 4 * result.sigma_px)
+        new_keep = kept(_residuals(cams, all_obs, frames0, models0), limit)
         if round_ == 0:
             models0 = _restart_disowned(
                 cams, seen, live, frames0, models0, keys, all_obs, new_keep, s
             )
-            err = _residuals(cams, all_obs, frames0, models0)
-            bad_edge = _edge_rms(all_obs, err) > limit
-            new_keep = (err < 2 * limit) & ~bad_edge[all_obs.frame, all_obs.instance]
+            new_keep = kept(_residuals(cams, all_obs, frames0, models0), limit)
         if np.array_equal(new_keep, keep):
             break
         keep = new_keep
     # The last solve on what is kept, from where the rounds left the poses: its covariance.
-    result = bundle_adjust(
-        cams,
-        all_obs.subset(keep),
-        frames0,
-        models0,
-        fixed_frame=fidx[placed.reference],
-        depth_camera=depth_cam,
-    )
+    result = solve(covariance=True)
     frames0, models0 = result.scene_T_rig, result.scene_T_model
     err = _residuals(cams, all_obs, frames0, models0)
     ids = np.array([r[2].marker_id for r in rows], dtype=int)
@@ -1033,9 +1030,7 @@ def frame_annotations(ann: SceneAnnotation) -> dict[str, SceneAnnotation]:
     for name, frame in sorted(frames.items()):
         if frame.scene_T_rig is None:
             continue
-        read = {
-            k for k, v in (frame.extra.get("instances") or {}).items() if v.get("markers_used")
-        }
+        read = {k for k, v in (frame.extra.get("instances") or {}).items() if v.get("markers_used")}
         rig_T_scene = invert(frame.scene_T_rig)
         instances = []
         for r in ann.instances:
