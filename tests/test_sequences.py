@@ -327,7 +327,7 @@ def test_sites_are_measured_from_one_sequence(tmp_path: Path, capsys) -> None:
     """Markers glued by hand (0.7 mm, 2 degrees): ``sites`` measures them from the frames of
     one sequence, and the poses annotated again are better."""
     root = tmp_path / "glued"
-    args = [*SEQUENCE, "--glue", "0.7,2", "--seed", "31"]
+    args = [*SEQUENCE, "--glue", "0.7,2", "--seed", "31", "--frames", "6"]
     assert main(["synth", str(root), *args, "--workers", "2"]) == 0
     assert main(["annotate", str(root), "--workers", "2", "--quiet"]) == 0
     before = sequence_errors(root)
