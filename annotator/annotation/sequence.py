@@ -48,7 +48,7 @@ from annotator.dataset.annotation import (
     WarningKind,
     sort_flags,
 )
-from annotator.dataset.frames import FramePose, frames_from_json, frames_to_json
+from annotator.dataset.frames import FramePose, frames_from_json, frames_to_json, poses_in_frame
 from annotator.dataset.model import Frame
 from annotator.detection import MarkerDetector
 from annotator.detection.aruco import Detection, ImageReading
@@ -856,13 +856,7 @@ def frame_visibility(
     falls in one of its cameras, ``{"occlusion": {camera: rate}, "depth_agreement": a}``."""
     if not instances:
         return {}
-    rig_T_scene = invert(np.asarray(scene_T_rig, dtype=np.float64))
-    local = [
-        InstanceAnnotation(
-            r.object, r.instance, (rig_T_scene @ r.T)[:3, :3], (rig_T_scene @ r.T)[:3, 3]
-        )
-        for r in instances
-    ]
+    local = poses_in_frame(instances, scene_T_rig)
     depth = frame.read_depth(ds.rig)
     vis = scene_visibility(
         ds.rig,
@@ -1031,11 +1025,6 @@ def frame_annotations(ann: SceneAnnotation) -> dict[str, SceneAnnotation]:
         if frame.scene_T_rig is None:
             continue
         read = {k for k, v in (frame.extra.get("instances") or {}).items() if v.get("markers_used")}
-        rig_T_scene = invert(frame.scene_T_rig)
-        instances = []
-        for r in ann.instances:
-            if r.key in read:
-                T = rig_T_scene @ r.T
-                instances.append(replace(r, R=T[:3, :3].copy(), t=T[:3, 3].copy()))
-        out[name] = SceneAnnotation(instances=instances)
+        seen = [r for r in ann.instances if r.key in read]
+        out[name] = SceneAnnotation(instances=poses_in_frame(seen, frame.scene_T_rig))
     return out

@@ -27,18 +27,13 @@ from annotator.annotation.sequence import (
 from annotator.annotation.settings import AnnotateSettings
 from annotator.dataset import Dataset, Scene, cached_dataset
 from annotator.dataset.annotation import InstanceAnnotation, WarningKind
-from annotator.dataset.model import FRAMES_DIR, SCENES_DIR, Frame
+from annotator.dataset.model import FRAMES_DIR, SCENES_DIR
 from annotator.dataset.review import now_iso
 from annotator.detection import MarkerDetector
 from annotator.runner import BatchReport, run_batch
 from annotator.runner.bundle import description_files
 
 __all__ = ["FrameReadJob", "FrameSeeJob", "SequenceSolveJob", "annotate_sequences"]
-
-
-def _frame(ds: Dataset, unit: str) -> Frame:
-    scene, name = unit.rsplit("/", 1)
-    return Frame(scene, name, ds.root / SCENES_DIR / scene / FRAMES_DIR / name, ds.rig.flipped)
 
 
 def _frame_files(ds: Dataset, unit: str) -> list[str]:
@@ -76,7 +71,7 @@ class FrameReadJob(_Step):
 
     def __call__(self, scene_id: str) -> dict[str, Any]:
         ds = cached_dataset(self.root)
-        return {"reading": read_frame(ds, _frame(ds, scene_id), _detector(ds.dictionary))}
+        return {"reading": read_frame(ds, ds.frame(scene_id), _detector(ds.dictionary))}
 
 
 @dataclass(frozen=True)
@@ -107,7 +102,7 @@ class FrameSeeJob(_Step):
         sol = self.solutions[scene]
         T = sol.frames[name].scene_T_rig
         assert T is not None  # only posed frames are units
-        seen = frame_visibility(ds, _frame(ds, scene_id), sol.instances, T, settings=self.settings)
+        seen = frame_visibility(ds, ds.frame(scene_id), sol.instances, T, settings=self.settings)
         return {"seen": seen}
 
 

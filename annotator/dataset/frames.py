@@ -12,10 +12,11 @@ from __future__ import annotations
 from collections.abc import Collection, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 
+from annotator.dataset.annotation import InstanceAnnotation
 from annotator.dataset.model import FRAMES_DIR, Capture, Dataset, DepthSpec, Rig, Scene
 from annotator.dataset.poses import InstancePose, read_pose_file
 from annotator.errors import UserError
@@ -97,7 +98,11 @@ def frames_to_json(frames: Mapping[str, FramePose]) -> dict[str, Any]:
     return {name: frames[name].to_json() for name in sorted(frames)}
 
 
-def poses_in_frame(poses: list[InstancePose], scene_T_rig: np.ndarray) -> list[InstancePose]:
+#: A pose record: a file's (InstancePose) or annotate's (InstanceAnnotation).
+P = TypeVar("P", InstancePose, InstanceAnnotation)
+
+
+def poses_in_frame(poses: Sequence[P], scene_T_rig: np.ndarray) -> list[P]:
     """The instance poses (scene frame) as that frame's reference camera sees them:
     ``inverse(scene_T_rig) @ scene_T_model``, each record's other fields kept.
 

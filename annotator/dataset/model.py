@@ -290,6 +290,14 @@ class Dataset:
             raise KeyError(scene_id)
         return Scene(scene_id, path, self.rig.flipped)
 
+    def frame(self, unit: str) -> Frame:
+        """A sequence's frame named ``<scene>/<frame>`` (as batch units and messages name
+        it; the folder may be a Ray task's replica, holding only that frame's files)."""
+        scene, name = unit.rsplit("/", 1)
+        return Frame(
+            scene, name, self.root / SCENES_DIR / scene / FRAMES_DIR / name, self.rig.flipped
+        )
+
     @cached_property
     def background_depth(self) -> np.ndarray | None:
         """The depth (mm, NaN = none) of the empty bin or support declared as

@@ -8,7 +8,7 @@ from typing import Any
 
 from annotator.dataset import Dataset, InstancePose, Scene, cached_dataset
 from annotator.dataset.frames import frames_from_json, scene_shots
-from annotator.dataset.model import Capture
+from annotator.dataset.model import FRAMES_DIR, Capture
 from annotator.dataset.poses import read_pose_file
 from annotator.errors import UserError
 from annotator.io.atomic import write_json
@@ -49,7 +49,7 @@ class VisibilityJob:
         ds = cached_dataset(self.root)
         if ds.rig.moving:
             for frame in ds.scene(scene_id).frames():
-                rel = scene.path / "frames" / frame.name
+                rel = scene.path / FRAMES_DIR / frame.name
                 files += [(rel / "depth.png").as_posix()]
                 files += [(rel / f"{c.name}.png").as_posix() for c in ds.rig.cameras[:1]]
         return files

@@ -35,7 +35,7 @@ from scipy import ndimage
 from annotator.annotation.visibility import render_poses
 from annotator.dataset import Dataset, Scene, cached_dataset
 from annotator.dataset.annotation import SceneAnnotation
-from annotator.dataset.model import FRAMES_DIR, SCENES_DIR, Capture, Frame
+from annotator.dataset.model import Capture, Frame
 from annotator.dataset.write import sites_to_yaml
 from annotator.detection import MarkerDetector
 from annotator.errors import UserError
@@ -324,12 +324,7 @@ class DetectJob:
 
 def capture(ds: Dataset, unit: str) -> Capture:
     """What a unit names: a fixed rig's scene, or (``<scene>/<frame>``) a sequence's frame."""
-    if ds.rig.moving and "/" in unit:
-        scene, frame = unit.rsplit("/", 1)
-        return Frame(
-            scene, frame, ds.root / SCENES_DIR / scene / FRAMES_DIR / frame, ds.rig.flipped
-        )
-    return ds.scene(unit)
+    return ds.frame(unit) if ds.rig.moving and "/" in unit else ds.scene(unit)
 
 
 def units(ds: Dataset, scenes: list[Scene]) -> list[Scene | Frame]:
