@@ -1,5 +1,5 @@
 """Shared fixtures: copies of the committed sample dataset (tests never write into it), the
-browser. Modules that a developer's inner loop (``make test-fast``) leaves out mark
+browser, a rendered sequence. Modules that a developer's inner loop (``make test-fast``) leaves out mark
 themselves ``slow`` (``pytestmark``): Ray clusters, calibration captures, sites measured over
 many scenes, real browsers."""
 
@@ -9,6 +9,8 @@ import shutil
 from pathlib import Path
 
 import pytest
+
+from annotator.cli import main
 
 SAMPLE = Path(__file__).resolve().parent.parent / "sample_scenes"
 
@@ -25,6 +27,18 @@ def sample_copy(tmp_path: Path) -> Path:
 def sample() -> Path:
     """The committed sample dataset, read-only."""
     return SAMPLE
+
+
+@pytest.fixture(scope="session")
+def sequence(tmp_path_factory) -> Path:
+    """A synthetic sequence of 6 frames (640x512, two cameras and depth, 4-6 parts),
+    annotated; read-only (tests that write use a copy)."""
+    root = tmp_path_factory.mktemp("sequence") / "ds"
+    synth = ["synth", str(root), "--scenes", "1", "--frames", "6", "--size", "640x512"]
+    synth += ["--supersample", "1", "--instances", "4-6", "--seed", "5", "--quiet"]
+    assert main(synth) == 0
+    assert main(["annotate", str(root), "--quiet"]) == 0
+    return root
 
 
 @pytest.fixture(scope="module")

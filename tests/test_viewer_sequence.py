@@ -11,23 +11,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from annotator.cli import main
 from annotator.repair import Nudge, NudgeKind
 from viewer import repair
 from viewer.state import ReviewState
 
 pytestmark = pytest.mark.slow
-
-
-@pytest.fixture(scope="module")
-def sequence(tmp_path_factory) -> Path:
-    """A synthetic sequence of 5 frames, annotated (read-only: tests use a copy)."""
-    root = tmp_path_factory.mktemp("viewseq") / "ds"
-    synth = ["synth", str(root), "--scenes", "1", "--frames", "5", "--size", "640x512"]
-    synth += ["--supersample", "1", "--instances", "4-6", "--seed", "5", "--quiet"]
-    assert main(synth) == 0
-    assert main(["annotate", str(root), "--quiet"]) == 0
-    return root
 
 
 @pytest.fixture()

@@ -28,7 +28,6 @@ from test_viewer_browser import (  # noqa: E402
     _shows,
 )
 
-from annotator.cli import main as cli  # noqa: E402
 from annotator.dataset import load_dataset, read_poses  # noqa: E402
 from annotator.dataset.frames import read_frames  # noqa: E402
 
@@ -40,17 +39,6 @@ pytestmark = [
 
 SCENE = "000000"
 CAMERAS = ("left", "right")
-
-
-@pytest.fixture(scope="module")
-def sequence(tmp_path_factory) -> Path:
-    """A synthetic sequence of 6 frames, annotated (read-only: tests serve a copy)."""
-    root = tmp_path_factory.mktemp("sequence") / "ds"
-    synth = ["synth", str(root), "--scenes", "1", "--frames", "6", "--size", "640x512"]
-    synth += ["--supersample", "1", "--instances", "4-6", "--seed", "5", "--quiet"]
-    assert cli(synth) == 0
-    assert cli(["annotate", str(root), "--quiet"]) == 0
-    return root
 
 
 @pytest.fixture()
