@@ -25,6 +25,7 @@ from __future__ import annotations
 from collections import defaultdict
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
+from enum import StrEnum
 from pathlib import Path
 from typing import Any
 
@@ -102,8 +103,9 @@ FRAME_VISIBILITY_STEP = 4
 SOLVE_ROUNDS = 3
 
 
-class FrameFlag:
-    """Why a reviewer should look at a frame (``frames[f].flags`` in annotation.json)."""
+class FrameFlag(StrEnum):
+    """Why a reviewer should look at a frame (``frames[f].flags`` in annotation.json); the
+    values are the JSON strings, as :class:`~annotator.dataset.annotation.Flag`'s."""
 
     #: No marker of a known instance was read: ``scene_T_rig`` is null, not a guess.
     NO_KNOWN_MARKERS = "no_known_markers"
