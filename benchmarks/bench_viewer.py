@@ -38,6 +38,7 @@ import tempfile
 import threading
 import time
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
@@ -188,6 +189,21 @@ def paced(page, cast: Screencast, key: str, presses: int, gap_ms: int) -> list[f
     return out
 
 
+def review_page(browser: Any, url: str, *, focus: bool = True) -> Any:
+    """A new page of the review server at ``url`` with the key clock installed, once its
+    first pictures have arrived and viser's notices settled; ``focus``: clicked, so that
+    keys go to it."""
+    page = browser.new_page(viewport=VIEWPORT)
+    page.add_init_script(KEY_CLOCK)
+    page.goto(url)
+    page.wait_for_selector("canvas", timeout=60000)
+    page.get_by_text("Scene 000000").first.wait_for(timeout=60000)
+    page.wait_for_timeout(3000)
+    if focus:
+        page.get_by_text("Scene 000000").first.click()
+    return page
+
+
 def browser_switches(url: str) -> tuple[list[float], list[float]]:
     """Key press to the new pictures on screen, in ms, for SWITCHES presses of J a second
     or more apart, then for PACED_SWITCHES presses :data:`PACED_SWITCH_MS` apart."""
@@ -197,13 +213,7 @@ def browser_switches(url: str) -> tuple[list[float], list[float]]:
     with sync_playwright() as pw:
         browser = launch_chromium(pw)
         try:
-            page = browser.new_page(viewport=VIEWPORT)
-            page.add_init_script(KEY_CLOCK)
-            page.goto(url)
-            page.wait_for_selector("canvas", timeout=60000)
-            page.get_by_text("Scene 000000").first.wait_for(timeout=60000)
-            page.wait_for_timeout(3000)  # the first pictures arrive, viser's notices settle
-            page.get_by_text("Scene 000000").first.click()  # keys go to the page
+            page = review_page(browser, url)
             cast = Screencast(page)
             page.wait_for_timeout(1000)
             for k in range(SWITCHES):
@@ -293,12 +303,7 @@ def browser_repairs(app: ReviewApp) -> dict[str, list[float]]:
         with sync_playwright() as pw:
             browser = launch_chromium(pw)
             try:
-                page = browser.new_page(viewport=VIEWPORT)
-                page.add_init_script(KEY_CLOCK)
-                page.goto(app.url)
-                page.wait_for_selector("canvas", timeout=60000)
-                page.get_by_text("Scene 000000").first.wait_for(timeout=60000)
-                page.wait_for_timeout(3000)
+                page = review_page(browser, app.url, focus=False)
                 cast = Screencast(page, REPAIR_FRAME_WIDTH)
                 session = next(iter(app.sessions.values()))
 

@@ -23,10 +23,9 @@ import time
 from pathlib import Path
 
 from benchmarks.bench_viewer import (
-    KEY_CLOCK,
     REPAIR_FRAME_WIDTH,
-    VIEWPORT,
     Screencast,
+    review_page,
     shown_at,
 )
 from devkit.headless import free_port, launch_chromium
@@ -67,13 +66,7 @@ def browser_presses(app: ReviewApp) -> tuple[list[float], list[float]]:
     with sync_playwright() as pw:
         browser = launch_chromium(pw)
         try:
-            page = browser.new_page(viewport=VIEWPORT)
-            page.add_init_script(KEY_CLOCK)
-            page.goto(app.url)
-            page.wait_for_selector("canvas", timeout=60000)
-            page.get_by_text("Scene 000000").first.wait_for(timeout=60000)
-            page.wait_for_timeout(3000)
-            page.get_by_text("Scene 000000").first.click()  # keys go to the page
+            page = review_page(browser, app.url)
             cast = Screencast(page, REPAIR_FRAME_WIDTH)
             page.wait_for_timeout(1000)
             app.prepared = timed  # type: ignore[method-assign]
