@@ -210,6 +210,8 @@ class SequenceSolution:
     warnings: list[SceneWarning] = field(default_factory=list)
     unknown_markers: dict[str, list[int]] = field(default_factory=dict)
     duplicates: dict[str, list[int]] = field(default_factory=dict)
+    #: Per posed frame, how many of each instance's marker observations the solve kept.
+    markers_used: dict[str, dict[str, int]] = field(default_factory=dict)
 
 
 def solve_sequence(
@@ -831,11 +833,11 @@ def _records(
         if int(mine.sum()) < FEW_MARKERS:
             flags_f.append(FrameFlag.FEW_MARKERS)
         counts = np.bincount(obs.instance[mine], minlength=len(keys))
+        out.markers_used[name] = {"/".join(keys[i]): int(c) for i, c in enumerate(counts) if c}
         out.frames[name] = FramePose(
             name,
             T,
             {
-                "instance_markers": {"/".join(keys[i]): int(c) for i, c in enumerate(counts) if c},
                 "reprojection_px": round(rms_f, 4),
                 "markers_used": int(mine.sum()),
                 "uncertainty_mm": round(unc_mm, 4),
@@ -901,7 +903,6 @@ def sequence_annotation(
         name: FramePose(f.frame, f.scene_T_rig, dict(f.extra))
         for name, f in solution.frames.items()
     }
-    used_per_frame = {name: f.extra.get("instance_markers", {}) for name, f in frames.items()}
     best: dict[str, tuple[float, dict[str, float]]] = {}
     agreements: dict[str, list[float]] = defaultdict(list)
     for name, found in seen.items():
@@ -909,7 +910,7 @@ def sequence_annotation(
         per = {}
         for key, v in sorted(found.items()):
             per[key] = {
-                "markers_used": int(used_per_frame[name].get(key, 0)),
+                "markers_used": solution.markers_used.get(name, {}).get(key, 0),
                 "occlusion": v["occlusion"],
             }
             rate = min(v["occlusion"].values())
@@ -918,9 +919,6 @@ def sequence_annotation(
             if "depth_agreement" in v:
                 agreements[key].append(v["depth_agreement"])
         entry["instances"] = per
-        entry.pop("instance_markers", None)
-    for f in frames.values():
-        f.extra.pop("instance_markers", None)
     instances = []
     unconfirmed: dict[str, set[int]] = defaultdict(set)
     for r in solution.instances:
