@@ -129,7 +129,6 @@ class FrameReading:
     readings: list[ImageReading]
     marker_depth: np.ndarray
     quality: dict[str, ImageQuality]
-    size_problem: str | None = None
 
 
 def read_frame(ds: Dataset, frame: Frame, detector: MarkerDetector) -> FrameReading:
