@@ -72,10 +72,11 @@ def browser_presses(app: ReviewApp) -> tuple[list[float], list[float]]:
             app.prepared = timed  # type: ignore[method-assign]
             for _ in range(PRESSES):
                 page.wait_for_timeout(GAP_MS)
-                before = app.state.info("000000").shown
+                session = next(iter(app.sessions.values()))
+                before = session.info("000000").shown
                 page.keyboard.press("p")
                 end = time.monotonic() + 10
-                while app.state.info("000000").shown == before and time.monotonic() < end:
+                while session.info("000000").shown == before and time.monotonic() < end:
                     page.wait_for_timeout(20)
                 pressed = page.evaluate("window.__keys[window.__keys.length - 1]")
                 out.append(1000.0 * (shown_at(page, cast, pressed, changes=True) - pressed))
@@ -92,7 +93,7 @@ def main() -> None:
         root = make_sequence(Path(tmp) / "seq")
         app = ReviewApp(root, host="127.0.0.1", port=free_port())
         if cold:
-            app.prefetch_frames = lambda sid, step=1: None  # type: ignore[method-assign]
+            app.prefetch_frames = lambda sid, at, step=1: None  # type: ignore[method-assign]
         try:
             ms, server = browser_presses(app)
         finally:

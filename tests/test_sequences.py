@@ -314,7 +314,7 @@ def test_the_review_state_shows_frames_in_the_scene_frame_and_rejects_one(copy: 
     assert state.toggle_frame(sid, first)
     doc = json.loads((copy / "scenes" / sid / "review.json").read_text())
     assert doc["frames"] == {first: "rejected"} and doc["status"] == "pending"
-    assert state.shift_frames(sid, 1) != info.shown
+    assert state.info(sid, 1).shown != info.shown
     assert not state.toggle_frame(sid, first)
     assert "frames" not in json.loads((copy / "scenes" / sid / "review.json").read_text())
     frames = frames_from_json(

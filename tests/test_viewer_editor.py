@@ -16,7 +16,7 @@ from annotator.dataset.review import read_review
 from annotator.geometry.transforms import make_transform
 from viewer.editor import RepairEditor
 from viewer.overlays import Prepared
-from viewer.state import ReviewState, SaveError
+from viewer.state import ReviewState, SaveError, SceneInfo
 
 SCENE = "000001"
 KEY = "brick/03"
@@ -54,6 +54,9 @@ class _Page:
 
     def cursor(self) -> tuple[str | None, str | None]:
         return self.scene, self.selected
+
+    def info(self, sid: str) -> SceneInfo:
+        return self.host.state.info(sid)
 
     def shown_scene(self, what: str) -> str | None:
         if self.switching:

@@ -33,11 +33,10 @@ def test_a_version_of_the_scene_keeps_its_own_frames(copy: Path) -> None:
     state = ReviewState(copy)
     sid = state.ids[0]
     old = state.info(sid)
-    state.shift_frames(sid, 1)
-    new = state.info(sid)
+    new = state.info(sid, 1)
     assert new.shown != old.shown and new.view != old.view
     assert _cameras(state, sid, old) == [f"{f}:{c}" for f in old.shown for c in ("left", "right")]
-    assert _cameras(state, sid) == [f"{f}:{c}" for f in new.shown for c in ("left", "right")]
+    assert _cameras(state, sid, new) == [f"{f}:{c}" for f in new.shown for c in ("left", "right")]
     view, scene = state.view(sid, old)
     assert scene.depth_path.parent.name == old.shown[0]  # its depth is its first frame's
 
@@ -63,9 +62,8 @@ def test_a_frame_moved_by_a_new_annotation_is_a_new_view(copy: Path) -> None:
 def test_a_nudge_goes_along_the_first_shown_frames_camera(copy: Path) -> None:
     state = ReviewState(copy)
     sid = state.ids[0]
-    state.shift_frames(sid, 1)
-    info = state.info(sid)
-    ds = state.dataset_of(sid)
+    info = state.info(sid, 1)
+    ds = state.view(sid, info)[0]
     pose = info.poses[0]
     T = repair.nudge(ds, info, pose.key, Nudge(NudgeKind.MOVE, 0, 1.0))
     scene_T_cam = ds.rig.cameras[0].rig_T_cam

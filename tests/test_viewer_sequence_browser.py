@@ -105,8 +105,8 @@ def test_sequence_review_page_end_to_end(browser, served) -> None:
         # P: the next frames, in the title and on the canvas.
         page.get_by_text(f"Scene {SCENE}").first.click()
         page.keyboard.press("p")
-        assert wait_until(lambda: app.state.info(SCENE).shown != shown)
-        now = app.state.info(SCENE).shown
+        assert wait_until(lambda: session.info(SCENE).shown != shown)
+        now = session.info(SCENE).shown
         assert wait_until(lambda: all(f in _title(page) for f in now) and now[0] in _title(page))
         assert wait_until(
             lambda: (
@@ -180,12 +180,12 @@ def test_the_3d_view_of_a_sequence_shows_the_shown_frames_cameras(browser, serve
         def drawn() -> list[str]:
             return [name for name, _ in session.scene._shown_cameras[0]]
 
-        shown = app.state.info(SCENE).shown
+        shown = session.info(SCENE).shown
         expected = [f"{f}:{c}" for f in shown for c in CAMERAS]
         assert wait_until(lambda: drawn() == expected), drawn()
         page.keyboard.press("p")
-        assert wait_until(lambda: app.state.info(SCENE).shown != shown)
-        now = app.state.info(SCENE).shown
+        assert wait_until(lambda: session.info(SCENE).shown != shown)
+        now = session.info(SCENE).shown
         assert wait_until(lambda: drawn() == [f"{f}:{c}" for f in now for c in CAMERAS])
         page.keyboard.press("v")
         assert wait_until(lambda: not session.scene.showing_3d)

@@ -248,10 +248,9 @@ class ReviewApp:
             self._ahead[sid] = view
         self.cache.put((sid, view), prep)
 
-    def repair_inputs(self, sid: str) -> RepairInputs:
-        """The markers as detected and the depth of scene ``sid`` (made once, kept for the
-        last few scenes: what R, A and adding a part start from)."""
-        info = self.state.info(sid)
+    def repair_inputs(self, sid: str, info: SceneInfo) -> RepairInputs:
+        """The markers as detected and the depth of scene ``sid`` as ``info`` shows it (made
+        once, kept for the last few scenes: what R, A and adding a part start from)."""
         # A sequence's: of the frames shown, where the annotation put them.
         key = (sid, info.shown, frames_digest(info.frames, info.shown) if info.shown else "")
         with self._lock:
@@ -275,10 +274,11 @@ class ReviewApp:
         if not info.gone:
             self.cache.prefetch((sid, info.view), self._make(sid, info))
 
-    def prefetch_frames(self, sid: str, step: int = 1) -> None:
+    def prefetch_frames(self, sid: str, at: int, step: int = 1) -> None:
         """Prepare in the background the frames of sequence ``sid`` that P (``step`` 1) or
-        Shift+P (-1) would show next (nothing for a fixed rig's scene)."""
-        info = self.state.shifted(sid, step)
+        Shift+P (-1) would show next on a page whose window is ``at`` frames on (nothing for
+        a fixed rig's scene)."""
+        info = self.state.shifted(sid, at, step)
         if info is not None and not info.gone:
             self.cache.prefetch((sid, info.view), self._make(sid, info))
 

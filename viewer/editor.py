@@ -82,6 +82,10 @@ class EditorPage(Protocol):
         """The scene the cursor is on and its selected instance."""
         ...
 
+    def info(self, sid: str) -> SceneInfo:
+        """Scene ``sid`` as the page shows it now (a sequence: with the page's frames)."""
+        ...
+
     def shown_scene(self, what: str) -> str | None:
         """The scene a change ``what`` is for (None, and the reviewer told, if the page
         was still switching)."""
@@ -151,7 +155,7 @@ class RepairEditor:
             self.say("select an instance first (click it, or I)")
             return None
         sid = self.page.shown_scene(f"{what} {key}")
-        if sid is None or self.host.state.info(sid).pose(key) is None:
+        if sid is None or self.page.info(sid).pose(key) is None:
             return None
         return sid, key
 
@@ -179,7 +183,7 @@ class RepairEditor:
                 lambda: state.stage_pose(
                     sid, key, T, [*steps, step], by=self.page.id, unmark=unmark, expect=before
                 ),
-                state.info(sid).view,
+                self.page.info(sid).view,
             )
             if isinstance(after, Unsaved):
                 return False
@@ -200,7 +204,7 @@ class RepairEditor:
                 key,
                 what,
                 lambda: state.stage_restore(sid, key, edit, by=self.page.id, expect=expect),
-                state.info(sid).view,
+                self.page.info(sid).view,
             )
 
     def _show_then_save(
@@ -227,7 +231,7 @@ class RepairEditor:
     def _reposed(self, sid: str, key: str, before: str) -> None:
         """Make the scene's overlays for its new poses from the shown ones (only the
         changed rectangles cast again; ``before``: the version they show), then show them."""
-        info = self.host.state.info(sid)
+        info = self.page.info(sid)
         prep = self.page.prepared_scene()
         with self._ahead_done:  # being made ahead (A came quickly): sooner done than redone
             self._ahead_done.wait_for(lambda: self._ahead_making != info.view, AHEAD_WAIT)
@@ -264,9 +268,9 @@ class RepairEditor:
     def _refine(self, sid: str, key: str) -> None:
         try:
             state = self.host.state
-            inputs = self.host.repair_inputs(sid)
-            seen = state.info(sid)
-            result = repair.refine(state.dataset_of(sid), seen, key, inputs)
+            seen = self.page.info(sid)
+            inputs = self.host.repair_inputs(sid, seen)
+            result = repair.refine(state.view(sid, seen)[0], seen, key, inputs)
             residuals = f"before: {result.before.text()}; after: {result.after.text()}"
             if result.converged:
                 if self._edit(sid, key, result.T, result.step(), seen=seen):
@@ -283,11 +287,15 @@ class RepairEditor:
 
     def alternative(self) -> None:
         """A: the selected instance's next candidate pose."""
+        with self._editing:  # after the page's previous key is written, from what it left
+            self._alternative()
+
+    def _alternative(self) -> None:
         target = self._target("alternative for")
         if target is None:
             return
         sid, key = target
-        info = self.host.state.info(sid)
+        info = self.page.info(sid)
         auto = info.auto_pose(key)
         ck, found, index = self._candidates(sid, key, info)
         if len(found) < 2:
@@ -323,7 +331,7 @@ class RepairEditor:
         if hit is None:
             state = self.host.state
             found = repair.candidates(
-                state.dataset_of(sid), info, key, self.host.repair_inputs(sid)
+                state.view(sid, info)[0], info, key, self.host.repair_inputs(sid, info)
             )
             with self._lock:
                 hit = self._cycle.setdefault(ck, (found, 0))
@@ -348,7 +356,7 @@ class RepairEditor:
     def _prepare_alternative(self, sid: str, key: str, info: SceneInfo) -> None:
         try:
             time.sleep(AHEAD_DELAY)
-            if not self._still_on(sid, key) or self.host.state.info(sid).view != info.view:
+            if not self._still_on(sid, key) or self.page.info(sid).view != info.view:
                 return  # another key came meanwhile: its own render asks again
             if info.pose(key) is None or not self.host.cache.ready((sid, info.view)):
                 return
@@ -356,7 +364,7 @@ class RepairEditor:
             if not self._still_on(sid, key):
                 return
             _, found, index = self._candidates(sid, key, info)
-            if len(found) < 2 or self.host.state.info(sid).view != info.view:
+            if len(found) < 2 or self.page.info(sid).view != info.view:
                 return  # nothing to cycle through, or the poses changed meanwhile
             if not self._still_on(sid, key):
                 return
@@ -382,19 +390,26 @@ class RepairEditor:
             return
         sid, key = target
         step = repair.step_of(self.nudge_kind, axis, sign, self.large)
-        info = self.host.state.info(sid)
-        T = repair.nudge(self.host.state.dataset_of(sid), info, key, step)
-        if self._edit(sid, key, T, step.step(), seen=info):
+        with self._editing:  # from the pose the page's previous key left, however soon
+            info = self.page.info(sid)
+            T = repair.nudge(self.host.state.view(sid, info)[0], info, key, step)
+            saved = self._edit(sid, key, T, step.step(), seen=info)
+        if saved:
             unit = "mm" if step.kind == "move" else "°"
             self.say(f"{key}: {step.kind} {step.amount:+g} {unit} along {'xyz'[axis]}")
 
     def gizmo(self, key: str, T) -> None:
         """The gizmo in the 3D view was let go: ``T`` is the part's new pose."""
         sid, _ = self.page.cursor()
-        info = self.host.state.info(sid) if sid is not None else None
-        if sid is not None and info is not None and info.pose(key) is not None:
-            if self._edit(sid, key, T, RepairStep(RepairOp.GIZMO), seen=info):
-                self.say(f"{key}: moved with the gizmo")
+        if sid is None:
+            return
+        with self._editing:
+            info = self.page.info(sid)
+            if info.pose(key) is None:
+                return
+            saved = self._edit(sid, key, T, RepairStep(RepairOp.GIZMO), seen=info)
+        if saved:
+            self.say(f"{key}: moved with the gizmo")
 
     def toggle_nudge_kind(self) -> None:
         move = self.nudge_kind == NudgeKind.MOVE
@@ -406,6 +421,10 @@ class RepairEditor:
         self.say(self.repair_text)
 
     def _step_back(self, back: bool) -> None:
+        with self._editing:  # the page's previous key is written and in its history first
+            self._step_back_now(back)
+
+    def _step_back_now(self, back: bool) -> None:
         what = "undo" if back else "redo"
         sid, _ = self.page.cursor()
         sid = self.page.shown_scene(what) if sid is not None else None
@@ -443,11 +462,15 @@ class RepairEditor:
 
     def reset_pose(self) -> None:
         """X: the selected instance back to its auto pose (an added one is removed)."""
+        with self._editing:  # after the page's previous key is written, from what it left
+            self._reset_pose()
+
+    def _reset_pose(self) -> None:
         target = self._target("reset")
         if target is None:
             return
         sid, key = target
-        before = self.host.state.info(sid).review.poses.get(key)
+        before = self.page.info(sid).review.poses.get(key)
         if before is None:
             self.say(f"{key} has its auto pose already")
             return
@@ -468,9 +491,9 @@ class RepairEditor:
         if self.page.shown_scene(f"add {key}") != sid:
             return
         state = self.host.state
-        info = state.info(sid)
+        info = self.page.info(sid)
         found = repair.start(
-            state.dataset_of(sid), info, key, camera, pixel, self.host.repair_inputs(sid)
+            state.view(sid, info)[0], info, key, camera, pixel, self.host.repair_inputs(sid, info)
         )
         if found is None:
             self.say(f"⚠ {key}: no marker and no depth near the click to start it from")

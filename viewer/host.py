@@ -33,8 +33,8 @@ class ReviewHost(Protocol):
         """Keep ``prep``, made ahead of a key for view ``view``."""
         ...
 
-    def repair_inputs(self, sid: str) -> RepairInputs:
-        """The scene's images, depth and markers read, for repairs."""
+    def repair_inputs(self, sid: str, info: SceneInfo) -> RepairInputs:
+        """The scene's images, depth and markers read, for repairs (as ``info`` shows it)."""
         ...
 
     def drew(self) -> None:
@@ -45,8 +45,9 @@ class ReviewHost(Protocol):
         """Prepare scene ``sid`` in the background (a page is heading there)."""
         ...
 
-    def prefetch_frames(self, sid: str, step: int = 1) -> None:
-        """Prepare the frames P (Shift+P: ``step`` -1) would show of sequence ``sid``."""
+    def prefetch_frames(self, sid: str, at: int, step: int = 1) -> None:
+        """Prepare the frames P (Shift+P: ``step`` -1) would show of sequence ``sid`` on a
+        page whose window is ``at`` frames on."""
         ...
 
     def changed(self, origin: Any, sids: set[str]) -> None:

@@ -78,6 +78,8 @@ class Session:
         self.mine: dict[str, ReviewStatus] = {}  # scenes this page decided last
         self.viewport = self._viewport(None)
         self.displayed: str | None = None  # the scene whose panel and pictures were sent last
+        self.displayed_info: SceneInfo | None = None  # that scene as they showed it
+        self.frames_at: dict[str, int] = {}  # a sequence -> this page's window, frames on
         self._render_lock = threading.Condition()
         self._dirty = False
         self._rendering = False
@@ -155,7 +157,7 @@ class Session:
         if sid is None:
             return
         try:
-            self._show_without_pictures(sid, self.app.state.info(sid), f"cannot show it: {why}")
+            self._show_without_pictures(sid, self.info(sid), f"cannot show it: {why}")
         except Exception:  # the page is gone meanwhile: nothing to tell it
             pass
 
@@ -172,7 +174,7 @@ class Session:
         view.alert = f"{red}\n\n{view.alert}" if view.alert else red
         self.panel.show(view, [])
         with self._lock:
-            self.displayed = sid
+            self.displayed, self.displayed_info = sid, info
         self.client.flush()
         self.pictures.send_background_soon()
         self.scene.show_3d_scene((), Look(), None, (sid, "none"))
@@ -186,8 +188,7 @@ class Session:
         if sid is None:
             self.panel.show(PanelView("## No scene in this dataset"), [])
             return
-        state = self.app.state
-        info = state.info(sid)
+        info = self.info(sid)
         if info.gone:
             self._show_without_pictures(sid, info, f"{info.error}: nothing to decide")
             return
@@ -225,7 +226,7 @@ class Session:
         self.pictures.blink(blinking and self.shown.on_canvas[0] == "zoom")
         self.panel.show(self._panel_view(info, prep, flt, selected), [p.key for p in info.poses])
         with self._lock:
-            self.displayed = sid
+            self.displayed, self.displayed_info = sid, info
         self.client.flush()  # the new picture is on its way before anything else is done
         self.pictures.send_background_soon()
         # A sequence's cloud is the first shown frame's depth, its frustums the shown frames'
@@ -242,7 +243,7 @@ class Session:
         for other in reversed(upcoming):  # the cache starts with the last asked for
             self.app.prefetch(other)
         if info.shown:  # a sequence: P's frames first, as J's scenes are for a fixed rig
-            self.app.prefetch_frames(sid, +1)
+            self.app.prefetch_frames(sid, self._at(sid), +1)
 
     def _panel_view(
         self, info: SceneInfo, prep: Prepared | None, flt: str, selected: str | None
@@ -300,6 +301,21 @@ class Session:
         )
         return None
 
+    def _at(self, sid: str) -> int:
+        with self._lock:
+            return self.frames_at.get(sid, 0)
+
+    def info(self, sid: str) -> SceneInfo:
+        """Scene ``sid`` as this page shows it now (a sequence: with this page's frames)."""
+        return self.app.state.info(sid, self._at(sid))
+
+    def seen(self, sid: str) -> SceneInfo | None:
+        """Scene ``sid`` as this page's panel and pictures last showed it (what a decision
+        about it is a decision about), or None if they show another."""
+        with self._lock:
+            info = self.displayed_info
+        return info if info is not None and info.id == sid else None
+
     def write(self, sid: str, what: str, fn: Callable[[], Any], *, decision: bool = True) -> bool:
         """Run a write; on failure show it in this page and keep the scene unsaved."""
         try:
@@ -321,7 +337,12 @@ class Session:
         sid = self.shown_scene(str(status))
         if sid is None:
             return
-        if self.write(sid, str(status), lambda: self.app.state.set_scene(sid, status, by=self.id)):
+        seen = self.seen(sid)
+        if self.write(
+            sid,
+            str(status),
+            lambda: self.app.state.set_scene(sid, status, by=self.id, seen=seen),
+        ):
             with self._lock:
                 if self.nav.current == sid:
                     self.nav.after_decision()
@@ -341,10 +362,11 @@ class Session:
         sid = self.shown_scene(f"{key} {status}")
         if sid is None:
             return
+        seen = self.seen(sid)
         self.write(
             sid,
             f"{key} {status}",
-            lambda: self.app.state.set_instance(sid, key, status, by=self.id),
+            lambda: self.app.state.set_instance(sid, key, status, by=self.id, seen=seen),
         )
         self.request_render()
 
@@ -355,7 +377,7 @@ class Session:
             return
         new = (
             ReviewStatus.ACCEPTED
-            if self.app.state.info(sid).instance_status(key) == ReviewStatus.REJECTED
+            if self.info(sid).instance_status(key) == ReviewStatus.REJECTED
             else ReviewStatus.REJECTED
         )
         self.set_instance(new)
@@ -368,35 +390,34 @@ class Session:
         self._shift_frames(-1)
 
     def _shift_frames(self, step: int) -> None:
-        """A sequence's pages show the frames ``step`` on (the pictures of every frame
-        shown are made again; a repair made meanwhile is in the scene frame, so in all)."""
+        """This page shows the sequence's frames ``step`` on (the pictures of every frame
+        shown are made again; a repair made meanwhile is in the scene frame, so in all).
+        Other pages keep their own frames."""
         with self._lock:
             sid = self.nav.current
-        if sid is None or not self.app.state.info(sid).shown:
+        if sid is None or not self.info(sid).shown:
             return
-        self.app.state.shift_frames(sid, step)
-        self.app.changed(self, {sid})
+        with self._lock:
+            self.frames_at[sid] = self.frames_at.get(sid, 0) + step
         self.request_render()
 
     def toggle_frame(self) -> None:
-        """Reject the first frame shown on its own, or take the rejection back."""
+        """Reject the first frame this page shows on its own, or take the rejection back."""
         sid = self.shown_scene("frame")
-        if sid is None:
+        seen = self.seen(sid) if sid is not None else None
+        if sid is None or seen is None or not seen.shown:
             return
-        shown = self.app.state.info(sid).shown
-        if not shown:
-            return
-        frame = shown[0]
+        frame = seen.shown[0]
         self.write(
             sid,
             f"frame {frame}",
-            lambda: self._toggle_frame(sid, frame),
+            lambda: self._toggle_frame(sid, frame, seen),
             decision=False,
         )
         self.request_render()
 
-    def _toggle_frame(self, sid: str, frame: str) -> Any:
-        self.app.state.toggle_frame(sid, frame, by=self.id)
+    def _toggle_frame(self, sid: str, frame: str, seen: SceneInfo) -> Any:
+        self.app.state.toggle_frame(sid, frame, by=self.id, seen=seen)
         return self.app.state.info(sid).review
 
     def arm_missing(self) -> None:
@@ -410,14 +431,16 @@ class Session:
         sid = self.shown_scene(f"no pose at {camera} ({x:.0f}, {y:.0f})")
         if sid is None:
             return
+        seen = self.seen(sid)
         saved = self.write(
             sid,
             f"no pose at {camera} ({x:.0f}, {y:.0f})",
-            lambda: self.app.state.mark_missing(sid, camera, (x, y), by=self.id),
+            lambda: self.app.state.mark_missing(sid, camera, (x, y), by=self.id, seen=seen),
         )
-        keys = repair.unposed(self.app.state.dataset_of(sid), self.app.state.info(sid))
+        info = self.info(sid)
+        keys = repair.unposed(self.app.state.view(sid, info)[0], info)
         if saved and keys:
-            mark = self.app.state.info(sid).review.missing[-1]
+            mark = info.review.missing[-1]
             with self._lock:
                 self.editor.offer = Offer(sid, mark.camera, mark.pixel, tuple(keys))
         self.request_render()

@@ -29,6 +29,12 @@ Poses repaired in a page (review.json ``poses``) are applied to the scene's pose
 what ``annotate`` wrote. An edit made on an auto pose that has changed since is stale: the
 auto pose is shown, and the scene is stale as a decision on it would be.
 
+A decision is for what the page showed: it names that version of the scene (``seen``), and if
+annotate has written other poses or frames since, or another reviewer has repaired a part
+since, nothing is written and :class:`Conflict` says so (the page then shows the new poses).
+A sequence's pages each show their own few frames (``at``: how many frames on; a page's P
+moves its own window only), so a key acts on the frames its page shows.
+
 A scene whose folder disappears while the server runs (deleted, moved, the whole dataset
 gone) is known as :attr:`SceneInfo.gone`: it is shown as gone, and a decision for it is a
 :class:`SaveError` (writing it would make the folder again, holding only a review.json).
@@ -114,9 +120,13 @@ def same_edit(a: EditedPose | None, b: EditedPose | None) -> bool:
     )
 
 
-def _describe(edit: EditedPose | None) -> str:
+def _describe(edit: EditedPose | None, by: str | None = None) -> str:
     if edit is None:
         return "put back to its auto pose"
+    if by is not None and edit.decided_by == by:  # a page never blames itself by its id
+        return "changed by another key of yours on this page" + (
+            f" at {edit.at}" if edit.at else ""
+        )
     who = edit.decided_by or "another reviewer"
     return f"changed by {who}" + (f" at {edit.at}" if edit.at else "")
 
@@ -220,6 +230,33 @@ def frames_digest(frames: Mapping[str, FramePose], shown: tuple[str, ...]) -> st
     return h.hexdigest()[:16]
 
 
+def _window(info: SceneInfo, at: int) -> SceneInfo:
+    """``info`` with the frames a page whose window is ``at`` frames on shows."""
+    if not info.frames:
+        return info
+    shown = tuple(shown_frames(info.frames, offset=at))
+    if shown == info.shown:
+        return info
+    return replace(info, shown=shown, view=view_key(list(info.poses), shown, info.frames))
+
+
+def changed_since(now: SceneInfo, seen: SceneInfo, by: str | None) -> str | None:
+    """Why a decision made looking at ``seen`` (the scene as a page showed it) is not one
+    about the scene as it is ``now``: annotate wrote other poses or frames, or a part was
+    repaired by someone other than ``by`` since; None if the page showed what is there."""
+    if now.fingerprint != seen.fingerprint or frames_digest(
+        now.frames, tuple(now.frames)
+    ) != frames_digest(seen.frames, tuple(seen.frames)):
+        return "the annotation changed on disk after your page showed it (annotate ran again?)"
+    for key in sorted(set(now.review.poses) | set(seen.review.poses)):
+        edit = now.review.poses.get(key)
+        if not same_edit(edit, seen.review.poses.get(key)) and (
+            edit is None or edit.decided_by != by
+        ):
+            return f"{key} was {_describe(edit, by)} after your page showed it"
+    return None
+
+
 def _added(obj: str, inst: str, R: object, t: object) -> InstanceAnnotation:
     """The record of an instance added by hand: a pose, and none of annotate's figures."""
     return InstanceAnnotation(obj, inst, R, t)  # type: ignore[arg-type]
@@ -261,8 +298,6 @@ class ReviewState:
         self._flocks: dict[str, list[int]] = {}
         self.started = time.time()
         self.decided = 0  # decisions made through this server
-        # A sequence's scene -> how many frames on the pages' frames start (shift_frames).
-        self._offsets: dict[str, int] = {}
         #: (scene, shown frames, their digest) -> the frames view (:meth:`view`), the latest
         #: few kept.
         self._views: dict[tuple[str, tuple[str, ...], str], tuple[Dataset, Scene]] = {}
@@ -311,32 +346,23 @@ class ReviewState:
                 self._views.pop(next(iter(self._views)))
             return hit
 
-    def shift_frames(self, sid: str, step: int) -> tuple[str, ...]:
-        """Show the sequence's frames ``step`` frames on (back, if negative); the frames now
-        shown (a view, not a decision: nothing is written)."""
-        with self._lock:
-            self._offsets[sid] = self._offsets.get(sid, 0) + step
-            self._cache.pop(sid, None)
-            return self.info(sid).shown
-
-    def shifted(self, sid: str, step: int) -> SceneInfo | None:
-        """The scene as :meth:`shift_frames` ``(sid, step)`` would show it (its pictures can
-        be prepared ahead of P), nothing changed; None for a fixed rig's scene, or when the
-        shift shows the same frames."""
-        info = self.info(sid)
+    def shifted(self, sid: str, at: int, step: int) -> SceneInfo | None:
+        """The scene as a page whose window is ``at`` frames on shows it after P (``step``
+        1) or Shift+P (-1), so that its pictures can be prepared ahead; None for a fixed
+        rig's scene, or when the shift shows the same frames."""
+        info = self.info(sid, at)
         if not info.shown:
             return None
-        with self._lock:
-            offset = self._offsets.get(sid, 0) + step
-        shown = tuple(shown_frames(info.frames, offset=offset))
-        if shown == info.shown:
-            return None
-        return replace(info, shown=shown, view=view_key(list(info.poses), shown, info.frames))
+        after = self.info(sid, at + step)
+        return None if after.shown == info.shown else after
 
-    def toggle_frame(self, sid: str, frame: str, *, by: str | None = None) -> bool:
+    def toggle_frame(
+        self, sid: str, frame: str, *, by: str | None = None, seen: SceneInfo | None = None
+    ) -> bool:
         """Reject one frame of a sequence on its own, or take it back; True if it is now
-        rejected (the scene's other frames and its decision are not touched)."""
-        with self._changing(sid) as info:
+        rejected (the scene's other frames and its decision are not touched). ``seen``: the
+        scene as the page showed it (:meth:`_changing`)."""
+        with self._changing(sid, seen, by) as info:
             frames = dict(info.review.frames)
             rejected = frames.pop(frame, None) != ReviewStatus.REJECTED
             if rejected:
@@ -348,12 +374,14 @@ class ReviewState:
         """True if the scene's folder is no longer there."""
         return not os.path.isdir(self._scenes[sid].path)
 
-    def info(self, sid: str) -> SceneInfo:
+    def info(self, sid: str, at: int = 0) -> SceneInfo:
         """The scene as the files say now (re-read only when a file changed), or as a staged
-        edit makes it (:meth:`stage_pose`) until it is written."""
+        edit makes it (:meth:`stage_pose`) until it is written; a sequence's with the frames
+        a page whose window is ``at`` frames on shows."""
         staged = self._staged.get(sid)
-        if staged is not None:
-            return staged.info
+        return _window(staged.info if staged is not None else self._info(sid), at)
+
+    def _info(self, sid: str) -> SceneInfo:
         key = self._stamps(sid)
         # Neither file: a scene not yet annotated, or one whose folder has gone.
         gone = key == (None, None) and self.is_gone(sid)
@@ -379,7 +407,7 @@ class ReviewState:
                     frames = frames_from_json(ann.extra.get("frames"), sc.annotation_path)
             except (UserError, OSError) as exc:  # OSError: it went between stat and read
                 error = str(exc)
-        shown = tuple(shown_frames(frames, offset=self._offsets.get(sid, 0)))
+        shown = tuple(shown_frames(frames))
         try:
             review = read_review(sc.review_path) or Review()
         except (UserError, OSError) as exc:
@@ -469,24 +497,37 @@ class ReviewState:
             os.close(held[0])  # closing the descriptor releases the flock
 
     @contextlib.contextmanager
-    def _changing(self, sid: str) -> Iterator[SceneInfo]:
-        """Hold both locks of the scene while it is changed; yields it as the files say."""
+    def _changing(
+        self, sid: str, seen: SceneInfo | None = None, by: str | None = None
+    ) -> Iterator[SceneInfo]:
+        """Hold both locks of the scene while it is changed; yields it as the files say.
+        ``seen``: the scene as the page deciding showed it; :class:`Conflict` if it has
+        changed since (:func:`changed_since`)."""
         with self._lock:
             self._hold(sid)
             try:
-                yield self.info(sid)
+                info = self.info(sid)
+                why = None if seen is None else changed_since(info, seen, by)
+                if why is not None:
+                    raise Conflict(
+                        f"scene {sid}: {why}; nothing was written: the page shows the scene "
+                        "as it is now, look at it and decide again"
+                    )
+                yield info
             finally:
                 self._release(sid)
 
     @staticmethod
-    def _check_expected(info: SceneInfo, key: str, expect: object, what: str) -> None:
+    def _check_expected(
+        info: SceneInfo, key: str, expect: object, what: str, by: str | None
+    ) -> None:
         """Conflict unless ``key``'s edit is still ``expect`` (:data:`ANY`: not checked)."""
         if expect is ANY:
             return
         current = info.review.poses.get(key)
         if not same_edit(current, expect):  # type: ignore[arg-type]
             raise Conflict(
-                f"{key} was {_describe(current)} after your page computed this {what}; "
+                f"{key} was {_describe(current, by)} after your page computed this {what}; "
                 "nothing was written: look at the part as it is now"
             )
 
@@ -529,12 +570,15 @@ class ReviewState:
         )
         return replace(base, **changes)  # type: ignore[arg-type]
 
-    def set_scene(self, sid: str, status: str, *, by: str | None = None) -> Review:
+    def set_scene(
+        self, sid: str, status: str, *, by: str | None = None, seen: SceneInfo | None = None
+    ) -> Review:
         """Accept or reject a whole scene. Per-instance rejections are kept. Rejecting keeps
         the reason and the "no pose here" marks; accepting says every part is posed, so it
-        clears them."""
+        clears them. ``seen``: the scene as the page deciding showed it; :class:`Conflict`
+        if its poses have changed since (:func:`changed_since`)."""
         status = ReviewStatus(status)
-        with self._changing(sid) as info:
+        with self._changing(sid, seen, by) as info:
             instances = {
                 k: v for k, v in info.review.instances.items() if v == ReviewStatus.REJECTED
             }
@@ -544,9 +588,17 @@ class ReviewState:
                 changes.update(reason=None, missing=[])
             return self._write(sid, self._next_review(info, **changes), by)
 
-    def set_instance(self, sid: str, key: str, status: str, *, by: str | None = None) -> Review:
-        """Accept or reject one instance of a scene."""
-        with self._changing(sid) as info:
+    def set_instance(
+        self,
+        sid: str,
+        key: str,
+        status: str,
+        *,
+        by: str | None = None,
+        seen: SceneInfo | None = None,
+    ) -> Review:
+        """Accept or reject one instance of a scene (``seen``: as :meth:`set_scene`)."""
+        with self._changing(sid, seen, by) as info:
             instances = dict(info.review.instances)
             instances[key] = ReviewStatus(status)
             return self._write(sid, self._next_review(info, instances=instances), by)
@@ -563,11 +615,17 @@ class ReviewState:
             return new
 
     def mark_missing(
-        self, sid: str, camera: str, pixel: tuple[float, float], *, by: str | None = None
+        self,
+        sid: str,
+        camera: str,
+        pixel: tuple[float, float],
+        *,
+        by: str | None = None,
+        seen: SceneInfo | None = None,
     ) -> Review:
         """Record "a part has no pose here" at ``pixel`` of ``camera``: the scene is rejected
-        with that reason."""
-        with self._changing(sid) as info:
+        with that reason (``seen``: as :meth:`set_scene`)."""
+        with self._changing(sid, seen, by) as info:
             mark = MissingPart(camera, (round(pixel[0], 1), round(pixel[1], 1)), now_iso())
             return self._write(
                 sid,
@@ -614,7 +672,7 @@ class ReviewState:
         pose); :class:`Conflict` if the file holds another one now."""
         M = np.asarray(T, float)
         with self._changing(sid) as info:
-            self._check_expected(info, key, expect, "change")
+            self._check_expected(info, key, expect, "change", by)
             auto = info.auto_pose(key)
             edit = EditedPose(
                 R=M[:3, :3].copy(),
@@ -673,7 +731,7 @@ class ReviewState:
         replaces (an undo: the page's own step); :class:`Conflict` if the file holds
         another one now."""
         with self._changing(sid) as info:
-            self._check_expected(info, key, expect, "undo, redo or reset")
+            self._check_expected(info, key, expect, "undo, redo or reset", by)
             review = self._next_review(info)
             if edit is None:
                 review.poses.pop(key, None)
