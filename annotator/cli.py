@@ -18,10 +18,11 @@ import signal
 import sys
 import threading
 import time
+import warnings
 from collections.abc import Sequence
 from typing import NoReturn
 
-from annotator.errors import Terminated, UserError
+from annotator.errors import Notice, Terminated, UserError
 
 # One BLAS thread: the matrices here are small, and threads only add overhead (annotate is
 # faster with one, `benchmarks/bench_annotate.py`); batch commands get their parallelism from
@@ -152,7 +153,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     in_main = threading.current_thread() is threading.main_thread()
     previous = signal.signal(signal.SIGTERM, _terminate) if in_main else None
     try:
-        return int(mod.run(args) or 0)
+        with warnings.catch_warnings():
+            warnings.simplefilter("always", Notice)
+            warnings.showwarning = _show_notice
+            return int(mod.run(args) or 0)
     except BaseException as exc:
         # A SIGTERM may surface as another exception (a library turning it into an
         # ImportError, say): once asked to stop, stopping is the outcome.
@@ -169,6 +173,20 @@ def main(argv: Sequence[str] | None = None) -> int:
     finally:
         if in_main:
             signal.signal(signal.SIGTERM, previous)
+
+
+def _show_notice(
+    message: Warning | str,
+    category: type[Warning],
+    filename: str,
+    lineno: int,
+    file: object = None,
+    line: str | None = None,
+) -> None:
+    if issubclass(category, Notice):
+        print(f"annotator: warning: {message}", file=sys.stderr)
+    else:  # as Python shows it
+        sys.stderr.write(warnings.formatwarning(message, category, filename, lineno, line))
 
 
 def _terminate(signum: int, frame: object) -> None:

@@ -22,3 +22,9 @@ class UserError(Exception):
 class Terminated(KeyboardInterrupt):
     """The process received SIGTERM: it stops like on Ctrl-C (work in progress is dropped,
     files already written stay), and exits with status 143."""
+
+
+class Notice(UserWarning):
+    """Something the user should know that does not stop the work (a journal this copy
+    cannot finish, say): issued with :func:`warnings.warn`, printed by the CLI as one
+    ``annotator: warning: <message>`` line."""

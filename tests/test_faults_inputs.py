@@ -395,30 +395,6 @@ def test_a_killed_writers_temporary_file_is_removed_by_the_next_write(tmp_path: 
         live.communicate()
 
 
-def test_files_written_together_are_finished_after_a_kill(sample_copy: Path, monkeypatch) -> None:
-    paths = [sample_copy / "objects" / o / "object.yaml" for o in ("brick", "cylinder")]
-    before = [p.read_text() for p in paths]
-    texts = {p: t + "# measured\n" for p, t in zip(paths, before)}
-    real = atomic.write_text
-    calls = []
-
-    def dies_on_the_second(path, text):
-        calls.append(path)
-        if len(calls) == 3:  # the journal, the first file, then killed
-            raise KeyboardInterrupt
-        real(path, text)
-
-    monkeypatch.setattr(atomic, "write_text", dies_on_the_second)
-    with pytest.raises(KeyboardInterrupt):
-        atomic.write_together(sample_copy, texts)
-    monkeypatch.setattr(atomic, "write_text", real)
-    assert [p.read_text() for p in paths] == [texts[paths[0]], before[1]]  # half done
-    assert (sample_copy / atomic.JOURNAL).is_file()
-    load_dataset(sample_copy)  # the next reader finishes it
-    assert [p.read_text() for p in paths] == [texts[p] for p in paths]
-    assert not (sample_copy / atomic.JOURNAL).exists()
-
-
 def test_a_corrupt_journal_is_one_line(sample_copy: Path, capsys) -> None:
     (sample_copy / atomic.JOURNAL).write_text("{not json")
     assert main(["check", str(sample_copy)]) in (1, 2)

@@ -14,6 +14,7 @@ is also an ``OSError`` for callers that catch those.
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import json
 import os
 import re
@@ -21,12 +22,13 @@ import shutil
 import stat
 import tempfile
 import time
+import warnings
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
-from annotator.errors import UserError
+from annotator.errors import Notice, UserError
 
 
 class WriteError(UserError, OSError):
@@ -160,69 +162,210 @@ def _to_builtin(obj: Any) -> Any:
 
 #: A dataset's journal of files written together (:func:`write_together`).
 JOURNAL = ".annotator-journal.json"
+#: How long a reader waits for a live writer's journal to be finished.
+JOURNAL_WAIT_S = 10.0
+
+
+class JournalNotice(Notice):
+    """A journal left in a dataset that could not be finished here (a read-only copy): the
+    files are read as they are."""
+
+
+def _digest(text: str | None) -> str | None:
+    return None if text is None else hashlib.sha256(text.encode("utf-8")).hexdigest()
+
+
+def _read_or_none(path: Path) -> str | None:
+    try:
+        return path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        return None
 
 
 def write_together(root: str | Path, texts: dict[Path, str]) -> None:
     """Write several text files under ``root`` so that either all of them take their new
     text or none does, even if the process is killed half-way.
 
-    The new texts go first into ``root/.annotator-journal.json`` (written atomically); then
-    each file is written atomically; then the journal is removed. A journal left by a killed
-    process is played again by :func:`finish_interrupted` (the dataset's reader calls it),
-    which writes every file it lists: the same texts again, so doing it twice is harmless.
+    The new texts, and the files as they were, go first into ``root/.annotator-journal.json``
+    (written atomically, and locked while this runs); then each file is written atomically;
+    then the journal is removed. Stopped on purpose (Ctrl-C, SIGTERM), the files written so
+    far are put back as they were: nothing is completed behind the user's back. Killed, the
+    journal stays, and the next reader finishes it (:func:`finish_interrupted`) if the files
+    are still as the journal left them.
+
+    Raises:
+        UserError: a file does not lie inside ``root`` (through a link, say).
     """
     root = Path(root)
-    entries = {}
+    real_root = os.path.realpath(root)
+    entries: dict[str, str] = {}
+    before: dict[str, str | None] = {}
     for path, text in texts.items():
-        rel = os.path.relpath(os.path.realpath(path), os.path.realpath(root))
+        rel = os.path.relpath(os.path.realpath(path), real_root)
         if rel.startswith(".."):
-            raise ValueError(f"{path} does not lie in {root}")
+            raise UserError(f"lies outside the dataset {root}: not written", path=path)
         entries[rel] = text
+        before[rel] = _read_or_none(root / rel)
     if not entries:
         return
-    write_json(root / JOURNAL, {"written_by": "annotator", "files": entries})
-    _play(root)
+    doc = {"written_by": "annotator", "files": entries, "before": before}
+    lock = _write_locked(root / JOURNAL, json.dumps(doc, indent=1).encode("utf-8"))
+    try:
+        try:
+            for rel, text in entries.items():
+                write_text(root / rel, text)
+        except KeyboardInterrupt:  # Ctrl-C or SIGTERM (annotator.errors.Terminated)
+            for rel, old in before.items():
+                with contextlib.suppress(OSError):
+                    if old is None:
+                        (root / rel).unlink(missing_ok=True)
+                    else:
+                        write_text(root / rel, old)
+            (root / JOURNAL).unlink(missing_ok=True)
+            raise
+        # A reader may have finished the same journal meanwhile: gone is as good as removed.
+        try:
+            (root / JOURNAL).unlink(missing_ok=True)
+        except OSError as exc:
+            raise WriteError(
+                f"cannot remove it ({exc.strerror or exc})", path=root / JOURNAL
+            ) from None
+    finally:
+        if lock is not None:
+            os.close(lock)
+
+
+def _write_locked(path: Path, data: bytes) -> int | None:
+    """Write ``path`` atomically, its ``flock`` taken before it is in place; the descriptor
+    holding it (None where there is no ``flock``)."""
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    except OSError as exc:
+        raise WriteError(f"cannot write ({exc.strerror or exc})", path=path) from None
+    try:
+        with contextlib.suppress(ImportError):
+            import fcntl
+
+            fcntl.flock(fd, fcntl.LOCK_EX)
+        os.write(fd, data)
+        os.fsync(fd)
+        os.chmod(tmp, 0o666 & ~_umask())
+        os.replace(tmp, path)
+    except OSError as exc:
+        os.close(fd)
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise WriteError(f"cannot write ({exc.strerror or exc})", path=path) from None
+    return fd
 
 
 def finish_interrupted(root: str | Path) -> list[Path]:
     """Finish the files written together (:func:`write_together`) that a killed process
-    left half-written in ``root``; return them (none if there is no journal).
+    left half-written in ``root``; return them (none if there is no journal, or if its
+    writer is still at work and finishes it).
+
+    A journal is played only over the files it started from: each must hold either its old
+    text or its new one. Where a dataset cannot be written (a read-only copy), the files are
+    left as they are and a :class:`JournalNotice` says so.
 
     Raises:
-        UserError: the journal is unreadable or cannot be played (naming it).
+        UserError: the journal is unreadable, lists a file outside the dataset, or a file it
+            lists has been changed since (restored, edited): naming the journal and how to
+            discard it.
     """
     root = Path(root)
-    if not (root / JOURNAL).is_file():
+    journal = root / JOURNAL
+    try:
+        fd = os.open(journal, os.O_RDONLY)
+    except FileNotFoundError:
         return []
-    return _play(root)
+    except OSError as exc:
+        raise UserError(f"cannot read it ({exc.strerror or exc})", path=journal) from None
+    try:
+        if not _wait_for_writer(fd):
+            return []  # still locked: its writer is alive and writing the files itself
+        try:
+            if os.fstat(fd).st_ino != os.stat(journal).st_ino:
+                return []  # finished and replaced meanwhile: not the journal locked
+        except FileNotFoundError:
+            return []  # its writer finished it
+        return _play(root)
+    finally:
+        os.close(fd)
+
+
+def _wait_for_writer(fd: int) -> bool:
+    """Take the journal's lock (its writer is gone, or done), waiting a little for a live
+    writer; False if it is still held then."""
+    try:
+        import fcntl
+    except ImportError:
+        return True
+    deadline = time.monotonic() + JOURNAL_WAIT_S
+    while True:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            return True
+        except OSError:
+            if time.monotonic() > deadline:
+                return False
+            time.sleep(0.02)
 
 
 def _play(root: Path) -> list[Path]:
     journal = root / JOURNAL
+    discard = f"delete {journal} to keep the files as they are now"
     try:
         doc = json.loads(journal.read_text(encoding="utf-8"))
-        files = doc["files"]
+        files, before = doc["files"], doc.get("before")
         if not isinstance(files, dict) or not all(
             isinstance(k, str) and isinstance(v, str) for k, v in files.items()
         ):
             raise ValueError("'files' must map paths to texts")
+        if before is not None and not isinstance(before, dict):
+            raise ValueError("'before' must map paths to texts")
     except (OSError, ValueError, KeyError, TypeError) as exc:
         raise UserError(
             f"cannot finish the files an interrupted command was writing together ({exc}); "
-            "remove the journal once the files it lists are as they should be",
+            f"{discard} once the files it lists are as they should be",
             path=journal,
         ) from None
-    written = []
+    real_root = os.path.realpath(root)
     for rel, text in files.items():
         target = root / rel
-        if os.path.isabs(rel) or ".." in Path(rel).parts:
-            raise UserError(f"lists {rel!r}, which is not inside the dataset", path=journal)
-        write_text(target, text)
-        written.append(target)
+        outside = os.path.relpath(os.path.realpath(target), real_root).startswith("..")
+        if os.path.isabs(rel) or ".." in Path(rel).parts or outside:
+            raise UserError(
+                f"lists {rel!r}, which is not inside the dataset; nothing was written: {discard}",
+                path=journal,
+            )
+        now = _digest(_read_or_none(target))
+        was = _digest(before.get(rel)) if before is not None else now
+        if now not in (was, _digest(text)):
+            raise UserError(
+                f"an interrupted `annotator sites` was writing {rel}, which has been changed "
+                f"since (restored or edited); nothing was written: {discard}",
+                path=journal,
+            )
+    written = []
     try:
-        journal.unlink()
-    except OSError as exc:
-        raise WriteError(f"cannot remove it ({exc.strerror or exc})", path=journal) from None
+        for rel, text in files.items():
+            target = root / rel
+            if _read_or_none(target) != text:
+                write_text(target, text)
+            written.append(target)
+        journal.unlink(missing_ok=True)
+    except OSError as exc:  # a read-only copy: read it as it is, and say so
+        why = exc.message if isinstance(exc, UserError) else (exc.strerror or str(exc))
+        warnings.warn(
+            JournalNotice(
+                f"{journal}: an interrupted `annotator sites` left the files it lists "
+                f"half-written, and this copy cannot be written ({why}): they are read as "
+                "they are; finish them on a writable copy"
+            ),
+            stacklevel=4,
+        )
+        return []
     return written
 
 
