@@ -26,6 +26,7 @@ import threading
 import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures.process import BrokenProcessPool
 from typing import Any
 
 from annotator.errors import UserError
@@ -33,10 +34,22 @@ from annotator.runner import threads
 from annotator.runner.report import BatchReport, describe_failure, progress_bar, record
 from annotator.runner.threads import one_thread_meanwhile
 
+#: In a worker: where it says which scene it starts (the parent learns which scenes a dead
+#: worker was running).
+_STARTED: Any = None
+
+#: The failure of a scene whose worker process died under it, twice.
+WORKER_DIED = (
+    "its worker process died while working on it (killed by the system: out of memory?); "
+    "try it again with fewer --workers"
+)
+
 
 def _run_one(
     job: Callable[[str], dict[str, Any]], scene_id: str
 ) -> tuple[str, dict[str, Any] | None, str | None]:
+    if _STARTED is not None:
+        _STARTED.put(scene_id)
     try:
         return scene_id, job(scene_id), None
     except UserError as exc:
@@ -56,45 +69,101 @@ def run_local(
     quiet: bool = False,
 ) -> BatchReport:
     """Run ``job`` on every scene id, in ``workers`` processes of one thread each (OpenCV and
-    ray casting), with a progress bar on stderr."""
+    ray casting), with a progress bar on stderr.
+
+    A worker process that dies (the system's out-of-memory killer, say) takes only its scene
+    down: the scenes the workers were running then are tried again, each alone in a new
+    worker, and the one whose worker dies again is reported failed (:data:`WORKER_DIED`);
+    the others go on as before."""
     report = BatchReport()
-    pool = None
-    if workers > 1 and len(scene_ids) > 1:
-        context = _fork_context()
-        prepare = getattr(job, "prepare", None)
-        if context is not None and prepare is not None:
-            prepare()
-        # Created before the progress bar: a process with threads (tqdm's monitor) should not
-        # fork. Forked workers inherit the thread settings; spawned ones set their own.
-        pool = ProcessPoolExecutor(
-            max_workers=workers,
-            mp_context=context,
-            initializer=_worker_start,
-            initargs=(os.getpid(), context is None),
-        )
-        _POOLS.add(pool)
-    bar = progress_bar(len(scene_ids), desc, quiet)
-    try:
-        with one_thread_meanwhile():
-            if pool is None:
+    if workers <= 1 or len(scene_ids) <= 1:
+        bar = progress_bar(len(scene_ids), desc, quiet)
+        try:
+            with one_thread_meanwhile():
                 for sid in scene_ids:
                     record(report, *_run_one(job, sid))
                     bar.update()
-            else:
-                try:
-                    futures = [pool.submit(_run_one, job, sid) for sid in scene_ids]
-                    for fut in as_completed(futures):
-                        record(report, *fut.result())
+        finally:
+            bar.close()
+        return report
+    context = _fork_context()
+    prepare = getattr(job, "prepare", None)
+    if context is not None and prepare is not None:
+        prepare()
+    # The first pool is made before the progress bar: a process with threads (tqdm's
+    # monitor) should not fork.
+    first = _Pool(context, workers)
+    bar = progress_bar(len(scene_ids), desc, quiet)
+    try:
+        with one_thread_meanwhile():
+            left, running = first.run(job, scene_ids, report, bar)
+            while left:
+                for sid in sorted(running):  # each alone: the one that kills again is it
+                    alone, _ = _Pool(context, 1).run(job, [sid], report, bar)
+                    if alone:
+                        record(report, sid, None, WORKER_DIED)
                         bar.update()
-                except BaseException:
-                    _stop_workers(pool)
-                    raise
-                finally:
-                    _POOLS.discard(pool)
-                pool.shutdown(wait=True)
+                rest = [sid for sid in left if sid not in running]
+                left, running = (
+                    _Pool(context, workers).run(job, rest, report, bar) if rest else ([], set())
+                )
     finally:
         bar.close()
     return report
+
+
+class _Pool:
+    """Worker processes for one round of scenes (a round ends early if a worker dies)."""
+
+    def __init__(self, context: multiprocessing.context.BaseContext | None, workers: int) -> None:
+        ctx = context or multiprocessing.get_context()
+        self.started = ctx.SimpleQueue()
+        # Forked workers inherit the thread settings; spawned ones set their own.
+        self.pool = ProcessPoolExecutor(
+            max_workers=workers,
+            mp_context=context,
+            initializer=_worker_start,
+            initargs=(os.getpid(), context is None, self.started),
+        )
+        _POOLS.add(self.pool)
+
+    def run(
+        self,
+        job: Callable[[str], dict[str, Any]],
+        scene_ids: Sequence[str],
+        report: BatchReport,
+        bar: Any,
+    ) -> tuple[list[str], set[str]]:
+        """Run the scenes; if a worker died, the scenes not finished and, of them, those
+        that had started (the dead worker's among them)."""
+        done: set[str] = set()
+        started: set[str] = set()
+        broken = False
+        try:
+            futures = [self.pool.submit(_run_one, job, sid) for sid in scene_ids]
+            for fut in as_completed(futures):
+                try:
+                    result = fut.result()
+                except BrokenProcessPool:
+                    broken = True
+                    break
+                record(report, *result)
+                done.add(result[0])
+                bar.update()
+        except BaseException:
+            _stop_workers(self.pool)
+            raise
+        finally:
+            _POOLS.discard(self.pool)
+        if broken:
+            _stop_workers(self.pool)
+        else:
+            self.pool.shutdown(wait=True)
+        while not self.started.empty():
+            started.add(self.started.get())
+        self.started.close()
+        left = [sid for sid in scene_ids if sid not in done]
+        return left, started & set(left)
 
 
 _POOLS: set[ProcessPoolExecutor] = set()
@@ -107,8 +176,10 @@ def kill_workers() -> None:
             proc.kill()
 
 
-def _worker_start(parent: int, one_thread: bool) -> None:
+def _worker_start(parent: int, one_thread: bool, started: Any) -> None:
     """Runs first in every worker: die with the parent, and (spawned workers) one thread."""
+    global _STARTED
+    _STARTED = started
     if sys.platform.startswith("linux"):
         import ctypes
         import signal
