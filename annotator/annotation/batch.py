@@ -7,7 +7,7 @@ import fnmatch
 import functools
 import hashlib
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -17,6 +17,7 @@ from annotator.annotation.settings import AnnotateSettings
 from annotator.dataset import Dataset, Scene, as_dataset, cached_dataset, require_meshes
 from annotator.dataset.annotation import WarningKind
 from annotator.dataset.check import BROKEN_LINK
+from annotator.dataset.frames import frames_from_json, frames_left_out
 from annotator.dataset.model import SCENES_DIR
 from annotator.dataset.poses import read_pose_file
 from annotator.dataset.review import now_iso
@@ -52,7 +53,8 @@ def scene_inputs(ds: Dataset, scene: Scene) -> list[Path]:
 
 def is_up_to_date(ds: Dataset, scene: Scene, digest: str) -> bool:
     """True if the scene's annotation.json is valid, was made from the dataset description
-    with ``digest`` (:func:`description_digest`), and is newer than the scene's images."""
+    with ``digest`` (:func:`description_digest`), and is newer than the scene's images (a
+    sequence's: of the very frames it has now)."""
     path = scene.annotation_path
     if not path.exists():
         return False
@@ -62,6 +64,10 @@ def is_up_to_date(ds: Dataset, scene: Scene, digest: str) -> bool:
         return False
     if top.get("description_digest") != digest:
         return False
+    if ds.rig.moving:  # a frame added or deleted changes the sequence, whatever the times
+        recorded = top.get("frames")
+        if not isinstance(recorded, dict) or set(recorded) != {f.name for f in scene.frames()}:
+            return False
     mtime = path.stat().st_mtime
     return all(p.exists() and p.stat().st_mtime <= mtime for p in scene_inputs(ds, scene))
 
@@ -154,9 +160,16 @@ class AnnotateSummary:
     scenes: int
     report: BatchReport
     skipped: int
+    #: A sequence annotated now -> its frames not posed and why (:func:`frames_left_out`).
+    frames_left_out: dict[str, dict[str, str]] = field(default_factory=dict)
 
     def to_json(self) -> dict[str, Any]:
         done = self.report.done.values()
+        moving = {
+            "frames": sum(r.get("frames", 0) for r in done),
+            "frames_posed": sum(r.get("frames_posed", 0) for r in done),
+            "frames_left_out": self.frames_left_out,
+        }
         return {
             "scenes": self.scenes,
             "done": len(self.report.done),
@@ -166,6 +179,7 @@ class AnnotateSummary:
             "instances_flagged": sum(r["flagged"] for r in done),
             "scenes_warned": sum(r["warned"] for r in done),
             "failures": dict(sorted(self.report.failed.items())),
+            **(moving if any("frames" in r for r in done) else {}),
         }
 
 
@@ -225,4 +239,11 @@ def annotate_dataset(
     for link in ds.broken_scene_links():
         if fnmatch.fnmatch(link.name, scenes):
             report.failed[link.name] = f"{link}: {BROKEN_LINK}"
-    return AnnotateSummary(len(chosen), report, len(chosen) - len(todo))
+    left = {}
+    for sid, counts in sorted(report.done.items()):
+        if counts.get("frames_posed", 0) < counts.get("frames", 0):
+            path = ds.scene(sid).annotation_path
+            left[sid] = frames_left_out(
+                frames_from_json(read_pose_file(path)[1].get("frames"), path)
+            )
+    return AnnotateSummary(len(chosen), report, len(chosen) - len(todo), left)

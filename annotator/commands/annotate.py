@@ -3,10 +3,12 @@
 from __future__ import annotations
 
 import argparse
+import sys
 
 from annotator.annotation.batch import annotate_dataset
 from annotator.commands import add_ray_option, add_workers_option, finish_batch
 from annotator.dataset import load_dataset
+from annotator.dataset.frames import frames_line
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -34,11 +36,16 @@ def run(args: argparse.Namespace) -> int:
         ray_wait=args.ray_wait,
     )
     doc = summary.to_json()
+    if not args.json:
+        for sid, left in sorted(summary.frames_left_out.items()):
+            total = summary.report.done[sid].get("frames")
+            print(f"scene {sid}: {frames_line(left, total)}", file=sys.stderr)
+    frames = f"{doc['frames_posed']} of {doc['frames']} frames posed; " if "frames" in doc else ""
     return finish_batch(
         summary.report,
         doc,
         f"annotate: {doc['done']} scenes done, {doc['skipped']} up to date (skipped), "
-        f"{doc['failed']} failed; {doc['instances_posed']} instances posed, "
+        f"{doc['failed']} failed; {frames}{doc['instances_posed']} instances posed, "
         f"{doc['instances_flagged']} flagged; {doc['scenes_warned']} scenes with warnings "
         "(parts without a pose, blur, exposure: `annotator check --annotations`)",
         as_json=args.json,

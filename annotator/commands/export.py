@@ -10,6 +10,7 @@ from collections.abc import Callable
 from tqdm import tqdm
 
 from annotator.dataset import load_dataset
+from annotator.dataset.frames import frames_line
 from annotator.errors import UserError
 from annotator.export.dataset import export_dataset
 from annotator.export.fill import METHODS as FILLS
@@ -108,6 +109,8 @@ def run(args: argparse.Namespace) -> int:
     else:
         for sid, err in sorted(summary.failures.items()):
             print(f"failed: scene {sid}: {err}", file=sys.stderr)
+        for sid, frames in sorted(summary.frames_left_out.items()):
+            print(f"scene {sid}: {frames_line(frames)}", file=sys.stderr)
         why = "; ".join(f"{n} {r}" for r, n in sorted(summary.reasons().items()))
         print(
             f"export: {summary.exported} scenes written to {summary.out} ({args.format})"

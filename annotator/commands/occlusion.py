@@ -1,7 +1,8 @@
 """``annotator occlusion DATASET``: masks' pixel counts, boxes and occlusion rates per instance.
 
 Reads annotation.json (or gt.json with ``--poses gt``) and writes ``visibility.json`` per scene
-(atomically; up-to-date scenes are skipped unless ``--force``). annotate already stores the
+(atomically; scenes whose visibility.json was made from the same poses and tolerance, after
+they and the depth last changed, are skipped unless ``--force``). annotate already stores the
 rates in annotation.json; this command gives the full per-camera detail.
 """
 
@@ -15,7 +16,7 @@ from annotator.dataset import load_dataset
 from annotator.dataset.model import SCENES_DIR
 from annotator.errors import UserError
 from annotator.occlusion import DEPTH_TOLERANCE_MM
-from annotator.occlusion.job import VISIBILITY_FILE, VisibilityJob
+from annotator.occlusion.job import VisibilityJob, is_fresh
 from annotator.runner import run_batch
 
 
@@ -42,12 +43,9 @@ def run(args: argparse.Namespace) -> int:
     if not scenes:
         raise UserError(f"no scene matches {args.scenes!r}", path=ds.root / SCENES_DIR)
 
-    def fresh(s) -> bool:
-        src = s.annotation_path if args.poses == "annotation" else s.gt_path
-        v = s.path / VISIBILITY_FILE
-        return v.exists() and src.exists() and v.stat().st_mtime >= src.stat().st_mtime
-
-    todo = [s.id for s in scenes if args.force or not fresh(s)]
+    todo = [
+        s.id for s in scenes if args.force or not is_fresh(ds, s, args.poses, args.depth_tolerance)
+    ]
     report = run_batch(
         VisibilityJob(str(ds.root), args.poses, args.depth_tolerance),
         todo,

@@ -7,6 +7,7 @@ The work is in :mod:`annotator.sites`; this module reads options, prints and ask
 from __future__ import annotations
 
 import argparse
+import fnmatch
 import json
 import sys
 from pathlib import Path
@@ -55,6 +56,8 @@ def run(args: argparse.Namespace) -> int:
 
     ds = load_dataset(args.dataset)
     scenes = annotated_scenes(ds, args.scenes)
+    if not any(fnmatch.fnmatch(s.id, args.scenes) for s in ds.scenes()):
+        raise UserError(f"no scene matches {args.scenes!r}", path=ds.root / SCENES_DIR)
     if not scenes:
         raise UserError(
             "no scene has an annotation.json: run `annotator annotate "

@@ -9,8 +9,6 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from annotator.errors import UserError
-
 
 def synth_twin(args: argparse.Namespace) -> int:
     from annotator.commands import finish_batch
@@ -32,10 +30,7 @@ def synth_twin(args: argparse.Namespace) -> int:
         drop_rejected_instances=args.drop_rejected_instances,
     )
     if not sel.scenes:
-        why = ", ".join(f"{n} {r}" for r, n in sorted(sel.reasons().items())) or "no scenes"
-        raise UserError(
-            f"no accepted scene to make a twin of ({why}); use --include-pending", path=ds.root
-        )
+        raise sel.nothing_error(ds, include_pending=args.include_pending, what="to make a twin of")
     poses = {
         item.scene.id: [
             (p.object, p.instance, p.R.ravel().tolist(), p.t.tolist()) for p in item.poses

@@ -14,14 +14,13 @@ from pathlib import Path
 
 import numpy as np
 
-from annotator.dataset.frames import frames_from_json, scene_shots
-from annotator.dataset.load import Problem, read_dataset
+from annotator.dataset.frames import frames_from_json, frames_left_out, frames_line, scene_shots
+from annotator.dataset.load import Problem, read_dataset, site_shape_problem
 from annotator.dataset.model import Capture, Dataset, ObjectModel
 from annotator.errors import UserError
 from annotator.geometry.mesh import Mesh
 
 SITE_TOLERANCE_MM = 0.5
-SIZE_TOLERANCE = 0.02  # relative
 BROKEN_LINK = "a symbolic link that leads nowhere (dangling or a loop): not a scene"
 
 
@@ -77,16 +76,8 @@ def _annotation_warnings(path: Path) -> list[Problem]:
 
 
 def _check_objects(ds: Dataset) -> list[Problem]:
-    from annotator.markers.texture import dictionary_size
-
     out: list[Problem] = []
-    try:
-        n_dict: int | None = dictionary_size(ds.dictionary)
-    except UserError:  # already reported by the reader of dataset.yaml
-        n_dict = None
     for obj in ds.objects.values():
-        if n_dict is not None:
-            out += _check_marker_ids(ds, obj, n_dict)
         if not obj.mesh_path.is_file():
             continue  # already reported by read_dataset
         try:
@@ -97,21 +88,6 @@ def _check_objects(ds: Dataset) -> list[Problem]:
         out += _check_mesh(obj.mesh_path, mesh)
         if obj.markers is not None:
             out += _check_sites(obj, mesh)
-    return out
-
-
-def _check_marker_ids(ds: Dataset, obj: ObjectModel, n_dict: int) -> list[Problem]:
-    """Every instance's marker ids lie in the dataset's dictionary of ``n_dict`` markers."""
-    out = []
-    for inst in obj.instances:
-        bad = [i for i in inst.marker_ids if i >= n_dict]
-        if bad:
-            out.append(
-                Problem(
-                    obj.folder / "object.yaml",
-                    f"instance {inst.name!r}: marker ids {bad} are outside {ds.dictionary} (0..{n_dict - 1})",
-                )
-            )
     return out
 
 
@@ -138,8 +114,8 @@ def _check_mesh(path: Path, mesh: Mesh) -> list[Problem]:
 
 
 def _check_sites(obj: ObjectModel, mesh: Mesh) -> list[Problem]:
-    """Every marker site, the layout's and the instances' own, is a square of the markers'
-    size lying on the mesh surface."""
+    """Every marker site, the layout's and the instances' own, lies on the mesh surface (a
+    site that is not a square of the markers' size is reported by the dataset's reader)."""
     assert obj.markers is not None
     yaml_path = obj.folder / "object.yaml"
     size = obj.markers.size
@@ -149,19 +125,8 @@ def _check_sites(obj: ObjectModel, mesh: Mesh) -> list[Problem]:
             sites += [(f"instance {inst.name!r}: sites[{k}]", c) for k, c in enumerate(inst.sites)]
     out = []
     for where, c in sites:
-        sides = np.linalg.norm(np.roll(c, -1, axis=0) - c, axis=1)
-        diag = np.linalg.norm(c[2] - c[0]), np.linalg.norm(c[3] - c[1])
-        if (
-            np.any(np.abs(sides - size) > SIZE_TOLERANCE * size)
-            or abs(diag[0] - diag[1]) > SIZE_TOLERANCE * size
-        ):
-            out.append(
-                Problem(
-                    yaml_path,
-                    f"{where} is not a square of side {size:g} mm (sides {np.round(sides, 2).tolist()})",
-                )
-            )
-            continue
+        if site_shape_problem(c, size) is not None:
+            continue  # reported by the dataset's reader
         dist = mesh.distance_to_surface(np.concatenate([c, c.mean(axis=0, keepdims=True)]))
         if dist.max() > SITE_TOLERANCE_MM:
             out.append(
@@ -223,11 +188,15 @@ def _check_scene(ds: Dataset, scene) -> list[Problem]:
         if path.exists():
             try:
                 poses, top = read_pose_file(path)
+                frames = frames_from_json(top.get("frames"), path) if ds.rig.moving else {}
                 if ds.rig.moving:
-                    scene_shots(ds, scene, frames_from_json(top.get("frames"), path))
+                    scene_shots(ds, scene, frames)
             except UserError as exc:
                 out.append(Problem(path, exc.message))
                 continue
+            left = frames_left_out(frames)
+            if left and path == scene.annotation_path:  # no export or evaluation takes them
+                out.append(Problem(path, frames_line(left, len(frames)), warning=True))
             for p in poses:
                 problem = pose_problem(ds, p)
                 if problem is not None:

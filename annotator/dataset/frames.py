@@ -28,6 +28,8 @@ __all__ = [
     "FramesScene",
     "Shot",
     "frames_from_json",
+    "frames_left_out",
+    "frames_line",
     "frames_to_json",
     "poses_in_frame",
     "read_frames",
@@ -183,6 +185,47 @@ def scene_shots(
             continue
         out.append(Shot(scene, folders[name], name, invert(T)))
     return out
+
+
+def frames_left_out(
+    frames: Mapping[str, FramePose], rejected: Collection[str] = ()
+) -> dict[str, str]:
+    """A sequence's frames that none of its exports, evaluations or reviews take, and why:
+    not posed (its flags and reason, as annotate wrote them), or ``rejected`` by a reviewer.
+
+    >>> frames = {"000000": FramePose("000000", np.eye(4)),
+    ...           "000001": FramePose("000001", None, {"flags": ["outlier"], "reason": "far"})}
+    >>> frames_left_out(frames, rejected=["000000"])
+    {'000000': 'rejected by a reviewer', '000001': 'not posed: outlier (far)'}
+    """
+    out = {}
+    for name in sorted(frames):
+        f = frames[name]
+        if f.scene_T_rig is None:
+            flags = ", ".join(str(x) for x in f.extra.get("flags") or []) or "no pose"
+            reason = f.extra.get("reason")
+            out[name] = f"not posed: {flags}" + (f" ({reason})" if reason else "")
+        elif name in rejected:
+            out[name] = "rejected by a reviewer"
+    return out
+
+
+def frames_line(left: Mapping[str, str], total: int | None = None) -> str:
+    """One line naming the frames :func:`frames_left_out` gives, grouped by why.
+
+    >>> frames_line({"000001": "not posed: outlier", "000002": "not posed: outlier"}, 6)
+    '2 of 6 frames left out: 000001, 000002 not posed: outlier'
+    """
+    by_why: dict[str, list[str]] = {}
+    for name, why in sorted(left.items()):
+        by_why.setdefault(why, []).append(name)
+    parts = []
+    for why, names in by_why.items():
+        shown = ", ".join(names[:5]) + (f" (+{len(names) - 5} more)" if len(names) > 5 else "")
+        parts.append(f"{shown} {why}")
+    of = f" of {total}" if total is not None else ""
+    noun = "frame" if (total if total is not None else len(left)) == 1 else "frames"
+    return f"{len(left)}{of} {noun} left out: " + "; ".join(parts)
 
 
 #: How many of a sequence's frames a review page shows side by side.

@@ -132,6 +132,7 @@ def read_dataset(root: str | Path) -> tuple[Dataset | None, list[Problem]]:
         if obj is not None:
             objects[obj.name] = obj
     _check_marker_ids(objects, problems)
+    _check_sites(objects, _dictionary_size(dictionary), dictionary, problems)
     scenes = root / SCENES_DIR
     if (scenes.exists() or scenes.is_symlink()) and not scenes.is_dir():
         problems.append(Problem(scenes, "is not a folder (scenes/<scene_id>/ hold the scenes)"))
@@ -174,9 +175,11 @@ class _Parser:
             self.problem(f"{what} is missing")
             return None
         try:
+            if not _all_numbers(value):  # numpy would read "12.5" and True as numbers
+                raise TypeError
             arr = np.asarray(value, dtype=np.float64).reshape(-1)
         except (TypeError, ValueError):
-            self.problem(f"{what} must be a list of numbers")
+            self.problem(f"{what} must be a list of numbers (a number is written without quotes)")
             return None
         allowed = (n,) if isinstance(n, int) else n
         if arr.size not in allowed or not np.all(np.isfinite(arr)):
@@ -184,6 +187,63 @@ class _Parser:
             self.problem(f"{what} must have {want} finite numbers, got {arr.size}")
             return None
         return arr
+
+
+def _all_numbers(value: Any) -> bool:
+    """Whether ``value`` is a number or (nested) lists of numbers; not text, not booleans."""
+    if isinstance(value, (list, tuple)):
+        return all(_all_numbers(v) for v in value)
+    if isinstance(value, np.ndarray):
+        return value.dtype.kind in "iuf"
+    return isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(
+        value, (bool, np.bool_)
+    )
+
+
+#: How far a marker site may be from a square of the markers' printed side (relative).
+SIZE_TOLERANCE = 0.02
+
+
+def site_shape_problem(corners: np.ndarray, size: float) -> str | None:
+    """Why a site's four corners (4x3, mm) are not a square of side ``size``, or None."""
+    sides = np.linalg.norm(np.roll(corners, -1, axis=0) - corners, axis=1)
+    diag = np.linalg.norm(corners[2] - corners[0]), np.linalg.norm(corners[3] - corners[1])
+    if np.any(np.abs(sides - size) > SIZE_TOLERANCE * size) or abs(diag[0] - diag[1]) > (
+        SIZE_TOLERANCE * size
+    ):
+        return f"is not a square of side {size:g} mm (sides {np.round(sides, 2).tolist()})"
+    return None
+
+
+def _check_sites(
+    objects: dict[str, ObjectModel], n_dict: int | None, dictionary: str, problems: list[Problem]
+) -> None:
+    """Every site (the layout's and the instances' own) is a square of the printed side,
+    and every marker id lies in the dictionary: what every command relies on."""
+    for obj in objects.values():
+        path = obj.folder / "object.yaml"
+        for inst in obj.instances:
+            bad = [i for i in inst.marker_ids if n_dict is not None and i >= n_dict]
+            if bad:
+                problems.append(
+                    Problem(
+                        path,
+                        f"instance {inst.name!r}: marker ids {bad} are outside {dictionary} "
+                        f"(0..{n_dict - 1 if n_dict else 0})",
+                    )
+                )
+        if obj.markers is None:
+            continue
+        sites = [(f"markers.sites[{k}]", c) for k, c in enumerate(obj.markers.corners)]
+        for inst in obj.instances:
+            if inst.sites is not None:
+                sites += [
+                    (f"instance {inst.name!r}: sites[{k}]", c) for k, c in enumerate(inst.sites)
+                ]
+        for where, c in sites:
+            why = site_shape_problem(c, obj.markers.size)
+            if why is not None:
+                problems.append(Problem(path, f"{where} {why}"))
 
 
 def _read_yaml(path: Path, problems: list[Problem]) -> dict[str, Any] | None:
@@ -221,6 +281,16 @@ def _parse_dictionary(p: _Parser, name: str, root: Path) -> str:
         where = f" ({exc.path})" if exc.path is not None else ""
         p.problem(f"markers.dictionary: {exc.message}{where}")
     return resolved
+
+
+def _dictionary_size(resolved: str) -> int | None:
+    """How many markers the dictionary has (None if it is unusable: reported already)."""
+    from annotator.markers.dictionary import dictionary_size
+
+    try:
+        return dictionary_size(resolved)
+    except UserError:
+        return None
 
 
 @dataclass(frozen=True)

@@ -42,6 +42,8 @@ class ExportSummary:
         failures: Scene id -> why it could not be read.
         markers_filled: With ``remove_markers``, the markers filled in over every exported
             image (a marker seen by two cameras counts twice); None without.
+        frames_left_out: An exported sequence's frames not exported -> why (not posed, with
+            annotate's flags; rejected by a reviewer).
     """
 
     format: str
@@ -50,6 +52,7 @@ class ExportSummary:
     left_out: dict[str, str] = field(default_factory=dict)
     failures: dict[str, str] = field(default_factory=dict)
     markers_filled: int | None = None
+    frames_left_out: dict[str, dict[str, str]] = field(default_factory=dict)
 
     def reasons(self) -> dict[str, int]:
         """How many scenes were left out for each reason (``unreadable`` for failures)."""
@@ -69,6 +72,7 @@ class ExportSummary:
             "scenes_left_out": self.left_out,
             "failures": dict(sorted(self.failures.items())),
             "markers_filled": self.markers_filled,
+            "frames_left_out": self.frames_left_out,
         }
 
 
@@ -142,12 +146,7 @@ def export_dataset(
         poses_from=poses,
     )
     if not sel.scenes:
-        why = ", ".join(f"{n} {r}" for r, n in sorted(sel.reasons().items())) or "no scenes"
-        raise UserError(
-            f"no accepted scene to export ({why}); review them with `annotator review`, or "
-            "use --include-pending",
-            path=ds.root,
-        )
+        raise sel.nothing_error(ds, include_pending=include_pending, what="to export")
     tick = progress(len(sel.scenes)) if progress else None
     filled: list[int] = []
     markers: dict[str, Any] = {
@@ -195,4 +194,12 @@ def _summary(format: str, out: Path, sel: Selection, unreadable: dict[str, str])
     }
     failures.update(unreadable)
     left_out = {sid: r for sid, r in sel.skipped.items() if sid not in failures}
-    return ExportSummary(format, out, len(sel.scenes) - len(unreadable), left_out, failures)
+    frames = {sid: f for sid, f in sel.frames_left.items() if sid not in failures}
+    return ExportSummary(
+        format,
+        out,
+        len(sel.scenes) - len(unreadable),
+        left_out,
+        failures,
+        frames_left_out=frames,
+    )

@@ -17,7 +17,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from annotator.dataset import Dataset, InstancePose, Scene
-from annotator.dataset.frames import Shot, frames_from_json, scene_shots
+from annotator.dataset.frames import Shot, frames_from_json, frames_left_out, scene_shots
 from annotator.dataset.poses import read_pose_file
 from annotator.dataset.review import ReviewStatus, apply_edits, poses_fingerprint, read_review
 from annotator.dataset.validity import pose_problem
@@ -39,6 +39,19 @@ class Selected:
 class Selection:
     scenes: list[Selected] = field(default_factory=list)
     skipped: dict[str, str] = field(default_factory=dict)  # scene id -> reason
+    #: A selected sequence's frames left out -> why (not posed: its flags; or rejected).
+    frames_left: dict[str, dict[str, str]] = field(default_factory=dict)
+
+    def nothing_error(self, ds: Dataset, *, include_pending: bool, what: str) -> UserError:
+        """The one line for no scene selected, ``what`` being the work ("to export")."""
+        why = ", ".join(f"{n} {r}" for r, n in sorted(self.reasons().items())) or "no scenes"
+        pending = str(ReviewStatus.PENDING) in self.reasons()
+        advice = ", or use --include-pending" if pending and not include_pending else ""
+        accepted = "" if include_pending else "accepted "
+        return UserError(
+            f"no {accepted}scene {what} ({why}); review them with `annotator review`{advice}",
+            path=ds.root,
+        )
 
     def reasons(self) -> dict[str, int]:
         out: dict[str, int] = {}
@@ -110,4 +123,10 @@ def select_scenes(
             sel.skipped[scene.id] = "every frame rejected or unposed"
             continue
         sel.scenes.append(Selected(scene, kept, shots))
+        if ds.rig.moving:
+            left = frames_left_out(
+                frames_from_json(top.get("frames"), path), review.rejected_frames if review else ()
+            )
+            if left:
+                sel.frames_left[scene.id] = left
     return sel

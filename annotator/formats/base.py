@@ -273,6 +273,17 @@ def read_json_lists(
     known = set(gt.scenes)
     single = next(iter(gt.spaces)) if len(gt.spaces) == 1 else None
     projected = total = 0
+    # Files of the other layout would be left out without a word, and score as misses.
+    other = sorted(folder.glob("*.json" if nested else "*/*.json"))
+    if other and (nested or not any(folder.glob("*.json"))):
+        raise UserError(
+            "the scenes are sequences: each frame's results go in <scene>/<frame>.json, "
+            f"not <scene>.json ({other[0].name} would be left out)"
+            if nested
+            else "the scenes are single shots: each scene's results go in <scene>.json, not "
+            f"<scene>/<frame>.json ({other[0].parent.name}/{other[0].name} would be left out)",
+            path=folder,
+        )
     for f in sorted(folder.glob("*/*.json" if nested else "*.json")):
         doc = read_json(f)
         if not isinstance(doc, list):

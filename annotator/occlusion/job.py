@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass
 from typing import Any
 
@@ -65,7 +66,7 @@ class VisibilityJob:
         if not src.exists():
             raise UserError(f"no {src.name}", path=scene.path)
         poses, top = read_pose_file(src)
-        out: dict[str, Any] = {"depth_tolerance_mm": self.tolerance}
+        out: dict[str, Any] = {"poses": self.poses, "depth_tolerance_mm": self.tolerance}
         if not ds.rig.moving:
             out["instances"] = self._instances(ds, scene, poses)
         else:  # a sequence: every posed frame as its rig saw the scene (FORMAT.md)
@@ -110,3 +111,24 @@ class VisibilityJob:
                 }
             )
         return out
+
+
+def is_fresh(ds: Dataset, scene: Scene, poses: str, tolerance: float) -> bool:
+    """True if the scene's visibility.json was made from the same ``poses`` (annotation or
+    gt) with the same depth ``tolerance``, after they and the depth maps last changed."""
+    out = scene.path / VISIBILITY_FILE
+    src = scene.annotation_path if poses == "annotation" else scene.gt_path
+    try:
+        doc = json.loads(out.read_text(encoding="utf-8"))
+        made = out.stat().st_mtime
+        shots = scene.frames() if ds.rig.moving else [scene]
+        depths = [shot.depth_path for shot in shots if shot.depth_path.exists()]
+        newer = all(p.stat().st_mtime <= made for p in [src, *depths])
+    except (OSError, ValueError):
+        return False
+    return (
+        isinstance(doc, dict)
+        and doc.get("poses", "annotation") == poses
+        and doc.get("depth_tolerance_mm") == tolerance
+        and newer
+    )
