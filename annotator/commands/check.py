@@ -5,7 +5,9 @@ from __future__ import annotations
 import argparse
 import json
 
+from annotator.dataset import load_dataset
 from annotator.dataset.check import check_dataset
+from annotator.physics.dataset import physics_json, physics_of_dataset, physics_problems
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -17,15 +19,41 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="also list the scenes whose annotation.json carries warnings (a part without a "
         "pose, blurred or badly exposed images), as warnings",
     )
+    physics = parser.add_argument_group("physics", "are the poses physically possible?")
+    physics.add_argument(
+        "--physics",
+        action="store_true",
+        help="check every posed scene's parts: passing through each other or their support "
+        "(penetrates), resting on nothing (floats); each flagged part is a warning line",
+    )
+    physics.add_argument(
+        "--poses",
+        choices=("annotation", "gt"),
+        default="annotation",
+        help="--physics: the poses checked (annotation.json with the review's repairs, or gt.json)",
+    )
+    physics.add_argument(
+        "--stability",
+        action="store_true",
+        help="--physics: also leave each pile to gravity for a moment in MuJoCo and flag the "
+        "parts that fall (unstable); seconds per scene",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
     report = check_dataset(args.dataset, annotations=args.annotations)
     problems, scenes = report.problems, report.scenes
+    physics = None
+    if (args.physics or args.stability) and not report.errors:
+        physics = physics_of_dataset(
+            load_dataset(args.dataset), poses=args.poses, stability=args.stability
+        )
+        problems = problems + physics_problems(load_dataset(args.dataset), physics, args.poses)
     if args.json:
         print(
             json.dumps(
                 {
+                    **({"physics": physics_json(physics)} if physics is not None else {}),
                     "scenes": scenes,
                     "problems": [
                         {"path": str(p.path), "message": p.message}

@@ -44,6 +44,18 @@ class Flag(StrEnum):
     #: A sequence's frames disagree about the part: it moved while the rig moved (the pose
     #: is the one most frames agree with).
     MOVED = "moved"
+    #: It reaches inside another part or below the support (:attr:`PhysicsCheck.partners`).
+    PENETRATES = "penetrates"
+    #: Nothing is under it: its lower half is clear of the support and of every part.
+    FLOATS = "floats"
+    #: Left to gravity (``annotator check --physics --stability``), it moves.
+    UNSTABLE = "unstable"
+
+
+#: What the physics check may flag (:mod:`annotator.physics`).
+PHYSICS_FLAGS = (Flag.PENETRATES, Flag.FLOATS, Flag.UNSTABLE)
+#: The partner a physics figure names when it is the support, not another part.
+SUPPORT = "support"
 
 
 class WarningKind(StrEnum):
@@ -157,6 +169,66 @@ class DepthCheck:
 
 
 @dataclass
+class PhysicsCheck:
+    """Whether an instance's pose is physically possible in its pile (:mod:`annotator.physics`).
+
+    Attributes:
+        penetration_mm: Its deepest overlap with anything (0: none).
+        penetrates: What it overlaps most: another instance's key, or ``"support"``.
+        gap_mm: How far its lower half is from the nearest thing below; None where the
+            support (and so gravity) is unknown.
+        rests_on: That nearest thing: a key or ``"support"``.
+        fall_mm: With the stability check, how far it moved when left to gravity.
+        partners: Per physics flag the instance carries, what it names (a key or
+            ``"support"``).
+    """
+
+    penetration_mm: float = 0.0
+    penetrates: str | None = None
+    gap_mm: float | None = None
+    rests_on: str | None = None
+    fall_mm: float | None = None
+    partners: dict[str, str] = field(default_factory=dict)
+
+    def to_json(self) -> dict[str, Any]:
+        out: dict[str, Any] = {
+            "penetration_mm": round(self.penetration_mm, 3),
+            "penetrates": self.penetrates,
+            "gap_mm": None if self.gap_mm is None else round(self.gap_mm, 3),
+            "rests_on": self.rests_on,
+        }
+        if self.fall_mm is not None:
+            out["fall_mm"] = round(self.fall_mm, 3)
+        out["partners"] = dict(self.partners)
+        return out
+
+    @classmethod
+    def from_json(cls, doc: dict[str, Any]) -> PhysicsCheck:
+        partners = doc.get("partners")
+        return cls(
+            float(doc.get("penetration_mm") or 0.0),
+            doc.get("penetrates"),
+            doc.get("gap_mm"),
+            doc.get("rests_on"),
+            doc.get("fall_mm"),
+            dict(partners) if isinstance(partners, dict) else {},
+        )
+
+    def describe(self, flags: list[Flag | str]) -> str:
+        """What ``flags`` (an instance's) say of the physics, with whom, in words."""
+        out = []
+        for flag in flags:
+            who = self.partners.get(str(flag), "?")
+            if flag == Flag.PENETRATES:
+                out.append(f"penetrates {who} by {self.penetration_mm:.1f} mm")
+            elif flag == Flag.FLOATS:
+                out.append(f"floats {self.gap_mm or 0.0:.1f} mm above {who}")
+            elif flag == Flag.UNSTABLE:
+                out.append(f"falls {self.fall_mm or 0.0:.1f} mm when left to gravity")
+        return ", ".join(out)
+
+
+@dataclass
 class Occlusion:
     """Occlusion rate (1 - visible / full silhouette pixels) in the reference camera, with the
     depth test where it is the depth camera (None where a file does not say), and per
@@ -195,6 +267,7 @@ class InstanceAnnotation:
         views: Number of cameras whose markers were used.
         depth: Agreement with the measured depth, or None (no depth, too few pixels).
         occlusion: Occlusion rates, or None.
+        physics: Whether the pose is physically possible in its pile, or None (not checked).
         flags: Reasons to look (:class:`Flag`).
         extra: Fields this version does not know, kept as read.
     """
@@ -209,6 +282,7 @@ class InstanceAnnotation:
     views: int = 0
     depth: DepthCheck | None = None
     occlusion: Occlusion | None = None
+    physics: PhysicsCheck | None = None
     flags: list[Flag | str] = field(default_factory=list)
     extra: dict[str, Any] = field(default_factory=dict)
 
@@ -258,6 +332,8 @@ class InstanceAnnotation:
             occlusion=None if self.occlusion is None else self.occlusion.to_json(),
             flags=[str(f) for f in self.flags],
         )
+        if self.physics is not None:
+            out["physics"] = self.physics.to_json()
         return out
 
     @classmethod
@@ -279,12 +355,14 @@ class InstanceAnnotation:
             views=int(known.get("views") or 0),
             depth=_optional(DepthCheck, known.get("depth")),
             occlusion=_optional(Occlusion, known.get("occlusion")),
+            physics=_optional(PhysicsCheck, known.get("physics")),
             flags=[_known(Flag, str(f)) for f in known.get("flags") or []],
             extra=e,
         )
 
 
 _INSTANCE_KEYS = (
+    "physics",
     "uncertainty_mm",
     "reprojection_px",
     "markers",

@@ -16,7 +16,7 @@ from scipy.spatial.transform import Rotation
 
 from annotator.geometry import MM_PER_M
 from annotator.geometry.mesh import Mesh
-from annotator.geometry.transforms import make_transform
+from annotator.physics.stability import FRICTION, add_mesh_body, body_pose
 
 
 @dataclass(frozen=True)
@@ -67,12 +67,10 @@ def drop_parts(
     ix, iy = bin.inner
     poses: list[np.ndarray | None] = []
     for k in range(len(meshes)):
-        bid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, f"part{k}")
-        w, x, y, z = data.xquat[bid]
-        R = Rotation.from_quat([x, y, z, w]).as_matrix()
-        t = data.xpos[bid] * MM_PER_M
+        T = body_pose(model, data, f"part{k}")
+        t = T[:3, 3]
         inside = abs(t[0]) < ix / 2 and abs(t[1]) < iy / 2 and -1.0 < t[2] < bin.height * 3
-        poses.append(make_transform(R, t) if inside else None)
+        poses.append(T if inside else None)
     return poses
 
 
@@ -84,7 +82,7 @@ def _add_bin(spec: mujoco.MjSpec, bin: Bin) -> None:
         g.type = mujoco.mjtGeom.mjGEOM_BOX
         g.size = size / 2000.0
         g.pos = centre / MM_PER_M
-        g.friction = [0.6, 0.005, 0.0001]
+        g.friction = FRICTION
 
 
 def _add_part(spec: mujoco.MjSpec, k: int, mesh: Mesh, bin: Bin, rng: np.random.Generator) -> None:
@@ -92,24 +90,11 @@ def _add_part(spec: mujoco.MjSpec, k: int, mesh: Mesh, bin: Bin, rng: np.random.
     that parts dropped together do not start interpenetrating)."""
     ix, iy = bin.inner
     margin = 0.3
-    m = spec.add_mesh()
-    m.name = f"mesh{k}"
-    m.uservert = (mesh.vertices / MM_PER_M).astype(np.float32).ravel().tolist()
-    m.userface = mesh.faces.astype(np.int32).ravel().tolist()
-    body = spec.worldbody.add_body()
-    body.name = f"part{k}"
     r = mesh.moments.radius
-    body.pos = [
+    pos = [
         rng.uniform(-ix / 2 * (1 - margin), ix / 2 * (1 - margin)) / MM_PER_M,
         rng.uniform(-iy / 2 * (1 - margin), iy / 2 * (1 - margin)) / MM_PER_M,
         (bin.height + r + (k // 3) * 1.6 * r) / MM_PER_M,
     ]
     q = Rotation.random(random_state=rng).as_quat()  # x, y, z, w
-    body.quat = [q[3], q[0], q[1], q[2]]
-    j = body.add_freejoint()
-    j.damping = [0.002, 0.0, 0.0]
-    g = body.add_geom()
-    g.type = mujoco.mjtGeom.mjGEOM_MESH
-    g.meshname = m.name
-    g.density = 1200.0
-    g.friction = [0.6, 0.005, 0.0001]
+    add_mesh_body(spec, f"part{k}", mesh, pos, [q[3], q[0], q[1], q[2]])

@@ -1,0 +1,131 @@
+"""The physics check of one pile: per instance, its deepest penetration (into which part, or
+the support), its gap to what is below it, and the flags a reviewer should see (see
+:mod:`annotator.physics` for the conventions).
+
+A figure is flagged only beyond what the poses' own uncertainty explains: three times the
+combined 1-sigma ``uncertainty_mm`` of the two parties (one for the support), and never
+below a floor that covers touching parts (contacts are never exact, even in a physics
+engine's piles).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from annotator.dataset.annotation import SUPPORT, Flag, PhysicsCheck
+from annotator.physics.contact import Body, boxes_overlap, hull_distance, penetration
+from annotator.physics.support import Support
+
+
+@dataclass(frozen=True)
+class PhysicsSettings:
+    """Thresholds of the physics check.
+
+    Attributes:
+        sigmas: How many combined 1-sigma uncertainties a figure may reach unflagged.
+        penetration_floor_mm: Penetrations up to this are never flagged.
+        gap_floor_mm: Gaps up to this are never flagged.
+        fall_floor_mm: With the stability check, moves up to this are never flagged.
+    """
+
+    sigmas: float = 3.0
+    penetration_floor_mm: float = 1.0
+    gap_floor_mm: float = 1.5
+    fall_floor_mm: float = 15.0
+
+
+@dataclass
+class InstancePhysics:
+    """One body's physics: its figures and its physics flags (:data:`PHYSICS_FLAGS`)."""
+
+    key: str
+    check: PhysicsCheck = field(default_factory=PhysicsCheck)
+    flags: list[Flag] = field(default_factory=list)
+
+    def describe(self) -> str:
+        """One line: the instance, what is wrong, with whom."""
+        return f"{self.key}: {self.check.describe(list(self.flags))}"
+
+
+def check_bodies(
+    bodies: Sequence[Body],
+    support: Support | None,
+    *,
+    uncertainty: Mapping[str, float | None] | None = None,
+    settings: PhysicsSettings | None = None,
+) -> list[InstancePhysics]:
+    """The physics figures and flags of every body of one pile (in the order given).
+
+    ``uncertainty``: each key's 1-sigma ``uncertainty_mm`` (missing or None: 0, exact poses
+    such as gt.json's); ``support``: what the pile rests on, None if unknown (then no gap
+    is measured and nothing is flagged ``floats``). Penetrating the support is going below
+    its floor's plane; the gap to it is to the plane or its measured surface.
+    """
+    settings = settings or PhysicsSettings()
+    u = {b.key: float((uncertainty or {}).get(b.key) or 0.0) for b in bodies}
+    out = [InstancePhysics(b.key) for b in bodies]
+    # Overlaps between parts: only pairs whose bounds meet can overlap.
+    for i, a in enumerate(bodies):
+        for j in range(i + 1, len(bodies)):
+            b = bodies[j]
+            if not boxes_overlap(a, b):
+                continue
+            depth = penetration(a, b)
+            for k, other in ((i, b.key), (j, a.key)):
+                if depth > out[k].check.penetration_mm:
+                    out[k].check.penetration_mm, out[k].check.penetrates = depth, other
+            limit = _limit(settings.penetration_floor_mm, settings, u[a.key], u[b.key])
+            if depth > limit:
+                _flag(out[i], Flag.PENETRATES, b.key)
+                _flag(out[j], Flag.PENETRATES, a.key)
+    if support is None:
+        return out
+    for i, a in enumerate(bodies):
+        heights = support.plane.height(a.points)
+        below = max(0.0, -float(heights.min()))
+        if below > out[i].check.penetration_mm:
+            out[i].check.penetration_mm, out[i].check.penetrates = below, SUPPORT
+        if below > _limit(settings.penetration_floor_mm, settings, u[a.key]):
+            _flag(out[i], Flag.PENETRATES, SUPPORT)
+        gap, rests_on = _gap(i, bodies, support, heights)
+        out[i].check.gap_mm, out[i].check.rests_on = gap, rests_on
+        limit = _limit(settings.gap_floor_mm, settings, u[a.key], u.get(rests_on, 0.0))
+        if gap > limit:
+            _flag(out[i], Flag.FLOATS, rests_on)
+    return out
+
+
+def _gap(
+    i: int, bodies: Sequence[Body], support: Support, heights: np.ndarray
+) -> tuple[float, str]:
+    """How far body ``i``'s lower half is from the support and from the hulls of the other
+    bodies, and the nearest of them."""
+    a = bodies[i]
+    low = a.points[:, heights < float(support.plane.height(a.centroid[:, None])[0])]
+    to_support = support.distance(low)
+    best = float(to_support.min()) if len(to_support) else max(0.0, float(heights.min()))
+    rests_on = SUPPORT
+    for j, b in enumerate(bodies):
+        if j == i or not boxes_overlap(a, b, margin=best):
+            continue
+        d = hull_distance(low, b)
+        if len(d) and float(d.min()) < best:
+            best, rests_on = float(d.min()), b.key
+    return best, rests_on
+
+
+def _limit(floor: float, settings: PhysicsSettings, *uncertainties: float) -> float:
+    return max(floor, settings.sigmas * float(np.sqrt(sum(x * x for x in uncertainties))))
+
+
+def _flag(rec: InstancePhysics, flag: Flag, partner: str) -> None:
+    """Flag ``rec`` naming ``partner`` (for a penetration, the deepest one flagged)."""
+    if flag not in rec.flags:
+        rec.flags.append(flag)
+    if flag == Flag.PENETRATES:
+        rec.check.partners[str(flag)] = rec.check.penetrates or partner
+    else:
+        rec.check.partners.setdefault(str(flag), partner)

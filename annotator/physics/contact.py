@@ -1,0 +1,131 @@
+"""Posed bodies and the exact distances between them: how deep one reaches into another
+(signed distances to the triangle mesh as it is) and how far one is from another's convex
+hull (see :mod:`annotator.physics` for the conventions)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import cached_property
+
+import numpy as np
+from scipy.spatial import ConvexHull
+
+from annotator.geometry.mesh import Mesh, surface_samples
+from annotator.geometry.open3d_lib import o3d
+from annotator.geometry.transforms import invert
+from annotator.rendering.raycast import get_threads
+
+#: Surface points drawn per body (every vertex is added to them).
+SAMPLES = 3000
+#: Rays that vote whether a point is inside a mesh (odd).
+INSIDE_VOTES = 5
+
+# Ray-casting scenes of meshes (and of their hulls), by geometry: built once per process.
+_SCENES: dict[tuple[bytes, bool], object] = {}
+_HULLS: dict[bytes, Mesh] = {}
+
+
+@dataclass(frozen=True, eq=False)
+class Body:
+    """A part posed in the camera frame: ``key`` (``object/instance``), its mesh (mm, model
+    frame) and ``T`` = ``cam_T_model`` (4x4)."""
+
+    key: str
+    mesh: Mesh
+    T: np.ndarray
+
+    @cached_property
+    def points(self) -> np.ndarray:
+        """(N, 3) surface points in the camera frame: every vertex and :data:`SAMPLES` drawn
+        over the surface in proportion to area (the same for every copy of a mesh)."""
+        return self.T[:3, :3] @ _model_points(self.mesh).T + self.T[:3, 3:4]
+
+    @cached_property
+    def box(self) -> tuple[np.ndarray, np.ndarray]:
+        """The axis-aligned bounds (min, max) of the body in the camera frame."""
+        pts = self.points.T
+        return pts.min(axis=0), pts.max(axis=0)
+
+    @cached_property
+    def centroid(self) -> np.ndarray:
+        """The surface centroid in the camera frame."""
+        return self.T[:3, :3] @ self.mesh.moments.centroid + self.T[:3, 3]
+
+    def to_model(self, points: np.ndarray) -> np.ndarray:
+        """``points`` (3, N) of the camera frame in this body's model frame, (N, 3)."""
+        M = invert(self.T)
+        return (M[:3, :3] @ points + M[:3, 3:4]).T
+
+
+def _model_points(mesh: Mesh) -> np.ndarray:
+    area = float(mesh.face_areas.sum())
+    spacing = np.sqrt(12.0 * area / SAMPLES)  # surface_samples' density: 12 per spacing^2
+    drawn, _ = surface_samples(mesh, spacing)
+    return np.concatenate([mesh.vertices, drawn])
+
+
+def hull_of(mesh: Mesh) -> Mesh:
+    """The convex hull of ``mesh`` (faces as scipy gives them; the signed distance needs
+    no winding)."""
+    hit = _HULLS.get(mesh.digest)
+    if hit is None:
+        hull = ConvexHull(mesh.vertices)
+        hit = _HULLS[mesh.digest] = Mesh(mesh.vertices, hull.simplices.astype(np.int32))
+    return hit
+
+
+def signed_distance(mesh: Mesh, points: np.ndarray, *, hull: bool = False) -> np.ndarray:
+    """(N,) signed distance (mm) of ``points`` (N, 3, model frame) to ``mesh`` (its convex
+    hull with ``hull``): negative inside the solid."""
+    key = (mesh.digest, hull)
+    scene = _SCENES.get(key)
+    if scene is None:
+        geometry = hull_of(mesh) if hull else mesh
+        scene = o3d.t.geometry.RaycastingScene(nthreads=get_threads())
+        scene.add_triangles(
+            o3d.core.Tensor(geometry.vertices.astype(np.float32)),
+            o3d.core.Tensor(geometry.faces.astype(np.uint32)),
+        )
+        _SCENES[key] = scene
+    query = o3d.core.Tensor(np.ascontiguousarray(points, dtype=np.float32))
+    # Inside or out is voted by several rays: one ray grazing an edge counts it twice.
+    found = scene.compute_signed_distance(  # type: ignore[attr-defined]
+        query, nthreads=get_threads(), nsamples=INSIDE_VOTES
+    )
+    return found.numpy().astype(np.float64)
+
+
+def depth_inside(a: Body, b: Body) -> float:
+    """How deep (mm, >= 0) ``a``'s surface reaches inside ``b``'s solid."""
+    inside = a.points[:, _near(a, b)]
+    if inside.shape[1] == 0:
+        return 0.0
+    return max(0.0, -float(signed_distance(b.mesh, b.to_model(inside)).min()))
+
+
+def penetration(a: Body, b: Body) -> float:
+    """How deep (mm, >= 0) the two solids overlap: the deepest surface point of either
+    inside the other."""
+    return max(depth_inside(a, b), depth_inside(b, a))
+
+
+def hull_distance(points: np.ndarray, b: Body) -> np.ndarray:
+    """(N,) distance (mm, 0 inside) of ``points`` (3, N, camera frame) to ``b``'s convex
+    hull."""
+    if points.shape[1] == 0:
+        return np.zeros(0)
+    return np.maximum(signed_distance(b.mesh, b.to_model(points), hull=True), 0.0)
+
+
+def _near(a: Body, b: Body, margin: float = 0.0) -> np.ndarray:
+    """Which of ``a``'s points lie in ``b``'s bounds grown by ``margin`` (the others
+    cannot be inside it)."""
+    lo, hi = b.box
+    pts = a.points
+    return np.all((pts >= lo[:, None] - margin) & (pts <= hi[:, None] + margin), axis=0)
+
+
+def boxes_overlap(a: Body, b: Body, margin: float = 0.0) -> bool:
+    """Whether the two bodies' bounds, grown by ``margin``, overlap."""
+    (alo, ahi), (blo, bhi) = a.box, b.box
+    return bool(np.all(alo <= bhi + margin) and np.all(blo <= ahi + margin))

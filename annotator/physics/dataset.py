@@ -1,0 +1,125 @@
+"""The physics check over a dataset: every scene's posed parts (annotation.json, repaired
+poses applied, or gt.json), one line per scene that cannot be read (see
+:mod:`annotator.physics` for the conventions)."""
+
+from __future__ import annotations
+
+import fnmatch
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+from annotator.dataset import Dataset, InstancePose, Scene
+from annotator.dataset.annotation import SceneAnnotation
+from annotator.dataset.frames import frames_from_json, scene_shots
+from annotator.dataset.load import Problem
+from annotator.dataset.poses import read_pose_file
+from annotator.dataset.review import apply_edits, read_review
+from annotator.errors import UserError
+from annotator.physics.check import InstancePhysics, PhysicsSettings
+from annotator.physics.scene import shot_physics
+
+
+@dataclass
+class ScenePhysics:
+    """One scene's physics: per instance (:class:`InstancePhysics`), whether a support was
+    found, and how long the check took (s)."""
+
+    scene: str
+    instances: list[InstancePhysics]
+    support: dict[str, Any] | None
+    seconds: float
+
+    @property
+    def flagged(self) -> list[InstancePhysics]:
+        return [r for r in self.instances if r.flags]
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "support": self.support,
+            "instances": {
+                r.key: {**r.check.to_json(), "flags": [str(f) for f in r.flags]}
+                for r in self.instances
+            },
+        }
+
+
+@dataclass
+class PhysicsSummary:
+    """:func:`physics_of_dataset`'s scenes, and the scenes it could not check (one line)."""
+
+    scenes: list[ScenePhysics] = field(default_factory=list)
+    failed: dict[str, str] = field(default_factory=dict)
+
+
+def scene_poses(
+    ds: Dataset, scene: Scene, poses: str
+) -> tuple[list[InstancePose], dict[str, float | None], Any]:
+    """A scene's poses as the export takes them (annotation.json with the review's repairs,
+    or gt.json), their uncertainties, and the pose file's ``frames`` (a sequence's)."""
+    path = scene.annotation_path if poses == "annotation" else scene.gt_path
+    if not path.exists():
+        raise UserError(f"no {path.name}", path=scene.path)
+    if poses == "gt":
+        found, top = read_pose_file(path)
+        return found, {}, top.get("frames")
+    ann = SceneAnnotation.read(path)
+    edits = apply_edits(ann.instances, read_review(scene.review_path))
+    u = {i.key: i.uncertainty_mm for i in ann.instances if i.key not in edits.edited}
+    posed = [p.pose if hasattr(p, "pose") else p for p in edits.poses]
+    return posed, u, ann.extra.get("frames")
+
+
+def physics_of_dataset(
+    ds: Dataset,
+    *,
+    poses: str = "annotation",
+    scenes: str = "*",
+    stability: bool = False,
+    settings: PhysicsSettings | None = None,
+) -> PhysicsSummary:
+    """The physics of every scene matching ``scenes`` that has ``poses`` (``annotation`` or
+    ``gt``); a sequence's in its scene frame, the support from its first posed frame."""
+    out = PhysicsSummary()
+    for scene in ds.scenes():
+        if not fnmatch.fnmatch(scene.id, scenes):
+            continue
+        path = scene.annotation_path if poses == "annotation" else scene.gt_path
+        if not path.exists():
+            continue
+        t0 = time.perf_counter()
+        try:
+            posed, u, frames = scene_poses(ds, scene, poses)
+            shots = scene_shots(ds, scene, frames_from_json(frames, path))
+            if not shots:
+                raise UserError("no frame is posed", path=path)
+            recs, support = shot_physics(
+                ds, shots[0], posed, uncertainty=u, settings=settings, stability=stability
+            )
+        except UserError as exc:
+            out.failed[scene.id] = str(exc)
+            continue
+        plane = None if support is None else support.plane.to_json()
+        out.scenes.append(ScenePhysics(scene.id, recs, plane, time.perf_counter() - t0))
+    return out
+
+
+def physics_problems(ds: Dataset, summary: PhysicsSummary, poses: str) -> list[Problem]:
+    """``check``'s warning lines: one per flagged instance, one per scene not checked."""
+    out = []
+    for sp in summary.scenes:
+        scene = ds.scene(sp.scene)
+        path = scene.annotation_path if poses == "annotation" else scene.gt_path
+        out += [Problem(path, f"physics: {r.describe()}", warning=True) for r in sp.flagged]
+    for sid, why in sorted(summary.failed.items()):
+        out.append(Problem(ds.scene(sid).path, f"physics not checked: {why}", warning=True))
+    return out
+
+
+def physics_json(summary: PhysicsSummary) -> dict[str, Any]:
+    """``check --physics --json``'s ``physics``: per scene, its support and instances."""
+    return {
+        "scenes": {sp.scene: sp.to_json() for sp in summary.scenes},
+        "flagged": sum(len(sp.flagged) for sp in summary.scenes),
+        "failures": dict(sorted(summary.failed.items())),
+    }

@@ -1,0 +1,88 @@
+"""The physics check of a dataset's scene: its posed parts as bodies, the support fitted to
+the empty bin's depth (``rig.depth.background``) or to the scene's own depth away from the
+parts, then :func:`~annotator.physics.check.check_bodies` (see :mod:`annotator.physics` for
+the conventions). Poses are a fixed rig's in its reference camera, a sequence's in its scene
+frame (its first posed frame's depth gives the support)."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+
+import numpy as np
+
+from annotator.dataset import Dataset, InstancePose
+from annotator.dataset.annotation import Flag
+from annotator.dataset.frames import Shot
+from annotator.geometry.transforms import invert
+from annotator.physics.check import InstancePhysics, PhysicsSettings, check_bodies
+from annotator.physics.contact import Body, signed_distance
+from annotator.physics.stability import falls
+from annotator.physics.support import Support, depth_grid, fit_support_plane, grid_surface
+
+#: Depth points this close (mm) to a posed part are the part's, not the support's (small:
+#: the support next to a part leaning on it must stay).
+PART_MARGIN_MM = 2.0
+
+
+def bodies_of(ds: Dataset, poses: Sequence[InstancePose]) -> list[Body]:
+    """The posed parts as bodies (poses of objects the dataset does not have are left out)."""
+    return [Body(p.key, ds.objects[p.object].mesh, p.T) for p in poses if p.object in ds.objects]
+
+
+def shot_support(
+    ds: Dataset, shot: Shot, bodies: Sequence[Body], depth: np.ndarray | None = None
+) -> Support | None:
+    """What the parts rest on, in the scene's frame: from the empty bin's depth for a fixed
+    rig that has one, else from ``shot``'s depth (read if not given) away from the posed
+    ``bodies``; None without depth, or where no floor's plane holds."""
+    spec = ds.rig.depth
+    if spec is None:
+        return None
+    cam = ds.rig.camera(spec.camera)
+    background = ds.background_depth if shot.frame is None else None
+    if background is None and depth is None:
+        depth = shot.capture.read_depth(ds.rig)
+    source = background if background is not None else depth
+    if source is None:
+        return None
+    grid = depth_grid(source, cam)  # the depth camera's frame
+    scene_T_cam = invert(shot.rig_T_scene) @ cam.rig_T_cam
+    grid = grid @ scene_T_cam[:3, :3].T + scene_T_cam[:3, 3]
+    if background is None:  # the parts' own surfaces are not the support
+        pts = grid.reshape(-1, 3)
+        for b in bodies:
+            lo, hi = b.box
+            near = np.all((pts >= lo - PART_MARGIN_MM) & (pts <= hi + PART_MARGIN_MM), axis=1)
+            idx = np.flatnonzero(near)
+            if len(idx):
+                d = signed_distance(b.mesh, b.to_model(pts[idx].T))
+                pts[idx[d < PART_MARGIN_MM]] = np.nan
+        grid = pts.reshape(grid.shape)
+    plane = fit_support_plane(grid.reshape(-1, 3))
+    return None if plane is None else Support(plane, grid_surface(grid))
+
+
+def shot_physics(
+    ds: Dataset,
+    shot: Shot,
+    poses: Sequence[InstancePose],
+    *,
+    uncertainty: Mapping[str, float | None] | None = None,
+    settings: PhysicsSettings | None = None,
+    stability: bool = False,
+    depth: np.ndarray | None = None,
+) -> tuple[list[InstancePhysics], Support | None]:
+    """The physics of the parts ``poses`` places in ``shot``'s scene (the scene frame), and
+    the support found; with ``stability``, each part's fall when left to gravity too."""
+    settings = settings or PhysicsSettings()
+    bodies = bodies_of(ds, poses)
+    support = shot_support(ds, shot, bodies, depth)
+    out = check_bodies(bodies, support, uncertainty=uncertainty, settings=settings)
+    if stability and support is not None and bodies:
+        u = uncertainty or {}
+        for rec, fall in zip(out, falls(bodies, support)):
+            rec.check.fall_mm = fall
+            limit = max(settings.fall_floor_mm, settings.sigmas * float(u.get(rec.key) or 0.0))
+            if fall > limit:
+                rec.flags.append(Flag.UNSTABLE)
+    return out, support

@@ -1,0 +1,141 @@
+"""The surface a pile rests on, from measured depth (the empty bin's, or the scene's away
+from the parts): the floor's plane, which gives gravity's direction too, and the measured
+surface itself (the bin's walls included) as a mesh (see :mod:`annotator.physics` for the
+conventions)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import cached_property
+from typing import Any
+
+import numpy as np
+
+from annotator.geometry.camera import Camera
+from annotator.geometry.mesh import Mesh
+from annotator.geometry.open3d_lib import o3d
+from annotator.rendering.raycast import get_threads
+
+#: Points within this distance (mm) of a candidate plane count for it.
+INLIER_MM = 2.0
+
+
+@dataclass(frozen=True)
+class SupportPlane:
+    """``n . x + d = 0`` in the camera frame, ``n`` (3,) the unit normal pointing up."""
+
+    n: np.ndarray
+    d: float
+
+    def height(self, points: np.ndarray) -> np.ndarray:
+        """(N,) height (mm) of ``points`` (3, N) above the plane."""
+        return self.n @ points + self.d
+
+    def to_json(self) -> dict[str, object]:
+        return {"normal": [round(float(x), 6) for x in self.n], "offset_mm": round(self.d, 3)}
+
+
+def fit_support_plane(
+    points: np.ndarray, *, seed: int = 0, iterations: int = 300
+) -> SupportPlane | None:
+    """The dominant plane of ``points`` (N, 3, camera frame, mm), its normal turned towards
+    the camera (the origin); None with fewer than 100 points or no plane holding a quarter
+    of them. RANSAC on three points, then least squares on the inliers.
+
+    >>> rng = np.random.default_rng(1)
+    >>> xy = rng.uniform(-100, 100, (500, 2))
+    >>> floor = np.c_[xy, 600 + 0.1 * xy[:, 0]]  # a floor seen from 600 mm, tilted
+    >>> plane = fit_support_plane(floor)
+    >>> round(float(plane.height(np.array([[0.0], [0.0], [0.0]]))[0]), 1)  # the camera
+    597.0
+    """
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    pts = pts[np.all(np.isfinite(pts), axis=1)]
+    if len(pts) < 100:
+        return None
+    rng = np.random.default_rng(seed)
+    best, best_count = None, 0
+    for _ in range(iterations):
+        a, b, c = pts[rng.choice(len(pts), 3, replace=False)]
+        n = np.cross(b - a, c - a)
+        norm = np.linalg.norm(n)
+        if norm < 1e-9:
+            continue
+        n /= norm
+        count = int((np.abs(pts @ n - n @ a) < INLIER_MM).sum())
+        if count > best_count:
+            best, best_count = (n, float(-n @ a)), count
+    if best is None or best_count < len(pts) / 4:
+        return None
+    n, d = best
+    inliers = pts[np.abs(pts @ n + d) < INLIER_MM]
+    centre = inliers.mean(axis=0)
+    spread = inliers - centre
+    n = np.linalg.eigh(spread.T @ spread)[1][:, 0]  # the direction of least spread
+    d = float(-n @ centre)
+    if d < 0:  # the camera (origin) is above the support
+        n, d = -n, -d
+    return SupportPlane(n, d)
+
+
+def depth_grid(depth: np.ndarray, camera: Camera, *, step: int = 4) -> np.ndarray:
+    """(H', W', 3) points of a depth map (z-depth, mm; NaN or 0 where none) of ``camera``,
+    in its frame, on a grid of every ``step``-th pixel; NaN where there is no depth."""
+    rays = camera.pixel_rays(step)
+    z = depth[::step, ::step].astype(np.float64)
+    z = np.where(np.isfinite(z) & (z > 0), z, np.nan)
+    return rays * z[..., None]
+
+
+def grid_surface(grid: np.ndarray, *, max_edge_mm: float = 15.0) -> Mesh | None:
+    """The surface through a grid of points (H, W, 3; NaN where none): two triangles per
+    cell of four neighbours, those with a corner missing or an edge longer than
+    ``max_edge_mm`` (a jump in depth, not a surface) left out; None if none is left."""
+    h, w = grid.shape[:2]
+    idx = np.arange(h * w).reshape(h, w)
+    quads = np.stack(
+        [idx[:-1, :-1].ravel(), idx[:-1, 1:].ravel(), idx[1:, 1:].ravel(), idx[1:, :-1].ravel()],
+        axis=1,
+    )
+    tris = np.concatenate([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]])
+    v = grid.reshape(-1, 3)
+    corners = v[tris]  # (T, 3, 3)
+    ok = np.all(np.isfinite(corners), axis=(1, 2))
+    edges = np.linalg.norm(corners - np.roll(corners, 1, axis=1), axis=2)
+    ok &= np.all(np.nan_to_num(edges, nan=np.inf) < max_edge_mm, axis=1)
+    if not ok.any():
+        return None
+    used, faces = np.unique(tris[ok], return_inverse=True)
+    return Mesh(v[used], faces.reshape(-1, 3).astype(np.int32))
+
+
+@dataclass(frozen=True, eq=False)
+class Support:
+    """What a pile rests on, in the scene's frame: the floor's plane (gravity is against
+    its normal) and, where depth measured it, the support's surface (the bin's floor and
+    walls) as a mesh."""
+
+    plane: SupportPlane
+    surface: Mesh | None = None
+
+    def distance(self, points: np.ndarray) -> np.ndarray:
+        """(N,) distance (mm) of ``points`` (3, N) to the support: to the floor's plane
+        (0 below it) or to the measured surface, whichever is nearer."""
+        d = np.maximum(self.plane.height(points), 0.0)
+        if self._surface_scene is not None and points.shape[1]:
+            query = o3d.core.Tensor(np.ascontiguousarray(points.T, dtype=np.float32))
+            found = self._surface_scene.compute_distance(query, nthreads=get_threads())
+            d = np.minimum(d, found.numpy().astype(np.float64))
+        return d
+
+    @cached_property
+    def _surface_scene(self) -> Any:
+        """The measured surface's ray-casting scene (its BVH built once)."""
+        if self.surface is None:
+            return None
+        scene = o3d.t.geometry.RaycastingScene(nthreads=get_threads())
+        scene.add_triangles(
+            o3d.core.Tensor(self.surface.vertices.astype(np.float32)),
+            o3d.core.Tensor(self.surface.faces.astype(np.uint32)),
+        )
+        return scene
