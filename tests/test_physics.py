@@ -207,3 +207,46 @@ def test_thresholds_follow_the_uncertainty() -> None:
 
 def _bodies(ds, root: Path) -> list[Body]:
     return bodies_of(ds, read_poses(root / "scenes" / SCENE / "gt.json"))
+
+
+def _results_from_truth(root: Path, out: Path, sink: str | None = None) -> None:
+    """A results folder holding every true pose (score 1), ``sink`` 20 mm into the floor."""
+    out.mkdir()
+    for scene in sorted((root / "scenes").iterdir()):
+        rows = []
+        for p in read_poses(scene / "gt.json"):
+            t = p.t.copy()
+            if p.key == sink:
+                t = t - 20.0 * _up(root)
+            rows.append({"object": p.object, "R": p.R.tolist(), "t": t.tolist(), "score": 1.0})
+        (out / f"{scene.name}.json").write_text(json.dumps(rows))
+
+
+def _up(root: Path) -> np.ndarray:
+    _, _, support = _truth(root)
+    return np.array(support["normal"])
+
+
+def test_evaluate_gives_the_share_of_impossible_estimates(pile: Path, tmp_path, capsys) -> None:
+    perfect = tmp_path / "perfect"
+    _results_from_truth(pile, perfect)
+    report = tmp_path / "report.json"
+    args = ["evaluate", str(pile), "--results"]
+    assert main([*args, str(perfect), "--physics", "--json", str(report)]) == 0
+    assert json.loads(report.read_text())["physics"]["impossible_share"] == 0.0
+    sunk = tmp_path / "sunk"
+    key = next(p.key for p in read_poses(pile / "scenes" / SCENE / "gt.json"))
+    _results_from_truth(pile, sunk, sink=key)
+    assert main([*args, str(sunk), "--physics", "--json", str(report)]) == 0
+    physics = json.loads(report.read_text())["physics"]
+    obj = key.split("/")[0]
+    assert physics["per_object"][obj]["penetrating"] == 1
+    assert sum(o["penetrating"] for o in physics["per_object"].values()) == 1
+    assert "physically impossible" in capsys.readouterr().out
+
+
+def test_evaluate_physics_needs_our_dataset(tmp_path, capsys) -> None:
+    (tmp_path / "models").mkdir()
+    (tmp_path / "models" / "models_info.json").write_text("{}")  # a BOP dataset, as detected
+    assert main(["evaluate", str(tmp_path), "--results", str(tmp_path), "--physics"]) == 2
+    assert "--physics" in capsys.readouterr().err

@@ -22,6 +22,7 @@ if TYPE_CHECKING:
     from annotator.evaluation.bop19 import Bop19Scores
     from annotator.evaluation.evaluate import EvaluationOptions, EvaluationReport
     from annotator.formats.base import GroundTruth, PoseResults
+    from annotator.physics.results import ResultsPhysics
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -109,6 +110,12 @@ def _add_report_options(parser: argparse.ArgumentParser) -> None:
         help="also BOP's average recall (VSD when the depth images are there, MSSD, MSPD), "
         "as bop_toolkit's eval_bop19_pose.py computes it; BOP ground truth and a result CSV",
     )
+    group.add_argument(
+        "--physics",
+        action="store_true",
+        help="also the share of estimates physically impossible in the real pile (through a "
+        "true part or the support, or resting on nothing), per object; our datasets only",
+    )
     group.add_argument("--json", metavar="OUT", help="write the full report as JSON")
     group.add_argument("--plot", metavar="OUT.png", help="draw the mean precision/recall curves")
 
@@ -140,6 +147,7 @@ def run(args: argparse.Namespace) -> int:
         _print_bop19(bop, report, gt)
     if not args.results and fmt.NAME == "ours":
         _print_annotation_errors(gt_path)
+    physics = _physics(args, gt, results, opts) if args.physics else None
     if args.json:
         from annotator.io.atomic import write_json
 
@@ -148,6 +156,8 @@ def run(args: argparse.Namespace) -> int:
             doc = {"real": doc, "twin": twin_report.to_json()}
         if bop is not None:
             doc["bop19"] = bop.to_json()
+        if physics is not None:
+            doc["physics"] = physics.to_json()
         write_json(args.json, doc)
     if args.plot:
         from annotator.evaluation.evaluate import plot_curves
@@ -155,6 +165,31 @@ def run(args: argparse.Namespace) -> int:
         plot_curves(report, args.plot)
         print(f"precision/recall curves: {args.plot}")
     return 0
+
+
+def _physics(
+    args: argparse.Namespace, gt: GroundTruth, results: PoseResults, opts: EvaluationOptions
+) -> ResultsPhysics:
+    """The physics of the estimates each AP_n counts (the largest n), printed per object."""
+    from annotator.dataset import load_dataset
+    from annotator.physics.results import results_physics
+
+    n = max(opts.max_results)
+    found = results_physics(load_dataset(args.gt), gt, results, per_object=n)
+    print(
+        f"physics: estimates physically impossible in the real pile (the best {n} per object "
+        "and image; through a true part or the support, or resting on nothing)"
+    )
+    print(f"  {'object':<14} {'checked':>7} {'through':>7} {'floating':>8} {'impossible':>10}")
+    for obj, count in sorted(found.checked.items()):
+        print(
+            f"  {obj:<14} {count:>7} {found.penetrating.get(obj, 0):>7} "
+            f"{found.floating.get(obj, 0):>8} {found.share(obj):>10.1%}"
+        )
+    print(f"  {'all':<14} {sum(found.checked.values()):>7} {'':>7} {'':>8} {found.share():>10.1%}")
+    if found.images_without_support:
+        print(f"note: {found.images_without_support} images have no depth: no support checked")
+    return found
 
 
 def _check_options(args: argparse.Namespace) -> None:
@@ -178,6 +213,12 @@ def _check_options(args: argparse.Namespace) -> None:
         )
     if args.bop19 and args.twin:
         raise UserError("--bop19 and --twin cannot be combined")
+    from annotator.formats import detect_format
+
+    if args.physics and detect_format(Path(args.gt)).NAME != "ours":
+        raise UserError(
+            "--physics needs the parts' meshes and depth of one of our datasets", path=args.gt
+        )
 
 
 def _inputs(args: argparse.Namespace) -> tuple[ModuleType, GroundTruth, PoseResults, str]:

@@ -98,6 +98,42 @@ def check_bodies(
     return out
 
 
+def check_one(
+    body: Body,
+    others: Sequence[Body],
+    support: Support | None,
+    *,
+    uncertainty: float = 0.0,
+    settings: PhysicsSettings | None = None,
+) -> InstancePhysics:
+    """The physics of ``body`` alone among ``others`` (taken as they are: a pose estimate
+    among the true parts): its deepest penetration and its gap, flagged as
+    :func:`check_bodies` flags them."""
+    settings = settings or PhysicsSettings()
+    rec = InstancePhysics(body.key)
+    limit = _limit(settings.penetration_floor_mm, settings, uncertainty)
+    for other in others:
+        if boxes_overlap(body, other):
+            depth = penetration(body, other)
+            if depth > rec.check.penetration_mm:
+                rec.check.penetration_mm, rec.check.penetrates = depth, other.key
+            if depth > limit:
+                _flag(rec, Flag.PENETRATES, other.key)
+    if support is None:
+        return rec
+    heights = support.plane.height(body.points)
+    below = max(0.0, -float(heights.min()))
+    if below > rec.check.penetration_mm:
+        rec.check.penetration_mm, rec.check.penetrates = below, SUPPORT
+    if below > limit:
+        _flag(rec, Flag.PENETRATES, SUPPORT)
+    gap, rests_on = _gap(0, [body, *others], support, heights)
+    rec.check.gap_mm, rec.check.rests_on = gap, rests_on
+    if gap > _limit(settings.gap_floor_mm, settings, uncertainty):
+        _flag(rec, Flag.FLOATS, rests_on)
+    return rec
+
+
 def _gap(
     i: int, bodies: Sequence[Body], support: Support, heights: np.ndarray
 ) -> tuple[float, str]:
