@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import trimesh
 from scipy.spatial.transform import Rotation
 
 from annotator.cli import main
@@ -20,6 +21,7 @@ from annotator.geometry.mesh import Mesh
 from annotator.physics import Body, PhysicsSettings, Support, SupportPlane, check_bodies
 from annotator.physics.contact import hull_distance, penetration
 from annotator.physics.dataset import physics_of_dataset
+from annotator.physics.labels import pick_labels
 from annotator.physics.scene import bodies_of
 
 pytestmark = pytest.mark.slow  # a pile rendered
@@ -185,12 +187,7 @@ def test_annotate_records_the_figures_and_the_flags(copy: Path, capsys) -> None:
 
 def test_thresholds_follow_the_uncertainty() -> None:
     # Two unit cubes overlapping by 2 mm: flagged for exact poses, not for poses 1 mm unsure.
-    v = np.array([[x, y, z] for x in (0, 10) for y in (0, 10) for z in (0, 10)], float)
-    faces = np.array(
-        [[0, 2, 1], [1, 2, 3], [4, 5, 6], [5, 7, 6], [0, 1, 4], [1, 5, 4],
-         [2, 6, 3], [3, 6, 7], [0, 4, 2], [2, 4, 6], [1, 3, 5], [3, 7, 5]], np.int32
-    )  # fmt: skip
-    cube = Mesh(v, faces)
+    cube = _cube()
     a = Body("cube/a", cube, np.eye(4))
     b = Body("cube/b", cube, _shift(np.array([8.0, 0.0, 0.0])))
     floor = Support(SupportPlane(np.array([0.0, 0.0, 1.0]), 0.0))
@@ -250,3 +247,37 @@ def test_evaluate_physics_needs_our_dataset(tmp_path, capsys) -> None:
     (tmp_path / "models" / "models_info.json").write_text("{}")  # a BOP dataset, as detected
     assert main(["evaluate", str(tmp_path), "--results", str(tmp_path), "--physics"]) == 2
     assert "--physics" in capsys.readouterr().err
+
+
+def test_pick_labels_say_what_lies_on_top() -> None:
+    cube = _cube()
+    floor = Support(SupportPlane(np.array([0.0, 0.0, 1.0]), 0.0))
+    under = Body("cube/under", cube, np.eye(4))
+    over = Body("cube/over", cube, _shift(np.array([3.0, 2.0, 14.0])))  # 4 mm above it
+    apart = Body("cube/apart", cube, _shift(np.array([30.0, 0.0, 0.0])))
+    labels = pick_labels([under, over, apart], floor)
+    assert [lb.on_top for lb in labels] == [False, True, True]
+    assert labels[0].free_height_mm == pytest.approx(4.0, abs=1e-3)
+    assert labels[1].free_height_mm is None
+
+
+def test_the_bop_export_carries_pick_labels(pile: Path, tmp_path) -> None:
+    out = tmp_path / "bop"
+    args = ["export", str(pile), str(out), "--format", "bop", "--include-pending", "--quiet"]
+    assert main([*args, "--poses", "gt"]) == 0
+    scene = out / "test" / f"{int(SCENE):06d}"
+    gt = json.loads((scene / "scene_gt_left.json").read_text())
+    pick = json.loads((scene / "scene_pick_left.json").read_text())
+    info = json.loads((scene / "scene_gt_info_left.json").read_text())
+    assert [len(v) for v in pick.values()] == [len(v) for v in gt.values()]
+    rows = pick["0"]
+    assert [r["obj_id"] for r in rows] == [g["obj_id"] for g in gt["0"]]
+    assert [r["visib_fract"] for r in rows] == [i["visib_fract"] for i in info["0"]]
+    assert any(r["on_top"] for r in rows) and not all(r["on_top"] for r in rows)
+    assert all((r["free_height_mm"] is None) == r["on_top"] for r in rows)
+
+
+def _cube() -> Mesh:
+    """A 10 mm cube from (0, 0, 0) to (10, 10, 10), faces turned outwards."""
+    box = trimesh.creation.box(extents=(10.0, 10.0, 10.0))
+    return Mesh(np.asarray(box.vertices) + 5.0, np.asarray(box.faces, np.int32))

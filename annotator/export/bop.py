@@ -52,6 +52,8 @@ from annotator.io.atomic import write_bytes, write_json
 from annotator.io.images import encode_depth, read_image, write_png
 from annotator.io.ply import write_ply
 from annotator.occlusion import scene_visibility
+from annotator.physics.labels import PickLabel, pick_labels
+from annotator.physics.scene import bodies_of, shot_support
 from annotator.symmetry.classes import symmetry_to_bop
 
 #: Instances at least this visible are targets (BOP's test_targets_bop19.json rule), and
@@ -200,6 +202,7 @@ class _SceneWriter:
         (for the first camera: BOP's targets name one image per shot here)."""
         files = {c: _CameraFiles() for c in self.cameras}
         targets: list[dict[str, int]] = []
+        picks = self._pick_labels(item, shots)
         for im_id, shot, inputs in shots:
             poses = shot.poses(item.poses)
             markers, vis, images = self._shot(item, shot, poses, inputs)
@@ -215,6 +218,7 @@ class _SceneWriter:
                     vis,
                     markers[name],
                     files[name],
+                    picks,
                 )
                 if ci == 0:
                     ids = [self.obj_ids[p.object] for p in poses]
@@ -226,7 +230,17 @@ class _SceneWriter:
             write_json(self.folder / f"scene_gt{sfx}.json", f.gt)
             write_json(self.folder / f"scene_gt_info{sfx}.json", f.gt_info)
             write_json(self.folder / f"scene_gt_coco{sfx}.json", f.coco)
+            write_json(self.folder / f"scene_pick{sfx}.json", f.pick)
         return targets
+
+    def _pick_labels(
+        self, item: Selected, shots: list[tuple[int, Shot, SceneInputs]]
+    ) -> list[PickLabel]:
+        """Each instance's pick-ready label, in the scene's frame (the same in every shot:
+        the support from the first shot's depth)."""
+        bodies = bodies_of(self.ds, item.poses)
+        _, shot, inputs = shots[0]
+        return pick_labels(bodies, shot_support(self.ds, shot, bodies, inputs.depth))
 
     def _shot(
         self, item: Selected, shot: Shot, poses: list[Any], inputs: SceneInputs
@@ -279,6 +293,7 @@ class _SceneWriter:
         vis: Any,
         markers: list[MarkerRegion] | None,
         files: _CameraFiles,
+        picks: list[PickLabel],
     ) -> list[float]:
         sfx = suffix(name, len(self.cameras) > 1)
         cam = self.rig.camera(name)
@@ -291,8 +306,8 @@ class _SceneWriter:
         )
         if has_depth:
             write_png(d / f"depth{sfx}" / f"{im}.png", encode_depth(depth, self.depth_scale))
-        gts, infos, coco = [], [], []
-        for k, (p, v) in enumerate(zip(poses, vis)):
+        gts, infos, coco, pick = [], [], [], []
+        for k, (p, v, label) in enumerate(zip(poses, vis, picks)):
             cv = v.cameras[ci]
             M = cam.cam_T_rig @ p.T
             gts.append(
@@ -322,6 +337,7 @@ class _SceneWriter:
                 cv.mask_visib.astype(np.uint8) * 255,
             )
             coco.append((self.obj_ids[p.object], cv.mask_all, cv.mask_visib, fract))
+            pick.append({"obj_id": self.obj_ids[p.object], **label.to_json(), "visib_fract": fract})
         # The world of a sequence is its scene frame; a fixed rig's is its reference camera.
         w2c = cam.cam_T_rig if shot.frame is None else cam.cam_T_rig @ shot.rig_T_scene
         cam_rec: dict[str, Any] = {
@@ -334,6 +350,7 @@ class _SceneWriter:
         files.camera[str(im_id)] = cam_rec
         files.gt[str(im_id)] = gts
         files.gt_info[str(im_id)] = infos
+        files.pick[str(im_id)] = pick
         files.add_coco(
             coco_scene(
                 coco,
@@ -357,6 +374,7 @@ class _CameraFiles:
     gt: dict[str, Any] = field(default_factory=dict)
     gt_info: dict[str, Any] = field(default_factory=dict)
     coco: dict[str, Any] = field(default_factory=dict)
+    pick: dict[str, Any] = field(default_factory=dict)
 
     def add_coco(self, doc: dict[str, Any]) -> None:
         """One image's COCO document merged in (annotation ids kept unique)."""
@@ -512,7 +530,7 @@ def _imagewise(scenes: Path, out: Path, cameras: Sequence[str]) -> None:
             sfx = suffix(name, multi)
             docs = {
                 what: json.loads((scene / f"scene_{what}{sfx}.json").read_text())
-                for what in ("camera", "gt", "gt_info")
+                for what in ("camera", "gt", "gt_info", "pick")
             }
             for image in sorted(docs["camera"], key=int):
                 im = f"{int(image):06d}"

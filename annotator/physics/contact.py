@@ -41,6 +41,14 @@ class Body:
         return self.T[:3, :3] @ _model_points(self.mesh).T + self.T[:3, 3:4]
 
     @cached_property
+    def samples(self) -> tuple[np.ndarray, np.ndarray]:
+        """(3, M) points drawn over the surface and their (3, M) outward normals, in the
+        camera frame (those of :attr:`points` but the vertices)."""
+        drawn, normals = _drawn(self.mesh)
+        R = self.T[:3, :3]
+        return R @ drawn.T + self.T[:3, 3:4], R @ normals.T
+
+    @cached_property
     def box(self) -> tuple[np.ndarray, np.ndarray]:
         """The axis-aligned bounds (min, max) of the body in the camera frame."""
         pts = self.points.T
@@ -57,11 +65,15 @@ class Body:
         return (M[:3, :3] @ points + M[:3, 3:4]).T
 
 
-def _model_points(mesh: Mesh) -> np.ndarray:
+def _drawn(mesh: Mesh) -> tuple[np.ndarray, np.ndarray]:
+    """About :data:`SAMPLES` points over the surface (model frame) and their normals."""
     area = float(mesh.face_areas.sum())
     spacing = np.sqrt(12.0 * area / SAMPLES)  # surface_samples' density: 12 per spacing^2
-    drawn, _ = surface_samples(mesh, spacing)
-    return np.concatenate([mesh.vertices, drawn])
+    return surface_samples(mesh, spacing)
+
+
+def _model_points(mesh: Mesh) -> np.ndarray:
+    return np.concatenate([mesh.vertices, _drawn(mesh)[0]])
 
 
 def hull_of(mesh: Mesh) -> Mesh:
