@@ -16,13 +16,16 @@ from scipy.spatial.transform import Rotation
 
 from annotator.cli import main
 from annotator.dataset import load_dataset, read_poses
-from annotator.dataset.annotation import SUPPORT
+from annotator.dataset.annotation import SUPPORT, Flag, InstanceAnnotation, PhysicsCheck
+from annotator.dataset.review import Review
 from annotator.geometry.mesh import Mesh
 from annotator.physics import Body, PhysicsSettings, Support, SupportPlane, check_bodies
 from annotator.physics.contact import hull_distance, penetration
 from annotator.physics.dataset import physics_of_dataset
 from annotator.physics.labels import pick_labels
 from annotator.physics.scene import bodies_of
+from viewer.panel_text import instance_table
+from viewer.state import SceneInfo
 
 pytestmark = pytest.mark.slow  # a pile rendered
 
@@ -281,3 +284,14 @@ def _cube() -> Mesh:
     """A 10 mm cube from (0, 0, 0) to (10, 10, 10), faces turned outwards."""
     box = trimesh.creation.box(extents=(10.0, 10.0, 10.0))
     return Mesh(np.asarray(box.vertices) + 5.0, np.asarray(box.faces, np.int32))
+
+
+def test_the_review_panel_shows_the_physics_and_the_partner() -> None:
+    check = PhysicsCheck(3.14, "brick/02", 0.0, SUPPORT, None, {"penetrates": "brick/02"})
+    pose = InstanceAnnotation(
+        "brick", "01", np.eye(3), np.zeros(3), physics=check, flags=[Flag.PENETRATES]
+    )
+    info = SceneInfo("000000", True, (pose,), Review(), False, True, None, auto=(pose,))
+    table = instance_table(info, None)
+    assert "penetrates brick/02" in table and "| 3.1/0.0 |" in table
+    assert info.physics_flagged

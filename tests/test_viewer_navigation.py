@@ -19,6 +19,7 @@ class _Pose:
 class _Info:
     flagged: bool = False
     poses: tuple = ()
+    physics_flagged: bool = False
 
 
 @dataclass
@@ -28,6 +29,7 @@ class _Scenes:
     ids: list[str]
     status: dict[str, str] = field(default_factory=dict)
     flagged: set[str] = field(default_factory=set)
+    physics: set[str] = field(default_factory=set)  # scenes with a physically impossible pose
 
     def matches(self, sid: str, flt: str) -> bool:
         st = self.status.get(sid, "pending")
@@ -40,7 +42,8 @@ class _Scenes:
         }[flt]
 
     def info(self, sid: str) -> _Info:
-        return _Info(sid in self.flagged, (_Pose(f"{sid}/a"), _Pose(f"{sid}/b")))
+        poses = (_Pose(f"{sid}/a"), _Pose(f"{sid}/b"))
+        return _Info(sid in self.flagged, poses, sid in self.physics)
 
 
 def test_two_navigators_on_the_same_scenes_are_independent() -> None:
@@ -114,3 +117,9 @@ def test_upcoming_scenes_are_the_next_two_then_the_previous() -> None:
     nav.set_filter("pending")
     assert nav.upcoming() == ["s4", "s1"]
     assert nav.current == "s2"
+
+
+def test_a_scene_with_a_physically_impossible_pose_is_shown_first() -> None:
+    scenes = _Scenes(["s0", "s1", "s2"], flagged={"s0", "s2"}, physics={"s2"})
+    assert Navigator(scenes).current == "s2"
+    assert Navigator(_Scenes(["s0", "s1"])).current == "s0"

@@ -19,6 +19,9 @@ class _SceneLike(Protocol):
     def flagged(self) -> bool: ...
 
     @property
+    def physics_flagged(self) -> bool: ...
+
+    @property
     def poses(self) -> tuple: ...
 
 
@@ -49,7 +52,9 @@ class Navigator:
 
     def __post_init__(self) -> None:
         if self.current is None and self.scenes.ids:
-            self.current = self.scenes.ids[0]
+            # A pose that cannot be physically right is the first thing to look at.
+            ids = self.scenes.ids
+            self.current = next((s for s in ids if self.scenes.info(s).physics_flagged), ids[0])
 
     def visible_ids(self) -> list[str]:
         """Scenes matching the filter, in dataset order."""

@@ -10,6 +10,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 
+from annotator.dataset.annotation import InstanceAnnotation
 from viewer.editor import Offer
 from viewer.state import SceneInfo
 
@@ -36,8 +37,8 @@ def _fmt(x: float | None, spec: str) -> str:
 def instance_table(info: SceneInfo, selected: str | None) -> str:
     """The instances of a scene with what there is to trust or distrust, as markdown."""
     rows = [
-        "| | instance | state | flags | mk | px | mm | occl | depth |",
-        "|---|---|---|---|---|---|---|---|---|",
+        "| | instance | state | flags | mk | px | mm | occl | depth | phys |",
+        "|---|---|---|---|---|---|---|---|---|---|",
     ]
     for p in info.poses:
         mark = "▶" if p.key == selected else ""
@@ -46,19 +47,32 @@ def instance_table(info: SceneInfo, selected: str | None) -> str:
             state += " · ✎ edited"
         elif p.key in info.stale_edits:
             state += " · ✎ edit stale"
-        flags = ", ".join(f.replace("_", " ") for f in p.flags) or "-"
+        flags = ", ".join(_flag_text(p, f) for f in p.flags) or "-"
+        phys = p.physics
+        physics = (
+            "-"
+            if phys is None
+            else f"{phys.penetration_mm:.1f}/{'-' if phys.gap_mm is None else f'{phys.gap_mm:.1f}'}"
+        )
         rows.append(
             f"| {mark} | {p.key} | {state} | {flags} | "
             f"{p.count('used')}/{p.count('rejected')} | {_fmt(p.reprojection_rms, '.2f')} | "
             f"{_fmt(p.uncertainty_mm, '.2f')} | {_fmt(p.occlusion_rate, '.2f')} | "
-            f"{_fmt(p.depth_agreement, '.2f')} |"
+            f"{_fmt(p.depth_agreement, '.2f')} | {physics} |"
         )
     rows.append(
         "\nmk: markers used/rejected · px: reprojection RMS · mm: estimated uncertainty · "
-        "occl: occlusion rate · depth: depth agreement · ✎: pose repaired in review.json "
+        "occl: occlusion rate · depth: depth agreement · phys: deepest penetration / gap "
+        "below, mm · ✎: pose repaired in review.json "
         "(export and evaluate use it)"
     )
     return "\n".join(rows)
+
+
+def _flag_text(p: InstanceAnnotation, flag: str) -> str:
+    """A flag in words; a physics flag with the part (or support) it concerns."""
+    partner = p.physics.partners.get(str(flag)) if p.physics is not None else None
+    return str(flag).replace("_", " ") + (f" {partner}" if partner else "")
 
 
 def warnings_text(info: SceneInfo) -> str:

@@ -54,7 +54,12 @@ from pathlib import Path
 import numpy as np
 
 from annotator.dataset import Dataset, Scene, load_dataset
-from annotator.dataset.annotation import InstanceAnnotation, SceneAnnotation, SceneWarning
+from annotator.dataset.annotation import (
+    PHYSICS_FLAGS,
+    InstanceAnnotation,
+    SceneAnnotation,
+    SceneWarning,
+)
 from annotator.dataset.frames import FramePose, frames_from_json, frames_view, shown_frames
 from annotator.dataset.review import (
     NO_POSE_REASON,
@@ -164,6 +169,11 @@ class SceneInfo:
     #: (:func:`annotator.dataset.frames.shown_frames`); empty for a fixed rig's scene.
     frames: Mapping[str, FramePose] = field(default_factory=dict)
     shown: tuple[str, ...] = ()
+
+    @property
+    def physics_flagged(self) -> bool:
+        """A pose is physically impossible in its pile (penetrates, floats, unstable)."""
+        return any(f in PHYSICS_FLAGS for p in self.auto for f in p.flags)
 
     @property
     def rejected_frames(self) -> set[str]:
