@@ -12,9 +12,10 @@ Conventions (stated once, followed by every module here):
   deepest surface point of either inside the other, measured as the exact signed distance of
   points sampled on the surface (every vertex included) to the other's triangle mesh as it
   is (not its convex hull).
-- A **gap** is how far (mm) a body's lower half is from the nearest thing below it: the
-  support, or another body's convex hull (a part bridging a concave neighbour's opening
-  rests on its rims, which the hull shares).
+- A **gap** is how far (mm) a body's lower half is from what could hold it: the support
+  (the floor's plane below it, or a wall it leans on), or another body's convex hull in any
+  direction (a part wedged between others rests on their sides; one bridging a concave
+  neighbour's opening rests on its rims, which the hull shares).
 """
 
 from __future__ import annotations

@@ -137,13 +137,14 @@ def check_one(
 def _gap(
     i: int, bodies: Sequence[Body], support: Support, heights: np.ndarray
 ) -> tuple[float, str]:
-    """How far body ``i``'s lower half is from the support and from the hulls of the other
-    bodies, and the nearest of them."""
+    """How far body ``i``'s lower half is from what could hold it: the support (the floor
+    below it, a wall it leans on) or another body's hull (in any direction: a part wedged
+    between others rests on their sides); the nearest of them."""
     a = bodies[i]
     low = a.points[:, heights < float(support.plane.height(a.centroid[:, None])[0])]
-    to_support = support.distance(low)
-    best = float(to_support.min()) if len(to_support) else max(0.0, float(heights.min()))
-    rests_on = SUPPORT
+    if low.shape[1] == 0:
+        return max(0.0, float(heights.min())), SUPPORT
+    best, rests_on = float(support.distance(low).min()), SUPPORT
     for j, b in enumerate(bodies):
         if j == i or not boxes_overlap(a, b, margin=best):
             continue

@@ -17,11 +17,21 @@ from annotator.geometry.transforms import invert
 from annotator.physics.check import InstancePhysics, PhysicsSettings, check_bodies
 from annotator.physics.contact import Body, signed_distance
 from annotator.physics.stability import falls
-from annotator.physics.support import Support, depth_grid, fit_support_plane, grid_surface
+from annotator.physics.support import (
+    Support,
+    SupportPlane,
+    depth_grid,
+    fit_support_plane,
+    grid_surface,
+)
 
 #: Depth points this close (mm) to a posed part are the part's, not the support's (small:
 #: the support next to a part leaning on it must stay).
 PART_MARGIN_MM = 2.0
+#: A measured floor may be this far (mm) off the parts resting on it, and is then moved.
+FLOOR_BIAS_MM = 3.0
+#: How many parts must rest on the floor for it to be moved to them.
+RESTING_PARTS = 3
 
 
 def bodies_of(ds: Dataset, poses: Sequence[InstancePose]) -> list[Body]:
@@ -59,7 +69,22 @@ def shot_support(
                 pts[idx[d < PART_MARGIN_MM]] = np.nan
         grid = pts.reshape(grid.shape)
     plane = fit_support_plane(grid.reshape(-1, 3))
-    return None if plane is None else Support(plane, grid_surface(grid))
+    if plane is None:
+        return None
+    support = Support(plane, grid_surface(grid))
+    return support.lowered(floor_offset(support.plane, bodies))
+
+
+def floor_offset(plane: SupportPlane, bodies: Sequence[Body]) -> float:
+    """How far (mm) the measured floor lies above the parts resting on it: the median of
+    their lowest points' depth below it, when at least :data:`RESTING_PARTS` parts lie
+    within :data:`FLOOR_BIAS_MM` of it (a depth sensor's offset of a millimetre or two);
+    0 otherwise. One part sunk into the floor does not move the median."""
+    lowest = np.array([float(plane.height(b.points).min()) for b in bodies])
+    resting = lowest[np.abs(lowest) < FLOOR_BIAS_MM]
+    if len(resting) < RESTING_PARTS:
+        return 0.0
+    return float(-np.median(resting))
 
 
 def shot_physics(

@@ -18,6 +18,8 @@ from annotator.rendering.raycast import get_threads
 
 #: Points within this distance (mm) of a candidate plane count for it.
 INLIER_MM = 2.0
+#: The measured support this high (mm) above the floor's plane is something else (a wall).
+WALL_MM = 4.0
 
 
 @dataclass(frozen=True)
@@ -118,14 +120,29 @@ class Support:
     plane: SupportPlane
     surface: Mesh | None = None
 
+    def lowered(self, offset: float) -> Support:
+        """The support ``offset`` mm lower (higher if negative), surface and all."""
+        n = self.plane.n
+        surface = self.surface
+        if surface is not None:
+            surface = Mesh(surface.vertices - offset * n, surface.faces)
+        return Support(SupportPlane(n, self.plane.d + offset), surface)
+
     def distance(self, points: np.ndarray) -> np.ndarray:
-        """(N,) distance (mm) of ``points`` (3, N) to the support: to the floor's plane
-        (0 below it) or to the measured surface, whichever is nearer."""
-        d = np.maximum(self.plane.height(points), 0.0)
+        """(N,) how far (mm) each of ``points`` (3, N) is from the support: its height above
+        the floor's plane (0 below it), or less where the measured surface away from the
+        floor (a bin's wall, which holds a part leaning on it) is nearer."""
+        height = self.plane.height(points)
+        d = np.maximum(height, 0.0)
         if self._surface_scene is not None and points.shape[1]:
             query = o3d.core.Tensor(np.ascontiguousarray(points.T, dtype=np.float32))
-            found = self._surface_scene.compute_distance(query, nthreads=get_threads())
-            d = np.minimum(d, found.numpy().astype(np.float64))
+            near = self._surface_scene.compute_closest_points(query, nthreads=get_threads())
+            q = near["points"].numpy().astype(np.float64)
+            far = np.linalg.norm(q - points.T, axis=1)
+            # Near the floor the measured surface is the floor, smeared where it meets a
+            # wall: the plane says it better.
+            far[self.plane.height(q.T) < WALL_MM] = np.inf
+            d = np.minimum(d, far)
         return d
 
     @cached_property
