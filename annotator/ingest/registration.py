@@ -1,0 +1,92 @@
+"""Depth registered to colour: a depth map taken by one camera redrawn on another camera's
+pixel grid (FORMAT.md: ``depth.png`` lies on ``rig.depth.camera``'s grid).
+
+Each depth pixel is lifted to a 3D point along its own (undistorted) ray, moved into the
+colour camera with ``colour_T_depth`` and projected with the colour camera's distortion. A
+depth pixel seen from the colour camera covers about ``fx_colour / fx_depth`` colour pixels
+across, so each point is drawn as a square of that size (else a colour grid finer than the
+depth grid would be a sieve of holes); where several points land on one colour pixel the
+nearest wins (z-buffer), so a foreground edge hides what lies behind it. Colour pixels that
+no depth point reaches are left without a measurement (NaN), as is every pixel whose
+depth pixel had none.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from annotator.geometry.camera import Camera
+
+__all__ = ["register_depth"]
+
+
+def register_depth(
+    depth_mm: np.ndarray, depth_cam: Camera, colour_cam: Camera, colour_T_depth: np.ndarray
+) -> np.ndarray:
+    """The depth map ``depth_mm`` (float mm on ``depth_cam``'s grid, NaN or <= 0 = none) as
+    the colour camera would see it: float mm on ``colour_cam``'s grid, NaN = none.
+
+    ``colour_T_depth``: 4x4, mm, maps points of the depth camera into the colour camera.
+
+    >>> cam = Camera("c", 4, 3, np.array([[2.0, 0, 1.5], [0, 2.0, 1.0], [0, 0, 1]]))
+    >>> flat = np.full((3, 4), 500.0)
+    >>> bool(np.allclose(register_depth(flat, cam, cam, np.eye(4)), 500.0))
+    True
+    """
+    depth = np.asarray(depth_mm, np.float64)
+    if depth.shape != (depth_cam.height, depth_cam.width):
+        raise ValueError(f"depth map {depth.shape} is not of the depth camera's size")
+    rays = depth_cam.pixel_rays()
+    valid = np.isfinite(depth) & (depth > 0)
+    points = rays[valid] * depth[valid][:, None]
+    T = np.asarray(colour_T_depth, np.float64)
+    points = points @ T[:3, :3].T + T[:3, 3]
+    out = np.full((colour_cam.height, colour_cam.width), np.inf)
+    in_front = points[:, 2] > 1e-6
+    points = points[in_front]
+    if len(points):
+        uv = colour_cam.project(points)
+        ok = np.isfinite(uv).all(axis=1)
+        _splat(out, uv[ok], points[ok, 2], _footprint(depth_cam, colour_cam))
+    out[~np.isfinite(out)] = np.nan
+    return out
+
+
+def _footprint(depth_cam: Camera, colour_cam: Camera) -> float:
+    """How many colour pixels across one depth pixel covers (at least 1)."""
+    ratio = max(colour_cam.K[0, 0] / depth_cam.K[0, 0], colour_cam.K[1, 1] / depth_cam.K[1, 1])
+    return max(1.0, float(ratio))
+
+
+def _splat(out: np.ndarray, uv: np.ndarray, z: np.ndarray, size: float) -> None:
+    """Draw each point as a ``size``-wide square of pixels centred on ``uv``, keeping the
+    smallest ``z`` of each pixel (in place)."""
+    h, w = out.shape
+    half = size / 2.0
+    # The pixels whose centres fall in [u - half, u + half): at most ceil(size) + 1 across.
+    lo_u = np.ceil(uv[:, 0] - half).astype(np.int64)
+    lo_v = np.ceil(uv[:, 1] - half).astype(np.int64)
+    hi_u = np.ceil(uv[:, 0] + half).astype(np.int64)
+    hi_v = np.ceil(uv[:, 1] + half).astype(np.int64)
+    span = math.ceil(size) + 1
+    pixels = []
+    depths = []
+    for dv in range(span):
+        for du in range(span):
+            u = lo_u + du
+            v = lo_v + dv
+            keep = (u < hi_u) & (v < hi_v) & (u >= 0) & (u < w) & (v >= 0) & (v < h)
+            pixels.append(v[keep] * w + u[keep])
+            depths.append(z[keep])
+    flat = np.concatenate(pixels)
+    zs = np.concatenate(depths)
+    if not len(flat):
+        return
+    order = np.lexsort((zs, flat))  # by pixel, nearest first
+    first = np.ones(len(order), bool)
+    first[1:] = flat[order][1:] != flat[order][:-1]
+    chosen = order[first]
+    view = out.reshape(-1)
+    view[flat[chosen]] = np.minimum(view[flat[chosen]], zs[chosen])
