@@ -223,15 +223,18 @@ def open_kinect(path: Path, *, depth: bool, tolerance_s: float) -> Recording:
         depth_size = (
             (depth_s.codec_context.width, depth_s.codec_context.height) if depth_s else None
         )
+        # Read while the container is open: a closed one's streams are gone.
+        colour_index = int(colour_s.index)
+        depth_index = int(depth_s.index) if depth_s is not None else None
     finally:
         container.close()
     if COLOUR_LOCATION not in sensors:
         raise UserError(f"its {CALIBRATION_FILE} has no {COLOUR_LOCATION} camera", path=path)
     colour = mode_camera(sensors[COLOUR_LOCATION], colour_size, "colour", depth=False, path=path)
-    streams = [colour_s.index] + ([depth_s.index] if depth and depth_s is not None else [])
+    streams = [colour_index] + ([depth_index] if depth and depth_index is not None else [])
     tracks, ended = index_tracks(path, streams)
-    ctrack = tracks[colour_s.index]
-    dtrack = tracks.get(depth_s.index) if depth_s is not None else None
+    ctrack = tracks[colour_index]
+    dtrack = tracks.get(depth_index) if depth_index is not None else None
     geometry = None
     if dtrack is not None and depth_size is not None and DEPTH_LOCATION in sensors:
         d = sensors[DEPTH_LOCATION]
@@ -246,7 +249,7 @@ def open_kinect(path: Path, *, depth: bool, tolerance_s: float) -> Recording:
         if dtrack is not None
         else [None] * len(times)
     )
-    named = {"colour": f"track {colour_s.index} (COLOR)"}
+    named = {"colour": f"track {colour_index} (COLOR)"}
     if dtrack is not None:
         named["depth"] = f"track {dtrack.stream} (DEPTH)"
     return _KinectRecording(

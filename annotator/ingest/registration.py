@@ -4,9 +4,10 @@ pixel grid (FORMAT.md: ``depth.png`` lies on ``rig.depth.camera``'s grid).
 Each depth pixel is lifted to a 3D point along its own (undistorted) ray, moved into the
 colour camera with ``colour_T_depth`` and projected with the colour camera's distortion. A
 depth pixel seen from the colour camera covers about ``fx_colour / fx_depth`` colour pixels
-across, so each point is drawn as a square of that size (else a colour grid finer than the
-depth grid would be a sieve of holes); where several points land on one colour pixel the
-nearest wins (z-buffer), so a foreground edge hides what lies behind it. Colour pixels that
+across, so each point is drawn as a square a pixel wider than that (else a colour grid finer
+than the depth grid would be a sieve of holes). Where several points land on one colour pixel, the
+nearest surface wins (z-buffer), so a foreground edge hides what lies behind it, and of
+that surface's points the one projected closest to the pixel's centre gives its depth. Colour pixels that
 no depth point reaches are left without a measurement (NaN), as is every pixel whose
 depth pixel had none.
 """
@@ -20,6 +21,9 @@ import numpy as np
 from annotator.geometry.camera import Camera
 
 __all__ = ["register_depth"]
+
+#: Depths within this fraction of the nearest one at a pixel count as the same surface.
+SAME_SURFACE = 0.02
 
 
 def register_depth(
@@ -55,14 +59,21 @@ def register_depth(
 
 
 def _footprint(depth_cam: Camera, colour_cam: Camera) -> float:
-    """How many colour pixels across one depth pixel covers (at least 1)."""
+    """How many colour pixels across a depth point is drawn: the colour pixels one depth
+    pixel covers, and one more, so that neighbouring squares overlap where a slanted
+    surface or the lens stretches them apart (the z-buffer settles the overlap)."""
     ratio = max(colour_cam.K[0, 0] / depth_cam.K[0, 0], colour_cam.K[1, 1] / depth_cam.K[1, 1])
-    return max(1.0, float(ratio))
+    return max(1.0, float(ratio)) + 1.0
 
 
 def _splat(out: np.ndarray, uv: np.ndarray, z: np.ndarray, size: float) -> None:
-    """Draw each point as a ``size``-wide square of pixels centred on ``uv``, keeping the
-    smallest ``z`` of each pixel (in place)."""
+    """Draw each point as a ``size``-wide square of pixels centred on ``uv`` (in place).
+
+    Of the squares covering a pixel, those within :data:`SAME_SURFACE` of the nearest one's
+    depth are taken as one surface and the point whose centre is closest to the pixel gives
+    its depth (the overlap then costs no accuracy on a slanted surface); a square farther
+    back is hidden (z-buffer).
+    """
     h, w = out.shape
     half = size / 2.0
     # The pixels whose centres fall in [u - half, u + half): at most ceil(size) + 1 across.
@@ -71,8 +82,7 @@ def _splat(out: np.ndarray, uv: np.ndarray, z: np.ndarray, size: float) -> None:
     hi_u = np.ceil(uv[:, 0] + half).astype(np.int64)
     hi_v = np.ceil(uv[:, 1] + half).astype(np.int64)
     span = math.ceil(size) + 1
-    pixels = []
-    depths = []
+    pixels, depths, dists = [], [], []
     for dv in range(span):
         for du in range(span):
             u = lo_u + du
@@ -80,13 +90,21 @@ def _splat(out: np.ndarray, uv: np.ndarray, z: np.ndarray, size: float) -> None:
             keep = (u < hi_u) & (v < hi_v) & (u >= 0) & (u < w) & (v >= 0) & (v < h)
             pixels.append(v[keep] * w + u[keep])
             depths.append(z[keep])
+            dists.append((u[keep] - uv[keep, 0]) ** 2 + (v[keep] - uv[keep, 1]) ** 2)
     flat = np.concatenate(pixels)
-    zs = np.concatenate(depths)
     if not len(flat):
         return
+    zs = np.concatenate(depths)
+    d2 = np.concatenate(dists)
     order = np.lexsort((zs, flat))  # by pixel, nearest first
+    flat, zs, d2 = flat[order], zs[order], d2[order]
+    starts = np.ones(len(flat), bool)
+    starts[1:] = flat[1:] != flat[:-1]
+    nearest = zs[starts][np.cumsum(starts) - 1]  # each candidate's pixel's nearest depth
+    front = zs <= nearest * (1.0 + SAME_SURFACE)
+    flat, zs, d2 = flat[front], zs[front], d2[front]
+    order = np.lexsort((d2, flat))  # by pixel, closest centre first
     first = np.ones(len(order), bool)
     first[1:] = flat[order][1:] != flat[order][:-1]
     chosen = order[first]
-    view = out.reshape(-1)
-    view[flat[chosen]] = np.minimum(view[flat[chosen]], zs[chosen])
+    out.reshape(-1)[flat[chosen]] = zs[chosen]
