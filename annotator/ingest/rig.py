@@ -60,8 +60,9 @@ def mismatch(rig_cam: Camera, file_cam: Camera, tolerance: float = K_TOLERANCE) 
     when within ``tolerance`` and of the same size (inf when the sizes differ).
 
     >>> a = Camera("a", 640, 480, np.array([[600.0, 0, 320], [0, 600, 240], [0, 0, 1]]))
-    >>> b = Camera("b", 640, 480, np.array([[609.0, 0, 320], [0, 600, 240], [0, 0, 1]]))
-    >>> mismatch(a, b) is None, round(mismatch(a, b, 0.01 / 2), 3)
+    >>> b = Camera("b", 640, 480, np.array([[603.0, 0, 320], [0, 600, 240], [0, 0, 1]]))
+    >>> c = Camera("c", 640, 480, np.array([[609.0, 0, 320], [0, 600, 240], [0, 0, 1]]))
+    >>> mismatch(a, b) is None, round(mismatch(a, c), 3)
     (True, 0.015)
     """
     if rig_cam.size != file_cam.size:
