@@ -110,7 +110,8 @@ def index_tracks(path: Path, streams: Sequence[int]) -> tuple[dict[int, TrackInd
         if t.announced and len(t.times) < t.announced:
             ended = (
                 f"the file ends early or lost frames: it holds {len(t.pts)} of the "
-                f"{t.announced} frames its header announces"
+                f"{t.announced} frames its header announces (a frame's index and time after "
+                "a lost one may be short by the frames lost)"
             )
     return out, ended
 

@@ -125,9 +125,9 @@ def check_depth_range(
     valid = depth_mm[np.isfinite(depth_mm) & (depth_mm > 0)]
     if not valid.size:
         return
-    units = valid / spec.scale
-    low = units < 0.5
-    high = units >= NO_RETURN - 0.5
+    units = np.round(valid / spec.scale)  # as encode_depth rounds them
+    low = units < 1
+    high = units >= NO_RETURN
     if low.all() or high.mean() > 0.5:
         lo, hi = float(valid.min()), float(valid.max())
         raw_lo, raw_hi = lo / unit_mm, hi / unit_mm
