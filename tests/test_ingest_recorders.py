@@ -228,6 +228,9 @@ def test_a_realsense_bag_makes_the_rig_and_registered_depth(tmp_path: Path, caps
     assert covered > 0.85, covered
     img = frames[2].read_image(loaded.rig.cameras[0])
     assert np.abs(img.astype(int) - render(2).astype(int)).max() <= 1
+    # The other commands take the dataset and say what it lacks.
+    code, out, err = run_cli(["check", str(ds)], capsys)
+    assert code == 0 and "warning: no objects yet" in out, out + err
     # Ingesting again into the dataset now there: its rig matches the file.
     code, out, err = run_cli(["ingest", str(ds), str(bag), "--scene", "s2", "--quiet"], capsys)
     assert code == 0, err
@@ -530,6 +533,40 @@ def test_the_kinect_calibration_is_scaled_and_cropped_to_the_mode() -> None:
     assert cam.dist.tolist() == pytest.approx(
         [0.72, -2.88, 0.00078, -0.00014, 1.63, 0.60, -2.71, 1.56]
     )
+
+
+def test_a_real_kinects_calibration_gives_what_the_sdk_reports() -> None:
+    """One Azure Kinect's calibration.json parameters, published with the intrinsics the
+    Sensor SDK reported for them (1080p colour, NFOV unbinned depth)."""
+    colour = SensorCamera(
+        (0.4967627227306366, 0.5108628273010254, 0.470907062292099, 0.6274453997612)
+        + (0.7227460145950317, -2.8855903148651123, 1.6327226161956787, 0.6021990180015564)
+        + (-2.7196261882781982, 1.565053105354309, 0, 0)
+        + (-0.0001431911950930953, 0.0007828465895727277),
+        (4096, 3072),
+        np.eye(4),
+    )
+    depth = SensorCamera(
+        (0.5122697949409485, 0.49451231956481934, 0.4921168386936188, 0.4921667277812958)
+        + (3.1305770874023438, 2.324939012527466, 0.1304156482219696, 3.458651542663574)
+        + (3.350114583969116, 0.6629416346549988, 0, 0)
+        + (-0.0000511557373101823, 0.00008132171933539212),
+        (1024, 1024),
+        np.eye(4),
+    )
+    c = mode_camera(colour, (1920, 1080), "c", depth=False, path=Path("x"))
+    assert [c.K[0, 2], c.K[1, 2], c.K[0, 0], c.K[1, 1]] == pytest.approx(
+        [953.284424, 555.142456, 904.141541, 903.521362], abs=1e-3
+    )
+    assert c.dist[2:4].tolist() == pytest.approx([0.000783, -0.000143], abs=1e-6)  # p1, p2
+    d = mode_camera(depth, (640, 576), "d", depth=True, path=Path("x"))
+    assert [d.K[0, 2], d.K[1, 2], d.K[0, 0], d.K[1, 1]] == pytest.approx(
+        [332.064270, 325.880615, 503.927643, 503.978729], abs=1e-3
+    )
+    # Its strong rational distortion is inverted to within a hundredth of a pixel.
+    uv = d.project(d.pixel_rays(step=8))
+    u, v = np.meshgrid(np.arange(0, 640, 8.0), np.arange(0, 576, 8.0))
+    assert np.nanmax(np.hypot(uv[..., 0] - u, uv[..., 1] - v)) < 0.01
 
 
 def test_an_azure_kinect_mkv_with_its_calibration_attachment(tmp_path: Path, capfd) -> None:

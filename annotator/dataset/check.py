@@ -80,6 +80,15 @@ def _check_objects(ds: Dataset) -> list[Problem]:
     from annotator.markers.texture import dictionary_size
 
     out: list[Problem] = []
+    if not ds.objects:  # a dataset `ingest --rig-from-source` made: usable, not annotatable yet
+        out.append(
+            Problem(
+                ds.root / "dataset.yaml",
+                "no objects yet: add objects/<name>/object.yaml (with its mesh and marker "
+                "sites, `annotator markers`) and list each under objects",
+                warning=True,
+            )
+        )
     try:
         n_dict: int | None = dictionary_size(ds.dictionary)
     except UserError:  # already reported by the reader of dataset.yaml
