@@ -89,13 +89,27 @@ def _registration_error(depth: np.ndarray) -> tuple[float, float]:
 # ---------------------------------------------------------------------------- ROS 1 bags
 
 
-def _ros1_bag(path: Path, n: int = 6, *, damaged: int | None = None, two_colour=False) -> Path:
+def _ros1_bag(
+    path: Path,
+    n: int = 6,
+    *,
+    damaged: int | None = None,
+    two_colour: bool = False,
+    robot: bool = False,
+    tf_static: bool = True,
+) -> Path:
     """A bag as RealSense Viewer records one: colour rgb8 and depth mono16 (1 mm units)
-    from two cameras, each with CameraInfo and tf/0 to the depth (reference) stream."""
+    from two cameras, each with CameraInfo and tf/0 to the depth (reference) stream. With
+    ``robot``, as a robot's realsense-ros records one: /camera/color/image_raw and
+    /camera/depth/image_rect_raw, their camera_info with frame ids, and (``tf_static``) the
+    optical frames' static transforms from camera_link."""
     from rosbags.rosbag1 import Writer
-    from rosbags.typesys import Stores, get_typestore
+    from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
     ts = get_typestore(Stores.ROS1_NOETIC)
+    ts.register(
+        get_types_from_msg("geometry_msgs/TransformStamped[] transforms", "tf2_msgs/msg/TFMessage")
+    )
     T = ts.types
     c_T_d = _colour_T_depth()
 
@@ -104,12 +118,12 @@ def _ros1_bag(path: Path, n: int = 6, *, damaged: int | None = None, two_colour=
         stamp = T["builtin_interfaces/msg/Time"](sec=sec, nanosec=int(round((t - sec) * 1e9)))
         return T["std_msgs/msg/Header"](seq=0, stamp=stamp, frame_id=frame)
 
-    def info(K: np.ndarray, w: int, h: int) -> object:
+    def info(K: np.ndarray, w: int, h: int, frame: str = "") -> object:
         roi = T["sensor_msgs/msg/RegionOfInterest"](
             x_offset=0, y_offset=0, height=0, width=0, do_rectify=False
         )
         return T["sensor_msgs/msg/CameraInfo"](
-            header=header(0.0),
+            header=header(0.0, frame),
             height=h,
             width=w,
             distortion_model="Brown Conrady",
@@ -151,6 +165,9 @@ def _ros1_bag(path: Path, n: int = 6, *, damaged: int | None = None, two_colour=
 
     col = "/device_0/sensor_1/Color_0"
     dep = "/device_0/sensor_0/Depth_0"
+    colour_topic, depth_topic = f"{col}/image/data", f"{dep}/image/data"
+    if robot:
+        colour_topic, depth_topic = "/camera/color/image_raw", "/camera/depth/image_rect_raw"
     with Writer(path) as bag:
 
         def put(topic: str, msgtype: str, msg: object, t: float) -> None:
@@ -160,12 +177,34 @@ def _ros1_bag(path: Path, n: int = 6, *, damaged: int | None = None, two_colour=
             bag.write(conn, int(t * 1e9), ts.serialize_ros1(msg, msgtype))
 
         conns: dict[str, object] = {}
-        put(f"{col}/info/camera_info", "sensor_msgs/msg/CameraInfo", info(KC, W, H), T0)
-        put(f"{dep}/info/camera_info", "sensor_msgs/msg/CameraInfo", info(KD, DW, DH), T0)
-        put(f"{dep}/tf/0", "geometry_msgs/msg/Transform", tf(np.eye(4)), T0)
-        put(f"{col}/tf/0", "geometry_msgs/msg/Transform", tf(np.linalg.inv(c_T_d)), T0)
-        units = T["std_msgs/msg/Float32"](data=0.001)
-        put("/device_0/sensor_0/option/Depth Units/value", "std_msgs/msg/Float32", units, T0)
+        info_type = "sensor_msgs/msg/CameraInfo"
+        if robot:
+            put("/camera/color/camera_info", info_type, info(KC, W, H, "colour_optical"), T0)
+            put("/camera/depth/camera_info", info_type, info(KD, DW, DH, "depth_optical"), T0)
+            if tf_static:
+                # camera_link -> each optical frame, the colour one 40 mm aside and turned.
+                link_T_colour = np.eye(4)
+                link_T_colour[:3, :3] = _rot_y(-10.0)
+                link_T_colour[:3, 3] = (40.0, 0.0, 0.0)
+                link_T_depth = link_T_colour @ c_T_d
+                stamped = [
+                    T["geometry_msgs/msg/TransformStamped"](
+                        header=header(T0, "camera_link"), child_frame_id=child, transform=tf(X)
+                    )
+                    for child, X in (
+                        ("colour_optical", link_T_colour),
+                        ("depth_optical", link_T_depth),
+                    )
+                ]
+                msg = T["tf2_msgs/msg/TFMessage"](transforms=stamped)
+                put("/tf_static", "tf2_msgs/msg/TFMessage", msg, T0)
+        else:
+            put(f"{col}/info/camera_info", info_type, info(KC, W, H), T0)
+            put(f"{dep}/info/camera_info", info_type, info(KD, DW, DH), T0)
+            put(f"{dep}/tf/0", "geometry_msgs/msg/Transform", tf(np.eye(4)), T0)
+            put(f"{col}/tf/0", "geometry_msgs/msg/Transform", tf(np.linalg.inv(c_T_d)), T0)
+            units = T["std_msgs/msg/Float32"](data=0.001)
+            put("/device_0/sensor_0/option/Depth Units/value", "std_msgs/msg/Float32", units, T0)
         for k in range(n):
             tc = T0 + 1 + k / 30.0
             td = tc + (0.003 if k % 2 else -0.004)
@@ -174,11 +213,11 @@ def _ros1_bag(path: Path, n: int = 6, *, damaged: int | None = None, two_colour=
             if k == damaged:  # a message cut short: half its pixels
                 msg = image(tc, rgb, "rgb8")
                 msg.data = msg.data[: msg.data.size // 2]  # type: ignore[attr-defined]
-            put(f"{col}/image/data", "sensor_msgs/msg/Image", msg, tc)
+            put(colour_topic, "sensor_msgs/msg/Image", msg, tc)
             if two_colour:
                 put("/device_0/sensor_2/Color_1/image/data", "sensor_msgs/msg/Image", msg, tc)
             put(
-                f"{dep}/image/data",
+                depth_topic,
                 "sensor_msgs/msg/Image",
                 image(td, depth_frame(c_T_d), "mono16"),
                 td,
@@ -252,6 +291,27 @@ def test_registration_against_depth_taken_as_is_is_what_fixes_the_plane() -> Non
     near = register_depth(raw, depth_cam, colour_cam, c_T_d)
     assert np.nanmin(near) == pytest.approx(300.0, abs=3.0)
     assert (np.abs(near - 300) < 3).sum() > 150  # 10 x 10 depth pixels, 1.36 x wider each
+
+
+def test_a_robots_bag_places_its_depth_with_tf_static(tmp_path: Path, capsys) -> None:
+    bag = _ros1_bag(tmp_path / "robot.bag", n=3, robot=True)
+    ds = tmp_path / "new"
+    args = ["ingest", str(ds), str(bag), "--scene", "s", "--rig-from-source", "--json", "--quiet"]
+    code, out, err = run_cli(args, capsys)
+    assert code == 0, err
+    summary = json.loads(out)
+    assert summary["streams"] == {
+        "colour": "/camera/color/image_raw",
+        "depth": "/camera/depth/image_rect_raw",
+    }
+    loaded = load_dataset(ds)
+    depth = loaded.scene("s").frames()[1].read_depth(loaded.rig)
+    assert depth is not None and _registration_error(depth)[0] < 0.6
+    # Without the transforms, depth cannot be placed: left out, and the summary says why.
+    bare = _ros1_bag(tmp_path / "bare.bag", n=3, robot=True, tf_static=False)
+    code, out, err = run_cli(["ingest", str(ds), str(bare), "--scene", "b", "--quiet"], capsys)
+    assert code == 0, err
+    assert "depth: no" in out and "depth left out" in out and "tf_static" in out
 
 
 def test_a_bag_with_a_message_cut_short_drops_that_frame(tmp_path: Path, capsys) -> None:

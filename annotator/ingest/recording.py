@@ -76,6 +76,7 @@ class Recording:
         calibration: The cameras (None when the file carries none: a plain video).
         dropped: Frames already known to be unusable: ``(label, why)``.
         ended_early: Why the file stops before its end (None if it does not).
+        notes: What else the summary must say (a stream left out, and why).
     """
 
     path: Path
@@ -87,6 +88,7 @@ class Recording:
     calibration: Calibration | None = None
     dropped: list[tuple[str | int, str]] = field(default_factory=list)
     ended_early: str | None = None
+    notes: list[str] = field(default_factory=list)
 
     def decode(self, indices: Sequence[int], *, depth: bool) -> Iterator[Decoded]:
         """The colour frames ``indices`` (increasing), with their depth when ``depth``."""

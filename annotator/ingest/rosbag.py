@@ -183,8 +183,8 @@ def _index(
             depth_times.append(t)
     if not colour_times:
         raise UserError(f"topic {colour_conn.topic} holds no message", path=path)
-    calibration = _calibration(path, reader, conns, colour_conn, depth_conn)
-    if depth_conn is not None and not depth_times:
+    calibration, note = _calibration(path, reader, conns, colour_conn, depth_conn)
+    if depth_conn is not None and (not depth_times or note is not None):
         depth_conn = None
     pairs: list[int | None] = (
         pair_by_time(colour_times, depth_times, tolerance_s)
@@ -203,6 +203,7 @@ def _index(
         depth_for=pairs,
         streams=streams,
         calibration=calibration,
+        notes=[note] if note else [],
     )
 
 
@@ -253,39 +254,39 @@ def _camera(path: Path, info: Any, name: str, topic: str) -> Camera:
 
 def _calibration(
     path: Path, reader: Any, conns: list[Any], colour_conn: Any, depth_conn: Any | None
-) -> Calibration | None:
+) -> tuple[Calibration | None, str | None]:
+    """The cameras, and why depth is left out when it cannot be put on the colour grid."""
     colour_info_topic = _info_topic(conns, colour_conn.topic)
     if colour_info_topic is None:
-        return None
+        return None, None
     colour_info = _first(reader, conns, colour_info_topic)
     if colour_info is None:
-        return None
+        return None, None
     colour = _camera(path, colour_info, "colour", colour_info_topic)
     origin = f"CameraInfo {colour_info_topic}"
     if depth_conn is None:
-        return Calibration(colour, None, origin)
+        return Calibration(colour, None, origin), None
     depth_info_topic = _info_topic(conns, depth_conn.topic)
     depth_info = _first(reader, conns, depth_info_topic) if depth_info_topic else None
     unit = _depth_unit_mm(reader, conns, depth_conn.topic)
     if depth_info is None or depth_info_topic == colour_info_topic:
         # No calibration of its own: taken as drawn on the colour grid already.
-        return Calibration(colour, DepthGeometry(colour, None, unit), origin)
+        return Calibration(colour, DepthGeometry(colour, None, unit), origin), None
     depth_cam = _camera(path, depth_info, "depth", depth_info_topic)  # type: ignore[arg-type]
     origin += f" and {depth_info_topic}"
     same_frame = _frame_id(colour_info) == _frame_id(depth_info) and _frame_id(colour_info)
     if "aligned" in depth_conn.topic.lower() or _same_camera(colour, depth_cam) or same_frame:
-        return Calibration(colour, DepthGeometry(depth_cam, None, unit), origin)
+        return Calibration(colour, DepthGeometry(depth_cam, None, unit), origin), None
     c_T_d = _realsense_extrinsics(reader, conns, colour_conn.topic, depth_conn.topic)
     if c_T_d is None:
         c_T_d = _tf_extrinsics(reader, conns, _frame_id(colour_info), _frame_id(depth_info))
     if c_T_d is None:
-        raise UserError(
-            f"depth {depth_conn.topic} is another camera's ({depth_info_topic}) and the bag "
-            "holds no transform between the two (RealSense tf/0, /tf_static): give --no-depth "
-            "or record depth aligned to colour",
-            path=path,
+        return Calibration(colour, None, origin), (
+            f"depth left out: {depth_conn.topic} is another camera's ({depth_info_topic}) and "
+            "the bag holds no transform between the two (RealSense tf/0, /tf_static); record "
+            "depth aligned to colour"
         )
-    return Calibration(colour, DepthGeometry(depth_cam, c_T_d, unit), origin)
+    return Calibration(colour, DepthGeometry(depth_cam, c_T_d, unit), origin), None
 
 
 def _frame_id(info: Any) -> str:
@@ -345,6 +346,8 @@ def _tf_extrinsics(
         return None
     parent: dict[str, tuple[str, np.ndarray]] = {}
     tf = [c for c in conns if c.topic in ("/tf_static", "tf_static")]
+    if not tf:
+        return None  # (no connections would mean every message to rosbags)
     for conn, _, raw in reader.messages(connections=tf):
         msg = reader.deserialize(raw, conn.msgtype)
         for ts in msg.transforms:

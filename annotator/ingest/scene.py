@@ -65,6 +65,7 @@ class IngestSummary:
         dropped: The candidates dropped as unusable: ``{"frame": label, "why": ...}``
             (damaged, decoded partly, no depth partner).
         ended_early: Why the source stops before its end (None if it does not).
+        notes: What else the reader said (a depth stream left out, and why).
         depth: Whether depth maps were written.
         streams: The streams read (``colour``, ``depth``: topics or tracks).
         intrinsics: Where the camera's intrinsics came from (``dataset.yaml``, or the file's
@@ -84,6 +85,7 @@ class IngestSummary:
     blurred: list[str | int] = field(default_factory=list)
     dropped: list[dict[str, Any]] = field(default_factory=list)
     ended_early: str | None = None
+    notes: list[str] = field(default_factory=list)
     depth: bool = False
     streams: dict[str, str] = field(default_factory=dict)
     intrinsics: str = "dataset.yaml"
@@ -110,6 +112,8 @@ class IngestSummary:
             text += f"; {len(self.dropped)} dropped as unusable: {shown}{more}"
         if self.ended_early:
             text += f"; {self.ended_early}"
+        for note in self.notes:
+            text += f"; {note}"
         if self.rig_written:
             text += f"; dataset.yaml written from the file's {self.intrinsics}"
         return text
@@ -250,6 +254,7 @@ def ingest_scene(
             "blurred": blurred,
             "dropped": dropped,
             "ended_early": src.ended_early,
+            "notes": src.notes,
             "frames": entries,
         }
         write_json(tmp / FRAMES_FILE, doc)
@@ -264,6 +269,7 @@ def ingest_scene(
         blurred=blurred,
         dropped=dropped,
         ended_early=src.ended_early,
+        notes=list(src.notes),
         depth=with_depth,
         streams=dict(src.streams),
         intrinsics=doc["intrinsics"],
