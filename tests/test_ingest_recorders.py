@@ -670,6 +670,7 @@ def test_a_damaged_and_a_cut_kinect_recording(tmp_path: Path, capfd) -> None:
     code, out, err = run_cli(["ingest", str(ds), str(cut), "--scene", "c", "--quiet"], capfd)
     assert code == 0, err
     assert err == ""
+    assert "the file ends early: its frames stop at" in out
     written = len(load_dataset(ds).scene("c").frames())
     assert written < 6
 

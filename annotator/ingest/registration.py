@@ -4,12 +4,12 @@ pixel grid (FORMAT.md: ``depth.png`` lies on ``rig.depth.camera``'s grid).
 Each depth pixel is lifted to a 3D point along its own (undistorted) ray, moved into the
 colour camera with ``colour_T_depth`` and projected with the colour camera's distortion. A
 depth pixel seen from the colour camera covers about ``fx_colour / fx_depth`` colour pixels
-across, so each point is drawn as a square a pixel wider than that (else a colour grid finer
-than the depth grid would be a sieve of holes). Where several points land on one colour pixel, the
-nearest surface wins (z-buffer), so a foreground edge hides what lies behind it, and of
-that surface's points the one projected closest to the pixel's centre gives its depth. Colour pixels that
-no depth point reaches are left without a measurement (NaN), as is every pixel whose
-depth pixel had none.
+across, so each point is drawn as a square a pixel wider than that (else a colour grid
+finer than the depth grid would be a sieve of holes). Where several points land on one
+colour pixel, the nearest surface wins (z-buffer), so a foreground edge hides what lies
+behind it, and of that surface's points the one projected closest to the pixel's centre
+gives its depth. Colour pixels that no depth point reaches are left without a measurement
+(NaN), as is every pixel whose depth pixel had none.
 """
 
 from __future__ import annotations

@@ -4,9 +4,11 @@ A frame is damaged when FFmpeg fails on its packet, flags it corrupt, or logs an
 decoding it (the decoders are asked to stop at the first error, ``err_detect=explode``,
 rather than conceal it); failing all that, when its bottom rows are one flat colour that
 the rows above are not (what a decoder that ran out of data fills the rest with). A file
-whose packets stop before the frame count its header announces, or whose demuxer fails
-mid-way, ends early. FFmpeg's own lines never reach the terminal: its log goes to PyAV's
-capture, and file descriptor 2 is shut meanwhile for anything printed past it.
+ends early when its packets stop before the frame count its header announces, when its
+demuxer fails mid-way, or when its frames stop well before the duration its header gives
+(Matroska writes it whole at the start). FFmpeg's own lines never reach the terminal: its
+log goes to PyAV's capture, and file descriptor 2 is shut meanwhile for anything printed
+past it.
 
 :func:`open_video` reads a plain video (``.mp4 .avi .mkv .mov .webm``: no calibration, no
 depth); :mod:`.kinect` reads its tracks with :func:`index_tracks` and :func:`decode_tracks`.
@@ -15,7 +17,7 @@ depth); :mod:`.kinect` reads its tracks with :func:`index_tracks` and :func:`dec
 from __future__ import annotations
 
 import contextlib
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -104,8 +106,11 @@ def index_tracks(path: Path, streams: Sequence[int]) -> tuple[dict[int, TrackInd
         for s in chosen:
             base = float(s.time_base) if s.time_base else 0.0
             out[s.index] = TrackIndex(s.index, sorted(set(pts[s.index])), base, int(s.frames or 0))
+        duration = container.duration / 1e6 if container.duration else None
     finally:
         container.close()
+    if ended is None and duration is not None:
+        ended = _short_of(out.values(), duration)
     for t in out.values():
         if t.announced and len(t.times) < t.announced:
             ended = (
@@ -114,6 +119,23 @@ def index_tracks(path: Path, streams: Sequence[int]) -> tuple[dict[int, TrackInd
                 "a lost one may be short by the frames lost)"
             )
     return out, ended
+
+
+def _short_of(tracks: Iterable[TrackIndex], duration_s: float) -> str | None:
+    """Why frames stop before the duration the header gives (a file cut short whose header,
+    as Matroska's, was written whole), or None."""
+    for t in tracks:
+        times = t.times
+        if len(times) < 2:
+            continue
+        step = float(np.median(np.diff(times)))
+        covered = times[-1] - times[0] + step
+        if step > 0 and covered + 1.5 * step < duration_s:
+            return (
+                f"the file ends early: its frames stop at {covered:.3f} s of the "
+                f"{duration_s:.3f} s its header gives"
+            )
+    return None
 
 
 def decode_tracks(

@@ -2,15 +2,16 @@
 ``frames.json`` (FORMAT.md, sequences), into a scene folder that is put in place whole.
 
 Colour images are written as PNG, colour kept (an alpha channel dropped), 8 or 16 bits as
-they came; grey stays grey. Depth images (uint16, ``depth_scale`` mm per unit, 0 = no
-measurement) come in millimetres and are converted to the rig's ``rig.depth.scale``. Frames are named ``000000``,
-``000001``... in the order kept.
+they came; grey stays grey. Depth comes in millimetres (NaN = no measurement) and is
+written at the rig's ``rig.depth.scale``. Frames are named ``000000``, ``000001``... in the
+order kept.
 
 The scene folder is built in a temporary sibling and renamed into place at the end
 (:func:`annotator.io.atomic.atomic_folder`): an interrupted ingest leaves nothing behind
 (the next run removes its remains), and a scene already there is replaced only when asked
-and only if ingest wrote it (its frames.json says so) and no reviewer has decided on it. A killed ingest's temporary
-folder is swept by the next ingest into the same dataset (:func:`sweep_abandoned`).
+and only if ingest wrote it (its frames.json says so) and no reviewer has decided on it. A
+killed ingest's temporary folder is swept by the next ingest into the same dataset
+(:func:`sweep_abandoned`).
 """
 
 from __future__ import annotations
