@@ -328,6 +328,19 @@ def test_a_bag_with_a_message_cut_short_drops_that_frame(tmp_path: Path, capsys)
     assert "1 dropped as unusable: 3 (" in out and err == ""
 
 
+def test_bags_cut_short_say_so(tmp_path: Path, capsys) -> None:
+    data = _ros1_bag(tmp_path / "take.bag", n=3).read_bytes()
+    (tmp_path / "cut.bag").write_bytes(data[: len(data) * 2 // 3])
+    r2 = _ros2_bag(tmp_path / "r2", n=3)
+    mcap = next(r2.glob("*.mcap"))
+    mcap.write_bytes(mcap.read_bytes()[:-100])
+    for src in (tmp_path / "cut.bag", r2):
+        args = ["ingest", str(tmp_path / "ds"), str(src), "--scene", "s", "--rig-from-source"]
+        line = one_error_line(args, capsys)
+        assert "the bag ends early" in line and src.name in line
+    assert not (tmp_path / "ds").exists()
+
+
 def test_a_bag_of_two_colour_topics_needs_one_chosen(tmp_path: Path, capsys) -> None:
     bag = _ros1_bag(tmp_path / "two.bag", n=3, two_colour=True)
     ds = tmp_path / "new"

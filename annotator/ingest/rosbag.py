@@ -95,8 +95,31 @@ def _reader(path: Path) -> Any:
         reader = AnyReader([target], default_typestore=get_typestore(Stores.LATEST))
         reader.open()
     except Exception as exc:
-        raise UserError(f"not a readable ROS bag ({exc})", path=path) from None
+        cut = _cut_short(path, str(exc))
+        raise UserError(cut or f"not a readable ROS bag ({exc})", path=path) from None
     return reader
+
+
+def _cut_short(path: Path, error: str) -> str | None:
+    """What to say of a bag that ends early (its index or summary, written last, missing)."""
+    if path.is_file() and path.suffix.lower() == ".bag":
+        try:
+            with path.open("rb") as f:
+                head = f.read(4096)
+            size = path.stat().st_size
+        except OSError:
+            return None
+        at = head.find(b"index_pos=")
+        if at >= 0:
+            index_pos = int.from_bytes(head[at + 10 : at + 18], "little")
+            if index_pos == 0 or index_pos >= size:
+                return (
+                    "the bag ends early or was never closed: its index, written last, is "
+                    "missing (`rosbag reindex` it, then ingest again)"
+                )
+    if "end magic" in error.lower() or "unexpected end" in error.lower():
+        return "the bag ends early: its MCAP file stops before its end (`mcap recover` it)"
+    return None
 
 
 def _is_depth_name(topic: str) -> bool:
