@@ -152,3 +152,34 @@ def test_a_killed_ingests_temporary_folder_is_swept(tmp_path: Path, sample: Path
     finally:
         if live_lock is not None:
             os.close(live_lock)
+
+
+def test_an_h264_video_with_b_frames_keeps_every_frame_in_order(
+    tmp_path: Path, sample: Path, capfd
+) -> None:
+    """Decoded in presentation order (B-frames arrive out of it), each frame named by its
+    index: as OpenCV decodes the same file."""
+    import av
+
+    video = tmp_path / "phone.mp4"
+    out = av.open(str(video), "w")
+    stream = out.add_stream("libx264", rate=30)
+    stream.width, stream.height, stream.pix_fmt = W, H, "yuv420p"
+    stream.options = {"bf": "2", "g": "6"}
+    for k in range(12):
+        frame = av.VideoFrame.from_ndarray(np.ascontiguousarray(_picture(k)[..., ::-1]), "rgb24")
+        frame.pts = k
+        out.mux(stream.encode(frame))
+    out.mux(stream.encode())
+    out.close()
+    cap = cv2.VideoCapture(str(video))
+    reference = [cap.read()[1] for _ in range(12)]
+    cap.release()
+    ds = _dataset(tmp_path / "ds", sample)
+    args = ["ingest", str(ds), str(video), "--scene", "v", "--blur-threshold", "0", "--quiet"]
+    code, out_text, err = run_cli(args, capfd)
+    assert code == 0 and err == "", err
+    written = _frames_written(ds / "scenes" / "v")
+    assert [i for i, _ in written] == list(range(12))
+    for index, img in written:
+        assert np.abs(img.astype(int) - reference[index].astype(int)).max() <= 3, index

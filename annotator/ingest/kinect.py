@@ -267,15 +267,13 @@ def open_kinect(path: Path, *, depth: bool, tolerance_s: float) -> Recording:
 
 
 def _tracks(container: Any) -> tuple[Any | None, Any | None]:
-    """The COLOR and DEPTH video tracks (by their names, else colour = the first non-16-bit
-    track and depth = the first 16-bit grey one)."""
+    """The COLOR and DEPTH video tracks: by their names, or in a file whose tracks have no
+    such names, the first track that is not 16-bit grey and the first that is."""
     video = [s for s in container.streams if s.type == "video"]
     by_name = {str(s.metadata.get("title", "")).upper(): s for s in video}
-    colour = by_name.get("COLOR")
-    depth = by_name.get("DEPTH")
+    if by_name.keys() & {"COLOR", "DEPTH", "IR"}:
+        # Named as k4arecorder names them: an IR track is never taken for depth.
+        return by_name.get("COLOR"), by_name.get("DEPTH")
     grey16 = [s for s in video if "gray16" in str(s.codec_context.pix_fmt or "")]
-    if colour is None:
-        colour = next((s for s in video if s not in grey16), None)
-    if depth is None and grey16:
-        depth = grey16[0]
-    return colour, depth
+    colour = next((s for s in video if s not in grey16), None)
+    return colour, (grey16[0] if grey16 else None)

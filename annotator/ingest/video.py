@@ -144,7 +144,6 @@ def decode_tracks(
     """Decode the frames ``wanted[stream]`` (frame indices in :class:`TrackIndex` order) of
     each track, in file order: ``(stream, frame index, pixels or None, problem or None)``;
     pixels as ``formats[stream]`` (``bgr24``, ``gray16``...)."""
-    import av
 
     container = _open(path)
     try:
@@ -154,41 +153,58 @@ def decode_tracks(
             rank[s.index] = {p: k for k, p in enumerate(index[s.index].pts)}
             s.codec_context.options = {"err_detect": "crccheck+bitstream+buffer+explode"}
             s.thread_type = "NONE"
-        with quiet_ffmpeg() as logs:
-            packets = container.demux(chosen)
-            while True:
-                seen = len(logs)
-                try:
-                    pkt = next(packets)
-                except StopIteration:
+        packets = container.demux(chosen)
+        while True:
+            # FFmpeg is silenced packet by packet, not across the yields: the progress bar
+            # and anything else the caller prints meanwhile must reach the terminal.
+            with quiet_ffmpeg() as logs:
+                step = _next_packet(packets)
+                if step is None:
                     break
-                except (av.error.FFmpegError, OSError):
-                    break  # index_tracks said so already
+                pkt, frames, error = step
+                trouble = _trouble(logs)
+                out: list[tuple[int, int, np.ndarray | None, str | None]] = []
                 sid = pkt.stream.index
-                key = pkt.pts if pkt.pts is not None else pkt.dts
-                try:
-                    frames = pkt.decode()
-                except (av.error.FFmpegError, ValueError) as exc:
+                if error is not None:
+                    key = pkt.pts if pkt.pts is not None else pkt.dts
                     k = rank[sid].get(int(key)) if key is not None else None
                     if k is not None and k in wanted[sid]:
-                        yield sid, k, None, f"fails to decode ({_reason(exc)})"
-                    continue
-                trouble = _trouble(logs[seen:])
+                        out.append((sid, k, None, f"fails to decode ({error})"))
                 for frame in frames:
                     k = rank[sid].get(int(frame.pts)) if frame.pts is not None else None
-                    if k is None or k not in wanted[sid]:
-                        continue
-                    if frame.is_corrupt or trouble:
-                        yield sid, k, None, f"decodes partly ({trouble or 'flagged corrupt'})"
-                        continue
-                    pixels = _pixels(frame, formats[sid])
-                    band = flat_band(pixels) if pixels.dtype == np.uint8 else None
-                    if band:
-                        yield sid, k, None, f"decodes partly ({band})"
-                        continue
-                    yield sid, k, pixels, None
+                    if k is not None and k in wanted[sid]:
+                        out.append(_checked(sid, k, frame, formats[sid], trouble))
+            yield from out
     finally:
         container.close()
+
+
+def _next_packet(packets: Iterator[Any]) -> tuple[Any, list[Any], str | None] | None:
+    """The next packet, its frames and why it failed to decode (None at the end, or where
+    the demuxer fails: :func:`index_tracks` said so already)."""
+    import av
+
+    try:
+        pkt = next(packets)
+    except (StopIteration, av.error.FFmpegError, OSError):
+        return None
+    try:
+        return pkt, list(pkt.decode()), None
+    except (av.error.FFmpegError, ValueError) as exc:
+        return pkt, [], _reason(exc)
+
+
+def _checked(
+    sid: int, k: int, frame: Any, fmt: str, trouble: str | None
+) -> tuple[int, int, np.ndarray | None, str | None]:
+    """A decoded frame's pixels, or why it decoded only partly."""
+    if frame.is_corrupt or trouble:
+        return sid, k, None, f"decodes partly ({trouble or 'flagged corrupt'})"
+    pixels = _pixels(frame, fmt)
+    band = flat_band(pixels) if pixels.dtype == np.uint8 else None
+    if band:
+        return sid, k, None, f"decodes partly ({band})"
+    return sid, k, pixels, None
 
 
 def _trouble(lines: Sequence[tuple[int, str, str]]) -> str | None:
