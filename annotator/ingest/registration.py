@@ -96,15 +96,11 @@ def _splat(out: np.ndarray, uv: np.ndarray, z: np.ndarray, size: float) -> None:
         return
     zs = np.concatenate(depths)
     d2 = np.concatenate(dists)
-    order = np.lexsort((zs, flat))  # by pixel, nearest first
-    flat, zs, d2 = flat[order], zs[order], d2[order]
-    starts = np.ones(len(flat), bool)
-    starts[1:] = flat[1:] != flat[:-1]
-    nearest = zs[starts][np.cumsum(starts) - 1]  # each candidate's pixel's nearest depth
-    front = zs <= nearest * (1.0 + SAME_SURFACE)
+    nearest = np.full(h * w, np.inf)
+    np.minimum.at(nearest, flat, zs)
+    front = zs <= nearest[flat] * (1.0 + SAME_SURFACE)
     flat, zs, d2 = flat[front], zs[front], d2[front]
-    order = np.lexsort((d2, flat))  # by pixel, closest centre first
-    first = np.ones(len(order), bool)
-    first[1:] = flat[order][1:] != flat[order][:-1]
-    chosen = order[first]
-    out.reshape(-1)[flat[chosen]] = zs[chosen]
+    closest = np.full(h * w, np.inf)
+    np.minimum.at(closest, flat, d2)
+    best = d2 == closest[flat]
+    out.reshape(-1)[flat[best]] = zs[best]  # ties (equally close) hold equal surfaces
