@@ -86,6 +86,15 @@ def _registration_error(depth: np.ndarray) -> tuple[float, float]:
     return float(np.median(np.abs(depth[ok] - expected_on_colour()[ok]))), float(ok.mean())
 
 
+def ingest_new(ds: Path, src: Path, capture, *extra: str, scene: str = "s") -> dict:
+    """``ingest DS SRC --rig-from-source --json``: exit 0, nothing on stderr (FFmpeg's
+    lines included); its summary."""
+    args = ["ingest", str(ds), str(src), "--scene", scene, "--rig-from-source", "--json"]
+    code, out, err = run_cli([*args, "--quiet", *extra], capture)
+    assert code == 0 and err == "", err
+    return json.loads(out)
+
+
 # ---------------------------------------------------------------------------- ROS 1 bags
 
 
@@ -235,10 +244,7 @@ def _ros1_bag(
 def test_a_realsense_bag_makes_the_rig_and_registered_depth(tmp_path: Path, capsys) -> None:
     bag = _ros1_bag(tmp_path / "take.bag")
     ds = tmp_path / "new"
-    args = ["ingest", str(ds), str(bag), "--scene", "s1", "--rig-from-source", "--json", "--quiet"]
-    code, out, err = run_cli(args, capsys)
-    assert code == 0, err
-    summary = json.loads(out)
+    summary = ingest_new(ds, bag, capsys, scene="s1")
     assert summary["written"] == 6 and summary["dropped"] == [] and summary["depth"]
     assert summary["streams"] == {
         "colour": "/device_0/sensor_1/Color_0/image/data",
@@ -296,10 +302,7 @@ def test_registration_against_depth_taken_as_is_is_what_fixes_the_plane() -> Non
 def test_a_robots_bag_places_its_depth_with_tf_static(tmp_path: Path, capsys) -> None:
     bag = _ros1_bag(tmp_path / "robot.bag", n=3, robot=True)
     ds = tmp_path / "new"
-    args = ["ingest", str(ds), str(bag), "--scene", "s", "--rig-from-source", "--json", "--quiet"]
-    code, out, err = run_cli(args, capsys)
-    assert code == 0, err
-    summary = json.loads(out)
+    summary = ingest_new(ds, bag, capsys)
     assert summary["streams"] == {
         "colour": "/camera/color/image_raw",
         "depth": "/camera/depth/image_rect_raw",
@@ -317,10 +320,7 @@ def test_a_robots_bag_places_its_depth_with_tf_static(tmp_path: Path, capsys) ->
 def test_a_bag_with_a_message_cut_short_drops_that_frame(tmp_path: Path, capsys) -> None:
     bag = _ros1_bag(tmp_path / "cut.bag", damaged=3)
     ds = tmp_path / "new"
-    args = ["ingest", str(ds), str(bag), "--scene", "s", "--rig-from-source", "--quiet"]
-    code, out, err = run_cli([*args, "--json"], capsys)
-    assert code == 0, err
-    summary = json.loads(out)
+    summary = ingest_new(ds, bag, capsys)
     assert summary["written"] == 5
     assert [d["frame"] for d in summary["dropped"]] == [3]
     assert "cut short" in summary["dropped"][0]["why"]
@@ -448,10 +448,7 @@ def _ros2_bag(path: Path, n: int = 5, *, truncated: int | None = None) -> Path:
 def test_a_ros2_mcap_bag_with_aligned_depth_and_a_truncated_jpeg(tmp_path: Path, capsys) -> None:
     bag = _ros2_bag(tmp_path / "take", truncated=2)
     ds = tmp_path / "new"
-    args = ["ingest", str(ds), str(bag), "--scene", "s", "--rig-from-source", "--json", "--quiet"]
-    code, out, err = run_cli([*args, "--camera", "rgb"], capsys)
-    assert code == 0, err
-    summary = json.loads(out)
+    summary = ingest_new(ds, bag, capsys, "--camera", "rgb")
     assert summary["written"] == 4 and summary["kind"] == "ROS 2 bag"
     assert summary["dropped"] == [{"frame": 2, "why": "a truncated JPEG (decoded partly)"}]
     assert summary["streams"]["depth"] == "/camera/aligned_depth_to_color/image_raw"
@@ -645,11 +642,7 @@ def test_a_real_kinects_calibration_gives_what_the_sdk_reports() -> None:
 def test_an_azure_kinect_mkv_with_its_calibration_attachment(tmp_path: Path, capfd) -> None:
     mkv = _mkv(tmp_path / "k4a.mkv")
     ds = tmp_path / "new"
-    args = ["ingest", str(ds), str(mkv), "--scene", "s", "--rig-from-source", "--json", "--quiet"]
-    code, out, err = run_cli(args, capfd)
-    assert code == 0, err
-    assert err == ""
-    summary = json.loads(out)
+    summary = ingest_new(ds, mkv, capfd)
     assert summary["kind"] == "Azure Kinect recording" and summary["written"] == 5
     assert summary["intrinsics"] == "calibration.json attachment"
     doc = yaml.safe_load((ds / "dataset.yaml").read_text())
@@ -672,11 +665,7 @@ def test_an_azure_kinect_mkv_with_its_calibration_attachment(tmp_path: Path, cap
 def test_a_damaged_and_a_cut_kinect_recording(tmp_path: Path, capfd) -> None:
     mkv = _mkv(tmp_path / "bad.mkv", n=6, damage=2)
     ds = tmp_path / "new"
-    args = ["ingest", str(ds), str(mkv), "--scene", "s", "--rig-from-source", "--json", "--quiet"]
-    code, out, err = run_cli(args, capfd)
-    assert code == 0, err
-    assert err == ""  # FFmpeg's own lines stay hidden
-    summary = json.loads(out)
+    summary = ingest_new(ds, mkv, capfd)  # FFmpeg's own lines stay hidden
     assert [d["frame"] for d in summary["dropped"]] == [2], summary["dropped"]
     assert summary["written"] == 5
     cut = _mkv(tmp_path / "cut.mkv", n=6, cut=True)
@@ -723,10 +712,7 @@ def _r3d(path: Path, n: int = 4, *, damaged_depth: int | None = None) -> Path:
 def test_a_record3d_export(tmp_path: Path, capsys) -> None:
     r3d = _r3d(tmp_path / "scan.r3d", damaged_depth=1)
     ds = tmp_path / "new"
-    args = ["ingest", str(ds), str(r3d), "--scene", "s", "--rig-from-source", "--json", "--quiet"]
-    code, out, err = run_cli(args, capsys)
-    assert code == 0, err
-    summary = json.loads(out)
+    summary = ingest_new(ds, r3d, capsys)
     assert summary["written"] == 3 and [d["frame"] for d in summary["dropped"]] == ["rgbd/1.jpg"]
     doc = yaml.safe_load((ds / "dataset.yaml").read_text())
     assert np.allclose(doc["rig"]["cameras"][0]["K"], KC.reshape(-1))
