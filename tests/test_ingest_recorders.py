@@ -19,7 +19,7 @@ from cli_calls import one_error_line, run_cli
 
 from annotator.dataset import load_dataset
 from annotator.geometry.camera import Camera
-from annotator.ingest.kinect import SensorCamera, mode_camera
+from annotator.ingest.kinect import SensorCamera, mode_camera, parse_calibration
 from annotator.ingest.recording import quaternion_matrix
 from annotator.ingest.registration import register_depth
 
@@ -603,6 +603,16 @@ def test_the_kinect_calibration_is_scaled_and_cropped_to_the_mode() -> None:
     assert cam.dist.tolist() == pytest.approx(
         [0.72, -2.88, 0.00078, -0.00014, 1.63, 0.60, -2.71, 1.56]
     )
+
+
+def test_a_calibration_naming_its_cameras_by_purpose_only_is_read() -> None:
+    doc = _k4a_calibration(_colour_T_depth())
+    for cam, purpose in zip(doc["CalibrationInformation"]["Cameras"], ("Depth", "PhotoVideo")):
+        del cam["Location"]
+        cam["Purpose"] = f"CALIBRATION_CameraPurpose{purpose}"
+    cams = parse_calibration(json.dumps(doc), Path("x"))
+    assert set(cams) == {"CALIBRATION_CameraLocationD0", "CALIBRATION_CameraLocationPV0"}
+    assert np.allclose(cams["CALIBRATION_CameraLocationPV0"].cam_T_depth, _colour_T_depth())
 
 
 def test_a_real_kinects_calibration_gives_what_the_sdk_reports() -> None:

@@ -49,6 +49,11 @@ CALIBRATION_FILE = "calibration.json"
 COLOUR_LOCATION = "CALIBRATION_CameraLocationPV0"
 DEPTH_LOCATION = "CALIBRATION_CameraLocationD0"
 
+#: Cameras named by their purpose only (a calibration without Location).
+_BY_PURPOSE = {
+    "CALIBRATION_CameraPurposeDepth": DEPTH_LOCATION,
+    "CALIBRATION_CameraPurposePhotoVideo": COLOUR_LOCATION,
+}
 #: Depth modes by recorded size: (binned sensor size, crop offset).
 _DEPTH_MODES = {
     (320, 288): ((512, 512), (96, 90)),  # NFOV 2x2 binned
@@ -105,15 +110,14 @@ def parse_calibration(text: bytes | str, path: Path) -> dict[str, SensorCamera]:
         for c in cams:
             params = tuple(float(v) for v in c["Intrinsics"]["ModelParameters"])
             if len(params) < 14:
-                raise ValueError(f"{c['Location']}: {len(params)} ModelParameters, 14 expected")
+                raise ValueError(f"{len(params)} ModelParameters where 14 are expected")
             rt = c["Rt"]
             T = transform(
                 np.asarray(rt["Rotation"], float).reshape(3, 3),
                 np.asarray(rt["Translation"], float) * 1000.0,
             )
-            out[str(c["Location"])] = SensorCamera(
-                params, (int(c["SensorWidth"]), int(c["SensorHeight"])), T
-            )
+            where = str(c.get("Location") or _BY_PURPOSE.get(str(c.get("Purpose")), ""))
+            out[where] = SensorCamera(params, (int(c["SensorWidth"]), int(c["SensorHeight"])), T)
     except (ValueError, KeyError, TypeError, IndexError) as exc:
         raise UserError(f"its {CALIBRATION_FILE} cannot be read ({exc})", path=path) from None
     return out
