@@ -744,3 +744,43 @@ def test_a_record3d_export(tmp_path: Path, capsys) -> None:
 def test_helpers() -> None:
     R = quaternion_matrix(0.0, np.sin(0.1), 0.0, np.cos(0.1))
     assert np.allclose(R, _rot_y(np.degrees(0.2)))
+
+
+@pytest.mark.parametrize(
+    ("topics", "colour", "depth"),
+    [
+        (  # realsense-ros, with compressed and rectified copies
+            [
+                "/camera/color/image_raw",
+                "/camera/color/image_raw/compressed",
+                "/camera/color/image_rect_color",
+                "/camera/depth/image_rect_raw",
+                "/camera/aligned_depth_to_color/image_raw",
+                "/camera/infra1/image_rect_raw",
+            ],
+            "/camera/color/image_raw",
+            "/camera/aligned_depth_to_color/image_raw",
+        ),
+        (  # Azure Kinect ROS driver
+            ["/rgb/image_raw", "/depth/image_raw", "/depth_to_rgb/image_raw", "/ir/image_raw"],
+            "/rgb/image_raw",
+            "/depth_to_rgb/image_raw",
+        ),
+        (  # openni
+            ["/camera/rgb/image_color", "/camera/depth_registered/image_raw"],
+            "/camera/rgb/image_color",
+            "/camera/depth_registered/image_raw",
+        ),
+    ],
+)
+def test_the_topics_recorders_publish_are_told_apart(topics, colour, depth) -> None:
+    from types import SimpleNamespace
+
+    from annotator.ingest.rosbag import COMPRESSED, IMAGE, _choose
+
+    conns = [
+        SimpleNamespace(topic=t, msgtype=COMPRESSED if t.endswith("compressed") else IMAGE)
+        for t in topics
+    ]
+    assert _choose(Path("b.bag"), conns, None, want_depth=False).topic == colour
+    assert _choose(Path("b.bag"), conns, None, want_depth=True).topic == depth

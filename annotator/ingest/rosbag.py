@@ -4,8 +4,9 @@ bags (a folder with ``metadata.yaml``, sqlite3 or MCAP), read with ``rosbags``.
 Streams: colour is a ``sensor_msgs/Image`` or ``CompressedImage`` topic, depth an ``Image``
 topic of ``16UC1``/``mono16`` (mm, or RealSense's ``Depth Units`` option in metres a unit)
 or ``32FC1`` (metres). A topic is chosen when only one fits (depth: ``depth`` in its name,
-an ``aligned_depth_to_color`` one first; colour: the others, raw before compressed),
-otherwise ``--color-topic`` / ``--depth-topic`` name it.
+one drawn on the colour grid first: ``aligned_depth_to_color``, ``depth_to_rgb``,
+``depth_registered``; colour: the others but infrared, raw before compressed, ``.../image_raw``
+before a rectified copy), otherwise ``--color-topic`` / ``--depth-topic`` name it.
 
 Calibration: each image topic's ``CameraInfo`` is the one in its namespace or a parent's
 (``/camera/color/camera_info`` for ``/camera/color/image_raw``, RealSense's
@@ -42,6 +43,7 @@ from annotator.io.images import native_stderr_hidden
 IMAGE = "sensor_msgs/msg/Image"
 COMPRESSED = "sensor_msgs/msg/CompressedImage"
 CAMERA_INFO = "sensor_msgs/msg/CameraInfo"
+_REGISTERED = ("aligned", "depth_to_rgb", "depth_to_color", "depth_registered")
 _OTHER = ("infra", "/ir", "_ir", "confidence", "fisheye", "compresseddepth", "thermal")
 #: CameraInfo distortion models whose coefficients are OpenCV's (k1, k2, p1, p2[, k3...]).
 _OPENCV_MODELS = ("plumb_bob", "rational_polynomial", "brown conrady", "inverse brown conrady", "")
@@ -126,6 +128,13 @@ def _is_depth_name(topic: str) -> bool:
     return "depth" in topic.lower()
 
 
+def _is_registered_name(topic: str) -> bool:
+    """Whether a depth topic's name says it is drawn on the colour grid already
+    (realsense-ros, Azure Kinect ROS driver, openni)."""
+    low = topic.lower()
+    return any(k in low for k in _REGISTERED)
+
+
 def _is_other(topic: str) -> bool:
     low = topic.lower()
     return any(o in low for o in _OTHER)
@@ -146,7 +155,7 @@ def _choose(path: Path, conns: list[Any], wanted: str | None, *, want_depth: boo
     if want_depth:
         cands = [c for c in images if _is_depth_name(c.topic) and c.msgtype == IMAGE]
         cands = [c for c in cands if "compresseddepth" not in c.topic.lower()]
-        aligned = [c for c in cands if "aligned" in c.topic.lower()]
+        aligned = [c for c in cands if _is_registered_name(c.topic)]
         cands = aligned or cands
         if not cands:
             return None
@@ -157,6 +166,9 @@ def _choose(path: Path, conns: list[Any], wanted: str | None, *, want_depth: boo
         named = [c for c in cands if any(k in c.topic.lower() for k in ("color", "colour", "rgb"))]
         if len(cands) > 1 and named:
             cands = named
+        unrectified = [c for c in cands if "/image_raw" in c.topic]
+        if len({c.topic for c in cands}) > 1 and len({c.topic for c in unrectified}) == 1:
+            cands = unrectified  # its CameraInfo describes it (a rectified copy has no distortion)
         if not cands:
             listed = ", ".join(sorted({c.topic for c in conns})) or "none"
             raise UserError(f"has no colour image topic (topics: {listed})", path=path)
@@ -298,7 +310,7 @@ def _calibration(
     depth_cam = _camera(path, depth_info, "depth", depth_info_topic)  # type: ignore[arg-type]
     origin += f" and {depth_info_topic}"
     same_frame = _frame_id(colour_info) == _frame_id(depth_info) and _frame_id(colour_info)
-    if "aligned" in depth_conn.topic.lower() or _same_camera(colour, depth_cam) or same_frame:
+    if _is_registered_name(depth_conn.topic) or _same_camera(colour, depth_cam) or same_frame:
         return Calibration(colour, DepthGeometry(depth_cam, None, unit), origin), None
     c_T_d = _realsense_extrinsics(reader, conns, colour_conn.topic, depth_conn.topic)
     if c_T_d is None:
