@@ -183,3 +183,24 @@ def test_an_h264_video_with_b_frames_keeps_every_frame_in_order(
     assert [i for i, _ in written] == list(range(12))
     for index, img in written:
         assert np.abs(img.astype(int) - reference[index].astype(int)).max() <= 3, index
+
+
+def test_a_letterboxed_video_is_not_taken_for_a_damaged_one(
+    tmp_path: Path, sample: Path, capfd
+) -> None:
+    """Flat bands at the top and the bottom (a letterbox) are the picture, not a decoder's
+    filling."""
+    video = tmp_path / "boxed.avi"
+    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"MJPG"), 30.0, (W, H))
+    for k in range(6):
+        img = _picture(k)
+        img[:24] = (90, 120, 60)
+        img[-24:] = (90, 120, 60)
+        writer.write(img)
+    writer.release()
+    ds = _dataset(tmp_path / "ds", sample)
+    args = ["ingest", str(ds), str(video), "--scene", "v", "--blur-threshold", "0", "--json"]
+    code, out, err = run_cli([*args, "--quiet"], capfd)
+    assert code == 0 and err == "", err
+    summary = json.loads(out)
+    assert summary["written"] == 6 and summary["dropped"] == []

@@ -226,7 +226,9 @@ def _pixels(frame: Any, fmt: str) -> np.ndarray:
 
 def flat_band(img: np.ndarray) -> str | None:
     """What a decoder that ran out of data leaves: the bottom rows one flat colour (a band at
-    least :data:`FLAT_BAND` of the height) above which the image is not flat. None if not.
+    least :data:`FLAT_BAND` of the height) above which the image is not flat. None if not,
+    and None for a black or white band, or one matched by a band at the top (a letterbox,
+    or an image dark or burnt out at its edge, not a decoder's filling).
 
     >>> img = np.random.default_rng(0).integers(0, 255, (50, 40, 3), np.uint8)
     >>> flat_band(img) is None
@@ -234,17 +236,27 @@ def flat_band(img: np.ndarray) -> str | None:
     >>> img[40:] = (255, 0, 255)
     >>> flat_band(img)
     'the bottom 10 rows are one flat colour'
+    >>> img[40:] = 0
+    >>> flat_band(img) is None
+    True
     """
     h = img.shape[0]
     rows = img.reshape(h, -1, img.shape[2] if img.ndim == 3 else 1).astype(np.int16)
     first = rows[-1, 0]
-    flat = np.all(np.abs(rows - first) <= 2, axis=(1, 2))
-    n = 0
-    while n < h and flat[h - 1 - n]:
-        n += 1
-    if n >= max(2, FLAT_BAND * h) and n < h:
-        return f"the bottom {n} rows are one flat colour"
-    return None
+    if np.all(first <= 16) or np.all(first >= 240):
+        return None
+    n = _flat_run(np.all(np.abs(rows - first) <= 2, axis=(1, 2))[::-1])
+    if n < max(2, FLAT_BAND * h) or n >= h:
+        return None
+    top = _flat_run(np.all(np.abs(rows - rows[0, 0]) <= 2, axis=(1, 2)))
+    if top >= n / 2:
+        return None
+    return f"the bottom {n} rows are one flat colour"
+
+
+def _flat_run(flat: np.ndarray) -> int:
+    """How many leading entries are True."""
+    return int(np.argmin(flat)) if not flat.all() else len(flat)
 
 
 @dataclass
