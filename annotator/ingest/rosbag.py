@@ -15,6 +15,8 @@ is moved into the colour camera with RealSense's ``<stream>/tf/0`` transforms (e
 to the device's reference stream) or with ``/tf_static`` between the two ``CameraInfo``
 frames; depth whose ``CameraInfo`` is the colour one's is taken as registered already.
 Frame times are the messages' header stamps (the bag's receive times when a stamp is 0).
+A ROS 1 bag without its index (cut short, or never closed) is read up to its last whole
+message (:mod:`.rosbag1_salvage`) and said to end early.
 """
 
 from __future__ import annotations
@@ -38,6 +40,7 @@ from annotator.ingest.recording import (
     quaternion_matrix,
     transform,
 )
+from annotator.ingest.rosbag1_salvage import SalvageReader
 from annotator.io.images import native_stderr_hidden
 
 IMAGE = "sensor_msgs/msg/Image"
@@ -82,6 +85,11 @@ def open_bag(
         raise UserError(f"not a readable ROS bag ({exc})", path=path) from None
     finally:
         reader.close()
+    if isinstance(reader, SalvageReader):
+        rec.ended_early = (
+            "the bag ends early or was never closed (its index, written last, is missing): "
+            "read up to its last whole message"
+        )
     return rec
 
 
@@ -89,6 +97,10 @@ def _reader(path: Path) -> Any:
     from rosbags.highlevel import AnyReader
     from rosbags.typesys import Stores, get_typestore
 
+    from annotator.ingest.rosbag1_salvage import is_unindexed
+
+    if path.is_file() and path.suffix.lower() == ".bag" and is_unindexed(path):
+        return SalvageReader(path)
     target = path
     if path.is_file() and path.suffix.lower() in (".mcap", ".db3"):
         if (path.parent / "metadata.yaml").is_file():
