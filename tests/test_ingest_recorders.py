@@ -251,6 +251,7 @@ def test_a_realsense_bag_makes_the_rig_and_registered_depth(tmp_path: Path, caps
     ds = tmp_path / "new"
     summary = ingest_new(ds, bag, capsys, scene="s1")
     assert summary["written"] == 6 and summary["dropped"] == [] and summary["depth"]
+    assert summary["depth_registered"] and summary["rig_written"]
     assert summary["streams"] == {
         "colour": "/device_0/sensor_1/Color_0/image/data",
         "depth": "/device_0/sensor_0/Depth_0/image/data",

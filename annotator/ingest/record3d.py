@@ -17,6 +17,7 @@ import json
 import re
 import zipfile
 from collections.abc import Iterator, Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -62,9 +63,10 @@ def scaled(K: np.ndarray, sx: float, sy: float) -> np.ndarray:
     return out
 
 
+@dataclass
 class _Record3D(Recording):
-    names: list[str]
-    depth_size: tuple[int, int]
+    names: list[str] = field(default_factory=list)  # each frame's rgbd/<i>.jpg
+    depth_size: tuple[int, int] = (0, 0)
 
     def decode(self, indices: Sequence[int], *, depth: bool) -> Iterator[Decoded]:
         decoder = lzfse_module() if depth and "depth" in self.streams else None
@@ -146,7 +148,7 @@ def open_record3d(path: Path, *, depth: bool) -> Recording:
             times.append(float(stamps[k]))
         else:
             times.append(k / fps if fps > 0 else None)
-    rec = _Record3D(
+    return _Record3D(
         path=path,
         kind="Record3D export",
         times=times,
@@ -154,7 +156,6 @@ def open_record3d(path: Path, *, depth: bool) -> Recording:
         depth_for=[i if has_depth else None for i in range(len(frames))],
         streams={"colour": "rgbd/*.jpg", **({"depth": "rgbd/*.depth"} if has_depth else {})},
         calibration=Calibration(colour, geometry, "metadata K"),
+        names=[n for _, n in frames],
+        depth_size=(dw, dh),
     )
-    rec.names = [n for _, n in frames]
-    rec.depth_size = (dw, dh)
-    return rec

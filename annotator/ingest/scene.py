@@ -70,6 +70,10 @@ class IngestSummary:
         streams: The streams read (``colour``, ``depth``: topics or tracks).
         intrinsics: Where the camera's intrinsics came from (``dataset.yaml``, or the file's
             CameraInfo / calibration.json / metadata when the rig was written from it).
+        file_calibration: Where the file's own calibration was read (checked against the
+            rig's; None when the file carries none).
+        depth_registered: Whether depth was redrawn from its own camera onto the colour
+            camera's grid.
         rig_written: Whether dataset.yaml was written from the source (``--rig-from-source``).
         every: The stride.
         blur_threshold: The sharpness threshold (times the running median).
@@ -89,6 +93,8 @@ class IngestSummary:
     depth: bool = False
     streams: dict[str, str] = field(default_factory=dict)
     intrinsics: str = "dataset.yaml"
+    file_calibration: str | None = None
+    depth_registered: bool = False
     rig_written: bool = False
     every: int = 1
     blur_threshold: float = BLUR_THRESHOLD
@@ -100,11 +106,13 @@ class IngestSummary:
     def line(self) -> str:
         """The one line the command prints."""
         stride = "every frame" if self.every == 1 else f"one frame in {self.every}"
+        depth = "no" if not self.depth else "yes"
+        if self.depth_registered:
+            depth += ", registered to colour"
         text = (
             f"ingest: {self.written} frames of {self.source} ({self.kind}, {self.source_frames} "
             f"frames, {stride}) written to {self.scene}; {len(self.blurred)} dropped as blurred "
-            f"(sharpness below {self.blur_threshold:g} x the running median); depth: "
-            f"{'yes' if self.depth else 'no'}"
+            f"(sharpness below {self.blur_threshold:g} x the running median); depth: {depth}"
         )
         if self.dropped:
             shown = ", ".join(f"{d['frame']} ({d['why']})" for d in self.dropped[:5])
@@ -273,6 +281,8 @@ def ingest_scene(
         depth=with_depth,
         streams=dict(src.streams),
         intrinsics=doc["intrinsics"],
+        file_calibration=src.calibration.origin if src.calibration else None,
+        depth_registered=with_depth and _registers(src),
         rig_written=rig_written,
         every=every,
         blur_threshold=blur_threshold,
@@ -420,6 +430,12 @@ def _write_frames(
     return written
 
 
+def _registers(src: Recording) -> bool:
+    """Whether the recording's depth is another camera's, redrawn on the colour grid."""
+    cal = src.calibration
+    return cal is not None and cal.depth is not None and not cal.depth.registered
+
+
 def _depth_option(src: Recording, depth_scale: float | None) -> str:
     """What set the depth unit, as error messages name it."""
     if depth_scale is not None:
@@ -439,8 +455,8 @@ def _unit_mm(src: Recording) -> float:
 def _on_colour_grid(src: Recording, depth_mm: np.ndarray, cam: Camera, i: int) -> np.ndarray:
     """The frame's depth on the rig camera's grid: registered when it is another camera's."""
     cal = src.calibration
-    if cal is not None and cal.depth is not None and not cal.depth.registered:
-        assert cal.depth.colour_T_depth is not None
+    if _registers(src):
+        assert cal is not None and cal.depth is not None and cal.depth.colour_T_depth is not None
         return register_depth(depth_mm, cal.depth.camera, cam, cal.depth.colour_T_depth)
     h, w = depth_mm.shape
     if (w, h) != cam.size:
