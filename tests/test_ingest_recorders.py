@@ -334,6 +334,15 @@ def test_a_bag_with_a_message_cut_short_drops_that_frame(tmp_path: Path, capsys)
     assert "1 dropped as unusable: 3 (" in out and err == ""
 
 
+def test_a_failed_ingest_leaves_no_dataset_behind(tmp_path: Path, capsys) -> None:
+    bag = _ros1_bag(tmp_path / "bad.bag", n=1, damaged=0)  # its only frame cut short
+    ds = tmp_path / "deep" / "new"
+    args = ["ingest", str(ds), str(bag), "--scene", "s", "--rig-from-source"]
+    line = one_error_line(args, capsys)
+    assert "no frame is left to write (none could be decoded)" in line
+    assert not (tmp_path / "deep").exists()
+
+
 @pytest.mark.parametrize("compression", [None, "LZ4", "BZ2"])
 def test_a_ros1_bag_cut_short_gives_its_whole_messages_and_says_so(
     tmp_path: Path, capsys, compression: str | None

@@ -10,6 +10,7 @@ and the scene folder appears whole or not at all.
 
 from __future__ import annotations
 
+import contextlib
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -196,7 +197,46 @@ def ingest_scene(
         depth_topic=depth_topic,
         depth_unit_mm=depth_scale,
     )
+    made = _new_folders(dataset) if rig_from_source else []
     ds, rig_written = _dataset(dataset, src, camera, depth, rig_from_source, dictionary)
+    try:
+        return _ingest(
+            ds,
+            src,
+            source,
+            scene_id,
+            camera,
+            every,
+            blur_threshold,
+            depth,
+            depth_scale,
+            tolerance_s,
+            rig_written,
+            overwrite,
+            quiet,
+        )
+    except BaseException:
+        if rig_written:  # the dataset this call made goes with the scene it failed to write
+            _unmake(ds.root, made)
+        raise
+
+
+def _ingest(
+    ds: Dataset,
+    src: Recording,
+    source: str | Path,
+    scene_id: str,
+    camera: str | None,
+    every: int,
+    blur_threshold: float,
+    depth: bool,
+    depth_scale: float | None,
+    tolerance_s: float,
+    rig_written: bool,
+    overwrite: bool,
+    quiet: bool,
+) -> IngestSummary:
+    """The ingest once the dataset is there (:func:`ingest_scene`)."""
     if not ds.rig.moving:
         raise UserError(
             "the rig is not a moving one: ingest writes sequences into a dataset whose "
@@ -287,6 +327,27 @@ def ingest_scene(
         every=every,
         blur_threshold=blur_threshold,
     )
+
+
+def _new_folders(dataset: str | Path | Dataset) -> list[Path]:
+    """The folders that creating ``dataset`` would make, outermost first."""
+    if isinstance(dataset, Dataset):
+        return []
+    missing = []
+    p = Path(dataset).absolute()
+    while not p.exists() and p != p.parent:
+        missing.append(p)
+        p = p.parent
+    return missing[::-1]
+
+
+def _unmake(root: Path, made: list[Path]) -> None:
+    """Remove the dataset.yaml this ingest wrote, and the folders it made if left empty."""
+    (root / "dataset.yaml").unlink(missing_ok=True)
+    scenes = root / SCENES_DIR
+    for folder in [scenes, *reversed(made)]:
+        with contextlib.suppress(OSError):
+            folder.rmdir()  # only when empty
 
 
 def _dataset(
