@@ -109,7 +109,7 @@ def _ros1_bag(
     compression: str | None = None,
 ) -> Path:
     """A bag as RealSense Viewer records one: colour rgb8 and depth mono16 (1 mm units)
-    from two cameras, each with CameraInfo and tf/0 to the depth (reference) stream. With
+    from two cameras, each with CameraInfo and tf/0 from the depth (reference) stream. With
     ``robot``, as a robot's realsense-ros records one: /camera/color/image_raw and
     /camera/depth/image_rect_raw, their camera_info with frame ids, and (``tf_static``) the
     optical frames' static transforms from camera_link."""
@@ -216,7 +216,8 @@ def _ros1_bag(
             put(f"{col}/info/camera_info", info_type, info(KC, W, H), T0)
             put(f"{dep}/info/camera_info", info_type, info(KD, DW, DH), T0)
             put(f"{dep}/tf/0", "geometry_msgs/msg/Transform", tf(np.eye(4)), T0)
-            put(f"{col}/tf/0", "geometry_msgs/msg/Transform", tf(np.linalg.inv(c_T_d)), T0)
+            # librealsense writes each stream's extrinsics from the reference (depth) to it.
+            put(f"{col}/tf/0", "geometry_msgs/msg/Transform", tf(c_T_d), T0)
             units = T["std_msgs/msg/Float32"](data=0.001)
             put("/device_0/sensor_0/option/Depth Units/value", "std_msgs/msg/Float32", units, T0)
         for k in range(n):

@@ -11,9 +11,9 @@ before a rectified copy), otherwise ``--color-topic`` / ``--depth-topic`` name i
 Calibration: each image topic's ``CameraInfo`` is the one in its namespace or a parent's
 (``/camera/color/camera_info`` for ``/camera/color/image_raw``, RealSense's
 ``.../Color_0/info/camera_info`` for ``.../Color_0/image/data``). Depth from another camera
-is moved into the colour camera with RealSense's ``<stream>/tf/0`` transforms (each stream
-to the device's reference stream) or with ``/tf_static`` between the two ``CameraInfo``
-frames; depth whose ``CameraInfo`` is the colour one's is taken as registered already.
+is moved into the colour camera with RealSense's ``<stream>/tf/<group>`` transforms (each
+the extrinsics from the device's reference stream to the stream, as librealsense's recorder
+writes them) or with ``/tf_static`` between the two ``CameraInfo`` frames; depth whose ``CameraInfo`` is the colour one's is taken as registered already.
 Frame times are the messages' header stamps (the bag's receive times when a stamp is 0).
 A ROS 1 bag without its index (cut short, or never closed) is read up to its last whole
 message (:mod:`.rosbag1_salvage`) and said to end early.
@@ -330,7 +330,7 @@ def _calibration(
     if c_T_d is None:
         return Calibration(colour, None, origin), (
             f"depth left out: {depth_conn.topic} is another camera's ({depth_info_topic}) and "
-            "the bag holds no transform between the two (RealSense tf/0, /tf_static); record "
+            "the bag holds no transform between the two (RealSense tf/<n>, /tf_static); record "
             "depth aligned to colour"
         )
     return Calibration(colour, DepthGeometry(depth_cam, c_T_d, unit), origin), None
@@ -364,18 +364,26 @@ def _depth_unit_mm(reader: Any, conns: list[Any], depth_topic: str) -> float:
 def _realsense_extrinsics(
     reader: Any, conns: list[Any], colour_topic: str, depth_topic: str
 ) -> np.ndarray | None:
-    """colour_T_depth (mm) from RealSense's ``<stream>/tf/0``: each stream's transform to the
-    device's reference stream (metres)."""
+    """colour_T_depth (mm) from RealSense's ``<stream>/tf/<group>``: librealsense writes
+    each stream's extrinsics *from* the device's reference stream of that group *to* the
+    stream (metres), so the depth stream, usually the reference, has the identity."""
     c_ns, d_ns = _stream_ns(colour_topic), _stream_ns(depth_topic)
     if not c_ns or not d_ns:
         return None
-    ref_T = []
+    groups = [
+        {c.topic.rsplit("/", 1)[1] for c in conns if c.topic.startswith(f"{ns}/tf/")}
+        for ns in (c_ns, d_ns)
+    ]
+    shared = sorted(groups[0] & groups[1])
+    if not shared:
+        return None
+    stream_T_ref = []
     for ns in (c_ns, d_ns):
-        msg = _first(reader, conns, f"{ns}/tf/0")
+        msg = _first(reader, conns, f"{ns}/tf/{shared[0]}")
         if msg is None:
             return None
-        ref_T.append(_transform_msg(msg))
-    return np.linalg.inv(ref_T[0]) @ ref_T[1]
+        stream_T_ref.append(_transform_msg(msg))
+    return stream_T_ref[0] @ np.linalg.inv(stream_T_ref[1])
 
 
 def _transform_msg(msg: Any) -> np.ndarray:
