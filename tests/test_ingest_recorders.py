@@ -107,6 +107,7 @@ def _ros1_bag(
     robot: bool = False,
     tf_static: bool = True,
     compression: str | None = None,
+    units_option: str = "Depth_Units",
 ) -> Path:
     """A bag as RealSense Viewer records one: colour rgb8 and depth mono16 (1 mm units)
     from two cameras, each with CameraInfo and tf/0 from the depth (reference) stream. With
@@ -218,8 +219,11 @@ def _ros1_bag(
             put(f"{dep}/tf/0", "geometry_msgs/msg/Transform", tf(np.eye(4)), T0)
             # librealsense writes each stream's extrinsics from the reference (depth) to it.
             put(f"{col}/tf/0", "geometry_msgs/msg/Transform", tf(c_T_d), T0)
-            units = T["std_msgs/msg/Float32"](data=0.001)
-            put("/device_0/sensor_0/option/Depth Units/value", "std_msgs/msg/Float32", units, T0)
+            # Newer librealsense writes "Depth_Units", older "Depth Units"; 0.1 mm a unit,
+            # the depth frames' 1 mm values written as 10 units.
+            units = T["std_msgs/msg/Float32"](data=0.0001)
+            option = f"/device_0/sensor_0/option/{units_option}/value"
+            put(option, "std_msgs/msg/Float32", units, T0)
         for k in range(n):
             tc = T0 + 1 + k / 30.0
             td = tc + (0.003 if k % 2 else -0.004)
@@ -231,12 +235,8 @@ def _ros1_bag(
             put(colour_topic, "sensor_msgs/msg/Image", msg, tc)
             if two_colour:
                 put("/device_0/sensor_2/Color_1/image/data", "sensor_msgs/msg/Image", msg, tc)
-            put(
-                depth_topic,
-                "sensor_msgs/msg/Image",
-                image(td, depth_frame(c_T_d), "mono16"),
-                td,
-            )
+            raw = depth_frame(c_T_d) * (1 if robot else 10)  # robot: mm, ROS's unit
+            put(depth_topic, "sensor_msgs/msg/Image", image(td, raw, "mono16"), td)
             ir = np.full((DH, DW), 80, np.uint8)
             put(
                 "/device_0/sensor_0/Infrared_1/image/data",
@@ -325,7 +325,7 @@ def test_a_robots_bag_places_its_depth_with_tf_static(tmp_path: Path, capsys) ->
 
 
 def test_a_bag_with_a_message_cut_short_drops_that_frame(tmp_path: Path, capsys) -> None:
-    bag = _ros1_bag(tmp_path / "cut.bag", damaged=3)
+    bag = _ros1_bag(tmp_path / "cut.bag", damaged=3, units_option="Depth Units")
     ds = tmp_path / "new"
     summary = ingest_new(ds, bag, capsys)
     assert summary["written"] == 5
@@ -333,6 +333,9 @@ def test_a_bag_with_a_message_cut_short_drops_that_frame(tmp_path: Path, capsys)
     assert "cut short" in summary["dropped"][0]["why"]
     code, out, err = run_cli(["ingest", str(ds), str(bag), "--scene", "t", "--quiet"], capsys)
     assert "1 dropped as unusable: 3 (" in out and err == ""
+    loaded = load_dataset(ds)
+    depth = loaded.scene("t").frames()[0].read_depth(loaded.rig)
+    assert depth is not None and _registration_error(depth)[0] < 0.6  # the unit was read
 
 
 def test_a_failed_ingest_leaves_no_dataset_behind(tmp_path: Path, capsys) -> None:

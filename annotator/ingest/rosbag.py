@@ -2,7 +2,7 @@
 bags (a folder with ``metadata.yaml``, sqlite3 or MCAP), read with ``rosbags``.
 
 Streams: colour is a ``sensor_msgs/Image`` or ``CompressedImage`` topic, depth an ``Image``
-topic of ``16UC1``/``mono16`` (mm, or RealSense's ``Depth Units`` option in metres a unit)
+topic of ``16UC1``/``mono16`` (mm, or RealSense's ``Depth Units`` option, in metres a unit)
 or ``32FC1`` (metres). A topic is chosen when only one fits (depth: ``depth`` in its name,
 one drawn on the colour grid first: ``aligned_depth_to_color``, ``depth_to_rgb``,
 ``depth_registered``; colour: the others but infrared, raw before compressed, ``.../image_raw``
@@ -355,9 +355,11 @@ def _depth_unit_mm(reader: Any, conns: list[Any], depth_topic: str) -> float:
     ns = _stream_ns(depth_topic)
     if ns:
         sensor = "/".join(ns.split("/")[:3])
-        msg = _first(reader, conns, f"{sensor}/option/Depth Units/value")
-        if msg is not None and float(msg.data) > 0:
-            return float(msg.data) * 1000.0
+        # librealsense names the option with a space, or (file version 3 on) an underscore.
+        for name in ("Depth_Units", "Depth Units"):
+            msg = _first(reader, conns, f"{sensor}/option/{name}/value")
+            if msg is not None and float(msg.data) > 0:
+                return float(msg.data) * 1000.0
     return 1.0
 
 
