@@ -50,7 +50,7 @@ def check_dataset(root: str | Path, *, annotations: bool = False) -> CheckReport
     ds, problems = read_dataset(root)
     if ds is None:
         return CheckReport(problems, 0)
-    problems += _check_objects(ds)
+    problems += _check_objects(ds) + _no_objects_yet(ds)
     try:
         ds.background_depth  # noqa: B018  (cached property: reads and checks the file)
     except UserError as exc:
@@ -80,15 +80,6 @@ def _check_objects(ds: Dataset) -> list[Problem]:
     from annotator.markers.texture import dictionary_size
 
     out: list[Problem] = []
-    if not ds.objects:  # a dataset `ingest --rig-from-source` made: usable, not annotatable yet
-        out.append(
-            Problem(
-                ds.root / "dataset.yaml",
-                "no objects yet: add objects/<name>/object.yaml (with its mesh and marker "
-                "sites, `annotator markers`) and list each under objects",
-                warning=True,
-            )
-        )
     try:
         n_dict: int | None = dictionary_size(ds.dictionary)
     except UserError:  # already reported by the reader of dataset.yaml
@@ -252,3 +243,18 @@ def _check_scene(ds: Dataset, scene) -> list[Problem]:
         if problem is not None:
             out.append(Problem(scene.review_path, f"poses[{key!r}]: {problem}"))
     return out
+
+
+def _no_objects_yet(ds: Dataset) -> list[Problem]:
+    """A warning for a dataset without objects (as ``ingest --rig-from-source`` makes one):
+    usable, with nothing to annotate yet."""
+    if ds.objects:
+        return []
+    return [
+        Problem(
+            ds.root / "dataset.yaml",
+            "no objects yet: add objects/<name>/object.yaml (with its mesh and marker sites, "
+            "`annotator markers`) and list each under objects",
+            warning=True,
+        )
+    ]
