@@ -276,7 +276,9 @@ def _info_topic(conns: list[Any], image_topic: str) -> str | None:
     return None
 
 
-def _camera(path: Path, info: Any, name: str, topic: str) -> Camera:
+def _camera(path: Path, info: Any, name: str, topic: str) -> Camera | None:
+    """The camera a CameraInfo describes (None when its K is all zero: not calibrated)."""
+
     def field(*names: str) -> Any:
         for n in names:
             if hasattr(info, n):
@@ -293,10 +295,52 @@ def _camera(path: Path, info: Any, name: str, topic: str) -> Camera:
             path=path,
         )
     if not K[0, 0] > 0 or not K[1, 1] > 0:
-        raise UserError(f"{topic}: CameraInfo has no intrinsics (K is all zero)", path=path)
+        return None
     if len(D) < 4:
         D = np.concatenate([D, np.zeros(5 - len(D))])
-    return Camera(name, int(info.width), int(info.height), K, D)
+    w, h = int(info.width), int(info.height)
+    if model == "inverse brown conrady" and np.any(D != 0):
+        D = forward_brown_conrady(K, D[:5], w, h)
+    return Camera(name, w, h, K, D)
+
+
+def forward_brown_conrady(K: np.ndarray, coeffs: np.ndarray, w: int, h: int) -> np.ndarray:
+    """OpenCV's (forward) distortion coefficients of a camera that RealSense describes with
+    its *inverse* Brown-Conrady model, whose coefficients take a distorted point to its
+    undistorted one: OpenCV's rational model (k1, k2, p1, p2, k3, k4, k5, k6), fitted by
+    least squares over the image (its denominator inverts the polynomial closely).
+
+    >>> K = np.array([[600.0, 0, 320], [0, 600, 240], [0, 0, 1]])
+    >>> bool(np.abs(forward_brown_conrady(K, np.zeros(5), 640, 480)).max() < 1e-9)
+    True
+    """
+    from scipy.optimize import least_squares
+
+    u, v = np.meshgrid(np.linspace(0, w - 1, 32), np.linspace(0, h - 1, 24))
+    xd = ((u - K[0, 2]) / K[0, 0]).ravel()
+    yd = ((v - K[1, 2]) / K[1, 1]).ravel()
+    k1, k2, p1, p2, k3 = np.asarray(coeffs, np.float64)[:5]
+    xu, yu = _distort(xd, yd, np.array([k1, k2, p1, p2, k3, 0.0, 0.0, 0.0]))
+
+    def residual(c: np.ndarray) -> np.ndarray:
+        x, y = _distort(xu, yu, c)
+        return np.concatenate([x - xd, y - yd])
+
+    start = np.array([-k1, -k2, -p1, -p2, -k3, 0.0, 0.0, 0.0])
+    fit = least_squares(residual, start, xtol=1e-14, ftol=1e-14, gtol=1e-14)
+    return np.asarray(fit.x, np.float64)
+
+
+def _distort(x: np.ndarray, y: np.ndarray, c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """OpenCV's rational distortion (k1, k2, p1, p2, k3, k4, k5, k6) of normalised points;
+    with k4..k6 zero, the Brown-Conrady polynomial RealSense uses either way round."""
+    k1, k2, p1, p2, k3, k4, k5, k6 = c
+    r2 = x * x + y * y
+    f = (1 + k1 * r2 + k2 * r2**2 + k3 * r2**3) / (1 + k4 * r2 + k5 * r2**2 + k6 * r2**3)
+    return (
+        x * f + 2 * p1 * x * y + p2 * (r2 + 2 * x * x),
+        y * f + 2 * p2 * x * y + p1 * (r2 + 2 * y * y),
+    )
 
 
 def _calibration(
@@ -310,6 +354,8 @@ def _calibration(
     if colour_info is None:
         return None, None
     colour = _camera(path, colour_info, "colour", colour_info_topic)
+    if colour is None:
+        return None, None  # not calibrated: the rig's own intrinsics serve
     origin = f"CameraInfo {colour_info_topic}"
     if depth_conn is None:
         return Calibration(colour, None, origin), None
@@ -320,6 +366,10 @@ def _calibration(
         # No calibration of its own: taken as drawn on the colour grid already.
         return Calibration(colour, DepthGeometry(colour, None, unit), origin), None
     depth_cam = _camera(path, depth_info, "depth", depth_info_topic)  # type: ignore[arg-type]
+    if depth_cam is None:
+        return Calibration(colour, None, origin), (
+            f"depth left out: its CameraInfo {depth_info_topic} carries no intrinsics"
+        )
     origin += f" and {depth_info_topic}"
     same_frame = _frame_id(colour_info) == _frame_id(depth_info) and _frame_id(colour_info)
     if _is_registered_name(depth_conn.topic) or _same_camera(colour, depth_cam) or same_frame:
