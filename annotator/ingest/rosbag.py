@@ -49,7 +49,16 @@ CAMERA_INFO = "sensor_msgs/msg/CameraInfo"
 _REGISTERED = ("aligned", "depth_to_rgb", "depth_to_color", "depth_registered")
 _OTHER = ("infra", "/ir", "_ir", "confidence", "fisheye", "compresseddepth", "thermal")
 #: CameraInfo distortion models whose coefficients are OpenCV's (k1, k2, p1, p2[, k3...]).
-_OPENCV_MODELS = ("plumb_bob", "rational_polynomial", "brown conrady", "inverse brown conrady", "")
+#: (RealSense's "Modified Brown Conrady" differs from it only in second-order tangential
+#: terms; its "Inverse Brown Conrady" is converted, :func:`forward_brown_conrady`.)
+_OPENCV_MODELS = (
+    "plumb_bob",
+    "rational_polynomial",
+    "brown conrady",
+    "modified brown conrady",
+    "inverse brown conrady",
+    "",
+)
 
 
 def is_bag(path: Path) -> bool:
