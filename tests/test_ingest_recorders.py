@@ -841,3 +841,14 @@ def test_realsense_inverse_brown_conrady_becomes_opencvs_forward_model() -> None
     assert np.abs(uv[..., 0] - u).max() < 0.06 and np.abs(uv[..., 1] - v).max() < 0.06
     wrong = Camera("c", 1280, 720, K, inverse).project(pts).reshape(*u.shape, 2)
     assert np.abs(wrong[..., 0] - u).max() > 1.0  # taken as it comes, it would be off
+
+
+def test_help_documents_the_recorders_options(capsys) -> None:
+    with pytest.raises(SystemExit) as stop:
+        run_cli(["ingest", "--help"], capsys)
+    assert stop.value.code == 0
+    out = capsys.readouterr().out
+    for option in ("--color-topic", "--depth-topic", "--rig-from-source", "--dictionary"):
+        assert option in out
+    for kind in ("ROS 1 bag", "Azure Kinect", "Record3D", ".mcap"):
+        assert kind in " ".join(out.split())
