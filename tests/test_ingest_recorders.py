@@ -828,14 +828,14 @@ def test_the_topics_recorders_publish_are_told_apart(topics, colour, depth) -> N
 def test_realsense_inverse_brown_conrady_becomes_opencvs_forward_model() -> None:
     """A D455's colour camera comes as "Inverse Brown Conrady" (distorted -> undistorted);
     the rig gets OpenCV's coefficients of the same lens (undistorted -> distorted)."""
-    from annotator.ingest.rosbag import _distort, forward_brown_conrady
+    from annotator.ingest.distortion import distort, forward_brown_conrady
 
     K = np.array([[640.0, 0, 642.5], [0, 639.0, 361.2], [0, 0, 1]])
     inverse = np.array([-0.0553, 0.0664, -0.0007, 0.0005, -0.0212])
     D = forward_brown_conrady(K, inverse, 1280, 720)
     u, v = np.meshgrid(np.arange(0, 1280, 37.0), np.arange(0, 720, 29.0))
     xd, yd = (u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1]
-    xu, yu = _distort(xd, yd, np.concatenate([inverse, np.zeros(3)]))
+    xu, yu = distort(xd, yd, np.concatenate([inverse, np.zeros(3)]))
     pts = np.stack([xu, yu, np.ones_like(xu)], -1).reshape(-1, 3)
     uv = Camera("c", 1280, 720, K, D).project(pts).reshape(*u.shape, 2)
     assert np.abs(uv[..., 0] - u).max() < 0.06 and np.abs(uv[..., 1] - v).max() < 0.06

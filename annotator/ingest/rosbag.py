@@ -25,11 +25,11 @@ from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
-import cv2
 import numpy as np
 
 from annotator.errors import UserError
 from annotator.geometry.camera import Camera
+from annotator.ingest.distortion import forward_brown_conrady
 from annotator.ingest.recording import (
     Calibration,
     Decoded,
@@ -40,11 +40,9 @@ from annotator.ingest.recording import (
     quaternion_matrix,
     transform,
 )
+from annotator.ingest.ros_image import COMPRESSED, IMAGE, image_of
 from annotator.ingest.rosbag1_salvage import SalvageReader
-from annotator.io.images import native_stderr_hidden
 
-IMAGE = "sensor_msgs/msg/Image"
-COMPRESSED = "sensor_msgs/msg/CompressedImage"
 CAMERA_INFO = "sensor_msgs/msg/CameraInfo"
 _REGISTERED = ("aligned", "depth_to_rgb", "depth_to_color", "depth_registered")
 _OTHER = ("infra", "/ir", "_ir", "confidence", "fisheye", "compresseddepth", "thermal")
@@ -313,45 +311,6 @@ def _camera(path: Path, info: Any, name: str, topic: str) -> Camera | None:
     return Camera(name, w, h, K, D)
 
 
-def forward_brown_conrady(K: np.ndarray, coeffs: np.ndarray, w: int, h: int) -> np.ndarray:
-    """OpenCV's (forward) distortion coefficients of a camera that RealSense describes with
-    its *inverse* Brown-Conrady model, whose coefficients take a distorted point to its
-    undistorted one: OpenCV's rational model (k1, k2, p1, p2, k3, k4, k5, k6), fitted by
-    least squares over the image (its denominator inverts the polynomial closely).
-
-    >>> K = np.array([[600.0, 0, 320], [0, 600, 240], [0, 0, 1]])
-    >>> bool(np.abs(forward_brown_conrady(K, np.zeros(5), 640, 480)).max() < 1e-9)
-    True
-    """
-    from scipy.optimize import least_squares
-
-    u, v = np.meshgrid(np.linspace(0, w - 1, 32), np.linspace(0, h - 1, 24))
-    xd = ((u - K[0, 2]) / K[0, 0]).ravel()
-    yd = ((v - K[1, 2]) / K[1, 1]).ravel()
-    k1, k2, p1, p2, k3 = np.asarray(coeffs, np.float64)[:5]
-    xu, yu = _distort(xd, yd, np.array([k1, k2, p1, p2, k3, 0.0, 0.0, 0.0]))
-
-    def residual(c: np.ndarray) -> np.ndarray:
-        x, y = _distort(xu, yu, c)
-        return np.concatenate([x - xd, y - yd])
-
-    start = np.array([-k1, -k2, -p1, -p2, -k3, 0.0, 0.0, 0.0])
-    fit = least_squares(residual, start, xtol=1e-14, ftol=1e-14, gtol=1e-14)
-    return np.asarray(fit.x, np.float64)
-
-
-def _distort(x: np.ndarray, y: np.ndarray, c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """OpenCV's rational distortion (k1, k2, p1, p2, k3, k4, k5, k6) of normalised points;
-    with k4..k6 zero, the Brown-Conrady polynomial RealSense uses either way round."""
-    k1, k2, p1, p2, k3, k4, k5, k6 = c
-    r2 = x * x + y * y
-    f = (1 + k1 * r2 + k2 * r2**2 + k3 * r2**3) / (1 + k4 * r2 + k5 * r2**2 + k6 * r2**3)
-    return (
-        x * f + 2 * p1 * x * y + p2 * (r2 + 2 * x * x),
-        y * f + 2 * p2 * x * y + p1 * (r2 + 2 * y * y),
-    )
-
-
 def _calibration(
     path: Path, reader: Any, conns: list[Any], colour_conn: Any, depth_conn: Any | None
 ) -> tuple[Calibration | None, str | None]:
@@ -547,66 +506,3 @@ def _decode_depth(reader: Any, conn: Any, raw: Any, rec: Recording) -> np.ndarra
         mm[~np.isfinite(mm) | (mm <= 0)] = np.nan
         return mm
     return f"depth encoding {getattr(msg, 'encoding', '?')!r} is not 16UC1, mono16 or 32FC1"
-
-
-def image_of(msg: Any, msgtype: str) -> tuple[np.ndarray | None, str | None]:
-    """A sensor_msgs Image or CompressedImage as BGR / grey / uint16 / float32, or why not."""
-    if msgtype == COMPRESSED:
-        data = np.asarray(msg.data, np.uint8)
-        if data.size == 0:
-            return None, "an empty compressed image"
-        fmt = str(getattr(msg, "format", "")).lower()
-        if ("jpeg" in fmt or data[:2].tobytes() == b"\xff\xd8") and not _jpeg_complete(data):
-            return None, "a truncated JPEG (decoded partly)"
-        with native_stderr_hidden():
-            img = cv2.imdecode(data, cv2.IMREAD_UNCHANGED)
-        if img is None:
-            return None, "the compressed image fails to decode"
-        return img, None
-    enc = str(msg.encoding).lower()
-    h, w, step = int(msg.height), int(msg.width), int(msg.step)
-    data = np.asarray(msg.data, np.uint8)
-    if h <= 0 or w <= 0 or step <= 0:
-        return None, "an image of no size"
-    if data.size < h * step:
-        return None, f"holds {data.size} bytes where {h * step} are expected (cut short)"
-    rows = data[: h * step].reshape(h, step)
-    big = bool(getattr(msg, "is_bigendian", 0))
-    if enc in ("rgb8", "bgr8", "rgba8", "bgra8", "8uc3", "8uc4"):
-        ch = 4 if enc in ("rgba8", "bgra8", "8uc4") else 3
-        img = rows[:, : w * ch].reshape(h, w, ch)
-        if enc == "rgb8":
-            return cv2.cvtColor(img, cv2.COLOR_RGB2BGR), None
-        if enc == "rgba8":
-            return cv2.cvtColor(img, cv2.COLOR_RGBA2BGR), None
-        if ch == 4:
-            return cv2.cvtColor(img, cv2.COLOR_BGRA2BGR), None
-        return np.ascontiguousarray(img), None
-    if enc in ("mono8", "8uc1"):
-        return np.ascontiguousarray(rows[:, :w]), None
-    if enc in ("mono16", "16uc1", "z16"):
-        img16 = rows[:, : w * 2].copy().view(">u2" if big else "<u2").reshape(h, w)
-        return img16.astype(np.uint16), None
-    if enc == "32fc1":
-        f32 = rows[:, : w * 4].copy().view(">f4" if big else "<f4").reshape(h, w)
-        return f32.astype(np.float32), None
-    if enc in ("yuv422", "uyvy"):
-        return cv2.cvtColor(rows[:, : w * 2].reshape(h, w, 2), cv2.COLOR_YUV2BGR_UYVY), None
-    if enc in ("yuyv", "yuv422_yuy2"):
-        return cv2.cvtColor(rows[:, : w * 2].reshape(h, w, 2), cv2.COLOR_YUV2BGR_YUYV), None
-    bayer = {
-        "bayer_rggb8": cv2.COLOR_BayerBG2BGR,
-        "bayer_bggr8": cv2.COLOR_BayerRG2BGR,
-        "bayer_gbrg8": cv2.COLOR_BayerGR2BGR,
-        "bayer_grbg8": cv2.COLOR_BayerGB2BGR,
-    }
-    if enc in bayer:
-        # OpenCV names Bayer patterns by the second row's first two pixels.
-        return cv2.cvtColor(np.ascontiguousarray(rows[:, :w]), bayer[enc]), None
-    return None, f"image encoding {msg.encoding!r} is not one ingest reads"
-
-
-def _jpeg_complete(data: np.ndarray) -> bool:
-    """Whether a JPEG's bytes end with its end-of-image marker (trailing padding allowed)."""
-    tail = data[-64:].tobytes().rstrip(b"\x00")
-    return tail.endswith(b"\xff\xd9")
