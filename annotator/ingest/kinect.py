@@ -74,6 +74,7 @@ def is_kinect(path: Path) -> bool:
 
 
 def _attachment(path: Path) -> bytes | None:
+    """The bytes of the file's calibration.json attachment (None if it has none)."""
     import av
 
     try:
@@ -84,8 +85,15 @@ def _attachment(path: Path) -> bytes | None:
     try:
         stream: Any
         for stream in container.streams:
-            if stream.type == "attachment" and str(getattr(stream, "name", "")) == CALIBRATION_FILE:
-                return bytes(stream.data)
+            if stream.type != "attachment":
+                continue
+            name = getattr(stream, "name", None) or stream.metadata.get("filename", "")
+            if str(name) == CALIBRATION_FILE:
+                # PyAV hands the payload over as .data; FFmpeg keeps it as the extradata.
+                data = getattr(stream, "data", None)
+                if data is None:
+                    data = stream.codec_context.extradata
+                return bytes(data) if data is not None else None
     finally:
         container.close()
     return None
