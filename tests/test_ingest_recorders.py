@@ -332,7 +332,7 @@ def test_a_bag_with_a_message_cut_short_drops_that_frame(tmp_path: Path, capsys)
     assert [d["frame"] for d in summary["dropped"]] == [3]
     assert "cut short" in summary["dropped"][0]["why"]
     code, out, err = run_cli(["ingest", str(ds), str(bag), "--scene", "t", "--quiet"], capsys)
-    assert "1 dropped as unusable: 3 (" in out and err == ""
+    assert "1 dropped as unusable: frame 3 (" in out and err == ""
     loaded = load_dataset(ds)
     depth = loaded.scene("t").frames()[0].read_depth(loaded.rig)
     assert depth is not None and _registration_error(depth)[0] < 0.6  # the unit was read

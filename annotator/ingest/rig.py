@@ -82,10 +82,10 @@ def check_rig_matches(rig_cam: Camera, cal: Calibration, where: Path, source: Pa
     off = mismatch(rig_cam, cal.colour)
     if off is None:
         return
-    how = "a different size" if np.isinf(off) else f"{off:.1%} apart"
+    how = "another size" if np.isinf(off) else f"{off:.1%} apart, more than {K_TOLERANCE:.0%}"
     raise UserError(
         f"the recording's camera ({describe(cal.colour)}, from {source.name}'s "
-        f"{cal.origin}) is not rig camera {rig_cam.name}'s ({describe(rig_cam)}): {how}, more "
-        f"than {K_TOLERANCE:.0%}; ingest it into a dataset of that camera",
+        f"{cal.origin}) is not rig camera {rig_cam.name}'s ({describe(rig_cam)}): {how}; "
+        "ingest it into a dataset of that camera",
         path=where,
     )

@@ -116,7 +116,7 @@ class IngestSummary:
             f"(sharpness below {self.blur_threshold:g} x the running median); depth: {depth}"
         )
         if self.dropped:
-            shown = ", ".join(f"{d['frame']} ({d['why']})" for d in self.dropped[:5])
+            shown = ", ".join(f"{_frame(d['frame'])} ({d['why']})" for d in self.dropped[:5])
             more = f" and {len(self.dropped) - 5} more" if len(self.dropped) > 5 else ""
             text += f"; {len(self.dropped)} dropped as unusable: {shown}{more}"
         if self.ended_early:
@@ -126,6 +126,11 @@ class IngestSummary:
         if self.rig_written:
             text += f"; dataset.yaml written from the file's {self.intrinsics}"
         return text
+
+
+def _frame(label: str | int) -> str:
+    """A source frame as the summary names it: its file, or ``frame <index>``."""
+    return f"frame {label}" if isinstance(label, int) else label
 
 
 def ingest_scene(
