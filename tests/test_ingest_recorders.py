@@ -755,6 +755,9 @@ def _r3d(path: Path, n: int = 4, *, damaged_depth: int | None = None) -> Path:
             if k == damaged_depth:
                 blob = blob[: len(blob) // 3]
             z.writestr(f"rgbd/{k}.depth", blob)
+            conf = np.full((dh, dw), 2, np.uint8)
+            conf[:8, :8] = 0  # ARKit unsure of one corner
+            z.writestr(f"rgbd/{k}.conf", lzfse.compress(conf.tobytes()))
     return path
 
 
@@ -770,6 +773,7 @@ def test_a_record3d_export(tmp_path: Path, capsys) -> None:
     assert depth is not None
     median, covered = _registration_error(depth)
     assert median < 1.0 and covered > 0.95
+    assert np.isnan(depth[:15, :15]).all() and np.isfinite(depth[25:, 25:]).all()  # confidence
     times = [
         e["time_s"]
         for e in json.loads((ds / "scenes/s/frames.json").read_text())["frames"].values()

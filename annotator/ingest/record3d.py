@@ -3,7 +3,9 @@
 ``metadata`` (JSON) gives the colour size ``w`` x ``h``, the depth size ``dw`` x ``dh``,
 ``K`` (9 floats, column-major, for the colour size), ``fps`` and, in newer exports,
 ``frameTimestamps`` (s). ``rgbd/<i>.jpg`` is frame i's colour image and ``rgbd/<i>.depth``
-its depth: ``dw * dh`` float32 metres compressed with LZFSE (0 or NaN = none). The depth
+its depth: ``dw * dh`` float32 metres compressed with LZFSE (0 or NaN = none);
+``rgbd/<i>.conf``, when there, ARKit's confidence of it (LZFSE, a byte a pixel: 0 low, 1
+medium, 2 high), and depth of low confidence is left out. The depth
 map is ARKit's, of the same camera as the colour image at a lower resolution: its
 intrinsics are the colour ones scaled to its size, and it is redrawn on the colour grid.
 
@@ -102,7 +104,24 @@ class _Record3D(Recording):
             )
         mm = np.frombuffer(raw, "<f4").reshape(dh, dw).astype(np.float64) * 1000.0
         mm[~np.isfinite(mm) | (mm <= 0)] = np.nan
+        low = self._low_confidence(archive, name.rsplit(".", 1)[0] + ".conf", decoder)
+        if low is not None:
+            mm[low] = np.nan
         return Decoded(i, img, mm)
+
+    def _low_confidence(
+        self, archive: zipfile.ZipFile, name: str, decoder: Any
+    ) -> np.ndarray | None:
+        """Where ARKit marks its depth of low confidence (``rgbd/<i>.conf``, LZFSE, one byte
+        a pixel: 0 low, 1 medium, 2 high), or None without a usable confidence map."""
+        try:
+            raw = decoder.decompress(archive.read(name))
+        except Exception:  # none (older exports), or damaged: the depth stands alone
+            return None
+        dw, dh = self.depth_size
+        if len(raw) != dw * dh:
+            return None
+        return np.frombuffer(raw, np.uint8).reshape(dh, dw) == 0
 
 
 def open_record3d(path: Path, *, depth: bool) -> Recording:
