@@ -856,3 +856,18 @@ def test_help_documents_the_recorders_options(capsys) -> None:
         assert option in out
     for kind in ("ROS 1 bag", "Azure Kinect", "Record3D", ".mcap"):
         assert kind in " ".join(out.split())
+
+
+def test_record3d_depth_without_an_lzfse_reader_is_refused_in_one_line(
+    tmp_path: Path, capsys, monkeypatch
+) -> None:
+    import sys
+
+    r3d = _r3d(tmp_path / "scan.r3d", n=2)
+    monkeypatch.setitem(sys.modules, "lzfse", None)  # as if not installed
+    args = ["ingest", str(tmp_path / "ds"), str(r3d), "--scene", "s", "--rig-from-source"]
+    line = one_error_line(args, capsys)
+    assert "the `lzfse` package is not installed" in line and "--no-depth" in line
+    assert "scan.r3d" in line
+    summary = ingest_new(tmp_path / "ds", r3d, capsys, "--no-depth")
+    assert summary["written"] == 2 and not summary["depth"]

@@ -39,14 +39,16 @@ def is_record3d(path: Path) -> bool:
     return path.is_file() and path.suffix.lower() == ".r3d"
 
 
-def lzfse_module() -> Any:
-    """The LZFSE decoder (UserError naming the package when it is not installed)."""
+def lzfse_module(path: Path) -> Any:
+    """The LZFSE decoder (a UserError naming the file and the package when it is not
+    installed)."""
     try:
         import lzfse
     except ImportError:
         raise UserError(
-            "Record3D depth is LZFSE-compressed and the `lzfse` package is not installed "
-            "(pip install lzfse), or give --no-depth"
+            "its depth is LZFSE-compressed and the `lzfse` package is not installed "
+            "(pip install lzfse), or give --no-depth",
+            path=path,
         ) from None
     return lzfse
 
@@ -71,7 +73,7 @@ class _Record3D(Recording):
     depth_size: tuple[int, int] = (0, 0)
 
     def decode(self, indices: Sequence[int], *, depth: bool) -> Iterator[Decoded]:
-        decoder = lzfse_module() if depth and "depth" in self.streams else None
+        decoder = lzfse_module(self.path) if depth and "depth" in self.streams else None
         with zipfile.ZipFile(self.path) as archive:
             for i in indices:
                 yield self._frame(archive, i, decoder)
@@ -158,7 +160,7 @@ def open_record3d(path: Path, *, depth: bool) -> Recording:
     has_depth = depth and dw > 0 and dh > 0 and any(n.endswith(".depth") for n in names)
     geometry = None
     if has_depth:
-        lzfse_module()
+        lzfse_module(path)
         depth_cam = Camera("depth", dw, dh, scaled(K, dw / w, dh / h), np.zeros(5))
         geometry = DepthGeometry(depth_cam, np.eye(4), 1.0)
     times: list[float | None] = []
