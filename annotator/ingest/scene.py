@@ -204,42 +204,38 @@ def ingest_scene(
     )
     made = _new_folders(dataset) if rig_from_source else []
     ds, rig_written = _dataset(dataset, src, camera, depth, rig_from_source, dictionary)
+    options = _Options(
+        camera, every, blur_threshold, depth, depth_scale, tolerance_s, overwrite, quiet
+    )
     try:
-        return _ingest(
-            ds,
-            src,
-            source,
-            scene_id,
-            camera,
-            every,
-            blur_threshold,
-            depth,
-            depth_scale,
-            tolerance_s,
-            rig_written,
-            overwrite,
-            quiet,
-        )
+        return _ingest(ds, src, Path(source), scene_id, options, rig_written)
     except BaseException:
         if rig_written:  # the dataset this call made goes with the scene it failed to write
             _unmake(ds.root, made)
         raise
 
 
+@dataclass(frozen=True)
+class _Options:
+    """What :func:`ingest_scene` was asked (its arguments of the same names)."""
+
+    camera: str | None
+    every: int
+    blur_threshold: float
+    depth: bool
+    depth_scale: float | None
+    tolerance_s: float
+    overwrite: bool
+    quiet: bool
+
+
 def _ingest(
     ds: Dataset,
     src: Recording,
-    source: str | Path,
+    source: Path,
     scene_id: str,
-    camera: str | None,
-    every: int,
-    blur_threshold: float,
-    depth: bool,
-    depth_scale: float | None,
-    tolerance_s: float,
+    options: _Options,
     rig_written: bool,
-    overwrite: bool,
-    quiet: bool,
 ) -> IngestSummary:
     """The ingest once the dataset is there (:func:`ingest_scene`)."""
     if not ds.rig.moving:
@@ -248,31 +244,31 @@ def _ingest(
             "dataset.yaml says rig: {moving: true} (FORMAT.md, sequences)",
             path=ds.root / "dataset.yaml",
         )
-    cam = _camera(ds, camera)
+    cam = _camera(ds, options.camera)
     if src.calibration is not None and not rig_written:
         check_rig_matches(cam, src.calibration, ds.root / "dataset.yaml", src.path)
     folder = ds.root / SCENES_DIR / scene_id
-    check_replaceable(folder, overwrite=overwrite)
+    check_replaceable(folder, overwrite=options.overwrite)
     real = Path(source).resolve()
     if real == folder.resolve() or folder.resolve() in real.parents:
         raise UserError(
             "lies in the scene it would be written to; move it out of the dataset first",
             path=source,
         )
-    with_depth = depth and any(d is not None for d in src.depth_for)
+    with_depth = options.depth and any(d is not None for d in src.depth_for)
     if with_depth:
         _check_depth_camera(ds, cam)
-    scale = _depth_factor(src, depth_scale)
-    option = _depth_option(src, depth_scale)
-    chosen = candidates(len(src.times), every)
+    scale = _depth_factor(src, options.depth_scale)
+    option = _depth_option(src, options.depth_scale)
+    chosen = candidates(len(src.times), options.every)
     dropped: list[dict[str, Any]] = [{"frame": lbl, "why": why} for lbl, why in src.dropped]
     if with_depth:
-        tol = f"{tolerance_s * 1000:g} ms"
+        tol = f"{options.tolerance_s * 1000:g} ms"
         lonely = [i for i in chosen if src.depth_for[i] is None]
         dropped += [{"frame": src.labels[i], "why": f"no depth frame within {tol}"} for i in lonely]
         chosen = [i for i in chosen if src.depth_for[i] is not None]
-    good, values = _measure(src, chosen, cam, quiet, dropped)
-    selection = select(good, values, threshold=blur_threshold)
+    good, values = _measure(src, chosen, cam, options.quiet, dropped)
+    selection = select(good, values, threshold=options.blur_threshold)
     kept = list(selection.kept)
     if not kept:
         why = "all dropped as blurred" if good else "none could be decoded"
@@ -282,7 +278,7 @@ def _ingest(
     sweep_abandoned(ds.root / SCENES_DIR)
     with atomic_folder(folder) as tmp:
         written = _write_frames(
-            ds, src, kept, cam, tmp, (with_depth, scale, option), quiet, dropped
+            ds, src, kept, cam, tmp, (with_depth, scale, option), options.quiet, dropped
         )
         if not written:
             raise UserError("no frame is left to write (none could be decoded)", path=src.path)
@@ -301,8 +297,8 @@ def _ingest(
             "intrinsics": src.calibration.origin
             if rig_written and src.calibration
             else "dataset.yaml",
-            "every": every,
-            "blur_threshold": blur_threshold,
+            "every": options.every,
+            "blur_threshold": options.blur_threshold,
             "time_origin_s": t0,
             "blurred": blurred,
             "dropped": dropped,
@@ -317,7 +313,7 @@ def _ingest(
         kind=src.kind,
         camera=cam.name,
         source_frames=len(src.times),
-        candidates=len(candidates(len(src.times), every)),
+        candidates=len(candidates(len(src.times), options.every)),
         written=len(written),
         blurred=blurred,
         dropped=dropped,
@@ -329,8 +325,8 @@ def _ingest(
         file_calibration=src.calibration.origin if src.calibration else None,
         depth_registered=with_depth and _registers(src),
         rig_written=rig_written,
-        every=every,
-        blur_threshold=blur_threshold,
+        every=options.every,
+        blur_threshold=options.blur_threshold,
     )
 
 
