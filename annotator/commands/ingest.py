@@ -12,12 +12,17 @@ from annotator.ingest.sources import PAIR_TOLERANCE_S
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("dataset", help="dataset folder whose dataset.yaml says rig.moving: true")
+    parser.add_argument(
+        "dataset",
+        help="dataset folder whose dataset.yaml says rig.moving: true (or a new one, with "
+        "--rig-from-source)",
+    )
     parser.add_argument(
         "source",
-        help="a video file (.mp4 .avi .mkv .mov .webm) or a folder of colour images, with "
-        "depth images beside them or in a depth/ folder (RealSense, ROS image_saver and bag "
-        "export names)",
+        help="a recorder's file: a ROS 1 bag (RealSense Viewer's .bag too), a ROS 2 bag "
+        "(folder, .mcap, .db3), an Azure Kinect .mkv, a Record3D .r3d; a video file (.mp4 "
+        ".avi .mkv .mov .webm); or a folder of colour images, with depth images beside them "
+        "or in a depth/ folder (RealSense, ROS image_saver and bag export names)",
     )
     parser.add_argument(
         "--scene", required=True, metavar="ID", help="the scene to write: scenes/ID/"
@@ -25,7 +30,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--camera",
         metavar="NAME",
-        help="the rig camera the images are of (needed when the rig has several)",
+        help="the rig camera the images are of (a rig of one camera; with "
+        "--rig-from-source, the name of the new rig's camera, default cam)",
     )
     parser.add_argument(
         "--stream",
@@ -51,24 +57,50 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--depth-scale",
         type=number(low=0, above=True),
-        default=1.0,
+        default=None,
         metavar="MM",
-        help="millimetres per unit of the source's depth images (default 1, as RealSense "
-        "writes them); depth.png is written at the rig's rig.depth.scale",
+        help="millimetres per unit of the source's 16-bit depth (default: what a recorder's "
+        "file says; 1 for an image folder, as RealSense writes them); depth.png is written at "
+        "the rig's rig.depth.scale",
     )
     parser.add_argument(
         "--tolerance-ms",
         type=number(low=0),
         default=PAIR_TOLERANCE_S * 1000,
         metavar="MS",
-        help="how far apart in time a colour image and its depth partner may be, when their "
-        f"names do not share a number (default {PAIR_TOLERANCE_S * 1000:g})",
+        help="how far apart in time a colour frame and its depth partner may be (a folder's "
+        f"images whose names do not share a number, a recording's frames; default "
+        f"{PAIR_TOLERANCE_S * 1000:g})",
     )
     parser.add_argument(
         "--fps",
         type=number(low=0, above=True),
         help="the frame rate of a folder whose names are frame indices (frame0000.jpg): "
         "gives the frames their times",
+    )
+    parser.add_argument(
+        "--color-topic",
+        metavar="TOPIC",
+        help="a bag's colour image topic (Image or CompressedImage), when several could be",
+    )
+    parser.add_argument(
+        "--depth-topic",
+        metavar="TOPIC",
+        help="a bag's depth image topic (16UC1, mono16 or 32FC1), when several could be",
+    )
+    parser.add_argument(
+        "--rig-from-source",
+        action="store_true",
+        help="when DATASET does not exist, create it with dataset.yaml holding a moving rig "
+        "of the file's colour camera (K, distortion, size) and depth, the --dictionary and no "
+        "objects yet; an existing rig is checked against the file's intrinsics (1 %%) anyway",
+    )
+    parser.add_argument(
+        "--dictionary",
+        default="DICT_4X4_1000",
+        metavar="NAME",
+        help="the ArUco dictionary of a dataset created by --rig-from-source (default "
+        "DICT_4X4_1000)",
     )
     parser.add_argument("--no-depth", action="store_true", help="leave the depth images out")
     parser.add_argument(
@@ -93,6 +125,10 @@ def run(args: argparse.Namespace) -> int:
         depth_scale=args.depth_scale,
         tolerance_s=args.tolerance_ms / 1000.0,
         fps=args.fps,
+        color_topic=args.color_topic,
+        depth_topic=args.depth_topic,
+        rig_from_source=args.rig_from_source,
+        dictionary=args.dictionary,
         overwrite=args.overwrite,
         quiet=args.quiet,
     )

@@ -49,7 +49,7 @@ def check_dataset(root: str | Path, *, annotations: bool = False) -> CheckReport
     ds, problems = read_dataset(root)
     if ds is None:
         return CheckReport(problems, 0)
-    problems += _check_objects(ds)
+    problems += _check_objects(ds) + _no_objects_yet(ds)
     try:
         ds.background_depth  # noqa: B018  (cached property: reads and checks the file)
     except UserError as exc:
@@ -212,3 +212,18 @@ def _check_scene(ds: Dataset, scene) -> list[Problem]:
         if problem is not None:
             out.append(Problem(scene.review_path, f"poses[{key!r}]: {problem}"))
     return out
+
+
+def _no_objects_yet(ds: Dataset) -> list[Problem]:
+    """A warning for a dataset without objects (as ``ingest --rig-from-source`` makes one):
+    usable, with nothing to annotate yet."""
+    if ds.objects:
+        return []
+    return [
+        Problem(
+            ds.root / "dataset.yaml",
+            "no objects yet: add objects/<name>/object.yaml (with its mesh and marker sites, "
+            "`annotator markers`) and list each under objects",
+            warning=True,
+        )
+    ]

@@ -1,33 +1,47 @@
 """Ingesting one recorded sequence into a moving rig's dataset (``annotator ingest``).
 
-Two passes over the source: the first reads every candidate frame (every ``every``-th),
-checks its size against the rig camera's and measures its sharpness (:mod:`.selection`);
-the second reads the frames kept again and writes them with their depth (:mod:`.write`),
+Two passes over the source: the first decodes every candidate frame (every ``every``-th),
+drops the damaged ones, checks the size against the rig camera's and measures sharpness
+(:mod:`.selection`); the second decodes the frames kept again and writes them with their
+depth (registered to the colour camera when the recorder did not, :mod:`.registration`),
 then ``frames.json``. Nothing is written before the first pass has found the input good,
 and the scene folder appears whole or not at all.
 """
 
 from __future__ import annotations
 
+import contextlib
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
+
+import numpy as np
 
 from annotator.dataset import Dataset, load_dataset
 from annotator.dataset.model import SCENES_DIR
 from annotator.errors import UserError
 from annotator.geometry.camera import Camera
+from annotator.ingest.recording import Recording
+from annotator.ingest.registration import register_depth
+from annotator.ingest.rig import (
+    DEFAULT_DICTIONARY,
+    check_rig_matches,
+    rig_from_calibration,
+    write_new_dataset,
+)
 from annotator.ingest.selection import BLUR_THRESHOLD, candidates, select, sharpness
-from annotator.ingest.sources import PAIR_TOLERANCE_S, Source, SourceFrame, open_source
+from annotator.ingest.sources import PAIR_TOLERANCE_S, open_recording
 from annotator.ingest.write import (
     FRAMES_FILE,
     WRITTEN_BY,
+    check_depth_range,
     check_replaceable,
     check_scene_id,
     check_size,
     frame_name,
     frames_folder,
-    read_source_depth,
+    sweep_abandoned,
     write_frame,
 )
 from annotator.io.atomic import atomic_folder, write_json
@@ -42,14 +56,26 @@ class IngestSummary:
 
     Attributes:
         scene: The scene folder written.
-        source: The video or image folder read.
-        kind: ``video`` or ``image folder``.
+        source: The recording, video or image folder read.
+        kind: ``ROS 1 bag``, ``Azure Kinect recording``, ``video``, ``image folder``...
         camera: The rig camera the images are of.
-        source_frames: Frames in the source.
+        source_frames: Colour frames in the source.
         candidates: Frames looked at (every ``every``-th).
         written: Frames written.
         blurred: Source labels of the candidates dropped as too blurred.
+        dropped: The candidates dropped as unusable: ``{"frame": label, "why": ...}``
+            (damaged, decoded partly, no depth partner).
+        ended_early: Why the source stops before its end (None if it does not).
+        notes: What else the reader said (a depth stream left out, and why).
         depth: Whether depth maps were written.
+        streams: The streams read (``colour``, ``depth``: topics or tracks).
+        intrinsics: Where the camera's intrinsics came from (``dataset.yaml``, or the file's
+            CameraInfo / calibration.json / metadata when the rig was written from it).
+        file_calibration: Where the file's own calibration was read (checked against the
+            rig's; None when the file carries none).
+        depth_registered: Whether depth was redrawn from its own camera onto the colour
+            camera's grid.
+        rig_written: Whether dataset.yaml was written from the source (``--rig-from-source``).
         every: The stride.
         blur_threshold: The sharpness threshold (times the running median).
     """
@@ -62,7 +88,15 @@ class IngestSummary:
     candidates: int
     written: int
     blurred: list[str | int] = field(default_factory=list)
+    dropped: list[dict[str, Any]] = field(default_factory=list)
+    ended_early: str | None = None
+    notes: list[str] = field(default_factory=list)
     depth: bool = False
+    streams: dict[str, str] = field(default_factory=dict)
+    intrinsics: str = "dataset.yaml"
+    file_calibration: str | None = None
+    depth_registered: bool = False
+    rig_written: bool = False
     every: int = 1
     blur_threshold: float = BLUR_THRESHOLD
 
@@ -73,12 +107,30 @@ class IngestSummary:
     def line(self) -> str:
         """The one line the command prints."""
         stride = "every frame" if self.every == 1 else f"one frame in {self.every}"
-        return (
+        depth = "no" if not self.depth else "yes"
+        if self.depth_registered:
+            depth += ", registered to colour"
+        text = (
             f"ingest: {self.written} frames of {self.source} ({self.kind}, {self.source_frames} "
             f"frames, {stride}) written to {self.scene}; {len(self.blurred)} dropped as blurred "
-            f"(sharpness below {self.blur_threshold:g} x the running median); depth: "
-            f"{'yes' if self.depth else 'no'}"
+            f"(sharpness below {self.blur_threshold:g} x the running median); depth: {depth}"
         )
+        if self.dropped:
+            shown = ", ".join(f"{_frame(d['frame'])} ({d['why']})" for d in self.dropped[:5])
+            more = f" and {len(self.dropped) - 5} more" if len(self.dropped) > 5 else ""
+            text += f"; {len(self.dropped)} dropped as unusable: {shown}{more}"
+        if self.ended_early:
+            text += f"; {self.ended_early}"
+        for note in self.notes:
+            text += f"; {note}"
+        if self.rig_written:
+            text += f"; dataset.yaml written from the file's {self.intrinsics}"
+        return text
+
+
+def _frame(label: str | int) -> str:
+    """A source frame as the summary names it: its file, or ``frame <index>``."""
+    return f"frame {label}" if isinstance(label, int) else label
 
 
 def ingest_scene(
@@ -91,29 +143,41 @@ def ingest_scene(
     every: int = 1,
     blur_threshold: float = BLUR_THRESHOLD,
     depth: bool = True,
-    depth_scale: float = 1.0,
+    depth_scale: float | None = None,
     tolerance_s: float = PAIR_TOLERANCE_S,
     fps: float | None = None,
+    color_topic: str | None = None,
+    depth_topic: str | None = None,
+    rig_from_source: bool = False,
+    dictionary: str = DEFAULT_DICTIONARY,
     overwrite: bool = False,
     quiet: bool = True,
 ) -> IngestSummary:
-    """Write the sequence recorded in ``source`` (a video or a folder of colour and depth
-    images, :mod:`annotator.ingest.sources`) as scene ``scene_id`` of a moving rig's dataset.
+    """Write the sequence recorded in ``source`` (a recorder's file, a video or a folder of
+    colour and depth images, :mod:`annotator.ingest.sources`) as scene ``scene_id`` of a
+    moving rig's dataset.
 
     Args:
-        dataset: The dataset (its dataset.yaml says ``rig.moving: true``).
-        source: The video file or image folder.
+        dataset: The dataset (its dataset.yaml says ``rig.moving: true``), or the folder of
+            a new one with ``rig_from_source``.
+        source: The recording, video file or image folder.
         scene_id: The scene to write (``scenes/<scene_id>/``).
-        camera: The rig camera the images are of (needed when the rig has several).
+        camera: The rig camera the images are of (the name of the camera of a new rig).
         stream: The colour stream to take from a folder of several (``left``...; default:
             the one named like the camera).
         every: Take every ``every``-th frame of the source.
         blur_threshold: Drop a candidate whose sharpness is below this times the running
             median of its neighbours' (0 keeps every candidate).
-        depth: Write the source's depth images (when it has any) as ``depth.png``.
-        depth_scale: Millimetres per unit of the source's depth images (RealSense: 1).
-        tolerance_s: How far apart in time a colour image and its depth partner may be.
+        depth: Write the source's depth (when it has any) as ``depth.png``.
+        depth_scale: Millimetres per unit of the source's 16-bit depth (default: what the
+            file says; 1 for an image folder, as RealSense writes them).
+        tolerance_s: How far apart in time a colour frame and its depth partner may be.
         fps: The frame rate of an image folder whose names are frame indices (their times).
+        color_topic: A bag's colour topic (when it cannot be told).
+        depth_topic: A bag's depth topic (when it cannot be told).
+        rig_from_source: Create the dataset (when it does not exist) with the rig the
+            file's calibration describes.
+        dictionary: The ArUco dictionary of a dataset created by ``rig_from_source``.
         overwrite: Replace the scene if ingest wrote it.
         quiet: No progress bars.
 
@@ -121,90 +185,213 @@ def ingest_scene(
         UserError: one line naming the file, for any bad input (module :mod:`.sources`,
             sizes that are not the camera's, a dataset that is not a moving rig's...).
     """
-    ds = dataset if isinstance(dataset, Dataset) else load_dataset(dataset)
     check_scene_id(scene_id)
     if every < 1:
         raise UserError(f"--every must be at least 1, got {every}")
     if not blur_threshold >= 0:
         raise UserError(f"--blur-threshold must be at least 0, got {blur_threshold}")
+    if depth_scale is not None and not depth_scale > 0:
+        raise UserError(f"--depth-scale must be above 0, got {depth_scale}")
+    src = open_recording(
+        source,
+        stream=camera if stream is None else stream,
+        depth=depth,
+        tolerance_s=tolerance_s,
+        fps=fps,
+        color_topic=color_topic,
+        depth_topic=depth_topic,
+        depth_unit_mm=depth_scale,
+    )
+    made = _new_folders(dataset) if rig_from_source else []
+    ds, rig_written = _dataset(dataset, src, camera, depth, rig_from_source, dictionary)
+    options = _Options(
+        camera, every, blur_threshold, depth, depth_scale, tolerance_s, overwrite, quiet
+    )
+    try:
+        return _ingest(ds, src, Path(source), scene_id, options, rig_written)
+    except BaseException:
+        if rig_written:  # the dataset this call made goes with the scene it failed to write
+            _unmake(ds.root, made)
+        raise
+
+
+@dataclass(frozen=True)
+class _Options:
+    """What :func:`ingest_scene` was asked (its arguments of the same names)."""
+
+    camera: str | None
+    every: int
+    blur_threshold: float
+    depth: bool
+    depth_scale: float | None
+    tolerance_s: float
+    overwrite: bool
+    quiet: bool
+
+
+def _ingest(
+    ds: Dataset,
+    src: Recording,
+    source: Path,
+    scene_id: str,
+    options: _Options,
+    rig_written: bool,
+) -> IngestSummary:
+    """The ingest once the dataset is there (:func:`ingest_scene`)."""
     if not ds.rig.moving:
         raise UserError(
             "the rig is not a moving one: ingest writes sequences into a dataset whose "
             "dataset.yaml says rig: {moving: true} (FORMAT.md, sequences)",
             path=ds.root / "dataset.yaml",
         )
-    cam = _camera(ds, camera)
+    cam = _camera(ds, options.camera)
+    if src.calibration is not None and not rig_written:
+        check_rig_matches(cam, src.calibration, ds.root / "dataset.yaml", src.path)
     folder = ds.root / SCENES_DIR / scene_id
-    check_replaceable(folder, overwrite=overwrite)
+    check_replaceable(folder, overwrite=options.overwrite)
     real = Path(source).resolve()
     if real == folder.resolve() or folder.resolve() in real.parents:
         raise UserError(
             "lies in the scene it would be written to; move it out of the dataset first",
             path=source,
         )
-    src = open_source(
-        source,
-        stream=cam.name if stream is None else stream,
-        depth=depth,
-        tolerance_s=tolerance_s,
-        fps=fps,
-    )
-    with_depth = depth and src.has_depth
+    with_depth = options.depth and any(d is not None for d in src.depth_for)
     if with_depth:
         _check_depth_camera(ds, cam)
-    chosen = [src.frames[i] for i in candidates(len(src.frames), every)]
-    values = _measure(src, chosen, cam, quiet)
-    selection = select([f.index for f in chosen], values, threshold=blur_threshold)
-    kept = [src.frames[i] for i in selection.kept]
+    scale = _depth_factor(src, options.depth_scale)
+    option = _depth_option(src, options.depth_scale)
+    chosen = candidates(len(src.times), options.every)
+    dropped: list[dict[str, Any]] = [{"frame": lbl, "why": why} for lbl, why in src.dropped]
+    if with_depth:
+        tol = f"{options.tolerance_s * 1000:g} ms"
+        lonely = [i for i in chosen if src.depth_for[i] is None]
+        dropped += [{"frame": src.labels[i], "why": f"no depth frame within {tol}"} for i in lonely]
+        chosen = [i for i in chosen if src.depth_for[i] is not None]
+    good, values = _measure(src, chosen, cam, options.quiet, dropped)
+    selection = select(good, values, threshold=options.blur_threshold)
+    kept = list(selection.kept)
     if not kept:
-        raise UserError("no frame is left to write (all dropped as blurred)", path=src.path)
-    t0 = next((f.time_s for f in src.frames if f.time_s is not None), None)
+        why = "all dropped as blurred" if good else "none could be decoded"
+        raise UserError(f"no frame is left to write ({why})", path=src.path)
+    t0 = next((t for t in src.times if t is not None), None)
+    blurred = [src.labels[i] for i in selection.blurred]
+    sweep_abandoned(ds.root / SCENES_DIR)
     with atomic_folder(folder) as tmp:
-        entries = _write_frames(ds, src, kept, cam, tmp, with_depth, depth_scale, quiet)
-        for entry, f in zip(entries.values(), kept):
-            entry["sharpness"] = round(selection.of(f.index), 3)
-            entry["time_s"] = None if f.time_s is None or t0 is None else round(f.time_s - t0, 6)
+        written = _write_frames(
+            ds, src, kept, cam, tmp, (with_depth, scale, option), options.quiet, dropped
+        )
+        if not written:
+            raise UserError("no frame is left to write (none could be decoded)", path=src.path)
+        entries: dict[str, dict[str, Any]] = {}
+        for k, (i, entry) in enumerate(written):
+            entry["sharpness"] = round(selection.of(i), 3)
+            t = src.times[i]
+            entry["time_s"] = None if t is None or t0 is None else round(t - t0, 6)
+            entries[frame_name(k)] = entry
         doc: dict[str, Any] = {
             "written_by": WRITTEN_BY,
             "source": str(Path(source).resolve()),
-            "kind": src.describe(),
+            "kind": src.kind,
             "camera": cam.name,
-            "every": every,
-            "blur_threshold": blur_threshold,
+            "streams": src.streams,
+            "intrinsics": src.calibration.origin
+            if rig_written and src.calibration
+            else "dataset.yaml",
+            "every": options.every,
+            "blur_threshold": options.blur_threshold,
             "time_origin_s": t0,
-            "blurred": [src.frames[i].label for i in selection.blurred],
+            "blurred": blurred,
+            "dropped": dropped,
+            "ended_early": src.ended_early,
+            "notes": src.notes,
             "frames": entries,
         }
         write_json(tmp / FRAMES_FILE, doc)
     return IngestSummary(
         scene=str(folder),
         source=str(source),
-        kind=src.describe(),
+        kind=src.kind,
         camera=cam.name,
-        source_frames=len(src.frames),
-        candidates=len(chosen),
-        written=len(kept),
-        blurred=[src.frames[i].label for i in selection.blurred],
+        source_frames=len(src.times),
+        candidates=len(candidates(len(src.times), options.every)),
+        written=len(written),
+        blurred=blurred,
+        dropped=dropped,
+        ended_early=src.ended_early,
+        notes=list(src.notes),
         depth=with_depth,
-        every=every,
-        blur_threshold=blur_threshold,
+        streams=dict(src.streams),
+        intrinsics=doc["intrinsics"],
+        file_calibration=src.calibration.origin if src.calibration else None,
+        depth_registered=with_depth and _registers(src),
+        rig_written=rig_written,
+        every=options.every,
+        blur_threshold=options.blur_threshold,
     )
 
 
+def _new_folders(dataset: str | Path | Dataset) -> list[Path]:
+    """The folders that creating ``dataset`` would make, outermost first."""
+    if isinstance(dataset, Dataset):
+        return []
+    missing = []
+    p = Path(dataset).absolute()
+    while not p.exists() and p != p.parent:
+        missing.append(p)
+        p = p.parent
+    return missing[::-1]
+
+
+def _unmake(root: Path, made: list[Path]) -> None:
+    """Remove the dataset.yaml this ingest wrote, and the folders it made if left empty."""
+    (root / "dataset.yaml").unlink(missing_ok=True)
+    scenes = root / SCENES_DIR
+    for folder in [scenes, *reversed(made)]:
+        with contextlib.suppress(OSError):
+            folder.rmdir()  # only when empty
+
+
+def _dataset(
+    dataset: str | Path | Dataset,
+    src: Recording,
+    camera: str | None,
+    depth: bool,
+    rig_from_source: bool,
+    dictionary: str,
+) -> tuple[Dataset, bool]:
+    """The dataset, created from the source's calibration when asked and not there yet."""
+    if isinstance(dataset, Dataset):
+        return dataset, False
+    root = Path(dataset)
+    if not rig_from_source or (root / "dataset.yaml").exists():
+        return load_dataset(root), False
+    if src.calibration is None:
+        raise UserError(
+            f"--rig-from-source: a {src.kind} carries no calibration; write dataset.yaml "
+            "yourself (FORMAT.md) or ingest a recorder's file (.bag, Azure Kinect .mkv, .r3d)",
+            path=src.path,
+        )
+    if root.exists() and not root.is_dir():
+        raise UserError("exists and is not a folder", path=root)
+    rig = rig_from_calibration(src.calibration, camera or "cam", depth=depth)
+    write_new_dataset(root, rig, dictionary, src.path)
+    return load_dataset(root), True
+
+
 def _camera(ds: Dataset, name: str | None) -> Camera:
-    """The rig camera the images are of."""
+    """The rig camera the images are of: the rig's only one (a frame needs an image of
+    every rig camera, and a recording gives one camera's)."""
     names = [c.name for c in ds.rig.cameras]
-    if name is not None:
-        if name not in names:
-            raise UserError(
-                f"--camera {name!r} is not a camera of the rig ({', '.join(names)})",
-                path=ds.root / "dataset.yaml",
-            )
-        return ds.rig.camera(name)
+    if name is not None and name not in names:
+        raise UserError(
+            f"--camera {name!r} is not a camera of the rig ({', '.join(names)})",
+            path=ds.root / "dataset.yaml",
+        )
     if len(names) > 1:
         raise UserError(
-            f"the rig has several cameras ({', '.join(names)}): say which one the images are "
-            "of with --camera",
+            f"the rig has several cameras ({', '.join(names)}) and every frame of a sequence "
+            "needs an image of each, but ingest reads one camera's recording: ingest into a "
+            f"dataset whose rig is {'that camera' if name else 'the recording camera'} alone",
             path=ds.root / "dataset.yaml",
         )
     return ds.rig.cameras[0]
@@ -226,54 +413,137 @@ def _check_depth_camera(ds: Dataset, cam: Camera) -> None:
         )
 
 
-def _where(src: Source, f: SourceFrame) -> Path | str:
-    """How messages name a frame: its file, or the video and the frame."""
-    if f.colour is not None:
-        return f.colour
-    return f"{src.path} (frame {f.index})"
+def _depth_factor(src: Recording, depth_scale: float | None) -> float:
+    """What the recording's depth (mm by its own unit) is multiplied by: the unit given
+    with --depth-scale over the file's own (folders take --depth-scale when reading)."""
+    cal = src.calibration
+    if depth_scale is None or cal is None or cal.depth is None:
+        return 1.0
+    return depth_scale / cal.depth.unit_mm
 
 
-def _measure(src: Source, frames: list[SourceFrame], cam: Camera, quiet: bool) -> list[float]:
-    """Pass 1: every candidate's size checked; their sharpness."""
-    values = []
+def _where(src: Recording, i: int) -> Path | str:
+    """How messages name a frame: its file, or the recording and the frame."""
+    label = src.labels[i]
+    if src.kind == "image folder":
+        return src.path / str(label)
+    return f"{src.path} (frame {label})"
+
+
+def _measure(
+    src: Recording, chosen: Sequence[int], cam: Camera, quiet: bool, dropped: list[dict[str, Any]]
+) -> tuple[list[int], list[float]]:
+    """Pass 1: every candidate decoded (the damaged ones dropped), its size checked; the
+    good ones and their sharpness."""
+    good: list[int] = []
+    values: list[float] = []
     first: tuple[tuple[int, int], str] | None = None
-    bar = progress_bar(len(frames), "ingest (reading)", quiet, unit="frame")
+    bar = progress_bar(len(chosen), "ingest (reading)", quiet, unit="frame")
     try:
-        for f, img in src.read(frames):
-            check_size(img, cam, _where(src, f), first)
-            if first is None:
-                first = ((img.shape[1], img.shape[0]), str(f.label))
-            values.append(sharpness(img))
+        for d in src.decode(chosen, depth=False):
             bar.update()
+            if d.problem is not None or d.colour is None:
+                dropped.append({"frame": src.labels[d.index], "why": d.problem or "no image"})
+                continue
+            img = d.colour
+            check_size(img, cam, _where(src, d.index), first)
+            if first is None:
+                first = ((img.shape[1], img.shape[0]), str(src.labels[d.index]))
+            good.append(d.index)
+            values.append(sharpness(img))
     finally:
         bar.close()
-    return values
+    return good, values
 
 
 def _write_frames(
     ds: Dataset,
-    src: Source,
-    kept: list[SourceFrame],
+    src: Recording,
+    kept: list[int],
     cam: Camera,
     scene: Path,
-    with_depth: bool,
-    depth_scale: float,
+    depth: tuple[bool, float, str],
     quiet: bool,
-) -> dict[str, dict[str, Any]]:
-    """Pass 2: each kept frame's folder; their frames.json entries."""
-    entries: dict[str, dict[str, Any]] = {}
+    dropped: list[dict[str, Any]],
+) -> list[tuple[int, dict[str, Any]]]:
+    """Pass 2: each kept frame's folder; their frames.json entries. ``depth``: whether to
+    write it, the factor its millimetres take, the option that set its unit."""
+    with_depth, scale, option = depth
+    written: list[tuple[int, dict[str, Any]]] = []
     bar = progress_bar(len(kept), "ingest (writing)", quiet, unit="frame")
     try:
-        for k, (f, img) in enumerate(src.read(kept)):
-            depth_mm = None
-            entry: dict[str, Any] = {"source": f.label}
-            if with_depth:
-                assert f.depth is not None  # every colour image has its partner
-                depth_mm = read_source_depth(f.depth, cam, depth_scale)
-                entry["depth_source"] = f.depth.relative_to(src.path).as_posix()
-            write_frame(frames_folder(scene, k), cam, img, depth_mm, ds.rig.depth)
-            entries[frame_name(k)] = entry
+        for d in src.decode(kept, depth=with_depth):
             bar.update()
+            if d.problem is not None or d.colour is None:
+                dropped.append({"frame": src.labels[d.index], "why": d.problem or "no image"})
+                continue
+            entry: dict[str, Any] = {"source": src.labels[d.index]}
+            depth_mm = None
+            if with_depth:
+                assert d.depth_mm is not None and ds.rig.depth is not None
+                depth_mm = _on_colour_grid(src, d.depth_mm * scale, cam, d.index)
+                unit = _unit_mm(src) * scale
+                check_depth_range(depth_mm, ds.rig.depth, unit, option, _depth_where(src, d.index))
+                entry["depth_source"] = _depth_label(src, d.index)
+            write_frame(frames_folder(scene, len(written)), cam, d.colour, depth_mm, ds.rig.depth)
+            written.append((d.index, entry))
     finally:
         bar.close()
-    return entries
+    return written
+
+
+def _registers(src: Recording) -> bool:
+    """Whether the recording's depth is another camera's, redrawn on the colour grid."""
+    cal = src.calibration
+    return cal is not None and cal.depth is not None and not cal.depth.registered
+
+
+def _depth_option(src: Recording, depth_scale: float | None) -> str:
+    """What set the depth unit, as error messages name it."""
+    if depth_scale is not None:
+        return f"--depth-scale {depth_scale:g}"
+    if src.calibration is not None and src.calibration.depth is not None:
+        return f"the file's depth unit ({src.calibration.depth.unit_mm:g} mm; see --depth-scale)"
+    return "--depth-scale 1 (the default)"
+
+
+def _unit_mm(src: Recording) -> float:
+    cal = src.calibration
+    if cal is not None and cal.depth is not None:
+        return cal.depth.unit_mm
+    return float(getattr(src, "unit_mm", 1.0))
+
+
+def _on_colour_grid(src: Recording, depth_mm: np.ndarray, cam: Camera, i: int) -> np.ndarray:
+    """The frame's depth on the rig camera's grid: registered when it is another camera's."""
+    cal = src.calibration
+    if _registers(src):
+        assert cal is not None and cal.depth is not None and cal.depth.colour_T_depth is not None
+        return register_depth(depth_mm, cal.depth.camera, cam, cal.depth.colour_T_depth)
+    h, w = depth_mm.shape
+    if (w, h) != cam.size:
+        raise UserError(
+            f"depth is {w}x{h} but camera {cam.name} is {cam.width}x{cam.height}: record "
+            "depth aligned to the colour images",
+            path=_depth_where(src, i),
+        )
+    return depth_mm
+
+
+def _depth_label(src: Recording, i: int) -> str | int | None:
+    """How frames.json names a frame's depth: its file, or its depth frame's index."""
+    partner = src.depth_for[i]
+    source = getattr(src, "source", None)
+    if source is not None and partner is not None:
+        f = source.frames[partner]
+        return f.depth.relative_to(src.path).as_posix() if f.depth is not None else None
+    return partner
+
+
+def _depth_where(src: Recording, i: int) -> Path | str:
+    source = getattr(src, "source", None)
+    if source is not None:
+        f = source.frames[i]
+        if f.depth is not None:
+            return Path(f.depth)
+    return f"{src.path} (depth of frame {src.labels[i]})"

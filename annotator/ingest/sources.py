@@ -1,9 +1,11 @@
-"""Where a recorded sequence comes from: a video file, or a folder of colour (and depth)
-images as capture tools write them.
+"""Where a recorded sequence comes from: a recorder's file, a video file, or a folder of
+colour (and depth) images as capture tools write them (:func:`open_recording`).
 
-A **video** (``.mp4 .avi .mkv .mov .webm``) is read with OpenCV's ``VideoCapture``; frame
-``i``'s time is the decoder's position (``CAP_PROP_POS_MSEC``), or ``i / fps`` when the
-container gives none. A video has no depth.
+A **ROS bag** (``.bag``, a ROS 2 bag folder, ``.mcap``, ``.db3``) is read by :mod:`.rosbag`,
+an **Azure Kinect** ``.mkv`` (one carrying ``calibration.json``) by :mod:`.kinect`, a
+**Record3D** ``.r3d`` by :mod:`.record3d`: each with its cameras' calibration and depth. A
+plain **video** (``.mp4 .avi .mkv .mov .webm``) is decoded with PyAV (:mod:`.video`); frame
+``i``'s time is its presentation time. A video has no depth.
 
 A **folder** holds image files (``.png .jpg .jpeg .tif .tiff .bmp``), directly or in
 sub-folders (``color/``, ``depth/``...; one level). Each file's name is read as
@@ -29,18 +31,19 @@ times).
 from __future__ import annotations
 
 import re
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
 from annotator.errors import UserError
-from annotator.io.images import native_stderr_hidden, read_image
+from annotator.ingest.recording import Decoded, Recording
+from annotator.io.images import read_image
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp")
 VIDEO_SUFFIXES = (".mp4", ".avi", ".mkv", ".mov", ".webm")
+RECORDING_SUFFIXES = (".bag", ".mcap", ".db3", ".mkv", ".r3d")
 #: Default pairing tolerance between a colour image and its depth image (s).
 PAIR_TOLERANCE_S = 0.02
 
@@ -75,27 +78,46 @@ class _Named:
 
 
 class Source:
-    """A video or an image folder: :attr:`frames` (in order) and their pixels
-    (:meth:`read`, frames in increasing order for a video)."""
+    """An image folder: :attr:`frames` (in order), each colour image with its depth image."""
 
-    def __init__(self, path: Path, frames: list[SourceFrame], *, video: bool) -> None:
+    def __init__(self, path: Path, frames: list[SourceFrame]) -> None:
         self.path = path
         self.frames = frames
-        self.video = video
         self.has_depth = any(f.depth is not None for f in frames)
 
-    def describe(self) -> str:
-        """``video`` or ``image folder`` (what the summary says)."""
-        return "video" if self.video else "image folder"
 
-    def read(self, frames: list[SourceFrame]) -> Iterator[tuple[SourceFrame, np.ndarray]]:
-        """The colour image of each of ``frames`` (as stored: BGR or grey, 8/16-bit)."""
-        if not self.video:
-            for f in frames:
-                assert f.colour is not None
-                yield f, read_image(f.colour)
-            return
-        yield from _video_frames(self.path, frames)
+@dataclass
+class _FolderRecording(Recording):
+    """An image folder as a recording: colour images read as stored, depth images (uint16,
+    ``unit_mm`` mm a unit, 0 = none) on the colour grid."""
+
+    source: Source | None = None
+    unit_mm: float = 1.0
+
+    def decode(self, indices: Sequence[int], *, depth: bool) -> Iterator[Decoded]:
+        assert self.source is not None
+        for i in indices:
+            f = self.source.frames[i]
+            assert f.colour is not None
+            img = read_image(f.colour)
+            mm = None
+            if depth and f.depth is not None:
+                mm = read_depth_units(f.depth) * self.unit_mm
+            yield Decoded(i, img, mm)
+
+
+def read_depth_units(path: Path) -> np.ndarray:
+    """A depth image's units as float (NaN = no measurement): uint16, single channel."""
+    raw = read_image(path)
+    if raw.ndim == 3 and raw.shape[2] == 1:
+        raw = raw[..., 0]
+    if raw.dtype != np.uint16 or raw.ndim != 2:
+        raise UserError(
+            f"depth image must be single-channel uint16, got {raw.dtype} {raw.shape}", path=path
+        )
+    units = raw.astype(np.float64)
+    units[raw == 0] = np.nan
+    return units
 
 
 def open_source(
@@ -106,83 +128,80 @@ def open_source(
     tolerance_s: float = PAIR_TOLERANCE_S,
     fps: float | None = None,
 ) -> Source:
-    """The frames of a video file or an image folder (module docstring).
+    """The frames of an image folder (module docstring).
 
     Args:
-        path: The video file or the folder.
+        path: The folder.
         stream: The colour stream to take when a folder holds several (``left``...).
         depth: Pair the folder's depth images with the colour ones (False: leave them out).
         tolerance_s: How far apart in time a colour image and its depth image may be.
         fps: The frame rate of a folder whose names are frame indices (their times).
 
     Raises:
-        UserError: (one line naming the file or folder) an unreadable video, a folder
-            without images, several colour streams and none chosen, a colour image without
-            a depth partner when the folder has depth images.
+        UserError: (one line naming the folder or file) a folder without images, several
+            colour streams and none chosen, a colour image without a depth partner when the
+            folder has depth images.
     """
     path = Path(path)
+    if not path.is_dir():
+        raise UserError("no such video file or image folder", path=path)
+    return Source(path, _folder_frames(path, stream, depth, tolerance_s, fps))
+
+
+def open_recording(
+    path: str | Path,
+    *,
+    stream: str | None = None,
+    depth: bool = True,
+    tolerance_s: float = PAIR_TOLERANCE_S,
+    fps: float | None = None,
+    color_topic: str | None = None,
+    depth_topic: str | None = None,
+    depth_unit_mm: float | None = None,
+) -> Recording:
+    """The recording at ``path``, whatever wrote it (module docstring).
+
+    ``depth_unit_mm``: millimetres per unit of an image folder's depth images (default 1,
+    RealSense's); recorders' files say their own.
+
+    Raises:
+        UserError: one line naming the file, for anything that cannot be read.
+    """
+    from annotator.ingest import kinect, record3d, rosbag, video
+
+    path = Path(path)
+    if rosbag.is_bag(path):
+        return rosbag.open_bag(
+            path,
+            color_topic=color_topic,
+            depth_topic=depth_topic,
+            depth=depth,
+            tolerance_s=tolerance_s,
+        )
+    if record3d.is_record3d(path):
+        return record3d.open_record3d(path, depth=depth)
+    if kinect.is_kinect(path):
+        return kinect.open_kinect(path, depth=depth, tolerance_s=tolerance_s)
     if path.is_file():
         if path.suffix.lower() not in VIDEO_SUFFIXES:
             raise UserError(
-                f"is not a video ({', '.join(VIDEO_SUFFIXES)}) nor a folder of images", path=path
+                f"is not a recording ({', '.join(RECORDING_SUFFIXES)}), a video "
+                f"({', '.join(VIDEO_SUFFIXES)}) nor a folder of images",
+                path=path,
             )
-        return Source(path, _video_index(path), video=True)
-    if not path.is_dir():
-        raise UserError("no such video file or image folder", path=path)
-    return Source(path, _folder_frames(path, stream, depth, tolerance_s, fps), video=False)
-
-
-def _open_video(path: Path) -> Any:
-    """An opened ``cv2.VideoCapture`` of the file (UserError if it is not a video)."""
-    import cv2
-
-    with native_stderr_hidden():  # FFmpeg's own lines about a broken file
-        cap = cv2.VideoCapture(str(path))
-    if not cap.isOpened():
-        raise UserError("not a readable video", path=path)
-    return cap
-
-
-def _video_index(path: Path) -> list[SourceFrame]:
-    """Every frame of the video with its time, by decoding it once (containers' frame
-    counts can be wrong)."""
-    import cv2
-
-    cap = _open_video(path)
-    fps = cap.get(cv2.CAP_PROP_FPS) or 0.0
-    frames: list[SourceFrame] = []
-    try:
-        while cap.grab():
-            i = len(frames)
-            ms = cap.get(cv2.CAP_PROP_POS_MSEC)
-            t = ms / 1000.0 if (ms > 0 or i == 0) else (i / fps if fps > 0 else None)
-            frames.append(SourceFrame(i, i, t))
-    finally:
-        cap.release()
-    if not frames:
-        raise UserError("not a readable video (no frame could be decoded)", path=path)
-    return frames
-
-
-def _video_frames(
-    path: Path, frames: list[SourceFrame]
-) -> Iterator[tuple[SourceFrame, np.ndarray]]:
-    """Decode the video once, yielding the wanted frames (increasing indices)."""
-    cap = _open_video(path)
-    try:
-        at = 0
-        for f in frames:
-            while at < f.index:
-                if not cap.grab():
-                    raise UserError(f"cannot read frame {f.index} of the video", path=path)
-                at += 1
-            ok, img = cap.read()
-            if not ok or img is None:
-                raise UserError(f"cannot read frame {f.index} of the video", path=path)
-            at += 1
-            yield f, img
-    finally:
-        cap.release()
+        return video.open_video(path)
+    src = open_source(path, stream=stream, depth=depth, tolerance_s=tolerance_s, fps=fps)
+    times = [f.time_s for f in src.frames]
+    return _FolderRecording(
+        path=path,
+        kind="image folder",
+        times=times,
+        labels=[f.label for f in src.frames],
+        depth_for=[i if f.depth is not None else None for i, f in enumerate(src.frames)],
+        streams={},
+        source=src,
+        unit_mm=1.0 if depth_unit_mm is None else depth_unit_mm,
+    )
 
 
 def read_name(path: Path, *, in_depth_folder: bool = False) -> tuple[str, str, str, float | None]:

@@ -2,14 +2,16 @@
 ``frames.json`` (FORMAT.md, sequences), into a scene folder that is put in place whole.
 
 Colour images are written as PNG, colour kept (an alpha channel dropped), 8 or 16 bits as
-they came; grey stays grey. Depth images (uint16, ``depth_scale`` mm per unit, 0 = no
-measurement) are converted to the rig's ``rig.depth.scale``. Frames are named ``000000``,
-``000001``... in the order kept.
+they came; grey stays grey. Depth comes in millimetres (NaN = no measurement) and is
+written at the rig's ``rig.depth.scale``. Frames are named ``000000``, ``000001``... in the
+order kept.
 
 The scene folder is built in a temporary sibling and renamed into place at the end
 (:func:`annotator.io.atomic.atomic_folder`): an interrupted ingest leaves nothing behind
 (the next run removes its remains), and a scene already there is replaced only when asked
-and only if ingest wrote it (its frames.json says so) and no reviewer has decided on it.
+and only if ingest wrote it (its frames.json says so) and no reviewer has decided on it. A
+killed ingest's temporary folder is swept by the next ingest into the same dataset
+(:func:`sweep_abandoned`).
 """
 
 from __future__ import annotations
@@ -23,8 +25,9 @@ import numpy as np
 from annotator.dataset.model import FRAMES_DIR, DepthSpec
 from annotator.errors import UserError
 from annotator.geometry.camera import Camera
+from annotator.io.atomic import remove_if_abandoned
 from annotator.io.documents import read_json
-from annotator.io.images import encode_depth, read_image, write_png
+from annotator.io.images import NO_RETURN, encode_depth, write_png
 
 #: The file ingest writes beside a sequence's frames.
 FRAMES_FILE = "frames.json"
@@ -113,20 +116,47 @@ def check_size(
     )
 
 
-def read_source_depth(path: Path, camera: Camera, scale_mm: float) -> np.ndarray:
-    """A source depth image in mm (NaN = no measurement): uint16, single channel, of the
-    camera's size, ``scale_mm`` mm per unit."""
-    raw = read_image(path)
-    if raw.ndim == 3 and raw.shape[2] == 1:
-        raw = raw[..., 0]
-    if raw.dtype != np.uint16 or raw.ndim != 2:
+def check_depth_range(
+    depth_mm: np.ndarray, spec: DepthSpec, unit_mm: float, option: str, where: Path | str
+) -> None:
+    """Refuse depth that the rig's ``rig.depth.scale`` cannot store: all of a frame's
+    measurements below one unit, or most of them beyond 65534 units (a wrong unit, such as
+    ``--depth-scale 1000`` for millimetres), in one line naming ``option`` and the range of
+    the source's values (in its own units, ``unit_mm`` mm each)."""
+    valid = depth_mm[np.isfinite(depth_mm) & (depth_mm > 0)]
+    if not valid.size:
+        return
+    units = np.round(valid / spec.scale)  # as encode_depth rounds them
+    low = units < 1
+    high = units >= NO_RETURN
+    if low.all() or high.mean() > 0.5:
+        lo, hi = float(valid.min()), float(valid.max())
+        raw_lo, raw_hi = lo / unit_mm, hi / unit_mm
         raise UserError(
-            f"depth image must be single-channel uint16, got {raw.dtype} {raw.shape}", path=path
+            f"{option}: the depth values seen, {raw_lo:g}..{raw_hi:g}, become {lo:g}..{hi:g} "
+            f"mm, which rig.depth.scale {spec.scale:g} mm cannot store ({spec.scale:g}.."
+            f"{spec.scale * (NO_RETURN - 1):g} mm): give the millimetres per unit of the "
+            "source's depth",
+            path=where,
         )
-    check_size(raw, camera, path, None, hint="record depth aligned to the colour images")
-    mm = raw.astype(np.float64) * scale_mm
-    mm[raw == 0] = np.nan
-    return mm
+
+
+def sweep_abandoned(scenes: Path) -> list[Path]:
+    """Remove the temporary scene folders (``.<scene>.<random>/``, marked as ours) that a
+    killed ingest left in ``scenes/``, whatever scene they were for; a folder that a running
+    ingest holds (its lock is taken) is left alone. The ones removed are returned."""
+    removed: list[Path] = []
+    try:
+        entries = sorted(p for p in scenes.iterdir() if p.name.startswith("."))
+    except OSError:
+        return removed
+    for cand in entries:
+        if not cand.is_dir() or cand.is_symlink():
+            continue
+        scene = cand.name[1:].rsplit(".", 1)[0]
+        if scene and remove_if_abandoned(cand, restore=scenes / scene):
+            removed.append(cand)
+    return removed
 
 
 def write_frame(

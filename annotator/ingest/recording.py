@@ -1,0 +1,189 @@
+"""What every recorder's file gives ingest: colour frames with their times, depth frames
+paired with them, the cameras' calibration, and the frames that could not be used.
+
+The readers (:mod:`.rosbag`, :mod:`.kinect`, :mod:`.record3d`, :mod:`.video`) each build a
+:class:`Recording`; :mod:`.scene` reads frames from it without knowing which recorder wrote
+it. Depth comes in millimetres on the depth camera's own grid; :mod:`.registration` redraws
+it on the colour camera's grid when the recorder did not.
+"""
+
+from __future__ import annotations
+
+import bisect
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from annotator.geometry.camera import Camera
+
+
+@dataclass(frozen=True)
+class DepthGeometry:
+    """The depth camera of a recording.
+
+    Attributes:
+        camera: Its intrinsics and size (the grid its depth frames are on).
+        colour_T_depth: 4x4, mm: depth-camera points into the colour camera; None when the
+            depth frames already lie on the colour camera's grid (aligned by the recorder).
+        unit_mm: Millimetres per unit of its raw 16-bit frames (what the file says).
+    """
+
+    camera: Camera
+    colour_T_depth: np.ndarray | None
+    unit_mm: float
+
+    @property
+    def registered(self) -> bool:
+        """Whether the depth frames already lie on the colour camera's grid."""
+        return self.colour_T_depth is None
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """The cameras as the file describes them: ``colour`` (named ``colour``), optional
+    ``depth``, and ``origin``, where in the file they were read (the summary says it)."""
+
+    colour: Camera
+    depth: DepthGeometry | None
+    origin: str
+
+
+@dataclass(frozen=True)
+class Decoded:
+    """One frame read from a recording: its colour image (BGR or grey, as stored), its depth
+    (float mm on the depth camera's grid, NaN = none; None when not asked for or absent), or
+    ``problem``, why it cannot be used (a frame that failed to decode, or decoded partly)."""
+
+    index: int
+    colour: np.ndarray | None
+    depth_mm: np.ndarray | None = None
+    problem: str | None = None
+
+
+@dataclass
+class Recording:
+    """A recorder's file opened for ingest (built by the readers).
+
+    Attributes:
+        path: The file (or bag folder).
+        kind: What it is (``ROS 1 bag``, ``Azure Kinect recording``...).
+        times: Each colour frame's time (s, the file's own clock), in order.
+        labels: How frames.json names each colour frame's origin (its message or frame index).
+        depth_for: For each colour frame, the index of its depth partner (None: none).
+        streams: The streams read: ``{"colour": topic or track, "depth": ...}``.
+        calibration: The cameras (None when the file carries none: a plain video).
+        dropped: Frames already known to be unusable: ``(label, why)``.
+        ended_early: Why the file stops before its end (None if it does not).
+        notes: What else the summary must say (a stream left out, and why).
+    """
+
+    path: Path
+    kind: str
+    times: list[float | None]
+    labels: list[str | int]
+    depth_for: list[int | None]
+    streams: dict[str, str]
+    calibration: Calibration | None = None
+    dropped: list[tuple[str | int, str]] = field(default_factory=list)
+    ended_early: str | None = None
+    notes: list[str] = field(default_factory=list)
+
+    def decode(self, indices: Sequence[int], *, depth: bool) -> Iterator[Decoded]:
+        """The colour frames ``indices`` (increasing), with their depth when ``depth``."""
+        raise NotImplementedError
+
+
+def pair_by_time(
+    colour: Sequence[float | None], depth: Sequence[float | None], tolerance_s: float
+) -> list[int | None]:
+    """For each colour time, the index of the nearest depth time within ``tolerance_s``
+    (None if there is none, or no time).
+
+    >>> pair_by_time([0.0, 0.033, 0.1], [0.001, 0.034, 0.5], 0.005)
+    [0, 1, None]
+    """
+    known = sorted((t, i) for i, t in enumerate(depth) if t is not None)
+    times = [t for t, _ in known]
+    out: list[int | None] = []
+    for t in colour:
+        if t is None or not known:
+            out.append(None)
+            continue
+        k = bisect.bisect_left(times, t)
+        near = [j for j in (k - 1, k) if 0 <= j < len(known)]
+        best = min(near, key=lambda j: (abs(times[j] - t), j))
+        out.append(known[best][1] if abs(times[best] - t) <= tolerance_s else None)
+    return out
+
+
+def transform(R: np.ndarray, t_mm: np.ndarray) -> np.ndarray:
+    """A 4x4 transform from a rotation and a translation (mm)."""
+    T = np.eye(4)
+    T[:3, :3] = np.asarray(R, np.float64).reshape(3, 3)
+    T[:3, 3] = np.asarray(t_mm, np.float64).reshape(3)
+    return T
+
+
+def quaternion_matrix(x: float, y: float, z: float, w: float) -> np.ndarray:
+    """The rotation of a unit quaternion ``(x, y, z, w)`` (ROS order), normalised first.
+
+    >>> np.round(quaternion_matrix(0, 0, np.sin(np.pi / 4), np.cos(np.pi / 4)), 6).tolist()
+    [[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]
+    """
+    q = np.array([x, y, z, w], np.float64)
+    n = float(np.linalg.norm(q))
+    if n < 1e-12:
+        return np.eye(3)
+    x, y, z, w = q / n
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+        ]
+    )
+
+
+def join_depth(
+    events: Iterator[tuple[str, int, Decoded | np.ndarray | str]],
+    depth_wanted: dict[int, int],
+) -> Iterator[Decoded]:
+    """Colour frames joined with their depth partners, in colour order.
+
+    ``events`` come in file order: ``("colour", i, Decoded)`` and ``("depth", j, depth mm
+    or why it is unusable)``; ``depth_wanted`` maps a depth index to the colour index it
+    belongs to. A colour frame waits for its depth (later frames wait behind it, so that the
+    order holds); a frame whose depth is damaged or never comes is given as a problem.
+    """
+    pending: dict[int, Decoded] = {}
+    depth_of: dict[int, np.ndarray | str] = {}
+    waiting_for = set(depth_wanted.values())
+
+    def ready(final: bool) -> Iterator[Decoded]:
+        for i in sorted(pending):
+            if i in waiting_for and i not in depth_of and not final:
+                return
+            d = pending.pop(i)
+            got = depth_of.pop(i, None)
+            if d.problem is not None:
+                yield d
+            elif isinstance(got, str):
+                yield Decoded(i, None, None, f"its depth frame: {got}")
+            elif isinstance(got, np.ndarray):
+                yield Decoded(i, d.colour, got)
+            elif i in waiting_for:
+                yield Decoded(i, None, None, "its depth frame is missing from the file")
+            else:
+                yield d
+
+    for kind, k, item in events:
+        if kind == "colour":
+            assert isinstance(item, Decoded)
+            pending[k] = Decoded(k, item.colour, item.depth_mm, item.problem)
+        elif k in depth_wanted:
+            assert not isinstance(item, Decoded)
+            depth_of[depth_wanted[k]] = item
+        yield from ready(False)
+    yield from ready(True)
