@@ -20,6 +20,9 @@ from annotator.rendering.raycast import get_threads
 INLIER_MM = 2.0
 #: The measured support this high (mm) above the floor's plane is something else (a wall).
 WALL_MM = 4.0
+#: How far (mm) a measured wall may be off where it is: depth seen at a grazing angle, mixed
+#: with the floor's and the parts' at their edges.
+WALL_SLACK_MM = 1.5
 
 
 @dataclass(frozen=True)
@@ -131,7 +134,8 @@ class Support:
     def distance(self, points: np.ndarray) -> np.ndarray:
         """(N,) how far (mm) each of ``points`` (3, N) is from the support: its height above
         the floor's plane (0 below it), or less where the measured surface away from the
-        floor (a bin's wall, which holds a part leaning on it) is nearer."""
+        floor (a bin's wall, which holds a part leaning on it) is nearer, give or take
+        :data:`WALL_SLACK_MM`."""
         height = self.plane.height(points)
         d = np.maximum(height, 0.0)
         if self._surface_scene is not None and points.shape[1]:
@@ -142,7 +146,7 @@ class Support:
             # Near the floor the measured surface is the floor, smeared where it meets a
             # wall: the plane says it better.
             far[self.plane.height(q.T) < WALL_MM] = np.inf
-            d = np.minimum(d, far)
+            d = np.minimum(d, np.maximum(far - WALL_SLACK_MM, 0.0))
         return d
 
     @cached_property
