@@ -77,9 +77,12 @@ def _wait_for(helper: threading.Thread, died: list[BaseException]) -> str | None
         if not helper.is_alive():
             return None
         thread = _server_thread(helper)
+        dead = thread is not None and not thread.is_alive()
+        # Read after the thread's death: its excepthook has run by then (it runs before the
+        # thread is marked dead), so an exception that killed it is in ``died``.
         if died:
             return f"{type(died[0]).__name__}: {died[0]}"
-        if thread is not None and not thread.is_alive():
+        if dead:
             return "no free port among the thousand it tried"
         if time.monotonic() > deadline:
             return f"not listening after {START_SECONDS:.0f} s"
