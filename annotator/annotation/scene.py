@@ -33,14 +33,13 @@ from annotator.dataset.annotation import (
     SceneAnnotation,
     SceneWarning,
     WarningKind,
-    sort_flags,
 )
 from annotator.dataset.frames import scene_shots
 from annotator.dataset.model import UNEXPLAINED_MASK
 from annotator.detection import MarkerDetector
 from annotator.detection.aruco import ImageReading
 from annotator.io.images import to_gray8
-from annotator.physics.scene import shot_physics
+from annotator.physics.scene import record_physics
 from annotator.pnp import Observation
 from annotator.values import of_type
 
@@ -107,7 +106,7 @@ def annotate_scene(
     if refine_few_marker_poses(ds, instances, markers.per_instance, depth, settings):
         renders = {}
         add_visibility(ds, instances, depth, settings, renders)
-    _add_physics(ds, scene, instances, depth)
+    record_physics(ds, scene_shots(ds, scene)[0], instances, depth)
     quality = _image_quality(ds, readings, grays)
     warnings = quality_warnings(quality, settings.completeness)
     if not any(r.markers for r in readings):
@@ -134,20 +133,6 @@ def annotate_scene(
         unexplained_mask=UNEXPLAINED_MASK if mask is not None and mask.any() else None,
     )
     return SceneResult(annotation, mask)
-
-
-def _add_physics(
-    ds: Dataset, scene: Scene, instances: list[InstanceAnnotation], depth: np.ndarray | None
-) -> None:
-    """Each instance's physics in the pile (:mod:`annotator.physics`), its flags added."""
-    shot = scene_shots(ds, scene)[0]
-    uncertainty = {r.key: r.uncertainty_mm for r in instances}
-    found, _ = shot_physics(
-        ds, shot, [r.pose for r in instances], uncertainty=uncertainty, depth=depth
-    )
-    for r, rec in zip(instances, found):
-        r.physics = rec.check
-        r.flags = sort_flags([*r.flags, *rec.flags])
 
 
 def _sort_markers(ds: Dataset, readings: list[ImageReading]) -> _Markers:

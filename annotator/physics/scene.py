@@ -11,7 +11,7 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 
 from annotator.dataset import Dataset, InstancePose
-from annotator.dataset.annotation import Flag
+from annotator.dataset.annotation import Flag, InstanceAnnotation, sort_flags
 from annotator.dataset.frames import Shot
 from annotator.geometry.transforms import invert
 from annotator.physics.check import InstancePhysics, PhysicsSettings, check_bodies
@@ -111,3 +111,21 @@ def shot_physics(
             if fall > limit:
                 rec.flags.append(Flag.UNSTABLE)
     return out, support
+
+
+def record_physics(
+    ds: Dataset,
+    shot: Shot,
+    instances: Sequence[InstanceAnnotation],
+    depth: np.ndarray | None = None,
+) -> None:
+    """Each annotated instance's physics in its pile (``instance.physics``), its physics
+    flags added to its flags: what ``annotate`` records. ``shot``: the scene's (a
+    sequence's first posed frame, whose depth gives the support)."""
+    uncertainty = {r.key: r.uncertainty_mm for r in instances}
+    found, _ = shot_physics(
+        ds, shot, [r.pose for r in instances], uncertainty=uncertainty, depth=depth
+    )
+    for r, rec in zip(instances, found):
+        r.physics = rec.check
+        r.flags = sort_flags([*r.flags, *rec.flags])
