@@ -13,6 +13,7 @@ import numpy as np
 from annotator.dataset import Dataset, InstancePose
 from annotator.dataset.annotation import Flag, InstanceAnnotation, sort_flags
 from annotator.dataset.frames import Shot
+from annotator.geometry.camera import Camera
 from annotator.geometry.transforms import invert
 from annotator.physics.check import InstancePhysics, PhysicsSettings, check_bodies
 from annotator.physics.contact import Body, signed_distance
@@ -33,6 +34,9 @@ FLOOR_BIAS_MM = 3.0
 #: How many parts must rest on the floor for it to be moved to them.
 RESTING_PARTS = 3
 
+# The empty bin's support, by dataset, background file and depth camera.
+_EMPTY_BIN: dict[tuple[str, str, object], Support | None] = {}
+
 
 def bodies_of(ds: Dataset, poses: Sequence[InstancePose]) -> list[Body]:
     """The posed parts as bodies (poses of objects the dataset does not have are left out)."""
@@ -49,16 +53,35 @@ def shot_support(
     if spec is None:
         return None
     cam = ds.rig.camera(spec.camera)
-    background = ds.background_depth if shot.frame is None else None
-    if background is None and depth is None:
+    if shot.frame is None and spec.background is not None:
+        # The empty bin is every scene's: fitted once (the floor's offset is the scene's).
+        key = (str(ds.root), spec.background, cam.grid_key)
+        found = _EMPTY_BIN.get(key)
+        if found is None:
+            found = _EMPTY_BIN[key] = _measured_support(ds.background_depth, cam, np.eye(4))
+        return None if found is None else found.lowered(floor_offset(found.plane, bodies))
+    if depth is None:
         depth = shot.capture.read_depth(ds.rig)
-    source = background if background is not None else depth
-    if source is None:
+    if depth is None:
         return None
-    grid = depth_grid(source, cam)  # the depth camera's frame
-    scene_T_cam = invert(shot.rig_T_scene) @ cam.rig_T_cam
+    found = _measured_support(depth, cam, invert(shot.rig_T_scene), bodies)
+    return None if found is None else found.lowered(floor_offset(found.plane, bodies))
+
+
+def _measured_support(
+    depth: np.ndarray | None,
+    cam: Camera,
+    scene_T_rig: np.ndarray,
+    bodies: Sequence[Body] = (),
+) -> Support | None:
+    """The support a depth map of ``cam`` measures, in the scene's frame, away from the
+    ``bodies`` (none: an empty bin); None without depth or a floor's plane."""
+    if depth is None:
+        return None
+    grid = depth_grid(depth, cam)  # the depth camera's frame
+    scene_T_cam = scene_T_rig @ cam.rig_T_cam
     grid = grid @ scene_T_cam[:3, :3].T + scene_T_cam[:3, 3]
-    if background is None:  # the parts' own surfaces are not the support
+    if bodies:  # the parts' own surfaces are not the support
         pts = grid.reshape(-1, 3)
         for b in bodies:
             lo, hi = b.box
@@ -69,10 +92,7 @@ def shot_support(
                 pts[idx[d < PART_MARGIN_MM]] = np.nan
         grid = pts.reshape(grid.shape)
     plane = fit_support_plane(grid.reshape(-1, 3))
-    if plane is None:
-        return None
-    support = Support(plane, grid_surface(grid))
-    return support.lowered(floor_offset(support.plane, bodies))
+    return None if plane is None else Support(plane, grid_surface(grid))
 
 
 def floor_offset(plane: SupportPlane, bodies: Sequence[Body]) -> float:

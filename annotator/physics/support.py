@@ -6,7 +6,6 @@ conventions)."""
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import cached_property
 from typing import Any
 
 import numpy as np
@@ -122,14 +121,17 @@ class Support:
 
     plane: SupportPlane
     surface: Mesh | None = None
+    #: How far (mm) the surface is taken to lie below where its vertices say.
+    surface_lowered_by: float = 0.0
 
     def lowered(self, offset: float) -> Support:
         """The support ``offset`` mm lower (higher if negative), surface and all."""
         n = self.plane.n
-        surface = self.surface
-        if surface is not None:
-            surface = Mesh(surface.vertices - offset * n, surface.faces)
-        return Support(SupportPlane(n, self.plane.d + offset), surface)
+        return Support(
+            SupportPlane(n, self.plane.d + offset),
+            self.surface,
+            self.surface_lowered_by + offset,
+        )
 
     def distance(self, points: np.ndarray) -> np.ndarray:
         """(N,) how far (mm) each of ``points`` (3, N) is from the support: its height above
@@ -138,25 +140,33 @@ class Support:
         :data:`WALL_SLACK_MM`."""
         height = self.plane.height(points)
         d = np.maximum(height, 0.0)
-        if self._surface_scene is not None and points.shape[1]:
-            query = o3d.core.Tensor(np.ascontiguousarray(points.T, dtype=np.float32))
-            near = self._surface_scene.compute_closest_points(query, nthreads=get_threads())
+        if self.surface is not None and points.shape[1]:
+            # Points raised rather than the surface lowered: its BVH stays the one built.
+            moved = points.T + self.surface_lowered_by * self.plane.n
+            query = o3d.core.Tensor(np.ascontiguousarray(moved, dtype=np.float32))
+            near = _scene_of(self.surface).compute_closest_points(query, nthreads=get_threads())
             q = near["points"].numpy().astype(np.float64)
-            far = np.linalg.norm(q - points.T, axis=1)
+            far = np.linalg.norm(q - moved, axis=1)
             # Near the floor the measured surface is the floor, smeared where it meets a
             # wall: the plane says it better.
-            far[self.plane.height(q.T) < WALL_MM] = np.inf
+            far[self.plane.height(q.T) - self.surface_lowered_by < WALL_MM] = np.inf
             d = np.minimum(d, np.maximum(far - WALL_SLACK_MM, 0.0))
         return d
 
-    @cached_property
-    def _surface_scene(self) -> Any:
-        """The measured surface's ray-casting scene (its BVH built once)."""
-        if self.surface is None:
-            return None
+
+# Ray-casting scenes of measured surfaces, by geometry (the empty bin's serves every scene).
+_SURFACES: dict[bytes, Any] = {}
+
+
+def _scene_of(surface: Mesh) -> Any:
+    scene = _SURFACES.get(surface.digest)
+    if scene is None:
+        if len(_SURFACES) >= 4:
+            _SURFACES.clear()
         scene = o3d.t.geometry.RaycastingScene(nthreads=get_threads())
         scene.add_triangles(
-            o3d.core.Tensor(self.surface.vertices.astype(np.float32)),
-            o3d.core.Tensor(self.surface.faces.astype(np.uint32)),
+            o3d.core.Tensor(surface.vertices.astype(np.float32)),
+            o3d.core.Tensor(surface.faces.astype(np.uint32)),
         )
-        return scene
+        _SURFACES[surface.digest] = scene
+    return scene
