@@ -6,6 +6,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from functools import cached_property
+from typing import Any
 
 import numpy as np
 from scipy.spatial import ConvexHull
@@ -86,9 +87,8 @@ def hull_of(mesh: Mesh) -> Mesh:
     return hit
 
 
-def signed_distance(mesh: Mesh, points: np.ndarray, *, hull: bool = False) -> np.ndarray:
-    """(N,) signed distance (mm) of ``points`` (N, 3, model frame) to ``mesh`` (its convex
-    hull with ``hull``): negative inside the solid."""
+def _scene(mesh: Mesh, *, hull: bool) -> Any:
+    """The ray-casting scene of ``mesh`` or of its hull (its BVH built once per process)."""
     key = (mesh.digest, hull)
     scene = _SCENES.get(key)
     if scene is None:
@@ -99,9 +99,16 @@ def signed_distance(mesh: Mesh, points: np.ndarray, *, hull: bool = False) -> np
             o3d.core.Tensor(geometry.faces.astype(np.uint32)),
         )
         _SCENES[key] = scene
+    return scene
+
+
+def signed_distance(mesh: Mesh, points: np.ndarray) -> np.ndarray:
+    """(N,) signed distance (mm) of ``points`` (N, 3, model frame) to ``mesh``: negative
+    inside the solid."""
+    scene = _scene(mesh, hull=False)
     query = o3d.core.Tensor(np.ascontiguousarray(points, dtype=np.float32))
     # Inside or out is voted by several rays: one ray grazing an edge counts it twice.
-    found = scene.compute_signed_distance(  # type: ignore[attr-defined]
+    found = scene.compute_signed_distance(
         query, nthreads=get_threads(), nsamples=INSIDE_VOTES
     )
     return found.numpy().astype(np.float64)
@@ -109,10 +116,14 @@ def signed_distance(mesh: Mesh, points: np.ndarray, *, hull: bool = False) -> np
 
 def depth_inside(a: Body, b: Body) -> float:
     """How deep (mm, >= 0) ``a``'s surface reaches inside ``b``'s solid."""
-    inside = a.points[:, _near(a, b)]
-    if inside.shape[1] == 0:
+    local = b.to_model(a.points[:, _near(a, b)])
+    if len(local):  # outside the hull is outside the solid: only the others are asked
+        hull = _scene(b.mesh, hull=True)
+        query = o3d.core.Tensor(np.ascontiguousarray(local, dtype=np.float32))
+        local = local[hull.compute_occupancy(query, nthreads=get_threads()).numpy() > 0.5]
+    if len(local) == 0:
         return 0.0
-    return max(0.0, -float(signed_distance(b.mesh, b.to_model(inside)).min()))
+    return max(0.0, -float(signed_distance(b.mesh, local).min()))
 
 
 def penetration(a: Body, b: Body) -> float:
@@ -126,7 +137,11 @@ def hull_distance(points: np.ndarray, b: Body) -> np.ndarray:
     hull."""
     if points.shape[1] == 0:
         return np.zeros(0)
-    return np.maximum(signed_distance(b.mesh, b.to_model(points), hull=True), 0.0)
+    hull = _scene(b.mesh, hull=True)  # convex: one ray tells inside from outside
+    query = o3d.core.Tensor(np.ascontiguousarray(b.to_model(points), dtype=np.float32))
+    inside = hull.compute_occupancy(query, nthreads=get_threads()).numpy() > 0.5
+    far = hull.compute_distance(query, nthreads=get_threads()).numpy().astype(np.float64)
+    return np.where(inside, 0.0, far)
 
 
 def _near(a: Body, b: Body, margin: float = 0.0) -> np.ndarray:
