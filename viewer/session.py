@@ -77,8 +77,8 @@ class Session:
         self.alerts: list[tuple[float, str]] = []  # other reviewers' decisions over ours
         self.mine: dict[str, ReviewStatus] = {}  # scenes this page decided last
         self.viewport = self._viewport(None)
-        self.displayed: str | None = None  # the scene whose panel and pictures were sent last
-        self.displayed_info: SceneInfo | None = None  # that scene as they showed it
+        #: The scene whose panel and pictures were sent last, as they showed it.
+        self.displayed_info: SceneInfo | None = None
         self.frames_at: dict[str, int] = {}  # a sequence -> this page's window, frames on
         self._render_lock = threading.Condition()
         self._dirty = False
@@ -174,7 +174,7 @@ class Session:
         view.alert = f"{red}\n\n{view.alert}" if view.alert else red
         self.panel.show(view, [])
         with self._lock:
-            self.displayed, self.displayed_info = sid, info
+            self.displayed_info = info
         self.client.flush()
         self.pictures.send_background_soon()
         self.scene.show_3d_scene((), Look(), None, (sid, "none"))
@@ -226,7 +226,7 @@ class Session:
         self.pictures.blink(blinking and self.shown.on_canvas[0] == "zoom")
         self.panel.show(self._panel_view(info, prep, flt, selected), [p.key for p in info.poses])
         with self._lock:
-            self.displayed, self.displayed_info = sid, info
+            self.displayed_info = info
         self.client.flush()  # the new picture is on its way before anything else is done
         self.pictures.send_background_soon()
         # A sequence's cloud is the first shown frame's depth, its frustums the shown frames'
@@ -300,6 +300,12 @@ class Session:
             "look at this one, then decide again",
         )
         return None
+
+    @property
+    def displayed(self) -> str | None:
+        """The scene whose panel and pictures were sent last."""
+        with self._lock:
+            return None if self.displayed_info is None else self.displayed_info.id
 
     def _at(self, sid: str) -> int:
         with self._lock:
