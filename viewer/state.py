@@ -128,11 +128,8 @@ def same_edit(a: EditedPose | None, b: EditedPose | None) -> bool:
 def _describe(edit: EditedPose | None, by: str | None = None) -> str:
     if edit is None:
         return "put back to its auto pose"
-    if by is not None and edit.decided_by == by:  # a page never blames itself by its id
-        return "changed by another key of yours on this page" + (
-            f" at {edit.at}" if edit.at else ""
-        )
-    who = edit.decided_by or "another reviewer"
+    mine = by is not None and edit.decided_by == by  # a page never blames itself by its id
+    who = "another key of yours on this page" if mine else edit.decided_by or "another reviewer"
     return f"changed by {who}" + (f" at {edit.at}" if edit.at else "")
 
 
