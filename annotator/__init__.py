@@ -70,6 +70,11 @@ _HOMES = {
     "evaluate": "annotator.evaluation.evaluate",
     "EvaluationOptions": "annotator.evaluation.evaluate",
     "EvaluationReport": "annotator.evaluation.evaluate",
+    # physics: is the pile possible?
+    "physics_of_dataset": "annotator.physics.dataset",
+    "PhysicsSummary": "annotator.physics.dataset",
+    "PhysicsSettings": "annotator.physics.check",
+    "PhysicsCheck": "annotator.dataset.annotation",
     # export
     "export_dataset": "annotator.export.dataset",
     "ExportSummary": "annotator.export.dataset",

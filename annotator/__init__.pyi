@@ -27,6 +27,7 @@ from annotator.dataset.annotation import (
     InstanceAnnotation as InstanceAnnotation,
     MarkerUse as MarkerUse,
     Occlusion as Occlusion,
+    PhysicsCheck as PhysicsCheck,
     Reprojection as Reprojection,
     SceneAnnotation as SceneAnnotation,
     SceneWarning as SceneWarning,
@@ -70,6 +71,13 @@ from annotator.formats.ours import (
 from annotator.ingest.scene import (
     IngestSummary as IngestSummary,
     ingest_scene as ingest_scene,
+)
+from annotator.physics.check import (
+    PhysicsSettings as PhysicsSettings,
+)
+from annotator.physics.dataset import (
+    PhysicsSummary as PhysicsSummary,
+    physics_of_dataset as physics_of_dataset,
 )
 from annotator.synthesis.generate import (
     SynthConfig as SynthConfig,

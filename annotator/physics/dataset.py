@@ -79,7 +79,13 @@ def physics_of_dataset(
     settings: PhysicsSettings | None = None,
 ) -> PhysicsSummary:
     """The physics of every scene matching ``scenes`` that has ``poses`` (``annotation`` or
-    ``gt``); a sequence's in its scene frame, the support from its first posed frame."""
+    ``gt``); a sequence's in its scene frame, the support from its first posed frame.
+
+    >>> import annotator
+    >>> summary = annotator.physics_of_dataset(annotator.load_dataset("sample_scenes"), poses="gt")
+    >>> [sp.scene for sp in summary.scenes], sum(len(sp.flagged) for sp in summary.scenes)
+    (['000000', '000001', '000002', '000003'], 0)
+    """
     out = PhysicsSummary()
     for scene in ds.scenes():
         if not fnmatch.fnmatch(scene.id, scenes):
