@@ -295,3 +295,14 @@ def test_the_review_panel_shows_the_physics_and_the_partner() -> None:
     table = instance_table(info, None)
     assert "penetrates brick/02" in table and "| 3.1/0.0 |" in table
     assert info.physics_flagged
+
+
+def test_a_sequence_is_checked_in_its_scene_frame(sequence: Path, capsys) -> None:
+    # The support comes from the first posed frame's depth, away from the parts (a moving
+    # rig has no empty bin's depth); the truth of a dropped pile raises no flag.
+    ann = json.loads((sequence / "scenes" / SCENE / "annotation.json").read_text())
+    assert all("physics" in rec for rec in ann["instances"])
+    assert main(["check", str(sequence), "--physics", "--poses", "gt", "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)["physics"]
+    found = doc["scenes"][SCENE]
+    assert found["support"] is not None and doc["flagged"] == 0, found

@@ -108,9 +108,7 @@ def signed_distance(mesh: Mesh, points: np.ndarray) -> np.ndarray:
     scene = _scene(mesh, hull=False)
     query = o3d.core.Tensor(np.ascontiguousarray(points, dtype=np.float32))
     # Inside or out is voted by several rays: one ray grazing an edge counts it twice.
-    found = scene.compute_signed_distance(
-        query, nthreads=get_threads(), nsamples=INSIDE_VOTES
-    )
+    found = scene.compute_signed_distance(query, nthreads=get_threads(), nsamples=INSIDE_VOTES)
     return found.numpy().astype(np.float64)
 
 
