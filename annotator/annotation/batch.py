@@ -24,6 +24,7 @@ from annotator.dataset.review import now_iso
 from annotator.detection import MarkerDetector
 from annotator.errors import UserError
 from annotator.io.images import write_png
+from annotator.physics.scene import empty_bin
 from annotator.runner import BatchReport, run_batch
 from annotator.runner.bundle import description_files, dictionary_files
 from annotator.values import number, of_type, whole
@@ -96,6 +97,7 @@ class AnnotateJob:
             obj.mesh.moments  # noqa: B018
         for cam in ds.rig.cameras:
             cam.pixel_rays(self.settings.visibility_step)
+        empty_bin(ds)  # the physics check's support, fitted once for every worker
 
     # What a scene's work reads and writes, for runs on a cluster without the dataset's disk
     # (annotator.runner.job): paths relative to ``root``.

@@ -54,11 +54,7 @@ def shot_support(
         return None
     cam = ds.rig.camera(spec.camera)
     if shot.frame is None and spec.background is not None:
-        # The empty bin is every scene's: fitted once (the floor's offset is the scene's).
-        key = (str(ds.root), spec.background, cam.grid_key)
-        found = _EMPTY_BIN.get(key)
-        if found is None:
-            found = _EMPTY_BIN[key] = _measured_support(ds.background_depth, cam, np.eye(4))
+        found = empty_bin(ds)  # every scene's: the floor's offset is the scene's own
         return None if found is None else found.lowered(floor_offset(found.plane, bodies))
     if depth is None:
         depth = shot.capture.read_depth(ds.rig)
@@ -66,6 +62,19 @@ def shot_support(
         return None
     found = _measured_support(depth, cam, invert(shot.rig_T_scene), bodies)
     return None if found is None else found.lowered(floor_offset(found.plane, bodies))
+
+
+def empty_bin(ds: Dataset) -> Support | None:
+    """The support the empty bin's depth (``rig.depth.background``) measures, fitted once
+    per process (None: no such depth, or no floor in it)."""
+    spec = ds.rig.depth
+    if spec is None or spec.background is None:
+        return None
+    cam = ds.rig.camera(spec.camera)
+    key = (str(ds.root), spec.background, cam.grid_key)
+    if key not in _EMPTY_BIN:
+        _EMPTY_BIN[key] = _measured_support(ds.background_depth, cam, np.eye(4))
+    return _EMPTY_BIN[key]
 
 
 def _measured_support(
