@@ -22,6 +22,7 @@ runs them as batches over frames and scenes (:mod:`annotator.annotation.batch`).
 
 from __future__ import annotations
 
+import functools
 from collections import defaultdict
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
@@ -33,6 +34,8 @@ import cv2
 import numpy as np
 
 from annotator.annotation.consensus import pose_instance
+from annotator.annotation.consistency import frame_agreement
+from annotator.annotation.frame_quality import Streak, frame_streak
 from annotator.annotation.scene import CONTRADICTED, _image_quality, _sort_markers
 from annotator.annotation.settings import AnnotateSettings
 from annotator.annotation.visibility import MIN_DEPTH_PIXELS
@@ -58,6 +61,7 @@ from annotator.geometry.camera import Camera
 from annotator.geometry.mesh import SurfaceMoments
 from annotator.geometry.transforms import invert, make_transform
 from annotator.io.images import to_gray8
+from annotator.markers.texture import marker_bits
 from annotator.occlusion import scene_visibility
 from annotator.pnp import (
     Observation,
@@ -117,6 +121,13 @@ class FrameFlag(StrEnum):
     HIGH_REPROJECTION = "high_reprojection"
     #: Posed on fewer than :data:`FEW_MARKERS` marker observations.
     FEW_MARKERS = "few_markers"
+    #: Its images are smeared by a motion streak at least :data:`MOTION_BLUR_PX` long.
+    MOTION_BLUR = "motion_blur"
+    #: Its markers place several parts differently from the rest of the sequence
+    #: (:mod:`~annotator.annotation.consistency`).
+    INCONSISTENT = "inconsistent"
+    #: Posed on the markers of one part only.
+    SINGLE_PART = "single_part"
 
 
 @dataclass
@@ -129,14 +140,28 @@ class FrameReading:
     readings: list[ImageReading]
     marker_depth: np.ndarray
     quality: dict[str, ImageQuality]
+    #: Per camera, the motion streak its markers show (None: none told).
+    streaks: list[Streak | None] = field(default_factory=list)
+
+    def streak_px(self, camera: int) -> float:
+        """The streak's length (px) in camera ``camera``, 0 when not measured."""
+        s = self.streaks[camera] if camera < len(self.streaks) else None
+        return 0.0 if s is None else s.length_px
 
 
 def read_frame(ds: Dataset, frame: Frame, detector: MarkerDetector) -> FrameReading:
     """Read the markers of every camera of ``frame`` (UserError for a missing or mis-sized
-    image, naming the file)."""
+    image, naming the file), and the motion streak of each camera's image."""
     grays = [to_gray8(frame.read_image(cam)) for cam in ds.rig.cameras]
     readings = [detector.read(g) for g in grays]
     quality = _image_quality(ds, readings, grays)
+    streaks = []
+    for cam, r, g in zip(ds.rig.cameras, readings, grays):
+        streak = frame_streak(g, [(d.corners, _grid(ds.dictionary, d.id)) for d in r.markers])
+        streaks.append(streak)
+        if streak is not None:
+            quality[cam.name].extra["motion_blur_px"] = streak.length_px
+            quality[cam.name].extra["motion_blur_deg"] = streak.angle_deg
     kept = [
         ImageReading(
             r.markers, np.zeros((0, 4, 2)), np.zeros((0, 1, 1), bool), np.zeros(0), r.blur_px
@@ -148,7 +173,13 @@ def read_frame(ds: Dataset, frame: Frame, detector: MarkerDetector) -> FrameRead
     if depth is not None and ds.rig.depth is not None:
         j = [c.name for c in ds.rig.cameras].index(ds.rig.depth.camera)
         marker_depth = np.array([_depth_at(depth, d) for d in readings[j].markers])
-    return FrameReading(frame.name, kept, marker_depth, quality)
+    return FrameReading(frame.name, kept, marker_depth, quality, streaks)
+
+
+@functools.cache
+def _grid(dictionary_name: str, marker_id: int) -> np.ndarray:
+    """A marker's cells as printed (border included), cached: every frame reads the same."""
+    return marker_bits(dictionary_name, marker_id)
 
 
 def _depth_at(depth: np.ndarray, d: Detection) -> float:
@@ -250,7 +281,10 @@ def solve_sequence(
             SceneWarning(WarningKind.NO_MARKERS, "no marker of a known instance in any frame")
         )
         return out
-    _bundle(ds, frames_seen, placed, depth_cam, settings, out, names)
+    streaks = np.array([[r.streak_px(j) for j in range(len(cams))] for r in readings])
+    _bundle(
+        ds, frames_seen, placed, depth_cam, settings, out, names, streaks.reshape(len(names), -1)
+    )
     return out
 
 
@@ -475,9 +509,11 @@ def _bundle(
     s: AnnotateSettings,
     out: SequenceSolution,
     names: list[str],
+    streaks: np.ndarray,
 ) -> None:
     """The bundle adjustment over every placed frame and instance, its outliers left out and
-    the instances it disowns started again from the adjusted frames."""
+    the instances it disowns started again from the adjusted frames. ``streaks``: (frames,
+    cameras) the motion streak (px) of each image: its corners' noise (:func:`_corner_sigma`)."""
     cams = ds.rig.cameras
     keys = sorted(placed.models)
     index = {k: i for i, k in enumerate(keys)}
@@ -499,7 +535,9 @@ def _bundle(
     frames0 = np.stack([T for T in placed.frames if T is not None])
     models0 = np.stack([placed.models[k] for k in keys])
     err = _residuals(cams, all_obs, frames0, models0)
-    keep = err < s.inlier_px
+    streak = streaks[np.array(live)[all_obs.frame], all_obs.camera]
+    sigma = _corner_sigma(streak)
+    keep = err < s.inlier_px * sigma / CORNER_SIGMA_PX
 
     def solve(covariance: bool) -> BundleResult:
         return bundle_adjust(
@@ -510,11 +548,14 @@ def _bundle(
             fixed_frame=fidx[placed.reference],
             depth_camera=depth_cam,
             covariance=covariance,
+            corner_sigma_px=CORNER_SIGMA_PX,
+            obs_sigma_px=sigma[keep],
         )
 
     def kept(err: np.ndarray, limit: float) -> np.ndarray:
         # An observation is left out with the rest of its frame's view of its instance: a
-        # part that moved disagrees as a whole.
+        # part that moved disagrees as a whole. Limits in units of each corner's own noise.
+        err = err * CORNER_SIGMA_PX / sigma
         bad_edge = _edge_rms(all_obs, err) > limit
         return (err < 2 * limit) & ~bad_edge[all_obs.frame, all_obs.instance]
 
@@ -531,6 +572,9 @@ def _bundle(
         if np.array_equal(new_keep, keep):
             break
         keep = new_keep
+    # Each frame's corner noise as its own residuals show it (never below what its streak
+    # gives): a frame noisier than the rest is not trusted as much as the rest.
+    sigma = _frame_sigma(all_obs, _residuals(cams, all_obs, frames0, models0), keep, sigma)
     # The last solve on what is kept, from where the rounds left the poses: its covariance.
     result = solve(covariance=True)
     frames0, models0 = result.scene_T_rig, result.scene_T_model
@@ -538,7 +582,96 @@ def _bundle(
     ids = np.array([r[2].marker_id for r in rows], dtype=int)
     limit = max(s.final_inlier_px, 4 * result.sigma_px)
     moved = _moved(cams, seen, live, frames0, keys, all_obs, keep, limit, s)
-    _records(ds, keys, live, all_obs, ids, keep, result, err, placed, s, out, names, moved)
+    blur = _FrameBlur(
+        streaks[live].max(axis=1), _frame_depth(cams, all_obs, frames0, models0, keep)
+    )
+    agree_px = limit * sigma / CORNER_SIGMA_PX
+    _records(
+        ds,
+        keys,
+        live,
+        all_obs,
+        ids,
+        keep,
+        result,
+        err,
+        placed,
+        s,
+        out,
+        names,
+        moved,
+        blur,
+        agree_px,
+    )
+
+
+#: The corner noise of a sharp image (px, 1-sigma, each coordinate).
+CORNER_SIGMA_PX = 0.3
+
+
+def _corner_sigma(streak_px: np.ndarray) -> np.ndarray:
+    """Each corner's noise (px) in an image smeared by a streak ``streak_px`` long: the sharp
+    image's, plus the spread of a point uniformly anywhere along the streak."""
+    return np.sqrt(CORNER_SIGMA_PX**2 + np.asarray(streak_px, float) ** 2 / 12)
+
+
+def _frame_sigma(
+    obs: BundleObservations, err: np.ndarray, keep: np.ndarray, sigma: np.ndarray
+) -> np.ndarray:
+    """Each observation's corner noise raised to what its frame's kept residuals show: their
+    RMS per coordinate, widened for the frame's six unknowns (a frame fitted on few corners
+    looks better than it is)."""
+    out = sigma.copy()
+    for f in np.unique(obs.frame[keep]):
+        mine = (obs.frame == f) & keep
+        n = 8 * int(mine.sum())
+        rms = float(np.sqrt(np.mean(err[mine] ** 2) / 2))  # per coordinate
+        if n > 6:
+            rms *= np.sqrt(n / (n - 6))
+        out[obs.frame == f] = np.maximum(out[obs.frame == f], rms)
+    return out
+
+
+def _frame_depth(
+    cams: Sequence[Camera],
+    obs: BundleObservations,
+    frames: np.ndarray,
+    models: np.ndarray,
+    keep: np.ndarray,
+) -> np.ndarray:
+    """(frames,) the median depth (mm) of the markers each frame kept, in their cameras."""
+    M = np.einsum("nij,njk->nik", invert(frames[obs.frame]), models[obs.instance])
+    centre = obs.model_corners.mean(axis=1)
+    z = np.empty(len(obs))
+    for j, cam in enumerate(cams):
+        sel = obs.camera == j
+        C = cam.cam_T_rig @ M[sel]
+        z[sel] = np.einsum("nj,nj->n", C[:, 2, :3], centre[sel]) + C[:, 2, 3]
+    out = np.full(len(frames), np.nan)
+    for f in np.unique(obs.frame[keep]):
+        out[f] = float(np.median(z[(obs.frame == f) & keep]))
+    return out
+
+
+@dataclass(frozen=True)
+class _FrameBlur:
+    """Per posed frame, its longest motion streak (px) and its markers' median depth (mm):
+    which instant of the exposure its pose stands for is not known."""
+
+    streak_px: np.ndarray
+    depth_mm: np.ndarray
+
+    def uncertainty(self, n: int, focal_px: float) -> tuple[float, float]:
+        """Frame ``n``'s pose uncertainty (1-sigma, mm and degrees) from its streak alone:
+        the rig anywhere along it, as a shift across the view or as a turn."""
+        spread = float(self.streak_px[n]) / np.sqrt(12) / focal_px  # radians
+        depth = float(self.depth_mm[n]) if np.isfinite(self.depth_mm[n]) else 0.0
+        return spread * depth, float(np.degrees(spread))
+
+
+#: A frame whose motion streak is at least this long (px) is flagged ``motion_blur``: where
+#: on the streak its pose lies is not known to the 2 mm a posed frame promises.
+MOTION_BLUR_PX = 3.0
 
 
 def _moved(
@@ -723,6 +856,8 @@ def _records(
     out: SequenceSolution,
     names: list[str],
     moved: set[int],
+    blur: _FrameBlur,
+    agree_px: np.ndarray,
 ) -> None:
     """annotation.json's records from the solve: per instance and per frame."""
     cams = ds.rig.cameras
@@ -789,6 +924,7 @@ def _records(
             )
         )
     by_live = {f: n for n, f in enumerate(live)}
+    agreement = frame_agreement(obs.frame, obs.instance, ids, err < agree_px, len(live))
     for f, name in enumerate(names):
         if f not in by_live:
             reason = placed.reasons[f]
@@ -812,10 +948,21 @@ def _records(
                 },
             )
             continue
-        unc_mm = float(np.sqrt(max(np.trace(cov[3:, 3:]), 0.0)))
-        unc_deg = float(np.degrees(np.sqrt(max(np.trace(cov[:3, :3]), 0.0))))
+        blur_mm, blur_deg = blur.uncertainty(n, float(cams[0].K[0, 0]))
+        unc_mm = float(np.sqrt(max(np.trace(cov[3:, 3:]), 0.0) + blur_mm**2))
+        unc_deg = float(
+            np.sqrt(np.degrees(np.sqrt(max(np.trace(cov[:3, :3]), 0.0))) ** 2 + blur_deg**2)
+        )
         why = None
-        if len(set(ids[mine].tolist())) < 2:
+        a = agreement[n]
+        others = ", ".join("/".join(keys[i]) for i in a.disagreeing)
+        if a.refused:
+            why = (
+                f"its markers place {len(a.disagreeing)} parts ({others}) differently from the "
+                f"rest of the sequence and only {len(a.agreeing)} as it does: another "
+                "arrangement, or parts moved"
+            )
+        elif len(set(ids[mine].tolist())) < 2:
             # One square's two mirror poses fit it about equally well: not evidence enough.
             why = f"it is posed on one marker only ({int(mine.sum())} observations)"
         elif not (unc_mm <= FRAME_MAX_UNCERTAINTY_MM and unc_deg <= FRAME_MAX_UNCERTAINTY_DEG):
@@ -827,10 +974,29 @@ def _records(
             out.frames[name] = FramePose(name, None, {"flags": [FrameFlag.OUTLIER], "reason": why})
             continue
         rms_f = float(np.sqrt(np.mean(err[mine] ** 2)))
+        reasons: list[str] = []
         if rms_f > HIGH_REPROJECTION_PX:
             flags_f.append(FrameFlag.HIGH_REPROJECTION)
         if int(mine.sum()) < FEW_MARKERS:
             flags_f.append(FrameFlag.FEW_MARKERS)
+        if blur.streak_px[n] >= MOTION_BLUR_PX:
+            flags_f.append(FrameFlag.MOTION_BLUR)
+            reasons.append(
+                f"motion blur: its markers are smeared {blur.streak_px[n]:.3g} px, and which "
+                "instant of the exposure its pose stands for is not known"
+            )
+        if a.inconsistent:
+            flags_f.append(FrameFlag.INCONSISTENT)
+            reasons.append(
+                f"its markers place {len(a.disagreeing)} parts ({others}) differently from the "
+                "rest of the sequence: parts moved, or another arrangement"
+            )
+        if a.single_part and len(keys) > 1:
+            flags_f.append(FrameFlag.SINGLE_PART)
+            reasons.append(
+                f"posed on the markers of one part only ({'/'.join(keys[a.agreeing[0]])}): "
+                "nothing in it checks that part against the rest"
+            )
         counts = np.bincount(obs.instance[mine], minlength=len(keys))
         out.markers_used[name] = {"/".join(keys[i]): int(c) for i, c in enumerate(counts) if c}
         out.frames[name] = FramePose(
@@ -843,6 +1009,7 @@ def _records(
                 "uncertainty_deg": round(unc_deg, 4),
                 "instances": {},
                 "flags": flags_f,
+                **({"reason": "; ".join(reasons)} if reasons else {}),
             },
         )
 
