@@ -582,9 +582,11 @@ def _bundle(
     ids = np.array([r[2].marker_id for r in rows], dtype=int)
     limit = max(s.final_inlier_px, 4 * result.sigma_px)
     moved = _moved(cams, seen, live, frames0, keys, all_obs, keep, limit, s)
+    depth = _obs_depth(cams, all_obs, frames0, models0)
     blur = _FrameBlur(
-        streaks[live].max(axis=1), _frame_depth(cams, all_obs, frames0, models0, keep)
+        streaks[live].max(axis=1), _median_by(all_obs.frame[keep], depth[keep], len(live))
     )
+    site_mm = _site_sigma(all_obs, err, keep, depth, float(cams[0].K[0, 0]), len(keys))
     agree_px = limit * sigma / CORNER_SIGMA_PX
     _records(
         ds,
@@ -602,6 +604,7 @@ def _bundle(
         moved,
         blur,
         agree_px,
+        site_mm,
     )
 
 
@@ -632,14 +635,10 @@ def _frame_sigma(
     return out
 
 
-def _frame_depth(
-    cams: Sequence[Camera],
-    obs: BundleObservations,
-    frames: np.ndarray,
-    models: np.ndarray,
-    keep: np.ndarray,
+def _obs_depth(
+    cams: Sequence[Camera], obs: BundleObservations, frames: np.ndarray, models: np.ndarray
 ) -> np.ndarray:
-    """(frames,) the median depth (mm) of the markers each frame kept, in their cameras."""
+    """(N,) the depth (mm) of each observation's marker centre in its camera."""
     M = np.einsum("nij,njk->nik", invert(frames[obs.frame]), models[obs.instance])
     centre = obs.model_corners.mean(axis=1)
     z = np.empty(len(obs))
@@ -647,9 +646,14 @@ def _frame_depth(
         sel = obs.camera == j
         C = cam.cam_T_rig @ M[sel]
         z[sel] = np.einsum("nj,nj->n", C[:, 2, :3], centre[sel]) + C[:, 2, 3]
-    out = np.full(len(frames), np.nan)
-    for f in np.unique(obs.frame[keep]):
-        out[f] = float(np.median(z[(obs.frame == f) & keep]))
+    return z
+
+
+def _median_by(index: np.ndarray, values: np.ndarray, size: int) -> np.ndarray:
+    """(size,) the median of ``values`` per ``index`` (NaN: none)."""
+    out = np.full(size, np.nan)
+    for k in np.unique(index):
+        out[k] = float(np.median(values[index == k]))
     return out
 
 
@@ -805,15 +809,17 @@ def _uncertainty(
     instance: int,
     frames: np.ndarray,
     sites: np.ndarray,
+    site_mm: float = 0.0,
 ) -> float:
     """An instance's uncertainty as the frames that see it do (what a frame's export holds):
     the median over them of the RMS surface displacement of its pose relative to the frame's,
     from the joint covariance (a part's pose and the frames' are known together), plus what
     its markers' own errors on the part give (:func:`~annotator.pnp.uncertainty.site_covariance`: the same in every
     frame, so more frames do not average them out); infinite where a direction nothing fixes
-    is involved. ``sites``: the corners (model frame) of the markers it was posed on."""
+    is involved. ``sites``: the corners (model frame) of the markers it was posed on, each
+    off by ``site_mm`` on the part (at least :data:`SITE_SIGMA_MM`)."""
     T = result.scene_T_model[instance]
-    on_part = site_covariance(T[:3, :3], sites, SITE_SIGMA_MM)
+    on_part = site_covariance(T[:3, :3], sites, max(site_mm, SITE_SIGMA_MM))
     values = []
     for f in frames.tolist():
         cov = result.joint_covariance(instance, f)
@@ -828,6 +834,32 @@ def _uncertainty(
 #: How well each corner of a marker is known on its part (mm, 1-sigma, each on its own):
 #: printing, gluing flat, the corner fit's bias. It does not average out over frames.
 SITE_SIGMA_MM = 0.15
+
+
+def _site_sigma(
+    obs: BundleObservations,
+    err: np.ndarray,
+    keep: np.ndarray,
+    depth: np.ndarray,
+    focal_px: float,
+    n_instances: int,
+) -> np.ndarray:
+    """(instances,) how far each instance's marker corners sit from where its layout puts
+    them (mm, 1-sigma), as its kept residuals show: their RMS per coordinate carried to the
+    part at its median depth. Markers glued by hand disagree with the layout the same way in
+    every frame, so more frames do not average it out: it goes with the sites' own error."""
+    out = np.zeros(n_instances)
+    for i in np.unique(obs.instance[keep]):
+        mine = keep & (obs.instance == i)
+        rms = float(np.sqrt(np.mean(err[mine] ** 2) / 2))
+        out[i] = rms * float(np.median(depth[mine])) / focal_px
+    return out
+
+
+#: When at least this share of a sequence's parts (seen in two frames or more) reproject
+#: worse than ``high_residual_px``, their markers are not where the layout says: the user
+#: is told that ``annotator sites`` measures them.
+GLUED_SHARE = 0.3
 
 
 def _rejected_markers(
@@ -858,6 +890,7 @@ def _records(
     moved: set[int],
     blur: _FrameBlur,
     agree_px: np.ndarray,
+    site_mm: np.ndarray,
 ) -> None:
     """annotation.json's records from the solve: per instance and per frame."""
     cams = ds.rig.cameras
@@ -875,7 +908,9 @@ def _records(
         model = ds.objects[obj]
         _, first = np.unique(ids[used], return_index=True)
         corners = obs.model_corners[np.flatnonzero(used)[first]].reshape(-1, 3)
-        unc = _uncertainty(model.mesh.moments, result, i, np.unique(obs.frame[used]), corners)
+        unc = _uncertainty(
+            model.mesh.moments, result, i, np.unique(obs.frame[used]), corners, site_mm[i]
+        )
         markers: dict[str, MarkerUse] = {}
         per_cam: dict[str, float] = {}
         for j, cam in enumerate(cams):
@@ -914,6 +949,10 @@ def _records(
                 extra={"frames_seen": int(agree[:, i].sum())},
             )
         )
+    several = [r for r in out.instances if r.extra["frames_seen"] >= 2]
+    off = [r for r in several if Flag.HIGH_RESIDUAL in r.flags]
+    if several and len(off) >= GLUED_SHARE * len(several):
+        out.warnings.append(SceneWarning(WarningKind.NOTE, _sites_hint(len(off), len(several))))
     if any(Flag.MOVED in r.flags for r in out.instances):
         which = [r.key for r in out.instances if Flag.MOVED in r.flags]
         out.warnings.append(
@@ -1012,6 +1051,15 @@ def _records(
                 **({"reason": "; ".join(reasons)} if reasons else {}),
             },
         )
+
+
+def _sites_hint(off: int, parts: int) -> str:
+    """The one line that says the markers are not where the layout puts them."""
+    return (
+        f"the markers of {off} of {parts} parts sit off their layout in every frame (glued by "
+        "hand?): their spread is in the uncertainties; `annotator sites` measures where they "
+        "are, and annotating again then tightens the poses"
+    )
 
 
 def frame_visibility(
