@@ -57,8 +57,8 @@ def frame_agreement(
     the solve. A part disagrees when the frame read two of its markers or more and none of
     them agrees (one marker alone is as likely misread or half hidden).
 
-    >>> f = np.array([0, 0, 1, 1, 1, 1, 1]); i = np.array([0, 1, 0, 1, 1, 2, 2])
-    >>> m = np.array([1, 2, 1, 2, 3, 4, 5]); k = np.array([1, 1, 1, 0, 0, 0, 0], bool)
+    >>> f = np.array([0, 0, 0, 1, 1, 1, 1, 1]); i = np.array([0, 1, 2, 0, 1, 1, 2, 2])
+    >>> m = np.array([1, 2, 4, 1, 2, 3, 4, 5]); k = np.array([1, 1, 1, 1, 0, 0, 0, 0], bool)
     >>> a = frame_agreement(f, i, m, k, 2)
     >>> a[1].agreeing, a[1].disagreeing, a[1].refused
     ((0,), (1, 2), True)

@@ -35,6 +35,7 @@ import numpy as np
 
 from annotator.annotation.consensus import pose_instance
 from annotator.annotation.consistency import frame_agreement
+from annotator.annotation.depth_scale import depth_scale, surface_under
 from annotator.annotation.frame_quality import Streak, frame_streak
 from annotator.annotation.scene import CONTRADICTED, _image_quality, _sort_markers
 from annotator.annotation.settings import AnnotateSettings
@@ -53,7 +54,7 @@ from annotator.dataset.annotation import (
     sort_flags,
 )
 from annotator.dataset.frames import FramePose, frames_from_json, frames_to_json, poses_in_frame
-from annotator.dataset.model import Frame
+from annotator.dataset.model import Frame, ObjectModel
 from annotator.detection import MarkerDetector
 from annotator.detection.aruco import Detection, ImageReading
 from annotator.errors import UserError
@@ -105,6 +106,15 @@ FRAME_VISIBILITY_STEP = 4
 
 #: Rounds of bundle adjustment, each leaving out what the previous one found disagreeing.
 SOLVE_ROUNDS = 3
+#: Rounds of taking the scale from the measured depth (:mod:`.depth_scale`) and adjusting
+#: again.
+SCALE_ROUNDS = 3
+#: How well the scene's scale is known (1-sigma, relative) when no depth measures it: the
+#: markers' printed size alone, read by corners a tenth of a pixel off on 30 px markers.
+SCALE_SIGMA = 0.003
+#: ... and when the depth measures it: never better than the depth map's own scale (its
+#: calibration, the surface under a marker's centre read on a few pixels).
+DEPTH_SCALE_SIGMA = 0.0003
 
 
 class FrameFlag(StrEnum):
@@ -242,6 +252,8 @@ class SequenceSolution:
     duplicates: dict[str, list[int]] = field(default_factory=dict)
     #: Per posed frame, how many of each instance's marker observations the solve kept.
     markers_used: dict[str, dict[str, int]] = field(default_factory=dict)
+    #: The scale the measured depth gave the sites (1: not measured, or no depth).
+    site_scale: float = 1.0
 
 
 def solve_sequence(
@@ -572,6 +584,29 @@ def _bundle(
         if np.array_equal(new_keep, keep):
             break
         keep = new_keep
+    scale_sigma = SCALE_SIGMA
+    if depth_cam is not None:
+        under = _surface_centres(ds, keys, all_obs)
+        for _ in range(SCALE_ROUNDS):
+            z = _obs_depth(cams, all_obs, frames0, models0, under * out.site_scale)
+            use = keep & (all_obs.camera == depth_cam)
+            found = depth_scale(z[use], all_obs.depth_mm[use])
+            if found is None:
+                break
+            scale_sigma = max(found.sigma, DEPTH_SCALE_SIGMA)
+            # Within what the depth map itself is sure of, the corners' scale stands; once
+            # the depth disagrees, it is followed to the end.
+            if abs(found.factor - 1) < (2 * scale_sigma if out.site_scale == 1 else 1e-5):
+                break
+            # A similarity: sites and translations scaled together leave the images as
+            # they are, and put the markers at the depth measured.
+            all_obs = replace(all_obs, model_corners=all_obs.model_corners * found.factor)
+            frames0, models0 = frames0.copy(), models0.copy()
+            frames0[:, :3, 3] *= found.factor
+            models0[:, :3, 3] *= found.factor
+            out.site_scale *= found.factor
+            result = solve(covariance=False)
+            frames0, models0 = result.scene_T_rig, result.scene_T_model
     # Each frame's corner noise as its own residuals show it (never below what its streak
     # gives): a frame noisier than the rest is not trusted as much as the rest.
     sigma = _frame_sigma(all_obs, _residuals(cams, all_obs, frames0, models0), keep, sigma)
@@ -605,6 +640,7 @@ def _bundle(
         blur,
         agree_px,
         site_mm,
+        (depth, scale_sigma),
     )
 
 
@@ -636,17 +672,39 @@ def _frame_sigma(
 
 
 def _obs_depth(
-    cams: Sequence[Camera], obs: BundleObservations, frames: np.ndarray, models: np.ndarray
+    cams: Sequence[Camera],
+    obs: BundleObservations,
+    frames: np.ndarray,
+    models: np.ndarray,
+    centre: np.ndarray | None = None,
 ) -> np.ndarray:
-    """(N,) the depth (mm) of each observation's marker centre in its camera."""
+    """(N,) the depth (mm) of each observation's marker centre in its camera (``centre``,
+    (N, 3) model frame: the mean of its corners unless given)."""
     M = np.einsum("nij,njk->nik", invert(frames[obs.frame]), models[obs.instance])
-    centre = obs.model_corners.mean(axis=1)
+    centre = obs.model_corners.mean(axis=1) if centre is None else centre
     z = np.empty(len(obs))
     for j, cam in enumerate(cams):
         sel = obs.camera == j
         C = cam.cam_T_rig @ M[sel]
         z[sel] = np.einsum("nj,nj->n", C[:, 2, :3], centre[sel]) + C[:, 2, 3]
     return z
+
+
+def _surface_centres(
+    ds: Dataset, keys: list[tuple[str, str]], obs: BundleObservations
+) -> np.ndarray:
+    """(N, 3) the point of its part's surface under each observation's marker centre (model
+    frame), worked out once per marker."""
+    centre = obs.model_corners.mean(axis=1)
+    out = centre.copy()
+    for i, (obj, _) in enumerate(keys):
+        mine = obs.instance == i
+        if not mine.any():
+            continue
+        sites, back = np.unique(centre[mine].round(6), axis=0, return_inverse=True)
+        on = surface_under(ds.objects[obj].mesh.triangles, sites)
+        out[mine] = on[back.reshape(-1)]
+    return out
 
 
 def _median_by(index: np.ndarray, values: np.ndarray, size: int) -> np.ndarray:
@@ -856,6 +914,21 @@ def _site_sigma(
     return out
 
 
+def _glue_spread(model: ObjectModel, instance: str) -> float:
+    """How far an instance's measured sites (``annotator sites``) moved from the layout (mm,
+    1-sigma per axis of the face, RMS over its corners), 0 without measured sites. Sites are
+    measured against the part's own pose, so what its markers moved by on average is in
+    neither: the gluing's spread stays in its uncertainty after ``sites`` too."""
+    sites = model.instance(instance).sites
+    if sites is None or model.markers is None:
+        return 0.0
+    moved = np.linalg.norm(sites - model.markers.corners, axis=-1)  # (S, 4)
+    measured = moved.max(axis=1) > 1e-6
+    if not measured.any():
+        return 0.0
+    return float(np.sqrt(np.mean(moved[measured] ** 2) / 2))
+
+
 #: When at least this share of a sequence's parts (seen in two frames or more) reproject
 #: worse than ``high_residual_px``, their markers are not where the layout says: the user
 #: is told that ``annotator sites`` measures them.
@@ -891,6 +964,7 @@ def _records(
     blur: _FrameBlur,
     agree_px: np.ndarray,
     site_mm: np.ndarray,
+    scale: tuple[np.ndarray, float],
 ) -> None:
     """annotation.json's records from the solve: per instance and per frame."""
     cams = ds.rig.cameras
@@ -909,8 +983,15 @@ def _records(
         _, first = np.unique(ids[used], return_index=True)
         corners = obs.model_corners[np.flatnonzero(used)[first]].reshape(-1, 3)
         unc = _uncertainty(
-            model.mesh.moments, result, i, np.unique(obs.frame[used]), corners, site_mm[i]
+            model.mesh.moments,
+            result,
+            i,
+            np.unique(obs.frame[used]),
+            corners,
+            max(site_mm[i], _glue_spread(model, inst)),
         )
+        # The scene's scale, as well as it is known, moves the part along its line of sight.
+        unc = float(np.hypot(unc, scale[1] * float(np.median(scale[0][used]))))
         markers: dict[str, MarkerUse] = {}
         per_cam: dict[str, float] = {}
         for j, cam in enumerate(cams):
@@ -988,7 +1069,8 @@ def _records(
             )
             continue
         blur_mm, blur_deg = blur.uncertainty(n, float(cams[0].K[0, 0]))
-        unc_mm = float(np.sqrt(max(np.trace(cov[3:, 3:]), 0.0) + blur_mm**2))
+        scale_mm = scale[1] * float(np.linalg.norm(T[:3, 3]))  # its distance to the origin
+        unc_mm = float(np.sqrt(max(np.trace(cov[3:, 3:]), 0.0) + blur_mm**2 + scale_mm**2))
         unc_deg = float(
             np.sqrt(np.degrees(np.sqrt(max(np.trace(cov[:3, :3]), 0.0))) ** 2 + blur_deg**2)
         )
@@ -1164,7 +1246,11 @@ def sequence_annotation(
         unknown_markers=solution.unknown_markers,
         unconfirmed_markers={c: sorted(v) for c, v in sorted(unconfirmed.items())},
         duplicates=solution.duplicates,
-        extra={"scene_frame": solution.reference, "frames": frames_to_json(frames)},
+        extra={
+            "scene_frame": solution.reference,
+            "frames": frames_to_json(frames),
+            **({"depth_scale": round(solution.site_scale, 6)} if solution.site_scale != 1 else {}),
+        },
     )
 
 
