@@ -115,6 +115,9 @@ def test_a_frame_of_another_arrangement_is_refused_with_a_reason(sequence) -> No
     frame = sol.frames[foreign.frame]
     assert frame.scene_T_rig is None or FrameFlag.INCONSISTENT in frame.extra["flags"]
     assert "differently from the rest of the sequence" in frame.extra["reason"]
+    # The scene says which frames and parts.
+    note = next(w.message for w in sol.warnings if "differently" in w.message)
+    assert foreign.frame in note and poses[1].key in note
     # The other frames and the parts are as before.
     others = [f for n, f in sol.frames.items() if n != foreign.frame]
     assert all(f.scene_T_rig is not None for f in others)

@@ -1133,6 +1133,29 @@ def _records(
                 **({"reason": "; ".join(reasons)} if reasons else {}),
             },
         )
+    changed = [
+        n
+        for n, f in zip(names, (out.frames[n] for n in names))
+        if FrameFlag.INCONSISTENT in f.extra.get("flags", [])
+        or "differently from the rest" in f.extra.get("reason", "")
+    ]
+    if changed:
+        parts = sorted(
+            {
+                "/".join(keys[i])
+                for f in live
+                if names[f] in changed
+                for i in agreement[by_live[f]].disagreeing
+            }
+        )
+        out.warnings.append(
+            SceneWarning(
+                WarningKind.NOTE,
+                f"frames {', '.join(changed)} place parts ({', '.join(parts)}) differently from "
+                "the rest of the sequence: parts moved, or frames of another arrangement (each "
+                "frame's reason says which)",
+            )
+        )
 
 
 def _sites_hint(off: int, parts: int) -> str:
