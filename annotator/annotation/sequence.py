@@ -894,6 +894,25 @@ def _uncertainty(
 SITE_SIGMA_MM = 0.15
 
 
+def _frame_site_covariance(
+    obs: BundleObservations,
+    mine: np.ndarray,
+    result: BundleResult,
+    scene_T_rig: np.ndarray,
+    sigma: np.ndarray,
+) -> np.ndarray:
+    """The ``(w, v)`` covariance of a frame's pose from the errors of the sites it was posed
+    on (``mine``: its kept observations; ``sigma``: each instance's site error, mm): its
+    corners in the scene frame, about its camera centre, each off by its part's."""
+    idx = np.flatnonzero(mine)
+    M = result.scene_T_model[obs.instance[idx]]
+    pts = np.einsum("nij,nkj->nki", M[:, :3, :3], obs.model_corners[idx]) + M[:, None, :3, 3]
+    cov = site_covariance(
+        np.eye(3), (pts - scene_T_rig[:3, 3]).reshape(-1, 3), np.repeat(sigma[obs.instance[idx]], 4)
+    )
+    return cov if np.isfinite(cov).all() else np.zeros((6, 6))
+
+
 def _site_sigma(
     obs: BundleObservations,
     err: np.ndarray,
@@ -973,6 +992,7 @@ def _records(
     seen[obs.frame, obs.instance] = True
     agree = np.zeros_like(seen)
     agree[obs.frame[keep], obs.instance[keep]] = True
+    glued = np.array([_glue_spread(ds.objects[o], inst) for o, inst in keys])
     for i, (obj, inst) in enumerate(keys):
         mine = obs.instance == i
         used = mine & keep
@@ -988,7 +1008,7 @@ def _records(
             i,
             np.unique(obs.frame[used]),
             corners,
-            max(site_mm[i], _glue_spread(model, inst)),
+            max(site_mm[i], glued[i]),
         )
         # The scene's scale, as well as it is known, moves the part along its line of sight.
         unc = float(np.hypot(unc, scale[1] * float(np.median(scale[0][used]))))
@@ -1044,6 +1064,7 @@ def _records(
             )
         )
     by_live = {f: n for n, f in enumerate(live)}
+    site_sigma = np.maximum(np.maximum(site_mm, SITE_SIGMA_MM), glued)
     agreement = frame_agreement(obs.frame, obs.instance, ids, err < agree_px, len(live))
     for f, name in enumerate(names):
         if f not in by_live:
@@ -1070,6 +1091,10 @@ def _records(
             continue
         blur_mm, blur_deg = blur.uncertainty(n, float(cams[0].K[0, 0]))
         scale_mm = scale[1] * float(np.linalg.norm(T[:3, 3]))  # its distance to the origin
+        if f == placed.reference:  # the scene frame: its pose is the gauge, exact
+            blur_mm = blur_deg = 0.0
+        else:  # the sites it was posed on are off on their parts the same in every frame
+            cov = cov + _frame_site_covariance(obs, mine, result, T, site_sigma)
         unc_mm = float(np.sqrt(max(np.trace(cov[3:, 3:]), 0.0) + blur_mm**2 + scale_mm**2))
         unc_deg = float(
             np.sqrt(np.degrees(np.sqrt(max(np.trace(cov[:3, :3]), 0.0))) ** 2 + blur_deg**2)
