@@ -59,10 +59,31 @@ def test_a_streak_is_measured_on_a_markers_edges(length: float, deg: float) -> N
 
 def test_a_sharp_marker_has_no_streak_and_a_tiny_one_says_nothing() -> None:
     gray, corners = _rendered_marker(None)
-    found = frame_streak(gray, [(corners, GRID)])
+    found = frame_streak(gray, [(7, corners, GRID)])
     assert found is not None and found.length_px < 1.0 and found.markers == 1
+    assert list(found.per_marker) == [7]
     small, c = _rendered_marker(None, side=10.0)
-    assert frame_streak(small, [(c, GRID)]) is None
+    assert frame_streak(small, [(7, c, GRID)]) is None
+
+
+def test_a_streak_on_one_side_of_the_image_is_seen() -> None:
+    """A turning camera smears one side of the image: six large sharp markers on the left,
+    six smaller smeared ones on the right (the largest markers alone would say sharp); the
+    frame's streak is theirs, and each marker keeps its own."""
+    tiles, markers = [], []
+    for row in range(3):
+        line = []
+        for col in range(4):
+            smeared = col >= 2
+            gray, corners = _rendered_marker(
+                (10.0, 30.0) if smeared else None, side=30 if smeared else 38
+            )
+            line.append(gray)
+            markers.append((10 * row + col, corners + [128 * col, 120 * row], GRID))
+        tiles.append(np.hstack(line))
+    found = frame_streak(np.vstack(tiles), markers)
+    assert found is not None and found.length_px >= 7.0
+    assert all((v >= 7.0) == (k % 10 >= 2) for k, v in found.per_marker.items())
 
 
 def test_blurred_frames_are_flagged_and_sharp_ones_not(sequence) -> None:

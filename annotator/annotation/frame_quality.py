@@ -16,7 +16,7 @@ the largest markers of a frame. Pure functions of the image and the corners.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import lru_cache
 
 import cv2
@@ -36,18 +36,20 @@ COARSE_LENGTHS = (0.0, 2.0, 4.0, 7.0, 11.0, 16.0)
 COARSE_ANGLES = tuple(float(a) for a in range(0, 180, 30))
 #: A marker smaller than this (px, mean side) says little about a streak.
 MIN_SIDE_PX = 14.0
-#: Markers of a frame used (the largest).
-MAX_MARKERS = 5
+#: Markers of a frame measured (spread over the image).
+MAX_MARKERS = 6
 
 
 @dataclass(frozen=True)
 class Streak:
     """A motion streak: ``length_px`` long, at ``angle_deg`` (image x towards y, modulo
-    180); ``markers``: how many markers agree on it."""
+    180); ``markers``: how many markers told; ``per_marker``: each one's own length (px)
+    by marker id."""
 
     length_px: float
     angle_deg: float
     markers: int
+    per_marker: dict[int, float] = field(default_factory=dict)
 
 
 @lru_cache(maxsize=256)
@@ -141,20 +143,43 @@ def marker_streak(
     return float(L), float(a % 180.0)
 
 
-def frame_streak(gray: np.ndarray, markers: list[tuple[np.ndarray, np.ndarray]]) -> Streak | None:
-    """The frame's streak from its largest markers (``(corners, grid)`` each): the median
-    length, and the direction of the markers whose streaks are longest (a short streak's
-    direction means little); None when no marker tells."""
-    sized = sorted(
-        markers,
-        key=lambda cb: -float(np.mean(np.linalg.norm(cb[0] - np.roll(cb[0], 1, axis=0), axis=1))),
-    )
-    found = [s for c, b in sized[:MAX_MARKERS] if (s := marker_streak(gray, c, b)) is not None]
+def frame_streak(
+    gray: np.ndarray, markers: list[tuple[int, np.ndarray, np.ndarray]]
+) -> Streak | None:
+    """The frame's streak from up to :data:`MAX_MARKERS` of its markers (``(id, corners,
+    grid)`` each), spread over the image (a turning camera smears one side of the image and
+    not the other): the largest first, then each the farthest from those already taken. Its
+    length is the second longest of theirs (the longest with fewer than three: one marker
+    misfitted does not flag a frame), its direction that of the longest streaks (a short
+    streak's direction means little); None when no marker tells."""
+    sides = [
+        float(np.mean(np.linalg.norm(c - np.roll(c, 1, axis=0), axis=1))) for _, c, _ in markers
+    ]
+    order = [k for k in np.argsort(sides)[::-1] if sides[k] >= MIN_SIDE_PX]
+    centres = np.array([c.mean(axis=0) for _, c, _ in markers]).reshape(-1, 2)
+    chosen: list[int] = []
+    while order and len(chosen) < MAX_MARKERS:
+        if chosen:
+            far = np.linalg.norm(centres[order][:, None] - centres[chosen][None], axis=2)
+            k = order[int(np.argmax(far.min(axis=1)))]
+        else:
+            k = order[0]
+        order.remove(k)
+        chosen.append(k)
+    per_marker: dict[int, float] = {}
+    found = []
+    for k in chosen:
+        mid, c, g = markers[k]
+        if (st := marker_streak(gray, c, g)) is not None:
+            found.append(st)
+            per_marker[int(mid)] = round(st[0], 2)
     if not found:
         return None
-    lengths = np.array([s[0] for s in found])
-    angles = np.radians([s[1] for s in found])
+    lengths = np.array([st[0] for st in found])
+    angles = np.radians([st[1] for st in found])
     # Directions modulo 180 degrees: averaged as doubled angles.
     c, s = np.cos(2 * angles) * lengths, np.sin(2 * angles) * lengths
     angle = float(np.degrees(np.arctan2(s.sum(), c.sum())) / 2) % 180.0
-    return Streak(round(float(np.median(lengths)), 2), round(angle, 1), len(found))
+    ranked = np.sort(lengths)[::-1]
+    length = float(ranked[1] if len(ranked) >= 3 else ranked[0])
+    return Streak(round(length, 2), round(angle, 1), len(found), per_marker)

@@ -153,10 +153,13 @@ class FrameReading:
     #: Per camera, the motion streak its markers show (None: none told).
     streaks: list[Streak | None] = field(default_factory=list)
 
-    def streak_px(self, camera: int) -> float:
-        """The streak's length (px) in camera ``camera``, 0 when not measured."""
+    def streak_px(self, camera: int, marker: int | None = None) -> float:
+        """The streak's length (px) in camera ``camera`` (at ``marker`` when it was measured
+        there), 0 when not measured."""
         s = self.streaks[camera] if camera < len(self.streaks) else None
-        return 0.0 if s is None else s.length_px
+        if s is None:
+            return 0.0
+        return s.per_marker.get(marker, s.length_px) if marker is not None else s.length_px
 
 
 def read_frame(ds: Dataset, frame: Frame, detector: MarkerDetector) -> FrameReading:
@@ -167,7 +170,7 @@ def read_frame(ds: Dataset, frame: Frame, detector: MarkerDetector) -> FrameRead
     quality = _image_quality(ds, readings, grays)
     streaks = []
     for cam, r, g in zip(ds.rig.cameras, readings, grays):
-        streak = frame_streak(g, [(d.corners, _grid(ds.dictionary, d.id)) for d in r.markers])
+        streak = frame_streak(g, [(d.id, d.corners, _grid(ds.dictionary, d.id)) for d in r.markers])
         streaks.append(streak)
         if streak is not None:
             quality[cam.name].extra["motion_blur_px"] = streak.length_px
@@ -295,7 +298,14 @@ def solve_sequence(
         return out
     streaks = np.array([[r.streak_px(j) for j in range(len(cams))] for r in readings])
     _bundle(
-        ds, frames_seen, placed, depth_cam, settings, out, names, streaks.reshape(len(names), -1)
+        ds,
+        frames_seen,
+        placed,
+        depth_cam,
+        settings,
+        out,
+        readings,
+        streaks.reshape(len(names), -1),
     )
     return out
 
@@ -520,12 +530,14 @@ def _bundle(
     depth_cam: int | None,
     s: AnnotateSettings,
     out: SequenceSolution,
-    names: list[str],
+    readings: list[FrameReading],
     streaks: np.ndarray,
 ) -> None:
     """The bundle adjustment over every placed frame and instance, its outliers left out and
     the instances it disowns started again from the adjusted frames. ``streaks``: (frames,
-    cameras) the motion streak (px) of each image: its corners' noise (:func:`_corner_sigma`)."""
+    cameras) the motion streak (px) of each image (each marker's own in ``readings``): its
+    corners' noise (:func:`_corner_sigma`)."""
+    names = [r.frame for r in readings]
     cams = ds.rig.cameras
     keys = sorted(placed.models)
     index = {k: i for i, k in enumerate(keys)}
@@ -547,7 +559,9 @@ def _bundle(
     frames0 = np.stack([T for T in placed.frames if T is not None])
     models0 = np.stack([placed.models[k] for k in keys])
     err = _residuals(cams, all_obs, frames0, models0)
-    streak = streaks[np.array(live)[all_obs.frame], all_obs.camera]
+    # Each marker's own streak where it was measured (a turning camera smears one side of
+    # the image more than the other), else its image's.
+    streak = np.array([readings[live[r[0]]].streak_px(r[2].camera, r[2].marker_id) for r in rows])
     sigma = _corner_sigma(streak)
     keep = err < s.inlier_px * sigma / CORNER_SIGMA_PX
 
