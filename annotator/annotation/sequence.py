@@ -13,6 +13,11 @@ instance's pose from the markers, in three steps.
    corner and depth; observations that still disagree are left out and the solve repeated.
    A frame nothing connects to the rest keeps ``scene_T_rig: null`` and says why; an instance
    whose markers agree with its pose in some frames and not in others is flagged ``moved``.
+   Each corner weighs as its noise says (its marker's motion streak,
+   :mod:`~annotator.annotation.frame_quality`; its frame's residuals,
+   :mod:`~annotator.annotation.sequence_noise`); with depth, the depth gives the scale
+   (:mod:`~annotator.annotation.depth_scale`); a frame that places several parts
+   differently from the rest is refused or flagged (:mod:`~annotator.annotation.consistency`).
 3. :func:`frame_visibility`: occlusion rates and depth agreement of every instance as each
    frame sees it (the fixed rig's :func:`~annotator.annotation.visibility.add_visibility`).
 
@@ -35,9 +40,22 @@ import numpy as np
 
 from annotator.annotation.consensus import pose_instance
 from annotator.annotation.consistency import frame_agreement
-from annotator.annotation.depth_scale import depth_scale, surface_under
+from annotator.annotation.depth_scale import depth_scale
 from annotator.annotation.frame_quality import Streak, frame_streak
 from annotator.annotation.scene import CONTRADICTED, _image_quality, _sort_markers
+from annotator.annotation.sequence_noise import (
+    CORNER_SIGMA_PX,
+    MOTION_BLUR_PX,
+    FrameBlur,
+    corner_sigma,
+    frame_sigma,
+    frame_site_covariance,
+    glue_spread,
+    marker_depths,
+    median_by,
+    site_sigma,
+    surface_centres,
+)
 from annotator.annotation.settings import AnnotateSettings
 from annotator.annotation.visibility import MIN_DEPTH_PIXELS
 from annotator.dataset import Dataset, Scene
@@ -54,7 +72,7 @@ from annotator.dataset.annotation import (
     sort_flags,
 )
 from annotator.dataset.frames import FramePose, frames_from_json, frames_to_json, poses_in_frame
-from annotator.dataset.model import Frame, ObjectModel
+from annotator.dataset.model import Frame
 from annotator.detection import MarkerDetector
 from annotator.detection.aruco import Detection, ImageReading
 from annotator.errors import UserError
@@ -536,7 +554,7 @@ def _bundle(
     """The bundle adjustment over every placed frame and instance, its outliers left out and
     the instances it disowns started again from the adjusted frames. ``streaks``: (frames,
     cameras) the motion streak (px) of each image (each marker's own in ``readings``): its
-    corners' noise (:func:`_corner_sigma`)."""
+    corners' noise (:func:`corner_sigma`)."""
     names = [r.frame for r in readings]
     cams = ds.rig.cameras
     keys = sorted(placed.models)
@@ -562,7 +580,7 @@ def _bundle(
     # Each marker's own streak where it was measured (a turning camera smears one side of
     # the image more than the other), else its image's.
     streak = np.array([readings[live[r[0]]].streak_px(r[2].camera, r[2].marker_id) for r in rows])
-    sigma = _corner_sigma(streak)
+    sigma = corner_sigma(streak)
     keep = err < s.inlier_px * sigma / CORNER_SIGMA_PX
 
     def solve(covariance: bool) -> BundleResult:
@@ -600,9 +618,9 @@ def _bundle(
         keep = new_keep
     scale_sigma = SCALE_SIGMA
     if depth_cam is not None:
-        under = _surface_centres(ds, keys, all_obs)
+        under = surface_centres(ds, keys, all_obs)
         for _ in range(SCALE_ROUNDS):
-            z = _obs_depth(cams, all_obs, frames0, models0, under * out.site_scale)
+            z = marker_depths(cams, all_obs, frames0, models0, under * out.site_scale)
             use = keep & (all_obs.camera == depth_cam)
             found = depth_scale(z[use], all_obs.depth_mm[use])
             if found is None:
@@ -623,7 +641,7 @@ def _bundle(
             frames0, models0 = result.scene_T_rig, result.scene_T_model
     # Each frame's corner noise as its own residuals show it (never below what its streak
     # gives): a frame noisier than the rest is not trusted as much as the rest.
-    sigma = _frame_sigma(all_obs, _residuals(cams, all_obs, frames0, models0), keep, sigma)
+    sigma = frame_sigma(all_obs, _residuals(cams, all_obs, frames0, models0), keep, sigma)
     # The last solve on what is kept, from where the rounds left the poses: its covariance.
     result = solve(covariance=True)
     frames0, models0 = result.scene_T_rig, result.scene_T_model
@@ -631,11 +649,11 @@ def _bundle(
     ids = np.array([r[2].marker_id for r in rows], dtype=int)
     limit = max(s.final_inlier_px, 4 * result.sigma_px)
     moved = _moved(cams, seen, live, frames0, keys, all_obs, keep, limit, s)
-    depth = _obs_depth(cams, all_obs, frames0, models0)
-    blur = _FrameBlur(
-        streaks[live].max(axis=1), _median_by(all_obs.frame[keep], depth[keep], len(live))
+    depth = marker_depths(cams, all_obs, frames0, models0)
+    blur = FrameBlur(
+        streaks[live].max(axis=1), median_by(all_obs.frame[keep], depth[keep], len(live))
     )
-    site_mm = _site_sigma(all_obs, err, keep, depth, float(cams[0].K[0, 0]), len(keys))
+    site_mm = site_sigma(all_obs, err, keep, depth, float(cams[0].K[0, 0]), len(keys))
     agree_px = limit * sigma / CORNER_SIGMA_PX
     _records(
         ds,
@@ -656,98 +674,6 @@ def _bundle(
         site_mm,
         (depth, scale_sigma),
     )
-
-
-#: The corner noise of a sharp image (px, 1-sigma, each coordinate).
-CORNER_SIGMA_PX = 0.3
-
-
-def _corner_sigma(streak_px: np.ndarray) -> np.ndarray:
-    """Each corner's noise (px) in an image smeared by a streak ``streak_px`` long: the sharp
-    image's, plus the spread of a point uniformly anywhere along the streak."""
-    return np.sqrt(CORNER_SIGMA_PX**2 + np.asarray(streak_px, float) ** 2 / 12)
-
-
-def _frame_sigma(
-    obs: BundleObservations, err: np.ndarray, keep: np.ndarray, sigma: np.ndarray
-) -> np.ndarray:
-    """Each observation's corner noise raised to what its frame's kept residuals show: their
-    RMS per coordinate, widened for the frame's six unknowns (a frame fitted on few corners
-    looks better than it is)."""
-    out = sigma.copy()
-    for f in np.unique(obs.frame[keep]):
-        mine = (obs.frame == f) & keep
-        n = 8 * int(mine.sum())
-        rms = float(np.sqrt(np.mean(err[mine] ** 2) / 2))  # per coordinate
-        if n > 6:
-            rms *= np.sqrt(n / (n - 6))
-        out[obs.frame == f] = np.maximum(out[obs.frame == f], rms)
-    return out
-
-
-def _obs_depth(
-    cams: Sequence[Camera],
-    obs: BundleObservations,
-    frames: np.ndarray,
-    models: np.ndarray,
-    centre: np.ndarray | None = None,
-) -> np.ndarray:
-    """(N,) the depth (mm) of each observation's marker centre in its camera (``centre``,
-    (N, 3) model frame: the mean of its corners unless given)."""
-    M = np.einsum("nij,njk->nik", invert(frames[obs.frame]), models[obs.instance])
-    centre = obs.model_corners.mean(axis=1) if centre is None else centre
-    z = np.empty(len(obs))
-    for j, cam in enumerate(cams):
-        sel = obs.camera == j
-        C = cam.cam_T_rig @ M[sel]
-        z[sel] = np.einsum("nj,nj->n", C[:, 2, :3], centre[sel]) + C[:, 2, 3]
-    return z
-
-
-def _surface_centres(
-    ds: Dataset, keys: list[tuple[str, str]], obs: BundleObservations
-) -> np.ndarray:
-    """(N, 3) the point of its part's surface under each observation's marker centre (model
-    frame), worked out once per marker."""
-    centre = obs.model_corners.mean(axis=1)
-    out = centre.copy()
-    for i, (obj, _) in enumerate(keys):
-        mine = obs.instance == i
-        if not mine.any():
-            continue
-        sites, back = np.unique(centre[mine].round(6), axis=0, return_inverse=True)
-        on = surface_under(ds.objects[obj].mesh.triangles, sites)
-        out[mine] = on[back.reshape(-1)]
-    return out
-
-
-def _median_by(index: np.ndarray, values: np.ndarray, size: int) -> np.ndarray:
-    """(size,) the median of ``values`` per ``index`` (NaN: none)."""
-    out = np.full(size, np.nan)
-    for k in np.unique(index):
-        out[k] = float(np.median(values[index == k]))
-    return out
-
-
-@dataclass(frozen=True)
-class _FrameBlur:
-    """Per posed frame, its longest motion streak (px) and its markers' median depth (mm):
-    which instant of the exposure its pose stands for is not known."""
-
-    streak_px: np.ndarray
-    depth_mm: np.ndarray
-
-    def uncertainty(self, n: int, focal_px: float) -> tuple[float, float]:
-        """Frame ``n``'s pose uncertainty (1-sigma, mm and degrees) from its streak alone:
-        the rig anywhere along it, as a shift across the view or as a turn."""
-        spread = float(self.streak_px[n]) / np.sqrt(12) / focal_px  # radians
-        depth = float(self.depth_mm[n]) if np.isfinite(self.depth_mm[n]) else 0.0
-        return spread * depth, float(np.degrees(spread))
-
-
-#: A frame whose motion streak is at least this long (px) is flagged ``motion_blur``: where
-#: on the streak its pose lies is not known to the 2 mm a posed frame promises.
-MOTION_BLUR_PX = 3.0
 
 
 def _moved(
@@ -908,60 +834,6 @@ def _uncertainty(
 SITE_SIGMA_MM = 0.15
 
 
-def _frame_site_covariance(
-    obs: BundleObservations,
-    mine: np.ndarray,
-    result: BundleResult,
-    scene_T_rig: np.ndarray,
-    sigma: np.ndarray,
-) -> np.ndarray:
-    """The ``(w, v)`` covariance of a frame's pose from the errors of the sites it was posed
-    on (``mine``: its kept observations; ``sigma``: each instance's site error, mm): its
-    corners in the scene frame, about its camera centre, each off by its part's."""
-    idx = np.flatnonzero(mine)
-    M = result.scene_T_model[obs.instance[idx]]
-    pts = np.einsum("nij,nkj->nki", M[:, :3, :3], obs.model_corners[idx]) + M[:, None, :3, 3]
-    cov = site_covariance(
-        np.eye(3), (pts - scene_T_rig[:3, 3]).reshape(-1, 3), np.repeat(sigma[obs.instance[idx]], 4)
-    )
-    return cov if np.isfinite(cov).all() else np.zeros((6, 6))
-
-
-def _site_sigma(
-    obs: BundleObservations,
-    err: np.ndarray,
-    keep: np.ndarray,
-    depth: np.ndarray,
-    focal_px: float,
-    n_instances: int,
-) -> np.ndarray:
-    """(instances,) how far each instance's marker corners sit from where its layout puts
-    them (mm, 1-sigma), as its kept residuals show: their RMS per coordinate carried to the
-    part at its median depth. Markers glued by hand disagree with the layout the same way in
-    every frame, so more frames do not average it out: it goes with the sites' own error."""
-    out = np.zeros(n_instances)
-    for i in np.unique(obs.instance[keep]):
-        mine = keep & (obs.instance == i)
-        rms = float(np.sqrt(np.mean(err[mine] ** 2) / 2))
-        out[i] = rms * float(np.median(depth[mine])) / focal_px
-    return out
-
-
-def _glue_spread(model: ObjectModel, instance: str) -> float:
-    """How far an instance's measured sites (``annotator sites``) moved from the layout (mm,
-    1-sigma per axis of the face, RMS over its corners), 0 without measured sites. Sites are
-    measured against the part's own pose, so what its markers moved by on average is in
-    neither: the gluing's spread stays in its uncertainty after ``sites`` too."""
-    sites = model.instance(instance).sites
-    if sites is None or model.markers is None:
-        return 0.0
-    moved = np.linalg.norm(sites - model.markers.corners, axis=-1)  # (S, 4)
-    measured = moved.max(axis=1) > 1e-6
-    if not measured.any():
-        return 0.0
-    return float(np.sqrt(np.mean(moved[measured] ** 2) / 2))
-
-
 #: When at least this share of a sequence's parts (seen in two frames or more) reproject
 #: worse than ``high_residual_px``, their markers are not where the layout says: the user
 #: is told that ``annotator sites`` measures them.
@@ -994,7 +866,7 @@ def _records(
     out: SequenceSolution,
     names: list[str],
     moved: set[int],
-    blur: _FrameBlur,
+    blur: FrameBlur,
     agree_px: np.ndarray,
     site_mm: np.ndarray,
     scale: tuple[np.ndarray, float],
@@ -1006,7 +878,7 @@ def _records(
     seen[obs.frame, obs.instance] = True
     agree = np.zeros_like(seen)
     agree[obs.frame[keep], obs.instance[keep]] = True
-    glued = np.array([_glue_spread(ds.objects[o], inst) for o, inst in keys])
+    glued = np.array([glue_spread(ds.objects[o], inst) for o, inst in keys])
     for i, (obj, inst) in enumerate(keys):
         mine = obs.instance == i
         used = mine & keep
@@ -1078,7 +950,7 @@ def _records(
             )
         )
     by_live = {f: n for n, f in enumerate(live)}
-    site_sigma = np.maximum(np.maximum(site_mm, SITE_SIGMA_MM), glued)
+    sites_off = np.maximum(np.maximum(site_mm, SITE_SIGMA_MM), glued)
     agreement = frame_agreement(obs.frame, obs.instance, ids, err < agree_px, len(live))
     for f, name in enumerate(names):
         if f not in by_live:
@@ -1108,7 +980,7 @@ def _records(
         if f == placed.reference:  # the scene frame: its pose is the gauge, exact
             blur_mm = blur_deg = 0.0
         else:  # the sites it was posed on are off on their parts the same in every frame
-            cov = cov + _frame_site_covariance(obs, mine, result, T, site_sigma)
+            cov = cov + frame_site_covariance(obs, mine, result, T, sites_off)
         unc_mm = float(np.sqrt(max(np.trace(cov[3:, 3:]), 0.0) + blur_mm**2 + scale_mm**2))
         unc_deg = float(
             np.sqrt(np.degrees(np.sqrt(max(np.trace(cov[:3, :3]), 0.0))) ** 2 + blur_deg**2)
