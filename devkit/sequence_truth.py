@@ -31,6 +31,8 @@ class SequenceErrors:
 
     Attributes:
         position_mm, turn_deg: Each posed frame's rig error after the best rigid fit.
+        frame_flagged: Whether each posed frame has a flag, same order.
+        frame_uncertainty_mm, frame_uncertainty_deg: Its stated 1-sigma, same order.
         frames, frames_posed: Frames in all, and posed by the annotation.
         error_pct: Each posed instance's median error (% of D) over the frames.
         uncertainty_pct: Its estimated uncertainty (% of D), same order.
@@ -42,6 +44,9 @@ class SequenceErrors:
 
     position_mm: list[float] = field(default_factory=list)
     turn_deg: list[float] = field(default_factory=list)
+    frame_flagged: list[bool] = field(default_factory=list)
+    frame_uncertainty_mm: list[float] = field(default_factory=list)
+    frame_uncertainty_deg: list[float] = field(default_factory=list)
     frames: int = 0
     frames_posed: int = 0
     error_pct: list[float] = field(default_factory=list)
@@ -55,6 +60,28 @@ class SequenceErrors:
     def gross_unflagged(self) -> int:
         """Poses more than 5 % of D off without a flag, and poses of absent parts without."""
         return sum(e > 5 and not f for e, f in zip(self.error_pct, self.flagged))
+
+    @property
+    def silent_frames(self) -> int:
+        """Posed frames more than 2 mm or 0.5 degrees off without a flag."""
+        off = zip(self.position_mm, self.turn_deg, self.frame_flagged)
+        return sum((p > 2 or t > 0.5) and not f for p, t, f in off)
+
+    @property
+    def frames_within_3x(self) -> float:
+        """Share of the posed frames (the scene frame's own apart: its uncertainty is 0 by
+        definition) whose position and turn errors are both within 3x their uncertainty."""
+        rows = [
+            (p <= 3 * u and t <= 3 * v)
+            for p, t, u, v in zip(
+                self.position_mm,
+                self.turn_deg,
+                self.frame_uncertainty_mm,
+                self.frame_uncertainty_deg,
+            )
+            if u > 0
+        ]
+        return float(np.mean(rows)) if rows else float("nan")
 
 
 def best_fit(A: np.ndarray, B: np.ndarray) -> np.ndarray:
@@ -87,6 +114,11 @@ def sequence_errors(root: str | Path) -> SequenceErrors:
         rel = np.einsum("nji,njk->nik", moved[:, :3, :3], B[:, :3, :3])
         cos = np.clip((np.trace(rel, axis1=1, axis2=2) - 1) / 2, -1, 1)
         out.turn_deg += np.degrees(np.arccos(cos)).tolist()
+        for n in names:
+            extra = found[n].extra
+            out.frame_flagged.append(bool(extra.get("flags")))
+            out.frame_uncertainty_mm.append(float(extra.get("uncertainty_mm") or 0.0))
+            out.frame_uncertainty_deg.append(float(extra.get("uncertainty_deg") or 0.0))
         true_poses, top = read_pose_file(scene.gt_path)
         gt = {p.key: p for p in true_poses}
         half = {

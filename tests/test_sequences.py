@@ -331,6 +331,14 @@ def test_sites_are_measured_from_one_sequence(tmp_path: Path, capsys) -> None:
     assert main(["synth", str(root), *args, "--workers", "2"]) == 0
     assert main(["annotate", str(root), "--workers", "2", "--quiet"]) == 0
     before = sequence_errors(root)
+    # The first pass poses the frames, moves no part, and says what will tighten the poses.
+    ann = json.loads((root / "scenes" / "000000" / "annotation.json").read_text())
+    truth = json.loads((root / "scenes" / "000000" / "gt.json").read_text())["frames"]
+    sharp = [n for n, f in truth.items() if not f.get("motion_blur_px")]
+    posed = [n for n in sharp if ann["frames"][n]["scene_T_rig"] is not None]
+    assert len(posed) >= 0.85 * len(sharp)
+    assert all("moved" not in i["flags"] for i in ann["instances"])
+    assert any("`annotator sites`" in w["message"] for w in ann["warnings"])
     capsys.readouterr()
     assert main(["sites", str(root), "--yes", "--json", "--workers", "2", "--quiet"]) == 0
     report = json.loads(capsys.readouterr().out)

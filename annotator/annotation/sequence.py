@@ -13,6 +13,11 @@ instance's pose from the markers, in three steps.
    corner and depth; observations that still disagree are left out and the solve repeated.
    A frame nothing connects to the rest keeps ``scene_T_rig: null`` and says why; an instance
    whose markers agree with its pose in some frames and not in others is flagged ``moved``.
+   Each corner weighs as its noise says (its marker's motion streak,
+   :mod:`~annotator.annotation.frame_quality`; its frame's residuals,
+   :mod:`~annotator.annotation.sequence_noise`); with depth, the depth gives the scale
+   (:mod:`~annotator.annotation.depth_scale`); a frame that places several parts
+   differently from the rest is refused or flagged (:mod:`~annotator.annotation.consistency`).
 3. :func:`frame_visibility`: occlusion rates and depth agreement of every instance as each
    frame sees it (the fixed rig's :func:`~annotator.annotation.visibility.add_visibility`).
 
@@ -22,6 +27,7 @@ runs them as batches over frames and scenes (:mod:`annotator.annotation.batch`).
 
 from __future__ import annotations
 
+import functools
 from collections import defaultdict
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
@@ -33,7 +39,23 @@ import cv2
 import numpy as np
 
 from annotator.annotation.consensus import pose_instance
+from annotator.annotation.consistency import frame_agreement
+from annotator.annotation.depth_scale import depth_scale
+from annotator.annotation.frame_quality import Streak, frame_streak
 from annotator.annotation.scene import CONTRADICTED, _image_quality, _sort_markers
+from annotator.annotation.sequence_noise import (
+    CORNER_SIGMA_PX,
+    MOTION_BLUR_PX,
+    FrameBlur,
+    corner_sigma,
+    frame_sigma,
+    frame_site_covariance,
+    glue_spread,
+    marker_depths,
+    median_by,
+    site_sigma,
+    surface_centres,
+)
 from annotator.annotation.settings import AnnotateSettings
 from annotator.annotation.visibility import MIN_DEPTH_PIXELS
 from annotator.dataset import Dataset, Scene
@@ -58,6 +80,7 @@ from annotator.geometry.camera import Camera
 from annotator.geometry.mesh import SurfaceMoments
 from annotator.geometry.transforms import invert, make_transform
 from annotator.io.images import to_gray8
+from annotator.markers.texture import marker_bits
 from annotator.occlusion import scene_visibility
 from annotator.pnp import (
     Observation,
@@ -101,6 +124,15 @@ FRAME_VISIBILITY_STEP = 4
 
 #: Rounds of bundle adjustment, each leaving out what the previous one found disagreeing.
 SOLVE_ROUNDS = 3
+#: Rounds of taking the scale from the measured depth (:mod:`.depth_scale`) and adjusting
+#: again.
+SCALE_ROUNDS = 3
+#: How well the scene's scale is known (1-sigma, relative) when no depth measures it: the
+#: markers' printed size alone, read by corners a tenth of a pixel off on 30 px markers.
+SCALE_SIGMA = 0.003
+#: ... and when the depth measures it: never better than the depth map's own scale (its
+#: calibration, the surface under a marker's centre read on a few pixels).
+DEPTH_SCALE_SIGMA = 0.0003
 
 
 class FrameFlag(StrEnum):
@@ -117,6 +149,13 @@ class FrameFlag(StrEnum):
     HIGH_REPROJECTION = "high_reprojection"
     #: Posed on fewer than :data:`FEW_MARKERS` marker observations.
     FEW_MARKERS = "few_markers"
+    #: Its images are smeared by a motion streak at least :data:`MOTION_BLUR_PX` long.
+    MOTION_BLUR = "motion_blur"
+    #: Its markers place several parts differently from the rest of the sequence
+    #: (:mod:`~annotator.annotation.consistency`).
+    INCONSISTENT = "inconsistent"
+    #: Posed on the markers of one part only.
+    SINGLE_PART = "single_part"
 
 
 @dataclass
@@ -129,14 +168,31 @@ class FrameReading:
     readings: list[ImageReading]
     marker_depth: np.ndarray
     quality: dict[str, ImageQuality]
+    #: Per camera, the motion streak its markers show (None: none told).
+    streaks: list[Streak | None] = field(default_factory=list)
+
+    def streak_px(self, camera: int, marker: int | None = None) -> float:
+        """The streak's length (px) in camera ``camera`` (at ``marker`` when it was measured
+        there), 0 when not measured."""
+        s = self.streaks[camera] if camera < len(self.streaks) else None
+        if s is None:
+            return 0.0
+        return s.per_marker.get(marker, s.length_px) if marker is not None else s.length_px
 
 
 def read_frame(ds: Dataset, frame: Frame, detector: MarkerDetector) -> FrameReading:
     """Read the markers of every camera of ``frame`` (UserError for a missing or mis-sized
-    image, naming the file)."""
+    image, naming the file), and the motion streak of each camera's image."""
     grays = [to_gray8(frame.read_image(cam)) for cam in ds.rig.cameras]
     readings = [detector.read(g) for g in grays]
     quality = _image_quality(ds, readings, grays)
+    streaks = []
+    for cam, r, g in zip(ds.rig.cameras, readings, grays):
+        streak = frame_streak(g, [(d.id, d.corners, _grid(ds.dictionary, d.id)) for d in r.markers])
+        streaks.append(streak)
+        if streak is not None:
+            quality[cam.name].extra["motion_blur_px"] = streak.length_px
+            quality[cam.name].extra["motion_blur_deg"] = streak.angle_deg
     kept = [
         ImageReading(
             r.markers, np.zeros((0, 4, 2)), np.zeros((0, 1, 1), bool), np.zeros(0), r.blur_px
@@ -148,7 +204,13 @@ def read_frame(ds: Dataset, frame: Frame, detector: MarkerDetector) -> FrameRead
     if depth is not None and ds.rig.depth is not None:
         j = [c.name for c in ds.rig.cameras].index(ds.rig.depth.camera)
         marker_depth = np.array([_depth_at(depth, d) for d in readings[j].markers])
-    return FrameReading(frame.name, kept, marker_depth, quality)
+    return FrameReading(frame.name, kept, marker_depth, quality, streaks)
+
+
+@functools.cache
+def _grid(dictionary_name: str, marker_id: int) -> np.ndarray:
+    """A marker's cells as printed (border included), cached: every frame reads the same."""
+    return marker_bits(dictionary_name, marker_id)
 
 
 def _depth_at(depth: np.ndarray, d: Detection) -> float:
@@ -211,6 +273,8 @@ class SequenceSolution:
     duplicates: dict[str, list[int]] = field(default_factory=dict)
     #: Per posed frame, how many of each instance's marker observations the solve kept.
     markers_used: dict[str, dict[str, int]] = field(default_factory=dict)
+    #: The scale the measured depth gave the sites (1: not measured, or no depth).
+    site_scale: float = 1.0
 
 
 def solve_sequence(
@@ -250,7 +314,17 @@ def solve_sequence(
             SceneWarning(WarningKind.NO_MARKERS, "no marker of a known instance in any frame")
         )
         return out
-    _bundle(ds, frames_seen, placed, depth_cam, settings, out, names)
+    streaks = np.array([[r.streak_px(j) for j in range(len(cams))] for r in readings])
+    _bundle(
+        ds,
+        frames_seen,
+        placed,
+        depth_cam,
+        settings,
+        out,
+        readings,
+        streaks.reshape(len(names), -1),
+    )
     return out
 
 
@@ -474,10 +548,14 @@ def _bundle(
     depth_cam: int | None,
     s: AnnotateSettings,
     out: SequenceSolution,
-    names: list[str],
+    readings: list[FrameReading],
+    streaks: np.ndarray,
 ) -> None:
     """The bundle adjustment over every placed frame and instance, its outliers left out and
-    the instances it disowns started again from the adjusted frames."""
+    the instances it disowns started again from the adjusted frames. ``streaks``: (frames,
+    cameras) the motion streak (px) of each image (each marker's own in ``readings``): its
+    corners' noise (:func:`corner_sigma`)."""
+    names = [r.frame for r in readings]
     cams = ds.rig.cameras
     keys = sorted(placed.models)
     index = {k: i for i, k in enumerate(keys)}
@@ -499,7 +577,11 @@ def _bundle(
     frames0 = np.stack([T for T in placed.frames if T is not None])
     models0 = np.stack([placed.models[k] for k in keys])
     err = _residuals(cams, all_obs, frames0, models0)
-    keep = err < s.inlier_px
+    # Each marker's own streak where it was measured (a turning camera smears one side of
+    # the image more than the other), else its image's.
+    streak = np.array([readings[live[r[0]]].streak_px(r[2].camera, r[2].marker_id) for r in rows])
+    sigma = corner_sigma(streak)
+    keep = err < s.inlier_px * sigma / CORNER_SIGMA_PX
 
     def solve(covariance: bool) -> BundleResult:
         return bundle_adjust(
@@ -510,11 +592,14 @@ def _bundle(
             fixed_frame=fidx[placed.reference],
             depth_camera=depth_cam,
             covariance=covariance,
+            corner_sigma_px=CORNER_SIGMA_PX,
+            obs_sigma_px=sigma[keep],
         )
 
     def kept(err: np.ndarray, limit: float) -> np.ndarray:
         # An observation is left out with the rest of its frame's view of its instance: a
-        # part that moved disagrees as a whole.
+        # part that moved disagrees as a whole. Limits in units of each corner's own noise.
+        err = err * CORNER_SIGMA_PX / sigma
         bad_edge = _edge_rms(all_obs, err) > limit
         return (err < 2 * limit) & ~bad_edge[all_obs.frame, all_obs.instance]
 
@@ -531,6 +616,32 @@ def _bundle(
         if np.array_equal(new_keep, keep):
             break
         keep = new_keep
+    scale_sigma = SCALE_SIGMA
+    if depth_cam is not None:
+        under = surface_centres(ds, keys, all_obs)
+        for _ in range(SCALE_ROUNDS):
+            z = marker_depths(cams, all_obs, frames0, models0, under * out.site_scale)
+            use = keep & (all_obs.camera == depth_cam)
+            found = depth_scale(z[use], all_obs.depth_mm[use])
+            if found is None:
+                break
+            scale_sigma = max(found.sigma, DEPTH_SCALE_SIGMA)
+            # Within what the depth map itself is sure of, the corners' scale stands; once
+            # the depth disagrees, it is followed to the end.
+            if abs(found.factor - 1) < (2 * scale_sigma if out.site_scale == 1 else 1e-5):
+                break
+            # A similarity: sites and translations scaled together leave the images as
+            # they are, and put the markers at the depth measured.
+            all_obs = replace(all_obs, model_corners=all_obs.model_corners * found.factor)
+            frames0, models0 = frames0.copy(), models0.copy()
+            frames0[:, :3, 3] *= found.factor
+            models0[:, :3, 3] *= found.factor
+            out.site_scale *= found.factor
+            result = solve(covariance=False)
+            frames0, models0 = result.scene_T_rig, result.scene_T_model
+    # Each frame's corner noise as its own residuals show it (never below what its streak
+    # gives): a frame noisier than the rest is not trusted as much as the rest.
+    sigma = frame_sigma(all_obs, _residuals(cams, all_obs, frames0, models0), keep, sigma)
     # The last solve on what is kept, from where the rounds left the poses: its covariance.
     result = solve(covariance=True)
     frames0, models0 = result.scene_T_rig, result.scene_T_model
@@ -538,7 +649,31 @@ def _bundle(
     ids = np.array([r[2].marker_id for r in rows], dtype=int)
     limit = max(s.final_inlier_px, 4 * result.sigma_px)
     moved = _moved(cams, seen, live, frames0, keys, all_obs, keep, limit, s)
-    _records(ds, keys, live, all_obs, ids, keep, result, err, placed, s, out, names, moved)
+    depth = marker_depths(cams, all_obs, frames0, models0)
+    blur = FrameBlur(
+        streaks[live].max(axis=1), median_by(all_obs.frame[keep], depth[keep], len(live))
+    )
+    site_mm = site_sigma(all_obs, err, keep, depth, float(cams[0].K[0, 0]), len(keys))
+    agree_px = limit * sigma / CORNER_SIGMA_PX
+    _records(
+        ds,
+        keys,
+        live,
+        all_obs,
+        ids,
+        keep,
+        result,
+        err,
+        placed,
+        s,
+        out,
+        names,
+        moved,
+        blur,
+        agree_px,
+        site_mm,
+        (depth, scale_sigma),
+    )
 
 
 def _moved(
@@ -672,15 +807,17 @@ def _uncertainty(
     instance: int,
     frames: np.ndarray,
     sites: np.ndarray,
+    site_mm: float = 0.0,
 ) -> float:
     """An instance's uncertainty as the frames that see it do (what a frame's export holds):
     the median over them of the RMS surface displacement of its pose relative to the frame's,
     from the joint covariance (a part's pose and the frames' are known together), plus what
     its markers' own errors on the part give (:func:`~annotator.pnp.uncertainty.site_covariance`: the same in every
     frame, so more frames do not average them out); infinite where a direction nothing fixes
-    is involved. ``sites``: the corners (model frame) of the markers it was posed on."""
+    is involved. ``sites``: the corners (model frame) of the markers it was posed on, each
+    off by ``site_mm`` on the part (at least :data:`SITE_SIGMA_MM`)."""
     T = result.scene_T_model[instance]
-    on_part = site_covariance(T[:3, :3], sites, SITE_SIGMA_MM)
+    on_part = site_covariance(T[:3, :3], sites, max(site_mm, SITE_SIGMA_MM))
     values = []
     for f in frames.tolist():
         cov = result.joint_covariance(instance, f)
@@ -695,6 +832,12 @@ def _uncertainty(
 #: How well each corner of a marker is known on its part (mm, 1-sigma, each on its own):
 #: printing, gluing flat, the corner fit's bias. It does not average out over frames.
 SITE_SIGMA_MM = 0.15
+
+
+#: When at least this share of a sequence's parts (seen in two frames or more) reproject
+#: worse than ``high_residual_px``, their markers are not where the layout says: the user
+#: is told that ``annotator sites`` measures them.
+GLUED_SHARE = 0.3
 
 
 def _rejected_markers(
@@ -723,6 +866,10 @@ def _records(
     out: SequenceSolution,
     names: list[str],
     moved: set[int],
+    blur: FrameBlur,
+    agree_px: np.ndarray,
+    site_mm: np.ndarray,
+    scale: tuple[np.ndarray, float],
 ) -> None:
     """annotation.json's records from the solve: per instance and per frame."""
     cams = ds.rig.cameras
@@ -731,6 +878,7 @@ def _records(
     seen[obs.frame, obs.instance] = True
     agree = np.zeros_like(seen)
     agree[obs.frame[keep], obs.instance[keep]] = True
+    glued = np.array([glue_spread(ds.objects[o], inst) for o, inst in keys])
     for i, (obj, inst) in enumerate(keys):
         mine = obs.instance == i
         used = mine & keep
@@ -740,7 +888,16 @@ def _records(
         model = ds.objects[obj]
         _, first = np.unique(ids[used], return_index=True)
         corners = obs.model_corners[np.flatnonzero(used)[first]].reshape(-1, 3)
-        unc = _uncertainty(model.mesh.moments, result, i, np.unique(obs.frame[used]), corners)
+        unc = _uncertainty(
+            model.mesh.moments,
+            result,
+            i,
+            np.unique(obs.frame[used]),
+            corners,
+            max(site_mm[i], glued[i]),
+        )
+        # The scene's scale, as well as it is known, moves the part along its line of sight.
+        unc = float(np.hypot(unc, scale[1] * float(np.median(scale[0][used]))))
         markers: dict[str, MarkerUse] = {}
         per_cam: dict[str, float] = {}
         for j, cam in enumerate(cams):
@@ -779,6 +936,10 @@ def _records(
                 extra={"frames_seen": int(agree[:, i].sum())},
             )
         )
+    several = [r for r in out.instances if r.extra["frames_seen"] >= 2]
+    off = [r for r in several if Flag.HIGH_RESIDUAL in r.flags]
+    if several and len(off) >= GLUED_SHARE * len(several):
+        out.warnings.append(SceneWarning(WarningKind.NOTE, _sites_hint(len(off), len(several))))
     if any(Flag.MOVED in r.flags for r in out.instances):
         which = [r.key for r in out.instances if Flag.MOVED in r.flags]
         out.warnings.append(
@@ -789,6 +950,8 @@ def _records(
             )
         )
     by_live = {f: n for n, f in enumerate(live)}
+    sites_off = np.maximum(np.maximum(site_mm, SITE_SIGMA_MM), glued)
+    agreement = frame_agreement(obs.frame, obs.instance, ids, err < agree_px, len(live))
     for f, name in enumerate(names):
         if f not in by_live:
             reason = placed.reasons[f]
@@ -812,10 +975,26 @@ def _records(
                 },
             )
             continue
-        unc_mm = float(np.sqrt(max(np.trace(cov[3:, 3:]), 0.0)))
-        unc_deg = float(np.degrees(np.sqrt(max(np.trace(cov[:3, :3]), 0.0))))
+        blur_mm, blur_deg = blur.uncertainty(n, float(cams[0].K[0, 0]))
+        scale_mm = scale[1] * float(np.linalg.norm(T[:3, 3]))  # its distance to the origin
+        if f == placed.reference:  # the scene frame: its pose is the gauge, exact
+            blur_mm = blur_deg = 0.0
+        else:  # the sites it was posed on are off on their parts the same in every frame
+            cov = cov + frame_site_covariance(obs, mine, result, T, sites_off)
+        unc_mm = float(np.sqrt(max(np.trace(cov[3:, 3:]), 0.0) + blur_mm**2 + scale_mm**2))
+        unc_deg = float(
+            np.sqrt(np.degrees(np.sqrt(max(np.trace(cov[:3, :3]), 0.0))) ** 2 + blur_deg**2)
+        )
         why = None
-        if len(set(ids[mine].tolist())) < 2:
+        a = agreement[n]
+        others = ", ".join("/".join(keys[i]) for i in a.disagreeing)
+        if a.refused:
+            why = (
+                f"its markers place {len(a.disagreeing)} parts ({others}) differently from the "
+                f"rest of the sequence and only {len(a.agreeing)} as it does: another "
+                "arrangement, or parts moved"
+            )
+        elif len(set(ids[mine].tolist())) < 2:
             # One square's two mirror poses fit it about equally well: not evidence enough.
             why = f"it is posed on one marker only ({int(mine.sum())} observations)"
         elif not (unc_mm <= FRAME_MAX_UNCERTAINTY_MM and unc_deg <= FRAME_MAX_UNCERTAINTY_DEG):
@@ -827,10 +1006,29 @@ def _records(
             out.frames[name] = FramePose(name, None, {"flags": [FrameFlag.OUTLIER], "reason": why})
             continue
         rms_f = float(np.sqrt(np.mean(err[mine] ** 2)))
+        reasons: list[str] = []
         if rms_f > HIGH_REPROJECTION_PX:
             flags_f.append(FrameFlag.HIGH_REPROJECTION)
         if int(mine.sum()) < FEW_MARKERS:
             flags_f.append(FrameFlag.FEW_MARKERS)
+        if blur.streak_px[n] >= MOTION_BLUR_PX:
+            flags_f.append(FrameFlag.MOTION_BLUR)
+            reasons.append(
+                f"motion blur: its markers are smeared {blur.streak_px[n]:.3g} px, and which "
+                "instant of the exposure its pose stands for is not known"
+            )
+        if a.inconsistent:
+            flags_f.append(FrameFlag.INCONSISTENT)
+            reasons.append(
+                f"its markers place {len(a.disagreeing)} parts ({others}) differently from the "
+                "rest of the sequence: parts moved, or another arrangement"
+            )
+        if a.single_part and len(keys) > 1:
+            flags_f.append(FrameFlag.SINGLE_PART)
+            reasons.append(
+                f"posed on the markers of one part only ({'/'.join(keys[a.agreeing[0]])}): "
+                "nothing in it checks that part against the rest"
+            )
         counts = np.bincount(obs.instance[mine], minlength=len(keys))
         out.markers_used[name] = {"/".join(keys[i]): int(c) for i, c in enumerate(counts) if c}
         out.frames[name] = FramePose(
@@ -843,8 +1041,41 @@ def _records(
                 "uncertainty_deg": round(unc_deg, 4),
                 "instances": {},
                 "flags": flags_f,
+                **({"reason": "; ".join(reasons)} if reasons else {}),
             },
         )
+    changed = [
+        n
+        for n, f in zip(names, (out.frames[n] for n in names))
+        if FrameFlag.INCONSISTENT in f.extra.get("flags", [])
+        or "differently from the rest" in f.extra.get("reason", "")
+    ]
+    if changed:
+        parts = sorted(
+            {
+                "/".join(keys[i])
+                for f in live
+                if names[f] in changed
+                for i in agreement[by_live[f]].disagreeing
+            }
+        )
+        out.warnings.append(
+            SceneWarning(
+                WarningKind.NOTE,
+                f"frames {', '.join(changed)} place parts ({', '.join(parts)}) differently from "
+                "the rest of the sequence: parts moved, or frames of another arrangement (each "
+                "frame's reason says which)",
+            )
+        )
+
+
+def _sites_hint(off: int, parts: int) -> str:
+    """The one line that says the markers are not where the layout puts them."""
+    return (
+        f"the markers of {off} of {parts} parts sit off their layout in every frame (glued by "
+        "hand?): their spread is in the uncertainties; `annotator sites` measures where they "
+        "are, and annotating again then tightens the poses"
+    )
 
 
 def frame_visibility(
@@ -949,7 +1180,11 @@ def sequence_annotation(
         unknown_markers=solution.unknown_markers,
         unconfirmed_markers={c: sorted(v) for c, v in sorted(unconfirmed.items())},
         duplicates=solution.duplicates,
-        extra={"scene_frame": solution.reference, "frames": frames_to_json(frames)},
+        extra={
+            "scene_frame": solution.reference,
+            "frames": frames_to_json(frames),
+            **({"depth_scale": round(solution.site_scale, 6)} if solution.site_scale != 1 else {}),
+        },
     )
 
 

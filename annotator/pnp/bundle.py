@@ -24,7 +24,7 @@ what is left to solve is the size of the instances alone, whatever the number of
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import cv2
 import numpy as np
@@ -125,6 +125,7 @@ def bundle_adjust(
     huber_px: float = 1.0,
     max_iterations: int = 30,
     covariance: bool = True,
+    obs_sigma_px: np.ndarray | None = None,
 ) -> BundleResult:
     """Refine ``scene_T_rig`` (F, 4, 4) and ``scene_T_model`` (I, 4, 4) jointly over ``obs``.
 
@@ -132,7 +133,9 @@ def bundle_adjust(
     without observations keep their poses and get infinite covariance. ``depth_camera``: the
     rig camera whose observations' ``depth_mm`` constrain their marker's depth.
     ``covariance``: False leaves the covariances out (zero), for a solve whose outliers are
-    still to be sorted out.
+    still to be sorted out. ``obs_sigma_px``: (N,) each observation's own corner noise (a
+    blurred frame's, a noisy frame's), its corners weighed by ``corner_sigma_px`` over it
+    (never more than 1); None: every corner ``corner_sigma_px``.
     """
     frames = np.array(scene_T_rig, dtype=np.float64, copy=True)
     models = np.array(scene_T_model, dtype=np.float64, copy=True)
@@ -143,8 +146,15 @@ def bundle_adjust(
         if depth_camera is not None
         else np.zeros(len(obs), dtype=bool)
     )
+    scale = np.ones(len(obs))
+    if obs_sigma_px is not None:
+        scale = np.minimum(corner_sigma_px / np.maximum(obs_sigma_px, 1e-9), 1.0)
+
+    def linearise(frames: np.ndarray, models: np.ndarray) -> _Linear:
+        return _weighed(_linearise(cameras, obs, frames, models, has_depth, depth_weight), scale)
+
     lam = 1e-4
-    lin = _linearise(cameras, obs, frames, models, has_depth, depth_weight)
+    lin = linearise(frames, models)
     cost = _robust_cost(lin.r, huber_px)
     iterations = 0
     while iterations < max_iterations:
@@ -154,7 +164,7 @@ def bundle_adjust(
         if step is None:
             break
         f_new, m_new = _apply(frames, models, *step)
-        lin_new = _linearise(cameras, obs, f_new, m_new, has_depth, depth_weight)
+        lin_new = linearise(f_new, m_new)
         cost_new = _robust_cost(lin_new.r, huber_px)
         if cost_new < cost:
             biggest = max(float(np.abs(step[0]).max(initial=0.0)), float(np.abs(step[1]).max()))
@@ -168,7 +178,7 @@ def bundle_adjust(
             if lam > 1e6:
                 break
     corners = lin.r[: 8 * len(obs)].reshape(-1, 4, 2)
-    per_obs = np.sqrt(np.mean(np.sum(corners**2, axis=-1), axis=-1))
+    per_obs = np.sqrt(np.mean(np.sum(corners**2, axis=-1), axis=-1)) / scale
     # The corner noise as the inliers show it (median absolute deviation, robust to the
     # few observations the Huber weights hold back).
     sigma = max(float(1.4826 * np.median(np.abs(corners))) if corners.size else 0.0, 0.0)
@@ -177,7 +187,7 @@ def bundle_adjust(
     if not covariance:
         zero_f, zero_m = np.zeros((n_frames, 6, 6)), np.zeros((n_models, 6, 6))
         return BundleResult(frames, models, zero_f, zero_m, per_obs, sigma, iterations)
-    inliers = np.repeat(per_obs < 4 * max(sigma, huber_px / 3), 8).astype(float)
+    inliers = np.repeat(per_obs * scale < 4 * max(sigma, huber_px / 3), 8).astype(float)
     weights = np.concatenate([inliers, np.ones(lin.r.size - inliers.size)])
     cov_f, cov_m, cross = _covariance(_normal(lin, obs, weights, shape), sigma)
     return BundleResult(frames, models, cov_f, cov_m, per_obs, sigma, iterations, cross)
@@ -257,6 +267,17 @@ def _linearise(
         jm_d = np.concatenate([np.cross(yc, hz), hz], axis=-1)
         jf_d = np.concatenate([np.cross(hz, dc), -hz], axis=-1)
     return _Linear(np.concatenate(residuals), jm, jf, sel, jm_d, jf_d)
+
+
+def _weighed(lin: _Linear, scale: np.ndarray) -> _Linear:
+    """``lin`` with each observation's corner rows multiplied by ``scale`` (its weight's
+    square root); the depth rows as they are."""
+    if np.all(scale == 1.0):
+        return lin
+    n = scale.size
+    r = lin.r.copy()
+    r[: 8 * n] *= np.repeat(scale, 8)
+    return replace(lin, r=r, jm=lin.jm * scale[:, None, None], jf=lin.jf * scale[:, None, None])
 
 
 @dataclass(frozen=True)

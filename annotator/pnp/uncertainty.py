@@ -81,23 +81,26 @@ def relative_rms_uncertainty(
     return float(np.sqrt(max(value, 0.0))) if np.isfinite(value) else float("inf")
 
 
-def site_covariance(R: np.ndarray, corners: np.ndarray, sigma: float) -> np.ndarray:
+def site_covariance(R: np.ndarray, corners: np.ndarray, sigma: float | np.ndarray) -> np.ndarray:
     """The ``(w, v)`` covariance of a pose fitted to marker corners ``corners`` (model frame,
-    (n, 3)) each off by ``sigma`` (mm, isotropic) on the part, the pose's rotation ``R``:
-    ``sigma^2 (sum B_k^T B_k)^-1`` with ``B_k = [-[R x_k]x, I]``: what a part's markers'
-    own errors (printing, gluing) do to its pose, however often they are seen. Corners on one
-    line leave a turn free: its variance infinite.
+    (n, 3)) each off by ``sigma`` (mm, isotropic; one for all or (n,) one each) on the part,
+    the pose's rotation ``R``: ``(sum B_k^T B_k / sigma_k^2)^-1`` with
+    ``B_k = [-[R x_k]x, I]``: what a part's markers' own errors (printing, gluing) do to its
+    pose, however often they are seen. Corners on one line leave a turn free: its variance
+    infinite.
 
     >>> square = np.array([[-5.0, -5, 0], [5, -5, 0], [5, 5, 0], [-5, 5, 0]])
     >>> cov = site_covariance(np.eye(3), square, 0.1)
     >>> bool(np.all(np.isfinite(cov))), round(float(np.sqrt(cov[3, 3])), 4)
     (True, 0.05)
     """
+    pts = np.asarray(corners, dtype=float).reshape(-1, 3)
+    weights = np.broadcast_to(1.0 / np.asarray(sigma, dtype=float) ** 2, (len(pts),))
     A = np.zeros((6, 6))
-    for x in np.asarray(corners, dtype=float).reshape(-1, 3):
+    for x, wk in zip(pts, weights):
         B = np.hstack([-_skew(R @ x), np.eye(3)])
-        A += B.T @ B
+        A += wk * (B.T @ B)
     w, V = np.linalg.eigh(A)
     if w[0] <= 1e-9 * max(float(w[-1]), 1e-300):
         return np.full((6, 6), np.inf)
-    return (V / w) @ V.T * sigma**2
+    return (V / w) @ V.T
