@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 import yaml
 
+import annotator
 from annotator.cli import main
 from viewer.state import ReviewState
 
@@ -143,3 +144,41 @@ def test_the_advice_fits_the_options_given(sample_copy: Path, tmp_path, capsys) 
         assert main(["export", str(sample_copy), str(out), "--format", "bop", *extra]) == 2
         err = capsys.readouterr().err
         assert "4 rejected" in err and "--include-pending" not in err
+
+
+def test_a_frame_of_another_arrangement_never_reaches_an_export(seq: Path, tmp_path, capsys):
+    other = tmp_path / "other"
+    args = ["synth", str(other), "--scenes", "1", "--frames", "2", "--size", "640x512"]
+    assert main([*args, "--supersample", "1", "--instances", "4-6", "--seed", "6", "--quiet"]) == 0
+    foreign = seq / "scenes" / SCENE / "frames" / "000099"
+    shutil.copytree(other / "scenes" / SCENE / "frames" / "000001", foreign)
+    assert main(["annotate", str(seq), "--quiet"]) == 0
+    assert "000099" in capsys.readouterr().err  # named among the frames left out
+    ann = json.loads((seq / "scenes" / SCENE / "annotation.json").read_text())
+    frame = ann["frames"]["000099"]
+    assert frame["scene_T_rig"] is None or "inconsistent" in frame["flags"], frame
+    out = tmp_path / "bop"
+    export = ["export", str(seq), str(out), "--format", "bop", "--include-pending", "--quiet"]
+    assert main([*export, "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert "000099" in doc["frames_left_out"][SCENE]
+    exported = json.loads((out / "test" / f"{int(SCENE):06d}" / "scene_gt_left.json").read_text())
+    posed = [n for n, f in ann["frames"].items() if f["scene_T_rig"] is not None]
+    assert len(exported) == len([n for n in posed if n not in doc["frames_left_out"][SCENE]])
+
+
+def test_a_frame_flagged_inconsistent_is_neither_exported_nor_scored(seq: Path, tmp_path, capsys):
+    path = seq / "scenes" / SCENE / "annotation.json"
+    ann = json.loads(path.read_text())
+    name = next(n for n, f in ann["frames"].items() if f["scene_T_rig"] is not None)
+    ann["frames"][name]["flags"] = ["inconsistent"]
+    ann["frames"][name]["reason"] = "its markers place 2 parts differently"
+    path.write_text(json.dumps(ann))
+    out = tmp_path / "bop"
+    export = ["export", str(seq), str(out), "--format", "bop", "--include-pending", "--quiet"]
+    assert main([*export, "--json"]) == 0
+    left = json.loads(capsys.readouterr().out)["frames_left_out"][SCENE]
+    assert left[name] == "flagged inconsistent (its markers place 2 parts differently)"
+    gt = annotator.read_ground_truth(seq)
+    scored = {key for key, _ in annotator.annotations_as_results(seq, gt).poses}
+    assert f"{SCENE}/{name}" not in scored and len(scored) >= 3  # the others are scored

@@ -329,7 +329,10 @@ def test_sites_are_measured_from_one_sequence(tmp_path: Path, capsys) -> None:
     root = tmp_path / "glued"
     args = [*SEQUENCE, "--glue", "0.7,2", "--seed", "31", "--frames", "6"]
     assert main(["synth", str(root), *args, "--workers", "2"]) == 0
+    capsys.readouterr()
     assert main(["annotate", str(root), "--workers", "2", "--quiet"]) == 0
+    said = capsys.readouterr().err  # the user is told, not only the file
+    assert "scene 000000: " in said and "`annotator sites`" in said
     before = sequence_errors(root)
     # The first pass poses the frames, moves no part, and says what will tighten the poses.
     ann = json.loads((root / "scenes" / "000000" / "annotation.json").read_text())

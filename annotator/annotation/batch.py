@@ -15,7 +15,7 @@ from annotator.annotation.scene import annotate_scene
 from annotator.annotation.sequence_batch import annotate_sequences
 from annotator.annotation.settings import AnnotateSettings
 from annotator.dataset import Dataset, Scene, as_dataset, cached_dataset, require_meshes
-from annotator.dataset.annotation import WarningKind
+from annotator.dataset.annotation import SceneAnnotation, WarningKind
 from annotator.dataset.check import BROKEN_LINK
 from annotator.dataset.frames import frames_from_json, frames_left_out
 from annotator.dataset.model import SCENES_DIR
@@ -164,6 +164,9 @@ class AnnotateSummary:
     skipped: int
     #: A sequence annotated now -> its frames not posed and why (:func:`frames_left_out`).
     frames_left_out: dict[str, dict[str, str]] = field(default_factory=dict)
+    #: A sequence annotated now -> its notes (parts moved, frames of another arrangement,
+    #: markers glued off their layout: run ``annotator sites``).
+    notes: dict[str, list[str]] = field(default_factory=dict)
 
     def to_json(self) -> dict[str, Any]:
         done = self.report.done.values()
@@ -171,6 +174,7 @@ class AnnotateSummary:
             "frames": sum(r.get("frames", 0) for r in done),
             "frames_posed": sum(r.get("frames_posed", 0) for r in done),
             "frames_left_out": self.frames_left_out,
+            "notes": self.notes,
         }
         return {
             "scenes": self.scenes,
@@ -241,11 +245,14 @@ def annotate_dataset(
     for link in ds.broken_scene_links():
         if fnmatch.fnmatch(link.name, scenes):
             report.failed[link.name] = f"{link}: {BROKEN_LINK}"
-    left = {}
-    for sid, counts in sorted(report.done.items()):
-        if counts.get("frames_posed", 0) < counts.get("frames", 0):
-            path = ds.scene(sid).annotation_path
-            left[sid] = frames_left_out(
-                frames_from_json(read_pose_file(path)[1].get("frames"), path)
-            )
-    return AnnotateSummary(len(chosen), report, len(chosen) - len(todo), left)
+    left, notes = {}, {}
+    for sid in sorted(report.done) if ds.rig.moving else []:
+        path = ds.scene(sid).annotation_path
+        ann = SceneAnnotation.read(path)
+        frames = frames_left_out(frames_from_json(ann.extra.get("frames"), path))
+        if frames:
+            left[sid] = frames
+        said = [w.message for w in ann.warnings if w.kind == WarningKind.NOTE]
+        if said:
+            notes[sid] = said
+    return AnnotateSummary(len(chosen), report, len(chosen) - len(todo), left, notes)

@@ -40,6 +40,9 @@ def run(args: argparse.Namespace) -> int:
         for sid, left in sorted(summary.frames_left_out.items()):
             total = summary.report.done[sid].get("frames")
             print(f"scene {sid}: {frames_line(left, total)}", file=sys.stderr)
+        for sid, notes in sorted(summary.notes.items()):
+            for note in notes:  # what to do next (`annotator sites`), what moved
+                print(f"scene {sid}: {note}", file=sys.stderr)
     frames = f"{doc['frames_posed']} of {doc['frames']} frames posed; " if "frames" in doc else ""
     return finish_batch(
         summary.report,

@@ -161,7 +161,8 @@ def scene_shots(
     rejected: Collection[str] = (),
 ) -> list[Shot]:
     """The scene's shots: the scene itself for a fixed rig; for a moving rig every frame
-    folder that ``frames`` (the pose file's mapping) poses and that is not ``rejected``.
+    folder that ``frames`` (the pose file's mapping) poses, that is not ``rejected`` and
+    that annotate did not flag ``inconsistent`` (the scene's poses are not that frame's).
 
     Raises:
         UserError: a moving rig's scene whose pose file has no ``frames``, or names a frame
@@ -181,17 +182,28 @@ def scene_shots(
     out = []
     for name in sorted(frames):
         T = frames[name].scene_T_rig
-        if T is None or name in rejected:
+        if T is None or name in rejected or _inconsistent(frames[name]):
             continue
         out.append(Shot(scene, folders[name], name, invert(T)))
     return out
 
 
+#: The frame flag of a frame whose markers place several parts elsewhere than the rest of
+#: the sequence does (annotate's ``inconsistent``): the scene's poses are not its truth.
+INCONSISTENT = "inconsistent"
+
+
+def _inconsistent(frame: FramePose) -> bool:
+    return INCONSISTENT in (frame.extra.get("flags") or [])
+
+
 def frames_left_out(
     frames: Mapping[str, FramePose], rejected: Collection[str] = ()
 ) -> dict[str, str]:
-    """A sequence's frames that none of its exports, evaluations or reviews take, and why:
-    not posed (its flags and reason, as annotate wrote them), or ``rejected`` by a reviewer.
+    """A sequence's frames that none of its exports or evaluations take, and why: not posed
+    (its flags and reason, as annotate wrote them), posed but flagged ``inconsistent`` (its
+    markers place parts elsewhere: the scene's poses are not its truth), or ``rejected`` by
+    a reviewer.
 
     >>> frames = {"000000": FramePose("000000", np.eye(4)),
     ...           "000001": FramePose("000001", None, {"flags": ["outlier"], "reason": "far"})}
@@ -205,6 +217,9 @@ def frames_left_out(
             flags = ", ".join(str(x) for x in f.extra.get("flags") or []) or "no pose"
             reason = f.extra.get("reason")
             out[name] = f"not posed: {flags}" + (f" ({reason})" if reason else "")
+        elif _inconsistent(f):
+            reason = f.extra.get("reason")
+            out[name] = "flagged inconsistent" + (f" ({reason})" if reason else "")
         elif name in rejected:
             out[name] = "rejected by a reviewer"
     return out
