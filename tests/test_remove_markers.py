@@ -471,3 +471,31 @@ def test_the_summary_counts_the_markers_filled(exports, tmp_path, capsys) -> Non
     args[2] = str(tmp_path / "b")
     assert main(args) == 0
     assert json.loads(capsys.readouterr().out)["markers_filled"] is None
+
+
+def test_marker_turned_a_little_away_on_a_curved_part() -> None:
+    """A square tangent to a cylinder beyond its outline (its plane turned 10 degrees away
+    from the camera): the curved surface under its near edge still faces the camera and
+    carries ink up to the outline, where the part's outline pixels (either side, no pixel
+    centre on the sliver) are taken too, as for a facing square seen edge-on."""
+    c = trimesh.creation.cylinder(radius=15.0, height=80.0, sections=256)
+    rx = np.array([[1.0, 0, 0], [0, 0, -1], [0, 1, 0]])  # the axis along y
+    cyl = Mesh(np.asarray(c.vertices) @ rx.T, np.asarray(c.faces, dtype=np.int32))
+    phi, h = np.radians(100.0), 10.0
+    n0 = np.array([np.sin(phi), 0, -np.cos(phi)])  # outward, 10 degrees past edge-on
+    a, b = np.array([np.cos(phi), 0, np.sin(phi)]), np.array([0, 1.0, 0])
+    centre = 15.0 * n0
+    site = np.array([centre - h * a - h * b, centre + h * a - h * b])
+    site = np.vstack([site, [centre + h * a + h * b, centre - h * a + h * b]])
+    inst = MarkedInstance(
+        "cyl", "01", cyl, make_transform(np.eye(3), [0, 0, 300.0]), site[None], (7,)
+    )
+    _, images = scene_markers(_one_camera(), [inst], cameras=["cam"], margin_px=0)
+    im = images["cam"]
+    (r,) = im.regions
+    assert not r.facing and r.px_visib > 0
+    rows, cols = r.pixels[:, 0], r.pixels[:, 1]
+    outside = im.labels[rows, cols] == -1
+    assert outside.any()  # the outline's far side: only the outline rule takes it
+    # ... and only along the outline (x = 15 mm at 300 mm, f = 800: column 359.5)
+    assert np.abs(cols[outside] - 359.5).max() <= 3
