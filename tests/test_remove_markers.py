@@ -23,6 +23,7 @@ from annotator.export.markers import MarkedInstance, scene_markers
 from annotator.geometry.camera import Camera
 from annotator.geometry.mesh import Mesh
 from annotator.geometry.transforms import make_transform
+from devkit.marker_twins import export_twins, render_twins
 
 SYNTH = ["--parts", "bracket,brick,cylinder", "--scenes", "2", "--instances", "6-8"]
 SYNTH += ["--seed", "5", "--size", "640x512", "--workers", "1", "--quiet"]
@@ -31,23 +32,13 @@ SYNTH += ["--seed", "5", "--size", "640x512", "--workers", "1", "--quiet"]
 @pytest.fixture(scope="module")
 def twins(tmp_path_factory):
     """The same two scenes with markers and bare."""
-    base = tmp_path_factory.mktemp("twins")
-    assert main(["synth", str(base / "marked"), *SYNTH]) == 0
-    assert main(["synth", str(base / "bare"), *SYNTH, "--no-markers"]) == 0
-    return base
+    return render_twins(tmp_path_factory.mktemp("twins"), SYNTH)
 
 
 @pytest.fixture(scope="module")
 def exports(twins):
     """BOP exports (gt poses) of both twins, and of the marked one with --remove-markers."""
-    common = ["--format", "bop", "--poses", "gt", "--include-pending", "--quiet"]
-    for src, dst, extra in (
-        ("marked", "plain", []),
-        ("bare", "bare_bop", []),
-        ("marked", "removed", ["--remove-markers"]),
-    ):
-        assert main(["export", str(twins / src), str(twins / dst), *common, *extra]) == 0
-    return twins
+    return export_twins(twins)
 
 
 def _detector() -> cv2.aruco.ArucoDetector:

@@ -12,8 +12,8 @@ import cv2
 import numpy as np
 import pytest
 
-from annotator.cli import main
 from devkit.aruco_settings import SETTINGS, detections, detector, new_in
+from devkit.marker_twins import export_twins, render_twins
 
 COMMON = ["--parts", "bracket,brick,gear,cup,cylinder,ball", "--instances", "14-22"]
 COMMON += ["--size", "640x512", "--supersample", "1", "--no-depth", "--workers", "1", "--quiet"]
@@ -23,7 +23,6 @@ RIGS = {
     "fixed": ["--scenes", "2", "--seed", "41"],
     "sequence": ["--scenes", "1", "--frames", "4", "--seed", "41"],
 }
-EXPORT = ["--format", "bop", "--poses", "gt", "--include-pending", "--quiet"]
 
 
 @pytest.fixture(
@@ -33,16 +32,7 @@ EXPORT = ["--format", "bop", "--poses", "gt", "--include-pending", "--quiet"]
 def twins(request, tmp_path_factory) -> Path:
     """Plain, bare and --remove-markers BOP exports of one rig's scenes."""
     base = tmp_path_factory.mktemp(request.param)
-    opts = [*COMMON, *RIGS[request.param]]
-    assert main(["synth", str(base / "marked"), *opts]) == 0
-    assert main(["synth", str(base / "bare"), *opts, "--no-markers"]) == 0
-    for src, dst, extra in (
-        ("marked", "plain", []),
-        ("bare", "bare_bop", []),
-        ("marked", "removed", ["--remove-markers"]),
-    ):
-        assert main(["export", str(base / src), str(base / dst), *EXPORT, *extra]) == 0
-    return base
+    return export_twins(render_twins(base, [*COMMON, *RIGS[request.param]]))
 
 
 def _read(path: Path) -> np.ndarray:
