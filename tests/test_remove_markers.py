@@ -490,3 +490,18 @@ def test_marker_turned_a_little_away_on_a_curved_part() -> None:
     assert outside.any()  # the outline's far side: only the outline rule takes it
     # ... and only along the outline (x = 15 mm at 300 mm, f = 800: column 359.5)
     assert np.abs(cols[outside] - 359.5).max() <= 3
+
+
+def test_each_frame_of_a_sequence_has_its_own_blur(sequence) -> None:
+    """A sequence's annotation.json keeps the blur ``annotate`` measured per frame (a frame
+    taken while the rig moved is blurred more): the masks of a frame grow by its own."""
+    from annotator.export.removal import scene_blur
+    from annotator.io.documents import read_json
+
+    (scene,) = load_dataset(sequence).scenes()
+    frames = read_json(scene.annotation_path)["frames"]
+    assert scene_blur(scene) == {}  # the scene's own entry is empty for a sequence
+    for name, doc in frames.items():
+        quality = doc["image_quality"].items()
+        want = {c: q["edge_blur_px"] for c, q in quality if q["edge_blur_px"] is not None}
+        assert scene_blur(scene, name) == want and want  # (a camera may measure none)
