@@ -1,16 +1,19 @@
 """``export --remove-markers`` on synthetic twins: the same scenes rendered with and without
-markers (``synth --no-markers``, same seed), 1280x1024, two cameras.
+markers (``synth --no-markers``, same seed), 1280x1024 unless ``--size``, two cameras, fixed
+rigs or sequences (``--frames``).
 
-Prints the markers OpenCV's ArUco detector finds in the exported images before and after,
-at each of the settings of ``devkit/aruco_settings.py`` (its defaults and each knob turned to
-find more), those it finds after that it does not also find in the bare render (target 0),
+Prints the markers OpenCV's ArUco detector finds in the exported images before and after, at
+each of the settings of ``devkit/aruco_settings.py`` (its defaults and each knob turned to
+find more), and of those after, the ones it does not also find in the bare render (target 0);
 the marker ink left outside the masks (pixels where the marked render differs from the bare
-one), the filled area, the PSNR inside the marker regions against the bare render (the marked image, our fill and
-OpenCV's inpainting) and the sensor noise left there, whether every pixel outside the regions is byte for byte the plain
-export's and the bare render's, and the time of the whole ``annotator export`` process with
-``--remove-markers`` over a plain one (target: at most 2x).
+one) and the filled area; the PSNR inside the marker regions against the bare render (the
+marked image, our fill and OpenCV's inpainting) and the sensor noise left there; whether
+every pixel outside the regions is byte for byte the plain export's and the bare render's;
+and the time of the whole ``annotator export`` process with ``--remove-markers`` over a
+plain one (target: at most 2x).
 
     .venv/bin/python -m benchmarks.bench_remove_markers [--scenes 4] [--frames 0] [--parts P]
+        [--seed S] [--size WxH] [--repeat 3]
 """
 
 from __future__ import annotations
@@ -29,7 +32,7 @@ import numpy as np
 from annotator.export.fill import noise_sigma
 from devkit.aruco_settings import SETTINGS, detections, detector, new_in
 
-SYNTH = ["--instances", "10-16", "--seed", "11", "--quiet"]
+SYNTH = ["--instances", "10-16", "--quiet"]
 EXPORT = ["--format", "bop", "--poses", "gt", "--include-pending", "--quiet"]
 
 
@@ -50,12 +53,19 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--scenes", type=int, default=4)
     ap.add_argument("--parts", default="bracket,brick,cylinder", help="synth --parts")
+    ap.add_argument("--seed", default="11", help="synth --seed")
+    ap.add_argument(
+        "--size", default="1280x1024", help="synth --size (--supersample 1 below 1280x1024)"
+    )
     ap.add_argument("--frames", type=int, default=0, help="sequences of N frames per scene")
     ap.add_argument("--repeat", type=int, default=3, help="timed runs of each export")
     opts = ap.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         base = Path(tmp)
-        n = ["--scenes", str(opts.scenes), "--parts", opts.parts]
+        n = ["--scenes", str(opts.scenes), "--parts", opts.parts, "--seed", opts.seed]
+        n += ["--size", opts.size]
+        if opts.size != "1280x1024":  # the tests' quick renders
+            n += ["--supersample", "1"]
         if opts.frames:
             n += ["--frames", str(opts.frames)]
         _annotator("synth", str(base / "marked"), *SYNTH, *n)
