@@ -13,7 +13,7 @@ and the time of the whole ``annotator export`` process with ``--remove-markers``
 plain one (target: at most 2x).
 
     .venv/bin/python -m benchmarks.bench_remove_markers [--scenes 4] [--frames 0] [--parts P]
-        [--seed S] [--size WxH] [--repeat 3]
+        [--seed S] [--size WxH] [--instances MIN-MAX] [--repeat 3]
 """
 
 from __future__ import annotations
@@ -32,7 +32,7 @@ import numpy as np
 from annotator.export.fill import noise_sigma
 from devkit.aruco_settings import SETTINGS, detections, detector, new_in
 
-SYNTH = ["--instances", "10-16", "--quiet"]
+SYNTH = ["--quiet"]
 EXPORT = ["--format", "bop", "--poses", "gt", "--include-pending", "--quiet"]
 
 
@@ -54,6 +54,7 @@ def main() -> None:
     ap.add_argument("--scenes", type=int, default=4)
     ap.add_argument("--parts", default="bracket,brick,cylinder", help="synth --parts")
     ap.add_argument("--seed", default="11", help="synth --seed")
+    ap.add_argument("--instances", default="10-16", help="synth --instances")
     ap.add_argument(
         "--size", default="1280x1024", help="synth --size (--supersample 1 below 1280x1024)"
     )
@@ -63,7 +64,7 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         base = Path(tmp)
         n = ["--scenes", str(opts.scenes), "--parts", opts.parts, "--seed", opts.seed]
-        n += ["--size", opts.size]
+        n += ["--size", opts.size, "--instances", opts.instances]
         if opts.size != "1280x1024":  # the tests' quick renders
             n += ["--supersample", "1"]
         if opts.frames:
