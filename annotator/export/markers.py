@@ -9,6 +9,12 @@ on a face that looks the square's way, and when no other posed instance is in fr
 marker on the part's far side, or behind the part's own flange, or behind another part, shows
 nowhere; the occluder's pixels are never the marker's.
 
+Seen edge-on, a marker's ink is squeezed between pixel centres, where no ray meets it: when
+some of the surface it is printed on faces the camera (its square may be turned a little
+away on a curved part), the part's outline inside the square's projection is taken too, and
+all of a projection narrower than :data:`EDGE_ON_PX` on the part (its ink lands there even
+where the part's own faces lie behind it).
+
 Measured depth does not clip markers (it does clip the exported visible masks): a stereo
 sensor's depth is noisy at a marker's high-contrast edges, and would leave ink unerased.
 
