@@ -1,13 +1,19 @@
 """``export --remove-markers`` on synthetic twins: the same scenes rendered with and without
-markers (``synth --no-markers``, same seed), 1280x1024, two cameras.
+markers (``synth --no-markers``, same seed), 1280x1024 unless ``--size``, two cameras, fixed
+rigs or sequences (``--frames``).
 
-Prints the markers OpenCV's ArUco detector finds in the exported images before and after,
-the PSNR inside the marker regions against the bare render (the marked image, our fill and
-OpenCV's inpainting) and the sensor noise left there, whether every pixel outside the regions is byte for byte the plain
-export's and the bare render's, and the time of the whole ``annotator export`` process with
-``--remove-markers`` over a plain one (target: at most 2x).
+Prints the markers OpenCV's ArUco detector finds in the exported images before and after, at
+each of the settings of ``devkit/aruco_settings.py`` (its defaults and each knob turned to
+find more), and of those after, the ones it does not also find in the bare render (target 0);
+the marker ink left outside the masks (pixels where the marked render differs from the bare
+one) and the filled area; the PSNR inside the marker regions against the bare render (the
+marked image, our fill and OpenCV's inpainting) and the sensor noise left there; whether
+every pixel outside the regions is byte for byte the plain export's and the bare render's;
+and the time of the whole ``annotator export`` process with ``--remove-markers`` over a
+plain one (target: at most 2x).
 
-    .venv/bin/python -m benchmarks.bench_remove_markers [--scenes 4]   (or the script path)
+    .venv/bin/python -m benchmarks.bench_remove_markers [--scenes 4] [--frames 0] [--parts P]
+        [--seed S] [--size WxH] [--instances MIN-MAX] [--repeat 3]
 """
 
 from __future__ import annotations
@@ -24,8 +30,9 @@ import cv2
 import numpy as np
 
 from annotator.export.fill import noise_sigma
+from devkit.aruco_settings import SETTINGS, detections, detector, new_in
 
-SYNTH = ["--parts", "bracket,brick,cylinder", "--instances", "10-16", "--seed", "11", "--quiet"]
+SYNTH = ["--quiet"]
 EXPORT = ["--format", "bop", "--poses", "gt", "--include-pending", "--quiet"]
 
 
@@ -45,11 +52,23 @@ def _read(path: Path) -> np.ndarray:
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--scenes", type=int, default=4)
+    ap.add_argument("--parts", default="bracket,brick,cylinder", help="synth --parts")
+    ap.add_argument("--seed", default="11", help="synth --seed")
+    ap.add_argument("--instances", default="10-16", help="synth --instances")
+    ap.add_argument(
+        "--size", default="1280x1024", help="synth --size (--supersample 1 below 1280x1024)"
+    )
+    ap.add_argument("--frames", type=int, default=0, help="sequences of N frames per scene")
     ap.add_argument("--repeat", type=int, default=3, help="timed runs of each export")
     opts = ap.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         base = Path(tmp)
-        n = ["--scenes", str(opts.scenes)]
+        n = ["--scenes", str(opts.scenes), "--parts", opts.parts, "--seed", opts.seed]
+        n += ["--size", opts.size, "--instances", opts.instances]
+        if opts.size != "1280x1024":  # the tests' quick renders
+            n += ["--supersample", "1"]
+        if opts.frames:
+            n += ["--frames", str(opts.frames)]
         _annotator("synth", str(base / "marked"), *SYNTH, *n)
         _annotator("synth", str(base / "bare"), *SYNTH, *n, "--no-markers")
         _annotator("export", str(base / "marked"), str(base / "bare_bop"), *EXPORT)
@@ -83,24 +102,23 @@ def main() -> None:
 
 
 def _report(base: Path, plain_t: list[float], removed_t: list[float]) -> None:
-    d = cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_4X4_1000)
-    det = cv2.aruco.ArucoDetector(d, cv2.aruco.DetectorParameters(), cv2.aruco.RefineParameters())
+    det = detector("default")
 
     def found(img: np.ndarray) -> set[int]:
-        _, ids, _ = det.detectMarkers(img)
-        return set() if ids is None else set(np.asarray(ids).reshape(-1).tolist())
+        return {i for i, _ in detections(det, img)}
 
     counts = {"marked": 0, "removed": 0, "telea": 0, "bare_bop": 0}
     # ArUco now and then reads an id in the parts' own edges: the bare render has those too.
     not_bare = {"removed": 0, "telea": 0}
     grain: dict[str, list[float]] = {"bare_bop": [], "removed": [], "telea": []}
     err = {"marked": 0.0, "removed": 0.0, "telea": 0.0}
-    pixels = images = 0
+    pixels = images = ink_px = ink_out = 0
     identical = {"plain export": True, "bare render": True}
-    for f in sorted((base / "plain" / "test").glob("*/gray_*/000000.png")):
+    files = sorted((base / "plain" / "test").glob("*/gray_*/*.png"))
+    for f in files:
         rel = f.relative_to(base / "plain")
         cam = rel.parent.name[len("gray") :]
-        mask = _read(base / "removed" / rel.parents[1] / f"mask_markers{cam}" / "000000.png") > 0
+        mask = _read(base / "removed" / rel.parents[1] / f"mask_markers{cam}" / rel.name) > 0
         img = {
             "marked": _read(f),
             **{k: _read(base / k / rel) for k in ("removed", "telea", "bare_bop")},
@@ -114,6 +132,8 @@ def _report(base: Path, plain_t: list[float], removed_t: list[float]) -> None:
         for k in err:
             err[k] += float(np.sum((img[k][mask] - bare[mask]) ** 2))
         pixels += int(mask.sum())
+        ink_px += int((img["marked"] != img["bare_bop"]).sum())
+        ink_out += int(((img["marked"] != img["bare_bop"]) & ~mask).sum())
         inner = cv2.erode(mask.astype(np.uint8), np.ones((5, 5), np.uint8)) > 0
         for k in grain:
             grain[k].append(noise_sigma(img[k], inner))
@@ -149,6 +169,12 @@ def _report(base: Path, plain_t: list[float], removed_t: list[float]) -> None:
         f"  sensor noise inside the regions (sigma, grey levels): bare {g['bare_bop']:.2f}, "
         f"filled {g['removed']:.2f}, OpenCV's inpainting {g['telea']:.2f}"
     )
+    print(
+        f"  marker ink (marked render != bare render): {ink_px / images:.0f} px per image; "
+        f"the masks cover {pixels / max(ink_px, 1):.2f}x that; ink outside them: {ink_out} px "
+        "(target 0)"
+    )
+    _opencv(base, files)
     for k, v in identical.items():
         print(f"  outside the regions, byte-identical to the {k}: {'yes' if v else 'NO'}")
     p, r = statistics.median(plain_t), statistics.median(removed_t)
@@ -156,6 +182,23 @@ def _report(base: Path, plain_t: list[float], removed_t: list[float]) -> None:
         f"  annotator export, whole process (median of {len(plain_t)}): plain {p:.2f} s, "
         f"--remove-markers {r:.2f} s: ratio {r / p:.2f} (target 2)"
     )
+
+
+def _opencv(base: Path, files: list[Path]) -> None:
+    """Per setting of OpenCV's detector: markers found in the plain export, in the filled
+    images, and of those, the ones the bare render does not give it too."""
+    print("  OpenCV's detector per setting: plain export -> filled (not in the bare render)")
+    for setting in SETTINGS:
+        det = detector(setting)
+        plain = filled = new = 0
+        for f in files:
+            rel = f.relative_to(base / "plain")
+            bare = detections(det, _read(base / "bare_bop" / rel))
+            plain += len(new_in(detections(det, _read(f)), bare))
+            found = detections(det, _read(base / "removed" / rel))
+            filled += len(found)
+            new += len(new_in(found, bare))
+        print(f"    {setting:32s} {plain:5d} -> {filled} ({new}; target 0)")
 
 
 if __name__ == "__main__":

@@ -23,6 +23,7 @@ from annotator.export.markers import MarkedInstance, scene_markers
 from annotator.geometry.camera import Camera
 from annotator.geometry.mesh import Mesh
 from annotator.geometry.transforms import make_transform
+from devkit.marker_twins import export_twins, render_twins
 
 SYNTH = ["--parts", "bracket,brick,cylinder", "--scenes", "2", "--instances", "6-8"]
 SYNTH += ["--seed", "5", "--size", "640x512", "--workers", "1", "--quiet"]
@@ -31,23 +32,13 @@ SYNTH += ["--seed", "5", "--size", "640x512", "--workers", "1", "--quiet"]
 @pytest.fixture(scope="module")
 def twins(tmp_path_factory):
     """The same two scenes with markers and bare."""
-    base = tmp_path_factory.mktemp("twins")
-    assert main(["synth", str(base / "marked"), *SYNTH]) == 0
-    assert main(["synth", str(base / "bare"), *SYNTH, "--no-markers"]) == 0
-    return base
+    return render_twins(tmp_path_factory.mktemp("twins"), SYNTH)
 
 
 @pytest.fixture(scope="module")
 def exports(twins):
     """BOP exports (gt poses) of both twins, and of the marked one with --remove-markers."""
-    common = ["--format", "bop", "--poses", "gt", "--include-pending", "--quiet"]
-    for src, dst, extra in (
-        ("marked", "plain", []),
-        ("bare", "bare_bop", []),
-        ("marked", "removed", ["--remove-markers"]),
-    ):
-        assert main(["export", str(twins / src), str(twins / dst), *common, *extra]) == 0
-    return twins
+    return export_twins(twins)
 
 
 def _detector() -> cv2.aruco.ArucoDetector:
@@ -471,3 +462,46 @@ def test_the_summary_counts_the_markers_filled(exports, tmp_path, capsys) -> Non
     args[2] = str(tmp_path / "b")
     assert main(args) == 0
     assert json.loads(capsys.readouterr().out)["markers_filled"] is None
+
+
+def test_marker_turned_a_little_away_on_a_curved_part() -> None:
+    """A square tangent to a cylinder beyond its outline (its plane turned 10 degrees away
+    from the camera): the curved surface under its near edge still faces the camera and
+    carries ink up to the outline, where the part's outline pixels (either side, no pixel
+    centre on the sliver) are taken too, as for a facing square seen edge-on."""
+    c = trimesh.creation.cylinder(radius=15.0, height=80.0, sections=256)
+    rx = np.array([[1.0, 0, 0], [0, 0, -1], [0, 1, 0]])  # the axis along y
+    cyl = Mesh(np.asarray(c.vertices) @ rx.T, np.asarray(c.faces, dtype=np.int32))
+    phi, h = np.radians(100.0), 10.0
+    n0 = np.array([np.sin(phi), 0, -np.cos(phi)])  # outward, 10 degrees past edge-on
+    a, b = np.array([np.cos(phi), 0, np.sin(phi)]), np.array([0, 1.0, 0])
+    centre = 15.0 * n0
+    site = np.array([centre - h * a - h * b, centre + h * a - h * b])
+    site = np.vstack([site, [centre + h * a + h * b, centre - h * a + h * b]])
+    inst = MarkedInstance(
+        "cyl", "01", cyl, make_transform(np.eye(3), [0, 0, 300.0]), site[None], (7,)
+    )
+    _, images = scene_markers(_one_camera(), [inst], cameras=["cam"], margin_px=0)
+    im = images["cam"]
+    (r,) = im.regions
+    assert not r.facing and r.px_visib > 0
+    rows, cols = r.pixels[:, 0], r.pixels[:, 1]
+    outside = im.labels[rows, cols] == -1
+    assert outside.any()  # the outline's far side: only the outline rule takes it
+    # ... and only along the outline (x = 15 mm at 300 mm, f = 800: column 359.5)
+    assert np.abs(cols[outside] - 359.5).max() <= 3
+
+
+def test_each_frame_of_a_sequence_has_its_own_blur(sequence) -> None:
+    """A sequence's annotation.json keeps the blur ``annotate`` measured per frame (a frame
+    taken while the rig moved is blurred more): the masks of a frame grow by its own."""
+    from annotator.export.removal import scene_blur
+    from annotator.io.documents import read_json
+
+    (scene,) = load_dataset(sequence).scenes()
+    frames = read_json(scene.annotation_path)["frames"]
+    assert scene_blur(scene) == {}  # the scene's own entry is empty for a sequence
+    for name, doc in frames.items():
+        quality = doc["image_quality"].items()
+        want = {c: q["edge_blur_px"] for c, q in quality if q["edge_blur_px"] is not None}
+        assert scene_blur(scene, name) == want and want  # (a camera may measure none)

@@ -259,6 +259,7 @@ class _SceneWriter:
                 cameras=self.cameras,
                 depth=depth,
                 fill=self.fill,
+                frame=shot.frame,
             )
             vis, images = removed.visibility, removed.images
             if self.markers_filled:

@@ -9,6 +9,12 @@ on a face that looks the square's way, and when no other posed instance is in fr
 marker on the part's far side, or behind the part's own flange, or behind another part, shows
 nowhere; the occluder's pixels are never the marker's.
 
+Seen edge-on, a marker's ink is squeezed between pixel centres, where no ray meets it: when
+some of the surface it is printed on faces the camera (its square may be turned a little
+away on a curved part), the part's outline inside the square's projection is taken too, and
+all of a projection narrower than :data:`EDGE_ON_PX` on the part (its ink lands there even
+where the part's own faces lie behind it).
+
 Measured depth does not clip markers (it does clip the exported visible masks): a stereo
 sensor's depth is noisy at a marker's high-contrast edges, and would leave ink unerased.
 
@@ -45,6 +51,9 @@ BORDER_CELLS = 1.0
 #: Blur (Gaussian sigma, px) assumed when a scene has no measured one (annotation.json's
 #: ``image_quality``): the synthetic default's measured value, on the heavy side of real rigs.
 DEFAULT_BLUR_PX = 1.0
+#: A marker whose projection (white border included) is narrower than this (px) is seen
+#: edge-on: its ink is squeezed into the few pixels of its projection.
+EDGE_ON_PX = 2.0
 
 
 def margin_for_blur(sigma_px: float | None) -> int:
@@ -264,11 +273,12 @@ def _marker(
     seen = labels[rows, cols] == k
     rows, cols = rows[seen], cols[seen]
     region.px_visib = int(len(rows))
-    if facing:
+    if facing or _turned_to_camera(inst.mesh, X, frame, normal, b, cam_T):
         # A face seen edge-on shows its marker between pixel centres only (a sliver along
         # the part's outline that no centre ray meets): the outline's pixels inside the
-        # square's projection are taken too.
-        er, ec = _outline(uv, labels, k, (x0, y0, x1, y1), hit)
+        # square's projection are taken too. On a curved part the square's plane may be
+        # turned a little away while the surface under its edge still faces the camera.
+        er, ec = _outline(uv, labels, k, (x0, y0, x1, y1), hit, edge_on=_thin(uv))
         rows, cols = np.r_[rows, er], np.r_[cols, ec]
     if len(rows):
         px = np.unique(np.stack([rows, cols], axis=1).astype(np.int32), axis=0)
@@ -283,13 +293,55 @@ def _marker(
     return region
 
 
+def _turned_to_camera(
+    mesh: Mesh, X: np.ndarray, frame: np.ndarray, normal: np.ndarray, b: float, cam_T: np.ndarray
+) -> bool:
+    """Whether a face of ``mesh`` that can carry some of the marker ``X`` (model frame; its
+    square widened by ``b`` and its slab, on a face looking its way: the renderer's rule)
+    is turned towards the camera. ``frame`` maps ``p - X[0]`` to the square's (s, t, d)."""
+    std = (mesh.triangles - X[0]) @ frame.T  # (F, 3 vertices, 3)
+    lo, hi = std.min(axis=1), std.max(axis=1)
+    under = (
+        (hi[:, 0] >= -b)
+        & (lo[:, 0] <= 1.0 + b)
+        & (hi[:, 1] >= -b)
+        & (lo[:, 1] <= 1.0 + b)
+        & (hi[:, 2] > -SLAB_MM)
+        & (lo[:, 2] < SLAB_MM)
+        & (mesh.face_normals @ normal > FACING)
+    )
+    if not under.any():
+        return False
+    R, t = cam_T[:3, :3], cam_T[:3, 3]
+    centres = mesh.triangles[under].mean(axis=1) @ R.T + t
+    n = mesh.face_normals[under] @ R.T
+    return bool(np.any(np.einsum("ij,ij->i", n, centres) < 0))
+
+
+def _thin(uv: np.ndarray) -> bool:
+    """Whether the quad ``uv`` (pixels) is a sliver narrower than :data:`EDGE_ON_PX`: its
+    area over its longest side."""
+    x, y = uv[:, 0], uv[:, 1]
+    area = 0.5 * abs(float(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1))))
+    side = float(np.linalg.norm(uv - np.roll(uv, -1, axis=0), axis=1).max())
+    return area < EDGE_ON_PX * side
+
+
 def _outline(
-    uv: np.ndarray, labels: np.ndarray, k: int, rect: Rect, hit: np.ndarray
+    uv: np.ndarray,
+    labels: np.ndarray,
+    k: int,
+    rect: Rect,
+    hit: np.ndarray,
+    *,
+    edge_on: bool = False,
 ) -> tuple[np.ndarray, np.ndarray]:
     """(rows, columns) of the pixels inside the quad ``uv`` (pixels) on the outline of
     instance ``k`` (``labels``), either side of it, within ``rect``; ``hit``: where the
     instance alone is hit in ``rect``. The side of an outline where another part is in front
-    (the instance is hit there, but hidden) is the occluder's, and left out."""
+    (the instance is hit there, but hidden) is the occluder's, and left out. ``edge_on``:
+    every pixel of the quad is taken, outline or not (a marker seen edge-on in front of its
+    own part's other faces leaves its ink where both sides of it are the part)."""
     x0, y0, x1, y1 = rect
     shift = 4  # fixed-point bits: the quad is rasterised to a sixteenth of a pixel
     quad = np.round((uv - [x0, y0]) * (1 << shift)).astype(np.int32)
@@ -297,7 +349,10 @@ def _outline(
     cv2.fillConvexPoly(poly, quad, 1, lineType=cv2.LINE_8, shift=shift)
     own = (labels[y0:y1, x0:x1] == k).astype(np.uint8)
     kernel = np.ones((3, 3), np.uint8)
-    edge = (cv2.dilate(own, kernel) > cv2.erode(own, kernel)) & (poly > 0) & ((own > 0) | ~hit)
+    edge = poly > 0
+    if not edge_on:
+        edge &= cv2.dilate(own, kernel) > cv2.erode(own, kernel)
+    edge &= (own > 0) | ~hit
     r, c = np.nonzero(edge)
     return r + y0, c + x0
 

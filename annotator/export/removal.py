@@ -66,14 +66,19 @@ def marked_instances(ds: Dataset, poses: Sequence[InstancePose]) -> list[MarkedI
     return out
 
 
-def scene_blur(scene: Scene) -> dict[str, float]:
-    """Per camera, the blur (px) ``annotate`` measured on the scene's image, where it did."""
+def scene_blur(scene: Scene, frame: str | None = None) -> dict[str, float]:
+    """Per camera, the blur (px) ``annotate`` measured on the scene's image, where it did; of
+    a sequence, on the images of ``frame`` (each frame has its own: a frame taken while the
+    rig moved is blurred more, and its ink spreads further)."""
     if not scene.annotation_path.is_file():
         return {}
     try:
         doc = read_json(scene.annotation_path)
     except UserError:
         return {}
+    if isinstance(doc, dict) and frame is not None:
+        frames = doc.get("frames")
+        doc = frames.get(frame) if isinstance(frames, dict) else None
     quality = doc.get("image_quality") if isinstance(doc, dict) else None
     out: dict[str, float] = {}
     for cam, q in (quality or {}).items() if isinstance(quality, dict) else ():
@@ -101,10 +106,11 @@ def remove_scene_markers(
     cameras: Sequence[str],
     depth: np.ndarray | None,
     fill: str = "surface",
+    frame: str | None = None,
 ) -> SceneWithoutMarkers:
     """Find and fill the markers of a scene's images (already undistorted to ``rig``'s
-    pinhole cameras)."""
-    blur = scene_blur(scene)
+    pinhole cameras), of its sequence's ``frame`` if it has frames."""
+    blur = scene_blur(scene, frame)
     margins = {c: margin_for_blur(blur.get(c)) for c in cameras}
     vis, markers = scene_markers(
         rig, marked_instances(ds, poses), cameras=cameras, depth=depth, margin_px=margins
