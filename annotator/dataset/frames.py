@@ -226,14 +226,16 @@ def frames_left_out(
 
 
 def frames_line(left: Mapping[str, str], total: int | None = None) -> str:
-    """One line naming the frames :func:`frames_left_out` gives, grouped by why.
+    """One line naming the frames :func:`frames_left_out` gives, grouped by why (the
+    flags; each frame's own figures are in the files and ``--json``).
 
-    >>> frames_line({"000001": "not posed: outlier", "000002": "not posed: outlier"}, 6)
+    >>> frames_line({"000001": "not posed: outlier (its 3 marker ...)",
+    ...              "000002": "not posed: outlier (it is posed on one marker only)"}, 6)
     '2 of 6 frames left out: 000001, 000002 not posed: outlier'
     """
     by_why: dict[str, list[str]] = {}
     for name, why in sorted(left.items()):
-        by_why.setdefault(why, []).append(name)
+        by_why.setdefault(why.split(" (")[0], []).append(name)
     parts = []
     for why, names in by_why.items():
         shown = ", ".join(names[:5]) + (f" (+{len(names) - 5} more)" if len(names) > 5 else "")
