@@ -5,7 +5,7 @@ Targets: every frame's rig within 0.5 mm and 0.1 degrees of the truth (median, a
 best rigid fit of the path: the scene frame is the first frame's camera), instance poses
 median <= 0.1 % of D (as each frame's rig sees them), posed >= 98 % of the instances half
 visible in some frame, 0 gross errors (> 5 % of D) without a flag; a 300-frame 1280x720
-sequence of 15 parts annotated in <= 60 s on 2 cores, whole process
+sequence of 15 parts annotated in <= 30 s on 2 cores, whole process
 (``annotator annotate --workers 2``).
 
     .venv/bin/python -m benchmarks.bench_sequences            # everything (renders first)
@@ -139,7 +139,7 @@ def main() -> None:
     _synth(root, seed=LONG_SEED, frames=args.frames, cameras=1, size="1280x720", parts=15)
     seconds = _run(["annotate", str(root), "--workers", "2", "--force", "--quiet"])
     print(f"long sequence: {args.frames} frames 1280x720, one camera and depth, 15 parts")
-    _line("annotate --workers 2, whole process (s)", f"{seconds:.1f}", "<= 60", seconds <= 60)
+    _line("annotate --workers 2, whole process (s)", f"{seconds:.1f}", "<= 30", seconds <= 30)
     _report("long sequence", sequence_errors(root))
 
 
