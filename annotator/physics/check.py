@@ -81,20 +81,9 @@ def check_bodies(
             if depth > limit:
                 _flag(out[i], Flag.PENETRATES, b.key)
                 _flag(out[j], Flag.PENETRATES, a.key)
-    if support is None:
-        return out
-    for i, a in enumerate(bodies):
-        heights = support.plane.height(a.points)
-        below = max(0.0, -float(heights.min()))
-        if below > out[i].check.penetration_mm:
-            out[i].check.penetration_mm, out[i].check.penetrates = below, SUPPORT
-        if below > _limit(settings.penetration_floor_mm, settings, u[a.key]):
-            _flag(out[i], Flag.PENETRATES, SUPPORT)
-        gap, rests_on = _gap(i, bodies, support, heights)
-        out[i].check.gap_mm, out[i].check.rests_on = gap, rests_on
-        limit = _limit(settings.gap_floor_mm, settings, u[a.key], u.get(rests_on, 0.0))
-        if gap > limit:
-            _flag(out[i], Flag.FLOATS, rests_on)
+    if support is not None:
+        for i, rec in enumerate(out):
+            _on_support(rec, i, bodies, support, u, settings)
     return out
 
 
@@ -119,19 +108,33 @@ def check_one(
                 rec.check.penetration_mm, rec.check.penetrates = depth, other.key
             if depth > limit:
                 _flag(rec, Flag.PENETRATES, other.key)
-    if support is None:
-        return rec
-    heights = support.plane.height(body.points)
+    if support is not None:  # the others' uncertainty is not the estimate's to carry
+        _on_support(rec, 0, [body, *others], support, {body.key: uncertainty}, settings)
+    return rec
+
+
+def _on_support(
+    rec: InstancePhysics,
+    i: int,
+    bodies: Sequence[Body],
+    support: Support,
+    u: Mapping[str, float],
+    settings: PhysicsSettings,
+) -> None:
+    """Body ``i``'s depth below the support's floor and its gap to what could hold it,
+    flagged beyond their thresholds, into ``rec``."""
+    a = bodies[i]
+    heights = support.plane.height(a.points)
     below = max(0.0, -float(heights.min()))
     if below > rec.check.penetration_mm:
         rec.check.penetration_mm, rec.check.penetrates = below, SUPPORT
-    if below > limit:
+    if below > _limit(settings.penetration_floor_mm, settings, u.get(a.key, 0.0)):
         _flag(rec, Flag.PENETRATES, SUPPORT)
-    gap, rests_on = _gap(0, [body, *others], support, heights)
+    gap, rests_on = _gap(i, bodies, support, heights)
     rec.check.gap_mm, rec.check.rests_on = gap, rests_on
-    if gap > _limit(settings.gap_floor_mm, settings, uncertainty):
+    limit = _limit(settings.gap_floor_mm, settings, u.get(a.key, 0.0), u.get(rests_on, 0.0))
+    if gap > limit:
         _flag(rec, Flag.FLOATS, rests_on)
-    return rec
 
 
 def _gap(
