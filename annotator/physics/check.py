@@ -21,6 +21,8 @@ from annotator.physics.support import Support
 
 #: About how many of a body's lower points its gap is measured from.
 GAP_POINTS = 600
+#: A gap this small (mm) is a touch: nothing else need be looked at.
+TOUCHING_MM = 0.05
 
 
 @dataclass(frozen=True)
@@ -149,10 +151,13 @@ def _gap(
     a = bodies[i]
     low = a.points[:, heights < float(support.plane.height(a.centroid[:, None])[0])]
     low = low[:, :: max(1, low.shape[1] // GAP_POINTS)]  # a gap is no needle: fewer will do
-    if low.shape[1] == 0:
-        return max(0.0, float(heights.min())), SUPPORT
+    floor = max(0.0, float(heights.min()))
+    if low.shape[1] == 0 or floor <= TOUCHING_MM:  # on the floor: nothing is nearer
+        return floor, SUPPORT
     best, rests_on = float(support.distance(low).min()), SUPPORT
     for j, b in enumerate(bodies):
+        if best <= TOUCHING_MM:
+            break
         if j == i or not boxes_overlap(a, b, margin=best):
             continue
         d = hull_distance(low, b)
