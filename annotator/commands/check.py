@@ -45,10 +45,9 @@ def run(args: argparse.Namespace) -> int:
     problems, scenes = report.problems, report.scenes
     physics = None
     if (args.physics or args.stability) and not report.errors:
-        physics = physics_of_dataset(
-            load_dataset(args.dataset), poses=args.poses, stability=args.stability
-        )
-        problems = problems + physics_problems(load_dataset(args.dataset), physics, args.poses)
+        ds = load_dataset(args.dataset)
+        physics = physics_of_dataset(ds, poses=args.poses, stability=args.stability)
+        problems = problems + physics_problems(ds, physics, args.poses)
     if args.json:
         print(
             json.dumps(

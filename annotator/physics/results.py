@@ -11,7 +11,7 @@ import numpy as np
 
 from annotator.dataset import Dataset
 from annotator.dataset.frames import Shot, scene_shots
-from annotator.formats.base import GroundTruth, PoseResults
+from annotator.formats.base import GroundTruth, PoseResults, PoseSet
 from annotator.geometry.transforms import make_transform
 from annotator.physics.check import PhysicsSettings, check_one
 from annotator.physics.contact import Body
@@ -61,15 +61,17 @@ def results_physics(
     """Check each image's best ``per_object`` estimates of every object against the true
     parts of that image (``gt``) and its support (from the dataset's depth)."""
     out = ResultsPhysics()
-    images = sorted({key for key, _ in results.poses})
-    for image in images:
-        truth = _bodies(ds, gt.poses, image)
+    true_poses = _by_image(gt.poses, ds)
+    for image, estimates in sorted(_by_image(results.poses, ds).items()):
+        truth = [
+            Body(f"{obj}/truth{k}", ds.objects[obj].mesh, make_transform(R, t))
+            for obj, poses in true_poses.get(image, [])
+            for k, (R, t) in enumerate(zip(poses.R, poses.t))
+        ]
         shot = _shot(ds, image)
         support = None if shot is None else shot_support(ds, shot, truth)
         out.images_without_support += support is None
-        for (key, obj), found in sorted(results.poses.items()):
-            if key != image or obj not in ds.objects:
-                continue
+        for obj, found in estimates:
             order = np.argsort(-np.asarray(found.values, float), kind="stable")[:per_object]
             for k in order:
                 est = Body(
@@ -85,14 +87,12 @@ def results_physics(
     return out
 
 
-def _bodies(ds: Dataset, table: Any, image: str) -> list[Body]:
-    """The true parts of one image, keyed ``<object>/truth<k>``."""
-    out = []
-    for (key, obj), poses in sorted(table.items()):
-        if key != image or obj not in ds.objects:
-            continue
-        for k, (R, t) in enumerate(zip(poses.R, poses.t)):
-            out.append(Body(f"{obj}/truth{k}", ds.objects[obj].mesh, make_transform(R, t)))
+def _by_image(table: Any, ds: Dataset) -> dict[str, list[tuple[str, PoseSet]]]:
+    """A pose table's entries by image, in object order; objects the dataset lacks left out."""
+    out: dict[str, list[tuple[str, PoseSet]]] = {}
+    for (image, obj), poses in sorted(table.items()):
+        if obj in ds.objects:
+            out.setdefault(image, []).append((obj, poses))
     return out
 
 
