@@ -55,12 +55,10 @@ def shot_support(
     cam = ds.rig.camera(spec.camera)
     if shot.frame is None and spec.background is not None:
         found = empty_bin(ds)  # every scene's: the floor's offset is the scene's own
-        return None if found is None else found.lowered(floor_offset(found.plane, bodies))
-    if depth is None:
-        depth = shot.capture.read_depth(ds.rig)
-    if depth is None:
-        return None
-    found = _measured_support(depth, cam, invert(shot.rig_T_scene), bodies)
+    else:
+        if depth is None:
+            depth = shot.capture.read_depth(ds.rig)
+        found = _measured_support(depth, cam, invert(shot.rig_T_scene), bodies)
     return None if found is None else found.lowered(floor_offset(found.plane, bodies))
 
 
