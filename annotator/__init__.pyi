@@ -20,22 +20,23 @@ from annotator.dataset import (
     Scene as Scene,
     load_dataset as load_dataset,
 )
-from annotator.dataset.annotation import (
+from annotator.dataset.check import (
+    CheckReport as CheckReport,
+    check_dataset as check_dataset,
+)
+from annotator.dataset.figures import (
     DepthCheck as DepthCheck,
     DepthRegion as DepthRegion,
-    Flag as Flag,
-    InstanceAnnotation as InstanceAnnotation,
     MarkerUse as MarkerUse,
     Occlusion as Occlusion,
     PhysicsCheck as PhysicsCheck,
     Reprojection as Reprojection,
-    SceneAnnotation as SceneAnnotation,
     SceneWarning as SceneWarning,
-    WarningKind as WarningKind,
 )
-from annotator.dataset.check import (
-    CheckReport as CheckReport,
-    check_dataset as check_dataset,
+from annotator.dataset.flags import Flag as Flag, WarningKind as WarningKind
+from annotator.dataset.records import (
+    InstanceAnnotation as InstanceAnnotation,
+    SceneAnnotation as SceneAnnotation,
 )
 from annotator.dataset.review import (
     ReviewStatus as ReviewStatus,

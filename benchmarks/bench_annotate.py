@@ -39,7 +39,7 @@ import yaml  # noqa: E402
 
 from annotator.annotation.batch import AnnotateJob  # noqa: E402
 from annotator.dataset import load_dataset, read_poses  # noqa: E402
-from annotator.dataset.annotation import SceneAnnotation  # noqa: E402
+from annotator.dataset.records import SceneAnnotation  # noqa: E402
 from annotator.markers.texture import marker_image  # noqa: E402
 from annotator.rendering.raycast import PlacedMesh, RayScene  # noqa: E402
 from annotator.runner import run_batch  # noqa: E402

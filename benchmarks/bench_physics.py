@@ -21,7 +21,7 @@ from scipy.spatial.transform import Rotation
 
 from annotator.cli import main as cli
 from annotator.dataset import load_dataset, read_poses
-from annotator.dataset.annotation import SUPPORT
+from annotator.dataset.figures import SUPPORT
 from annotator.dataset.frames import scene_shots
 from annotator.geometry.transforms import make_transform
 from annotator.physics import Body, check_bodies

@@ -18,9 +18,9 @@ from pathlib import Path
 import numpy as np
 
 from annotator.dataset import load_dataset
-from annotator.dataset.annotation import SceneAnnotation
 from annotator.dataset.frames import poses_in_frame, read_frames
 from annotator.dataset.poses import read_pose_file
+from annotator.dataset.records import SceneAnnotation
 from annotator.geometry.transforms import make_transform
 from annotator.symmetry import PoseSpace
 
@@ -115,10 +115,10 @@ def sequence_errors(root: str | Path) -> SequenceErrors:
         cos = np.clip((np.trace(rel, axis1=1, axis2=2) - 1) / 2, -1, 1)
         out.turn_deg += np.degrees(np.arccos(cos)).tolist()
         for n in names:
-            extra = found[n].extra
-            out.frame_flagged.append(bool(extra.get("flags")))
-            out.frame_uncertainty_mm.append(float(extra.get("uncertainty_mm") or 0.0))
-            out.frame_uncertainty_deg.append(float(extra.get("uncertainty_deg") or 0.0))
+            frame = found[n]
+            out.frame_flagged.append(bool(frame.flags))
+            out.frame_uncertainty_mm.append(float(frame.uncertainty_mm or 0.0))
+            out.frame_uncertainty_deg.append(float(frame.uncertainty_deg or 0.0))
         true_poses, top = read_pose_file(scene.gt_path)
         gt = {p.key: p for p in true_poses}
         half = {

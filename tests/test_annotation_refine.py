@@ -15,7 +15,9 @@ from annotator.annotation.refine import refinable, site_sigmas
 from annotator.annotation.scene import annotate_scene
 from annotator.annotation.settings import AnnotateSettings
 from annotator.dataset import load_dataset, read_poses
-from annotator.dataset.annotation import DepthCheck, Flag, InstanceAnnotation, SceneAnnotation
+from annotator.dataset.figures import DepthCheck
+from annotator.dataset.flags import Flag
+from annotator.dataset.records import InstanceAnnotation, SceneAnnotation
 from annotator.detection import MarkerDetector
 from annotator.io.images import to_gray8
 from annotator.pnp import Observation, rms_uncertainty

@@ -16,7 +16,8 @@ from annotator.annotation.unexplained import unexplained_depth
 from annotator.annotation.visibility import render_poses
 from annotator.cli import main
 from annotator.dataset import load_dataset, read_poses
-from annotator.dataset.annotation import ImageQuality, SceneAnnotation
+from annotator.dataset.figures import ImageQuality
+from annotator.dataset.records import SceneAnnotation
 from annotator.detection import MarkerDetector
 from annotator.symmetry import PoseSpace
 

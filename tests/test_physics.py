@@ -16,7 +16,9 @@ from scipy.spatial.transform import Rotation
 
 from annotator.cli import main
 from annotator.dataset import load_dataset, read_poses
-from annotator.dataset.annotation import SUPPORT, Flag, InstanceAnnotation, PhysicsCheck
+from annotator.dataset.figures import SUPPORT, PhysicsCheck
+from annotator.dataset.flags import Flag
+from annotator.dataset.records import InstanceAnnotation
 from annotator.dataset.review import Review
 from annotator.geometry.mesh import Mesh
 from annotator.physics import Body, PhysicsSettings, Support, SupportPlane, check_bodies

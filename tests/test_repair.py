@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from annotator.dataset import load_dataset, read_poses
-from annotator.dataset.annotation import SceneAnnotation
+from annotator.dataset.records import SceneAnnotation
 from annotator.detection import MarkerDetector
 from annotator.geometry.transforms import axis_angle, make_transform, matrix_to_rotvec
 from annotator.io.images import to_gray8

@@ -14,11 +14,12 @@ import numpy as np
 import pytest
 from cli_calls import run_cli
 
-from annotator.annotation.sequence import FrameFlag, FrameReading, solve_sequence
+from annotator.annotation.sequence import FrameReading, solve_sequence
 from annotator.cli import main
 from annotator.dataset import load_dataset, read_poses
-from annotator.dataset.annotation import Flag, SceneAnnotation
-from annotator.dataset.frames import frames_from_json, read_frames
+from annotator.dataset.flags import Flag, FrameFlag
+from annotator.dataset.frames import read_frames
+from annotator.dataset.records import SceneAnnotation, frames_from_json
 from annotator.detection.aruco import Detection, ImageReading
 from annotator.geometry.camera import Camera
 from annotator.geometry.transforms import invert, make_transform, rotvec_to_matrix
@@ -230,7 +231,7 @@ def test_a_frame_without_known_markers_is_flagged_not_guessed(annotated: Path) -
     readings[3] = FrameReading(readings[3].frame, [empty, empty], np.zeros(0), {})
     sol = solve_sequence(ds, readings)
     frame = sol.frames[readings[3].frame]
-    assert frame.scene_T_rig is None and frame.extra["flags"] == [FrameFlag.NO_KNOWN_MARKERS]
+    assert frame.scene_T_rig is None and frame.flags == [FrameFlag.NO_KNOWN_MARKERS]
     assert sum(f.scene_T_rig is not None for f in sol.frames.values()) == len(readings) - 1
 
 

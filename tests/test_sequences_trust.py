@@ -12,9 +12,10 @@ import numpy as np
 import pytest
 
 from annotator.annotation.frame_quality import frame_streak, marker_picture, marker_streak
-from annotator.annotation.sequence import FrameFlag, solve_sequence
+from annotator.annotation.sequence import solve_sequence
 from annotator.cli import main
 from annotator.dataset import load_dataset, read_poses
+from annotator.dataset.flags import FrameFlag
 from annotator.dataset.frames import read_frames
 from annotator.markers.texture import marker_bits
 from annotator.synthesis.sequence import motion_blur
@@ -134,15 +135,15 @@ def test_a_frame_of_another_arrangement_is_refused_with_a_reason(sequence) -> No
     readings[3] = foreign
     sol = solve_sequence(ds, readings)
     frame = sol.frames[foreign.frame]
-    assert frame.scene_T_rig is None or FrameFlag.INCONSISTENT in frame.extra["flags"]
-    assert "differently from the rest of the sequence" in frame.extra["reason"]
+    assert frame.scene_T_rig is None or FrameFlag.INCONSISTENT in frame.flags
+    assert "differently from the rest of the sequence" in frame.reason
     # The scene says which frames and parts.
     note = next(w.message for w in sol.warnings if "differently" in w.message)
     assert foreign.frame in note and poses[1].key in note
     # The other frames and the parts are as before.
     others = [f for n, f in sol.frames.items() if n != foreign.frame]
     assert all(f.scene_T_rig is not None for f in others)
-    assert all(FrameFlag.INCONSISTENT not in f.extra["flags"] for f in others)
+    assert all(FrameFlag.INCONSISTENT not in f.flags for f in others)
 
 
 def test_a_frame_posed_on_one_parts_markers_is_flagged(sequence) -> None:
@@ -155,13 +156,11 @@ def test_a_frame_posed_on_one_parts_markers_is_flagged(sequence) -> None:
     assert any(r.markers for r in reading.readings)
     sol = solve_sequence(ds, readings)
     frame = sol.frames[reading.frame]
-    assert frame.scene_T_rig is None or FrameFlag.SINGLE_PART in frame.extra["flags"]
+    assert frame.scene_T_rig is None or FrameFlag.SINGLE_PART in frame.flags
     if frame.scene_T_rig is not None:
-        assert poses[0].key in frame.extra["reason"]
+        assert poses[0].key in frame.reason
     assert all(
-        FrameFlag.SINGLE_PART not in f.extra["flags"]
-        for n, f in sol.frames.items()
-        if n != reading.frame
+        FrameFlag.SINGLE_PART not in f.flags for n, f in sol.frames.items() if n != reading.frame
     )
 
 
@@ -197,7 +196,7 @@ def test_the_depth_gives_the_scale_a_corner_bias_would_take(one_camera) -> None:
         ratio = [
             np.linalg.norm(r.t) / np.linalg.norm(truth[r.key])
             for r in sol.instances
-            if r.key in truth and r.extra["frames_seen"] >= 2
+            if r.key in truth and (r.frames_seen or 0) >= 2
         ]
         return float(np.median(ratio)) - 1, sol
 
@@ -208,7 +207,7 @@ def test_the_depth_gives_the_scale_a_corner_bias_would_take(one_camera) -> None:
     # The depth takes it back (the adjustment's own depth term some of it, the scale the rest).
     assert abs(with_depth) < 0.001 and sol.site_scale < 0.9995
     ann = sequence_annotation_of(sol, readings)
-    assert ann.extra["depth_scale"] == round(sol.site_scale, 6)
+    assert ann.depth_scale == round(sol.site_scale, 6)
 
 
 def sequence_annotation_of(sol, readings):

@@ -15,7 +15,8 @@ from test_synth import _digest  # the same bytes, counted the same way
 
 from annotator.cli import main
 from annotator.dataset import load_dataset, read_poses
-from annotator.dataset.frames import frames_from_json, poses_in_frame
+from annotator.dataset.frames import poses_in_frame
+from annotator.dataset.records import frames_from_json
 from annotator.detection import MarkerDetector
 from annotator.ingest.selection import sharpness
 from annotator.synthesis.sequence import (
@@ -60,10 +61,10 @@ def test_the_sequences_load_as_a_moving_rig_dataset(small: Path) -> None:
         assert np.array_equal(table["000000"].scene_T_rig, np.eye(4))
         moved = [np.linalg.norm(table[n].scene_T_rig[:3, 3]) for n in sorted(table)[1:]]
         assert min(moved) > 1.0  # the rig really moves
-        blurred = [n for n in table if table[n].extra["motion_blur_px"] > 0]
+        blurred = [n for n in table if (table[n].motion_blur_px or 0) > 0]
         assert len(blurred) == 2  # --motion-blur 0.5 of 4 frames
         for n in blurred:
-            assert table[n].extra["exposure_s"] > 0
+            assert (table[n].exposure_s or 0) > 0
         # The frames said to be blurred are the blurred ones (ingest's sharpness measure).
         left = ds.rig.cameras[0]
         sharp = {f.name: sharpness(f.read_image(left)) for f in frames}

@@ -71,7 +71,7 @@ def test_the_twin_of_a_sequence_has_its_posed_frames(sequence_twin, capsys) -> N
     assert sorted(frames) == expected
     for name, entry in frames.items():
         assert np.allclose(entry.scene_T_rig, real[name].scene_T_rig)
-        assert entry.extra["instances"], name  # the instances in the frame's view
+        assert entry.instances, name  # the instances in the frame's view
     capsys.readouterr()
     assert main(["check", str(out)]) == 0
 

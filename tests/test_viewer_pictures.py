@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from annotator.dataset import load_dataset, read_poses
-from annotator.dataset.annotation import DepthRegion
+from annotator.dataset.figures import DepthRegion
 from annotator.dataset.review import MissingPart, ReviewStatus
 from devkit.polling import wait_until
 from viewer import keyguard, pictures

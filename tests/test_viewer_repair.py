@@ -16,7 +16,7 @@ import pytest
 
 from annotator.cli import main as cli
 from annotator.dataset import load_dataset
-from annotator.dataset.annotation import SceneAnnotation
+from annotator.dataset.records import SceneAnnotation
 from annotator.dataset.review import EditedPose, Review, apply_edits, read_review, write_review
 from annotator.errors import UserError
 from annotator.export.selection import select_scenes

@@ -8,7 +8,7 @@ import json
 
 import pytest
 
-from annotator.dataset.annotation import depth_regions
+from annotator.dataset.figures import depth_regions
 from annotator.dataset.poses import read_pose_file, read_poses, write_poses
 from annotator.dataset.review import (
     NO_POSE_REASON,
@@ -180,7 +180,7 @@ def test_warnings_old_and_new_forms_flag_the_scene(sample_copy) -> None:
 
 
 def test_a_region_with_malformed_figures_is_still_shown() -> None:
-    from annotator.dataset.annotation import SceneWarning
+    from annotator.dataset.figures import SceneWarning
 
     w = SceneWarning.from_json(
         {

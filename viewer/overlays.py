@@ -34,7 +34,7 @@ import cv2
 import numpy as np
 
 from annotator.dataset import Dataset, Scene
-from annotator.dataset.annotation import InstanceAnnotation
+from annotator.dataset.records import InstanceAnnotation
 from annotator.geometry import MM_PER_M
 from annotator.geometry.camera import Camera
 from annotator.geometry.mesh import Mesh

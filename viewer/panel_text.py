@@ -10,7 +10,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-from annotator.dataset.annotation import InstanceAnnotation
+from annotator.dataset.records import InstanceAnnotation
 from viewer.editor import Offer
 from viewer.state import SceneInfo
 

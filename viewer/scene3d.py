@@ -32,7 +32,7 @@ import viser
 from scipy.spatial.transform import Rotation
 
 from annotator.dataset import Dataset
-from annotator.dataset.annotation import InstanceAnnotation
+from annotator.dataset.records import InstanceAnnotation
 from annotator.geometry import MM_PER_M
 from annotator.geometry.camera import Camera
 from annotator.geometry.transforms import invert, make_transform

@@ -54,13 +54,14 @@ from pathlib import Path
 import numpy as np
 
 from annotator.dataset import Dataset, Scene, load_dataset
-from annotator.dataset.annotation import (
-    PHYSICS_FLAGS,
+from annotator.dataset.figures import SceneWarning
+from annotator.dataset.flags import PHYSICS_FLAGS
+from annotator.dataset.frames import frames_view, shown_frames
+from annotator.dataset.records import (
+    FramePose,
     InstanceAnnotation,
     SceneAnnotation,
-    SceneWarning,
 )
-from annotator.dataset.frames import FramePose, frames_from_json, frames_view, shown_frames
 from annotator.dataset.review import (
     NO_POSE_REASON,
     EditedPose,
@@ -411,7 +412,7 @@ class ReviewState:
                 poses = ann.instances
                 warnings = tuple(ann.warnings)
                 if self.ds.rig.moving:
-                    frames = frames_from_json(ann.extra.get("frames"), sc.annotation_path)
+                    frames = ann.frames
             except (UserError, OSError) as exc:  # OSError: it went between stat and read
                 error = str(exc)
         shown = tuple(shown_frames(frames))

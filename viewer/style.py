@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING
 import cv2
 import numpy as np
 
-from annotator.dataset.annotation import DepthRegion, depth_regions
+from annotator.dataset.figures import DepthRegion, depth_regions
 from annotator.dataset.review import MissingPart, ReviewStatus
 
 if TYPE_CHECKING:

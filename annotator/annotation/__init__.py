@@ -8,7 +8,7 @@ markers refined against the depth), :mod:`.unexplained` and :mod:`.completeness`
 pose explains, image quality), :mod:`.settings` (thresholds), :mod:`.batch` (a whole dataset).
 
 ``annotation.json`` (docs/FORMAT.md) is read and written through the records of
-:mod:`annotator.dataset.annotation`; per instance, besides the pose:
+:mod:`annotator.dataset.records`; per instance, besides the pose:
 
 - ``uncertainty_mm``: estimated 1-sigma pose error as RMS surface displacement (mm), from the
   joint refinement's covariance (the paper's distance, section 4.1; for a pose refined against
@@ -22,10 +22,10 @@ pose explains, image quality), :mod:`.settings` (thresholds), :mod:`.batch` (a w
   ``max(3 mm, 1% of z)`` of the depth rendered at the pose, and the median absolute difference;
 - ``occlusion``: ``{"rate", "per_camera": {camera: rate}}``: 1 - visible/full silhouette pixels,
   posed instances as occluders, plus the depth test in the depth camera;
-- ``flags``: reasons a reviewer should look (:class:`annotator.dataset.annotation.Flag`).
+- ``flags``: reasons a reviewer should look (:class:`annotator.dataset.flags.Flag`).
 
 Top level: ``format``, ``created_at``, ``description_digest``, ``unknown_markers``
 (``{camera: [ids]}``, ids that belong to no instance), ``duplicates`` (``{camera: [ids]}`` seen
 twice in one image), ``image_quality``, ``warnings`` (``{"kind", "message", ...}``, see
-:class:`annotator.dataset.annotation.SceneWarning`), ``unexplained_mask`` and ``errors``.
+:class:`annotator.dataset.figures.SceneWarning`), ``unexplained_mask`` and ``errors``.
 """

@@ -15,11 +15,12 @@ from annotator.annotation.scene import annotate_scene
 from annotator.annotation.sequence_batch import annotate_sequences
 from annotator.annotation.settings import AnnotateSettings
 from annotator.dataset import Dataset, Scene, as_dataset, cached_dataset, require_meshes
-from annotator.dataset.annotation import SceneAnnotation, WarningKind
 from annotator.dataset.check import BROKEN_LINK
-from annotator.dataset.frames import frames_from_json, frames_left_out
+from annotator.dataset.flags import WarningKind
+from annotator.dataset.frames import frames_left_out
 from annotator.dataset.model import SCENES_DIR
 from annotator.dataset.poses import read_pose_file
+from annotator.dataset.records import SceneAnnotation
 from annotator.dataset.review import now_iso
 from annotator.detection import MarkerDetector
 from annotator.errors import UserError
@@ -249,7 +250,7 @@ def annotate_dataset(
     for sid in sorted(report.done) if ds.rig.moving else []:
         path = ds.scene(sid).annotation_path
         ann = SceneAnnotation.read(path)
-        frames = frames_left_out(frames_from_json(ann.extra.get("frames"), path))
+        frames = frames_left_out(ann.frames)
         if frames:
             left[sid] = frames
         said = [w.message for w in ann.warnings if w.kind == WarningKind.NOTE]

@@ -35,7 +35,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from annotator.dataset.annotation import DepthRegion, ImageQuality, SceneWarning, WarningKind
+from annotator.dataset.figures import DepthRegion, ImageQuality, SceneWarning
+from annotator.dataset.flags import WarningKind
 
 
 @dataclass(frozen=True)

@@ -19,7 +19,9 @@ import numpy as np
 
 from annotator.annotation.settings import AnnotateSettings
 from annotator.dataset import Dataset
-from annotator.dataset.annotation import Flag, InstanceAnnotation, MarkerUse, Reprojection
+from annotator.dataset.figures import MarkerUse, Reprojection
+from annotator.dataset.flags import Flag
+from annotator.dataset.records import InstanceAnnotation
 from annotator.geometry.camera import Camera
 from annotator.pnp import (
     Observation,

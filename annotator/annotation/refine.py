@@ -35,8 +35,10 @@ import numpy as np
 
 from annotator.annotation.settings import AnnotateSettings
 from annotator.dataset import Dataset
-from annotator.dataset.annotation import Flag, InstanceAnnotation, Reprojection, sort_flags
+from annotator.dataset.figures import Reprojection
+from annotator.dataset.flags import Flag, sort_flags
 from annotator.dataset.model import ObjectModel
+from annotator.dataset.records import InstanceAnnotation
 from annotator.pnp import Observation, reprojection_errors, rms_uncertainty
 from annotator.refinement import (
     DepthTerm,

@@ -26,16 +26,11 @@ from annotator.annotation.settings import AnnotateSettings
 from annotator.annotation.unexplained import unexplained_depth
 from annotator.annotation.visibility import Renders, add_visibility
 from annotator.dataset import Dataset, Scene
-from annotator.dataset.annotation import (
-    Flag,
-    ImageQuality,
-    InstanceAnnotation,
-    SceneAnnotation,
-    SceneWarning,
-    WarningKind,
-)
+from annotator.dataset.figures import ImageQuality, SceneWarning
+from annotator.dataset.flags import Flag, WarningKind
 from annotator.dataset.frames import scene_shots
 from annotator.dataset.model import UNEXPLAINED_MASK
+from annotator.dataset.records import InstanceAnnotation, SceneAnnotation
 from annotator.detection import MarkerDetector
 from annotator.detection.aruco import ImageReading
 from annotator.io.images import to_gray8

@@ -31,9 +31,6 @@ import functools
 from collections import defaultdict
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
-from enum import StrEnum
-from pathlib import Path
-from typing import Any
 
 import cv2
 import numpy as np
@@ -59,20 +56,21 @@ from annotator.annotation.sequence_noise import (
 from annotator.annotation.settings import AnnotateSettings
 from annotator.annotation.visibility import MIN_DEPTH_PIXELS
 from annotator.dataset import Dataset, Scene
-from annotator.dataset.annotation import (
-    Flag,
+from annotator.dataset.figures import (
     ImageQuality,
-    InstanceAnnotation,
     MarkerUse,
     Occlusion,
     Reprojection,
-    SceneAnnotation,
     SceneWarning,
-    WarningKind,
-    sort_flags,
 )
-from annotator.dataset.frames import FramePose, frames_from_json, frames_to_json, poses_in_frame
+from annotator.dataset.flags import Flag, FrameFlag, WarningKind, sort_flags
+from annotator.dataset.frames import poses_in_frame
 from annotator.dataset.model import Frame
+from annotator.dataset.records import (
+    FramePose,
+    InstanceAnnotation,
+    SceneAnnotation,
+)
 from annotator.detection import MarkerDetector
 from annotator.detection.aruco import Detection, ImageReading
 from annotator.errors import UserError
@@ -92,7 +90,6 @@ from annotator.pnp.bundle import BundleObservations, BundleResult, bundle_adjust
 from annotator.pnp.uncertainty import relative_rms_uncertainty, site_covariance
 
 __all__ = [
-    "FrameFlag",
     "FrameReading",
     "SequenceSolution",
     "annotate_sequence",
@@ -133,29 +130,6 @@ SCALE_SIGMA = 0.003
 #: ... and when the depth measures it: never better than the depth map's own scale (its
 #: calibration, the surface under a marker's centre read on a few pixels).
 DEPTH_SCALE_SIGMA = 0.0003
-
-
-class FrameFlag(StrEnum):
-    """Why a reviewer should look at a frame (``frames[f].flags`` in annotation.json); the
-    values are the JSON strings, as :class:`~annotator.dataset.annotation.Flag`'s."""
-
-    #: No marker of a known instance was read: ``scene_T_rig`` is null, not a guess.
-    NO_KNOWN_MARKERS = "no_known_markers"
-    #: Its markers belong to instances no other frame connects to the rest: null too.
-    UNCONNECTED = "unconnected"
-    #: Left out of the solve (``reason`` says why): null too.
-    OUTLIER = "outlier"
-    #: Corners reproject worse than :data:`HIGH_REPROJECTION_PX` after the solve.
-    HIGH_REPROJECTION = "high_reprojection"
-    #: Posed on fewer than :data:`FEW_MARKERS` marker observations.
-    FEW_MARKERS = "few_markers"
-    #: Its images are smeared by a motion streak at least :data:`MOTION_BLUR_PX` long.
-    MOTION_BLUR = "motion_blur"
-    #: Its markers place several parts differently from the rest of the sequence
-    #: (:mod:`~annotator.annotation.consistency`).
-    INCONSISTENT = "inconsistent"
-    #: Posed on the markers of one part only.
-    SINGLE_PART = "single_part"
 
 
 @dataclass
@@ -309,7 +283,7 @@ def solve_sequence(
     placed = _place(ds, frames_seen, settings)
     if placed is None:
         for name in names:
-            out.frames[name] = FramePose(name, None, {"flags": [FrameFlag.NO_KNOWN_MARKERS]})
+            out.frames[name] = FramePose(name, None, flags=[FrameFlag.NO_KNOWN_MARKERS])
         out.warnings.append(
             SceneWarning(WarningKind.NO_MARKERS, "no marker of a known instance in any frame")
         )
@@ -933,10 +907,10 @@ def _records(
                 markers=markers,
                 views=len(per_cam),
                 flags=sort_flags(flags),
-                extra={"frames_seen": int(agree[:, i].sum())},
+                frames_seen=int(agree[:, i].sum()),
             )
         )
-    several = [r for r in out.instances if r.extra["frames_seen"] >= 2]
+    several = [r for r in out.instances if (r.frames_seen or 0) >= 2]
     off = [r for r in several if Flag.HIGH_RESIDUAL in r.flags]
     if several and len(off) >= GLUED_SHARE * len(several):
         out.warnings.append(SceneWarning(WarningKind.NOTE, _sites_hint(len(off), len(several))))
@@ -955,10 +929,12 @@ def _records(
     for f, name in enumerate(names):
         if f not in by_live:
             reason = placed.reasons[f]
-            extra: dict[str, Any] = {"flags": [reason]}
+            why_not = None
             if reason == FrameFlag.OUTLIER:
-                extra["reason"] = "its markers agree with no placed instance's pose"
-            out.frames[name] = FramePose(name, None, extra)
+                why_not = "its markers agree with no placed instance's pose"
+            out.frames[name] = FramePose(
+                name, None, flags=[] if reason is None else [reason], reason=why_not
+            )
             continue
         n = by_live[f]
         mine = (obs.frame == n) & keep
@@ -969,10 +945,8 @@ def _records(
             out.frames[name] = FramePose(
                 name,
                 None,
-                {
-                    "flags": [FrameFlag.OUTLIER],
-                    "reason": "none of its markers agree with the solve",
-                },
+                flags=[FrameFlag.OUTLIER],
+                reason="none of its markers agree with the solve",
             )
             continue
         blur_mm, blur_deg = blur.uncertainty(n, float(cams[0].K[0, 0]))
@@ -1003,7 +977,7 @@ def _records(
                 f"(1-sigma {unc_mm:.3g} mm, {unc_deg:.3g} degrees)"
             )
         if why is not None:
-            out.frames[name] = FramePose(name, None, {"flags": [FrameFlag.OUTLIER], "reason": why})
+            out.frames[name] = FramePose(name, None, flags=[FrameFlag.OUTLIER], reason=why)
             continue
         rms_f = float(np.sqrt(np.mean(err[mine] ** 2)))
         reasons: list[str] = []
@@ -1034,21 +1008,18 @@ def _records(
         out.frames[name] = FramePose(
             name,
             T,
-            {
-                "reprojection_px": round(rms_f, 4),
-                "markers_used": int(mine.sum()),
-                "uncertainty_mm": round(unc_mm, 4),
-                "uncertainty_deg": round(unc_deg, 4),
-                "instances": {},
-                "flags": flags_f,
-                **({"reason": "; ".join(reasons)} if reasons else {}),
-            },
+            reprojection_px=round(rms_f, 4),
+            markers_used=int(mine.sum()),
+            uncertainty_mm=round(unc_mm, 4),
+            uncertainty_deg=round(unc_deg, 4),
+            instances={},
+            flags=flags_f,
+            reason="; ".join(reasons) if reasons else None,
         )
     changed = [
         n
         for n, f in zip(names, (out.frames[n] for n in names))
-        if FrameFlag.INCONSISTENT in f.extra.get("flags", [])
-        or "differently from the rest" in f.extra.get("reason", "")
+        if f.has(FrameFlag.INCONSISTENT) or "differently from the rest" in (f.reason or "")
     ]
     if changed:
         parts = sorted(
@@ -1129,14 +1100,10 @@ def sequence_annotation(
     :func:`frame_visibility` found: each frame's ``instances`` (with how many of the
     instance's markers it used), each instance's least occluded view and median depth
     agreement (``depth_disagreement`` below the settings' minimum)."""
-    frames = {
-        name: FramePose(f.frame, f.scene_T_rig, dict(f.extra))
-        for name, f in solution.frames.items()
-    }
+    frames = {name: replace(f) for name, f in solution.frames.items()}
     best: dict[str, tuple[float, dict[str, float]]] = {}
     agreements: dict[str, list[float]] = defaultdict(list)
     for name, found in seen.items():
-        entry = frames[name].extra
         per = {}
         for key, v in sorted(found.items()):
             per[key] = {
@@ -1148,7 +1115,7 @@ def sequence_annotation(
                 best[key] = (rate, v["occlusion"])
             if "depth_agreement" in v:
                 agreements[key].append(v["depth_agreement"])
-        entry["instances"] = per
+        frames[name].instances = per
     instances = []
     unconfirmed: dict[str, set[int]] = defaultdict(set)
     for r in solution.instances:
@@ -1162,29 +1129,26 @@ def sequence_annotation(
         flags = [f for f in r.flags if f != Flag.DEPTH_DISAGREEMENT]
         if agreements.get(r.key):
             a = float(np.median(agreements[r.key]))
-            r.extra["depth_agreement_median"] = round(a, 4)
+            r.depth_agreement_median = round(a, 4)
             if a < settings.depth_min_agreement:
                 flags.append(Flag.DEPTH_DISAGREEMENT)
         r.flags = sort_flags(flags)
         instances.append(r)
     kept = {r.key for r in instances}
     for f in frames.values():  # a pose left out is in no frame either
-        if "instances" in f.extra:
-            f.extra["instances"] = {k: v for k, v in f.extra["instances"].items() if k in kept}
-    quality = {r.frame: {c: q.to_json() for c, q in r.quality.items()} for r in readings}
-    for name, q in quality.items():
-        frames[name].extra["image_quality"] = q
+        if f.instances is not None:
+            f.instances = {k: v for k, v in f.instances.items() if k in kept}
+    for reading in readings:
+        frames[reading.frame].image_quality = dict(reading.quality)
     return SceneAnnotation(
         instances=instances,
         warnings=list(solution.warnings),
         unknown_markers=solution.unknown_markers,
         unconfirmed_markers={c: sorted(v) for c, v in sorted(unconfirmed.items())},
         duplicates=solution.duplicates,
-        extra={
-            "scene_frame": solution.reference,
-            "frames": frames_to_json(frames),
-            **({"depth_scale": round(solution.site_scale, 6)} if solution.site_scale != 1 else {}),
-        },
+        scene_frame=solution.reference,
+        frames=frames,
+        depth_scale=round(solution.site_scale, 6) if solution.site_scale != 1 else None,
     )
 
 
@@ -1200,7 +1164,11 @@ def _contradicted_lone(
     agreement = float(np.median(agreements))
     if len(r.marker_ids()) == 1:  # one marker, however many frames read it the same way
         return agreement < s.depth_min_agreement
-    return r.extra.get("frames_seen", 3) <= 2 and r.count("used") <= 2 and agreement < CONTRADICTED
+    return (
+        (3 if r.frames_seen is None else r.frames_seen) <= 2
+        and r.count("used") <= 2
+        and agreement < CONTRADICTED
+    )
 
 
 #: A pose on one reading whose part other frames should see, this many of them, and read
@@ -1211,7 +1179,7 @@ PHANTOM_FRAMES = 3
 def _phantom(r: InstanceAnnotation, seen: dict[str, dict[str, dict]]) -> bool:
     """A pose on one marker read once (one camera, one frame) that other frames see mostly
     unhidden (:data:`PHANTOM_FRAMES` of them) without reading any of its markers."""
-    if not (r.extra.get("frames_seen") == 1 and r.count("used") == 1):
+    if not (r.frames_seen == 1 and r.count("used") == 1):
         return False
     unread = sum(
         1
@@ -1253,12 +1221,11 @@ def frame_annotations(ann: SceneAnnotation) -> dict[str, SceneAnnotation]:
     frame's name): the instances that frame read markers of, posed as its rig saw them, with
     their markers' use (over the sequence) and figures. What works on a fixed rig's
     annotated scene (``annotator sites``) then works on every frame of a sequence."""
-    frames = frames_from_json(ann.extra.get("frames"), Path("annotation.json"))
     out = {}
-    for name, frame in sorted(frames.items()):
+    for name, frame in sorted(ann.frames.items()):
         if frame.scene_T_rig is None:
             continue
-        read = {k for k, v in (frame.extra.get("instances") or {}).items() if v.get("markers_used")}
+        read = {k for k, v in (frame.instances or {}).items() if v.get("markers_used")}
         seen = [r for r in ann.instances if r.key in read]
         out[name] = SceneAnnotation(instances=poses_in_frame(seen, frame.scene_T_rig))
     return out

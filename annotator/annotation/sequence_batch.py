@@ -26,9 +26,10 @@ from annotator.annotation.sequence import (
 )
 from annotator.annotation.settings import AnnotateSettings
 from annotator.dataset import Dataset, Scene, cached_dataset
-from annotator.dataset.annotation import InstanceAnnotation, WarningKind
-from annotator.dataset.frames import frames_from_json, scene_shots
+from annotator.dataset.flags import WarningKind
+from annotator.dataset.frames import scene_shots
 from annotator.dataset.model import FRAMES_DIR, SCENES_DIR
+from annotator.dataset.records import InstanceAnnotation
 from annotator.dataset.review import now_iso
 from annotator.detection import MarkerDetector
 from annotator.physics.scene import record_physics
@@ -181,7 +182,7 @@ def annotate_sequences(
         if not ann.instances:
             out.failed[sid] = f"{scene.path}: no marker of any known instance detected in any frame"
             continue
-        shots = scene_shots(ds, scene, frames_from_json(ann.extra.get("frames"), scene.path))
+        shots = scene_shots(ds, scene, ann.frames)
         if shots:  # the pile as its first posed frame's depth sees its support
             record_physics(ds, shots[0], ann.instances)
         ann.created_at = now_iso()

@@ -19,7 +19,8 @@ from annotator.annotation.completeness import (
 from annotator.annotation.settings import AnnotateSettings
 from annotator.annotation.visibility import Renders
 from annotator.dataset import Dataset
-from annotator.dataset.annotation import DepthRegion, SceneWarning, WarningKind
+from annotator.dataset.figures import DepthRegion, SceneWarning
+from annotator.dataset.flags import WarningKind
 from annotator.geometry.camera import Camera
 from annotator.geometry.mesh import Mesh
 

@@ -7,7 +7,9 @@ import numpy as np
 
 from annotator.annotation.settings import AnnotateSettings
 from annotator.dataset import Dataset, InstancePose
-from annotator.dataset.annotation import DepthCheck, Flag, InstanceAnnotation, Occlusion, sort_flags
+from annotator.dataset.figures import DepthCheck, Occlusion
+from annotator.dataset.flags import Flag, sort_flags
+from annotator.dataset.records import InstanceAnnotation
 from annotator.occlusion import InstanceVisibility, scene_visibility
 
 #: Per camera, the depth (mm) of the nearest posed instance and its index, on a sample grid.

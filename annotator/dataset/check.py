@@ -14,9 +14,10 @@ from pathlib import Path
 
 import numpy as np
 
-from annotator.dataset.frames import frames_from_json, frames_left_out, frames_line, scene_shots
+from annotator.dataset.frames import frames_left_out, frames_line, scene_shots
 from annotator.dataset.load import Problem, read_dataset, site_shape_problem
 from annotator.dataset.model import Capture, Dataset, ObjectModel
+from annotator.dataset.records import frames_from_json
 from annotator.errors import UserError
 from annotator.geometry.mesh import Mesh
 
@@ -66,7 +67,7 @@ def check_dataset(root: str | Path, *, annotations: bool = False) -> CheckReport
 
 
 def _annotation_warnings(path: Path) -> list[Problem]:
-    from annotator.dataset.annotation import SceneAnnotation
+    from annotator.dataset.records import SceneAnnotation
 
     try:
         ann = SceneAnnotation.read(path)

@@ -10,94 +10,31 @@ frame by taking the poses through :func:`poses_in_frame`.
 from __future__ import annotations
 
 from collections.abc import Collection, Mapping, Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import TypeVar
 
 import numpy as np
 
-from annotator.dataset.annotation import InstanceAnnotation
+from annotator.dataset.flags import FrameFlag
 from annotator.dataset.model import FRAMES_DIR, Capture, Dataset, DepthSpec, Rig, Scene
 from annotator.dataset.poses import InstancePose, read_pose_file
+from annotator.dataset.records import FramePose, InstanceAnnotation, frames_from_json
 from annotator.errors import UserError
 from annotator.geometry.camera import Camera
-from annotator.geometry.transforms import invert, is_rotation
+from annotator.geometry.transforms import invert
 
 __all__ = [
-    "FramePose",
     "FramesScene",
     "Shot",
-    "frames_from_json",
     "frames_left_out",
     "frames_line",
-    "frames_to_json",
     "poses_in_frame",
     "read_frames",
     "frames_view",
     "scene_shots",
     "shown_frames",
 ]
-
-
-@dataclass(frozen=True)
-class FramePose:
-    """Where the rig was for one frame: ``scene_T_rig`` (4x4, mm), None for a frame that
-    could not be posed (FORMAT.md: flagged ``no_known_markers``, never guessed); ``extra``
-    holds the other fields of the frame's entry untouched."""
-
-    frame: str
-    scene_T_rig: np.ndarray | None
-    extra: dict[str, Any] = field(default_factory=dict, compare=False)
-
-    def to_json(self) -> dict[str, Any]:
-        T = self.scene_T_rig
-        out: dict[str, Any] = {
-            "scene_T_rig": None if T is None else [float(x) for x in np.asarray(T).reshape(16)]
-        }
-        out.update(self.extra)
-        return out
-
-
-def frames_from_json(doc: Any, path: Path) -> dict[str, FramePose]:
-    """The ``frames`` mapping of a pose file (an empty dict when absent).
-
-    Raises:
-        UserError: naming the file and the frame, for an entry that is not a mapping or a
-            ``scene_T_rig`` that is not null or 16 finite numbers of a rigid transform.
-    """
-    if doc is None:
-        return {}
-    if not isinstance(doc, dict):
-        raise UserError("frames must map frame -> {scene_T_rig: [16 floats], ...}", path=path)
-    out: dict[str, FramePose] = {}
-    for name, entry in doc.items():
-        if not isinstance(entry, dict) or "scene_T_rig" not in entry:
-            raise UserError(f"frames[{name!r}] needs scene_T_rig (16 floats or null)", path=path)
-        raw = entry["scene_T_rig"]
-        T = None
-        if raw is not None:
-            try:
-                T = np.asarray(raw, dtype=np.float64).reshape(4, 4)
-            except (TypeError, ValueError):
-                raise UserError(
-                    f"frames[{name!r}].scene_T_rig must be 16 numbers or null", path=path
-                ) from None
-            if (
-                not np.all(np.isfinite(T))
-                or not is_rotation(T[:3, :3], tol=1e-3)
-                or np.any(np.abs(T[3] - [0, 0, 0, 1]) > 1e-6)
-            ):
-                raise UserError(
-                    f"frames[{name!r}].scene_T_rig is not a finite rigid transform", path=path
-                )
-        extra = {k: v for k, v in entry.items() if k != "scene_T_rig"}
-        out[str(name)] = FramePose(str(name), T, extra)
-    return out
-
-
-def frames_to_json(frames: Mapping[str, FramePose]) -> dict[str, Any]:
-    """The ``frames`` mapping to write, in sorted frame order."""
-    return {name: frames[name].to_json() for name in sorted(frames)}
 
 
 #: A pose record: a file's (InstancePose) or annotate's (InstanceAnnotation).
@@ -182,19 +119,10 @@ def scene_shots(
     out = []
     for name in sorted(frames):
         T = frames[name].scene_T_rig
-        if T is None or name in rejected or _inconsistent(frames[name]):
+        if T is None or name in rejected or frames[name].has(FrameFlag.INCONSISTENT):
             continue
         out.append(Shot(scene, folders[name], name, invert(T)))
     return out
-
-
-#: The frame flag of a frame whose markers place several parts elsewhere than the rest of
-#: the sequence does (annotate's ``inconsistent``): the scene's poses are not its truth.
-INCONSISTENT = "inconsistent"
-
-
-def _inconsistent(frame: FramePose) -> bool:
-    return INCONSISTENT in (frame.extra.get("flags") or [])
 
 
 def frames_left_out(
@@ -206,7 +134,7 @@ def frames_left_out(
     a reviewer.
 
     >>> frames = {"000000": FramePose("000000", np.eye(4)),
-    ...           "000001": FramePose("000001", None, {"flags": ["outlier"], "reason": "far"})}
+    ...           "000001": FramePose("000001", None, flags=["outlier"], reason="far")}
     >>> frames_left_out(frames, rejected=["000000"])
     {'000000': 'rejected by a reviewer', '000001': 'not posed: outlier (far)'}
     """
@@ -214,11 +142,11 @@ def frames_left_out(
     for name in sorted(frames):
         f = frames[name]
         if f.scene_T_rig is None:
-            flags = ", ".join(str(x) for x in f.extra.get("flags") or []) or "no pose"
-            reason = f.extra.get("reason")
+            flags = ", ".join(str(x) for x in f.flags or []) or "no pose"
+            reason = f.reason
             out[name] = f"not posed: {flags}" + (f" ({reason})" if reason else "")
-        elif _inconsistent(f):
-            reason = f.extra.get("reason")
+        elif f.has(FrameFlag.INCONSISTENT):
+            reason = f.reason
             out[name] = "flagged inconsistent" + (f" ({reason})" if reason else "")
         elif name in rejected:
             out[name] = "rejected by a reviewer"

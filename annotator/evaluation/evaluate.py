@@ -243,9 +243,8 @@ def per_instance_errors(root: Path) -> list[dict[str, Any]]:
     median over the frames both files pose of the error as each frame's rig sees the part
     (what an export of that frame holds), whatever the scene frame's own error."""
     from annotator.dataset import load_dataset
-    from annotator.dataset.annotation import InstanceAnnotation, SceneAnnotation
-    from annotator.dataset.frames import frames_from_json
     from annotator.dataset.poses import read_pose_file
+    from annotator.dataset.records import InstanceAnnotation, SceneAnnotation, frames_from_json
     from annotator.geometry.transforms import invert
     from annotator.symmetry import PoseSpace
 
@@ -261,7 +260,7 @@ def per_instance_errors(root: Path) -> list[dict[str, Any]]:
         pairs: list[tuple[np.ndarray, np.ndarray]] | None = None  # a fixed rig: as they are
         if ds.rig.moving:
             truth = frames_from_json(top.get("frames"), sc.gt_path)
-            found = frames_from_json(ann.extra.get("frames"), sc.annotation_path)
+            found = ann.frames
             pairs = []
             for name, f in sorted(found.items()):
                 mine, true = f.scene_T_rig, truth[name].scene_T_rig if name in truth else None

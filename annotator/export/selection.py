@@ -17,8 +17,9 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from annotator.dataset import Dataset, InstancePose, Scene
-from annotator.dataset.frames import Shot, frames_from_json, frames_left_out, scene_shots
+from annotator.dataset.frames import Shot, frames_left_out, scene_shots
 from annotator.dataset.poses import read_pose_file
+from annotator.dataset.records import frames_from_json
 from annotator.dataset.review import ReviewStatus, apply_edits, poses_fingerprint, read_review
 from annotator.dataset.validity import pose_problem
 from annotator.errors import UserError

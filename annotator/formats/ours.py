@@ -18,8 +18,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from annotator.dataset.frames import frames_from_json, scene_shots
+from annotator.dataset.frames import scene_shots
 from annotator.dataset.poses import read_pose_file
+from annotator.dataset.records import FramePose, frames_from_json
 from annotator.dataset.review import (
     Review,
     ReviewStatus,
@@ -73,7 +74,9 @@ def read_ground_truth(path: Path, *, symmetry: str | None = None) -> GroundTruth
                     f"instances[{i}]: unknown object {p.object!r} (objects: {', '.join(spaces)})",
                     path=src,
                 )
-        for key, shot_poses, occlusion in _shots(ds, sc, src, top, poses, review):
+        for key, shot_poses, occlusion in _shots(
+            ds, sc, frames_from_json(top.get("frames"), src), poses, review
+        ):
             scenes.append(key)
             for p in shot_poses:
                 table.setdefault((key, p.object), PoseSet()).add(p.R, p.t, occlusion(p))
@@ -85,19 +88,18 @@ def read_ground_truth(path: Path, *, symmetry: str | None = None) -> GroundTruth
     return GroundTruth(spaces, table, scenes, NAME, "mm", ids, notes=notes, root=Path(path))
 
 
-def _shots(ds, sc, src: Path, top: dict, poses: list, review: Review | None):
+def _shots(ds, sc, frames: dict[str, FramePose], poses: list, review: Review | None):
     """The evaluation's scenes of one scene folder: the scene itself, or (a sequence) each
     posed frame not rejected on its own, keyed ``<scene>/<frame>``, with its poses as that
     frame's rig saw them and each instance's occlusion rate there (the reference camera's)."""
     if not ds.rig.moving:
         yield sc.id, poses, lambda p: _occlusion(p.extra)
         return
-    frames = frames_from_json(top.get("frames"), src)
     ref = ds.rig.cameras[0].name
     rejected = review.rejected_frames if review is not None else ()
     for shot in scene_shots(ds, sc, frames, rejected=rejected):
         assert shot.frame is not None  # a sequence's shots are frames
-        seen = frames[shot.frame].extra.get("instances") or {}
+        seen = frames[shot.frame].instances or {}
 
         def occlusion(p, seen=seen):
             rate = (seen.get(p.key) or {}).get("occlusion", {}).get(ref)
@@ -174,7 +176,7 @@ def annotations_as_results(root: Path, gt: GroundTruth) -> PoseResults:
     uncertainty_mm)`` (an instance added by hand has none: score 0); a sequence's in each
     of its posed frames."""
     from annotator.dataset import load_dataset
-    from annotator.dataset.annotation import SceneAnnotation
+    from annotator.dataset.records import SceneAnnotation
 
     ds = load_dataset(root)
     table: Table = {}
@@ -193,7 +195,7 @@ def annotations_as_results(root: Path, gt: GroundTruth) -> PoseResults:
             for i in edited
         }
         poses = [i.pose if hasattr(i, "pose") else i for i in edited]
-        for key, shot_poses, _ in _shots(ds, sc, sc.annotation_path, ann.extra, poses, review):
+        for key, shot_poses, _ in _shots(ds, sc, ann.frames, poses, review):
             for p in shot_poses:
                 table.setdefault((key, p.object), PoseSet()).add(p.R, p.t, score[p.key])
     return PoseResults(table)

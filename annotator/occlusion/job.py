@@ -8,9 +8,10 @@ from dataclasses import dataclass
 from typing import Any
 
 from annotator.dataset import Dataset, InstancePose, Scene, cached_dataset
-from annotator.dataset.frames import frames_from_json, scene_shots
+from annotator.dataset.frames import scene_shots
 from annotator.dataset.model import FRAMES_DIR, Capture
 from annotator.dataset.poses import read_pose_file
+from annotator.dataset.records import frames_from_json
 from annotator.errors import UserError
 from annotator.io.atomic import write_json
 from annotator.occlusion import scene_visibility

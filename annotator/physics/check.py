@@ -15,7 +15,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from annotator.dataset.annotation import SUPPORT, Flag, PhysicsCheck
+from annotator.dataset.figures import SUPPORT, PhysicsCheck
+from annotator.dataset.flags import Flag
 from annotator.physics.contact import Body, boxes_overlap, hull_distance, penetration
 from annotator.physics.support import Support
 

@@ -10,10 +10,10 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from annotator.dataset import Dataset, InstancePose, Scene
-from annotator.dataset.annotation import SceneAnnotation
-from annotator.dataset.frames import frames_from_json, scene_shots
+from annotator.dataset.frames import scene_shots
 from annotator.dataset.load import Problem
 from annotator.dataset.poses import read_pose_file
+from annotator.dataset.records import FramePose, SceneAnnotation, frames_from_json
 from annotator.dataset.review import apply_edits, read_review
 from annotator.errors import UserError
 from annotator.physics.check import InstancePhysics, PhysicsSettings
@@ -54,7 +54,7 @@ class PhysicsSummary:
 
 def scene_poses(
     ds: Dataset, scene: Scene, poses: str
-) -> tuple[list[InstancePose], dict[str, float | None], Any]:
+) -> tuple[list[InstancePose], dict[str, float | None], dict[str, FramePose]]:
     """A scene's poses as the export takes them (annotation.json with the review's repairs,
     or gt.json), their uncertainties, and the pose file's ``frames`` (a sequence's)."""
     path = scene.annotation_path if poses == "annotation" else scene.gt_path
@@ -62,12 +62,12 @@ def scene_poses(
         raise UserError(f"no {path.name}", path=scene.path)
     if poses == "gt":
         found, top = read_pose_file(path)
-        return found, {}, top.get("frames")
+        return found, {}, frames_from_json(top.get("frames"), path)
     ann = SceneAnnotation.read(path)
     edits = apply_edits(ann.instances, read_review(scene.review_path))
     u = {i.key: i.uncertainty_mm for i in ann.instances if i.key not in edits.edited}
     posed = [p.pose if hasattr(p, "pose") else p for p in edits.poses]
-    return posed, u, ann.extra.get("frames")
+    return posed, u, ann.frames
 
 
 def physics_of_dataset(
@@ -96,7 +96,7 @@ def physics_of_dataset(
         t0 = time.perf_counter()
         try:
             posed, u, frames = scene_poses(ds, scene, poses)
-            shots = scene_shots(ds, scene, frames_from_json(frames, path))
+            shots = scene_shots(ds, scene, frames)
             if not shots:
                 raise UserError("no frame is posed", path=path)
             recs, support = shot_physics(

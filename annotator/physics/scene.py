@@ -11,8 +11,9 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 
 from annotator.dataset import Dataset, InstancePose
-from annotator.dataset.annotation import Flag, InstanceAnnotation, sort_flags
+from annotator.dataset.flags import Flag, sort_flags
 from annotator.dataset.frames import Shot
+from annotator.dataset.records import InstanceAnnotation
 from annotator.geometry.camera import Camera
 from annotator.geometry.transforms import invert
 from annotator.physics.check import InstancePhysics, PhysicsSettings, check_bodies

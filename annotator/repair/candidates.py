@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from annotator.dataset import Dataset
-from annotator.dataset.annotation import MarkerUse
+from annotator.dataset.figures import MarkerUse
 from annotator.detection.aruco import ImageReading
 from annotator.geometry.camera import Camera
 from annotator.geometry.mesh import Mesh

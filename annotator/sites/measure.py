@@ -34,8 +34,8 @@ from scipy import ndimage
 
 from annotator.annotation.visibility import render_poses
 from annotator.dataset import Dataset, Scene, cached_dataset
-from annotator.dataset.annotation import SceneAnnotation
 from annotator.dataset.model import Capture, Frame
+from annotator.dataset.records import SceneAnnotation
 from annotator.dataset.write import sites_to_yaml
 from annotator.detection import MarkerDetector
 from annotator.errors import UserError

@@ -32,7 +32,7 @@ from annotator.annotation.scene import annotate_scene
 from annotator.annotation.sequence import annotate_sequence, frame_annotations
 from annotator.annotation.settings import AnnotateSettings
 from annotator.dataset import Dataset, Scene, cached_dataset
-from annotator.dataset.annotation import SceneAnnotation
+from annotator.dataset.records import SceneAnnotation
 from annotator.detection import MarkerDetector
 from annotator.runner import BatchReport, run_batch
 from annotator.sites.measure import InstanceSites, measure_sites, units

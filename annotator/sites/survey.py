@@ -10,7 +10,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from annotator.dataset import Dataset, Scene, require_meshes
-from annotator.dataset.annotation import SceneAnnotation
+from annotator.dataset.records import SceneAnnotation
 from annotator.dataset.validity import unknown_name
 from annotator.errors import UserError
 from annotator.io.documents import unified_diff

@@ -50,9 +50,9 @@ import cv2
 import numpy as np
 from scipy.interpolate import PchipInterpolator
 
-from annotator.dataset.frames import FramePose, frames_to_json
 from annotator.dataset.model import FORMAT_VERSION, FRAMES_DIR, SCENES_DIR
 from annotator.dataset.poses import InstancePose, write_poses
+from annotator.dataset.records import FramePose, frames_to_json
 from annotator.geometry.camera import Camera
 from annotator.geometry.transforms import invert
 from annotator.runner import BatchReport, run_batch
@@ -459,10 +459,14 @@ def _scene_gt(
             for key, occ in res["instances"].items()
             if occ["rate"] < 1.0
         }
-        extra: dict[str, Any] = {"time_s": round(float(path.times[k]), 6)}
-        extra.update({f: res[f] for f in ("motion_blur_px", "exposure_s") if f in res})
-        extra["instances"] = in_view
-        frames[name] = FramePose(name, scene_T_rig, extra)
+        frames[name] = FramePose(
+            name,
+            scene_T_rig,
+            time_s=round(float(path.times[k]), 6),
+            motion_blur_px=res.get("motion_blur_px"),
+            exposure_s=res.get("exposure_s"),
+            instances=in_view,
+        )
     for p in poses:
         seen = [res["instances"][p.key] for res in results]
         cams = seen[0]["per_camera"]

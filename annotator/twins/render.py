@@ -34,8 +34,9 @@ from typing import Any
 import numpy as np
 
 from annotator.dataset import Dataset, InstancePose, Scene
-from annotator.dataset.frames import FramePose, frames_to_json, poses_in_frame
+from annotator.dataset.frames import poses_in_frame
 from annotator.dataset.model import FORMAT_VERSION, FRAMES_DIR, SCENES_DIR, Capture, orient_image
+from annotator.dataset.records import FramePose, frames_to_json
 from annotator.geometry.mesh import Mesh
 from annotator.io.images import encode_depth, write_png
 from annotator.markers.dictionary import is_predefined
@@ -263,7 +264,7 @@ def make_twin_sequence(
             seen[p.key].append(occ)
             if occ["rate"] < 1.0:
                 in_view[p.key] = {"occlusion": occ["per_camera"]}
-        entries[name] = FramePose(name, T, {"instances": in_view})
+        entries[name] = FramePose(name, T, instances=in_view)
     truth = [InstancePose(p.object, p.instance, p.R, p.t) for p in poses]
     for p in truth:
         occs = seen[p.key]

@@ -1,87 +1,41 @@
-"""``annotation.json`` as typed records: what ``annotate`` writes and every reader (viewer,
-evaluation, export, check) reads, so that a field added here reaches all of them.
+"""The figures annotation.json keeps beside each pose and scene, as typed records: which
+markers were used (:class:`MarkerUse`), how well they reproject (:class:`Reprojection`),
+how the depth agrees (:class:`DepthCheck`), whether the pile is possible
+(:class:`PhysicsCheck`), how hidden a part is (:class:`Occlusion`), and the scene's
+warnings (:class:`SceneWarning`, :class:`DepthRegion`) and image figures
+(:class:`ImageQuality`).
 
-The JSON layout is described in :mod:`annotator.annotation`. Each record has ``to_json`` and
-``from_json``; the JSON written is exactly the layout of docs/FORMAT.md. Numbers are kept as
-read (the reader has checked them), fields a record does not know are kept in its ``extra``
-(``details`` for a warning) and written back after the known ones, and a flag or warning
-kind this version does not know is kept as its text.
+Each record has ``to_json`` and ``from_json``; the JSON written is exactly the layout of
+docs/FORMAT.md. Numbers are kept as read (the reader has checked them), fields a record does
+not know are kept in its ``extra`` (``details`` for a warning) and written back after the
+known ones.
 """
 
 from __future__ import annotations
 
 import json
 from dataclasses import dataclass, field
-from enum import StrEnum
-from pathlib import Path
 from typing import Any
 
-import numpy as np
-
-from annotator.dataset.model import FORMAT_VERSION
-from annotator.dataset.poses import InstancePose, read_pose_file, write_poses
+from annotator.dataset.flags import Flag, WarningKind, known_member
 from annotator.geometry import Rect
-from annotator.geometry.transforms import make_transform
 
+__all__ = [
+    "SUPPORT",
+    "DepthCheck",
+    "DepthRegion",
+    "ImageQuality",
+    "MarkerUse",
+    "Occlusion",
+    "PhysicsCheck",
+    "Reprojection",
+    "SceneWarning",
+    "depth_regions",
+    "image_qualities",
+]
 
-class Flag(StrEnum):
-    """Reasons a reviewer should look at an instance, in the order annotation.json lists them."""
-
-    #: A lone marker / single view whose two pose solutions fit about equally well.
-    AMBIGUOUS = "ambiguous"
-    #: Only one camera's markers were usable.
-    SINGLE_VIEW = "single_view"
-    #: Reprojection error well above the corner noise.
-    HIGH_RESIDUAL = "high_residual"
-    #: Some of the instance's markers disagreed with the others and were dropped.
-    REJECTED_MARKERS = "rejected_markers"
-    #: The depth rendered at the pose disagrees with the measured depth.
-    DEPTH_DISAGREEMENT = "depth_disagreement"
-    #: Estimated uncertainty above 1% of the part's diameter.
-    HIGH_UNCERTAINTY = "high_uncertainty"
-    #: Another copy of the part is posed in the same place (a marker on the wrong copy).
-    OVERLAP = "overlap"
-    #: A sequence's frames disagree about the part: it moved while the rig moved (the pose
-    #: is the one most frames agree with).
-    MOVED = "moved"
-    #: It reaches inside another part or below the support (:attr:`PhysicsCheck.partners`).
-    PENETRATES = "penetrates"
-    #: Nothing is under it: its lower half is clear of the support and of every part.
-    FLOATS = "floats"
-    #: Left to gravity (``annotator check --physics --stability``), it moves.
-    UNSTABLE = "unstable"
-
-
-#: What the physics check may flag (:mod:`annotator.physics`).
-PHYSICS_FLAGS = (Flag.PENETRATES, Flag.FLOATS, Flag.UNSTABLE)
 #: The partner a physics figure names when it is the support, not another part.
 SUPPORT = "support"
-
-
-class WarningKind(StrEnum):
-    """What a scene-level warning is about."""
-
-    NO_MARKERS = "no_markers"
-    UNEXPLAINED_DEPTH = "unexplained_depth"
-    BLURRED = "blurred"
-    UNDER_EXPOSED = "under_exposed"
-    OVER_EXPOSED = "over_exposed"
-    #: Plain text (files of earlier versions, or an entry that is not an object).
-    NOTE = "note"
-
-
-def _known(enum: type[StrEnum], text: str) -> Any:
-    """``text`` as a member of ``enum`` when it is one, else the text itself."""
-    try:
-        return enum(text)
-    except ValueError:
-        return text
-
-
-def sort_flags(flags: list[Flag | str]) -> list[Flag | str]:
-    """Flags without repeats, in :class:`Flag`'s order (unknown ones last, as found)."""
-    known = [f for f in Flag if f in flags]
-    return known + [f for f in dict.fromkeys(flags) if f not in known]
 
 
 def _extra(doc: dict[str, Any], known: tuple[str, ...]) -> dict[str, Any]:
@@ -248,131 +202,6 @@ class Occlusion:
         )
 
 
-def _optional(record: Any, doc: Any) -> Any:
-    """``record.from_json(doc)`` for a mapping; None for None (read_pose_file has checked
-    that these fields are mappings, and their numbers)."""
-    return None if doc is None else record.from_json(doc)
-
-
-@dataclass
-class InstanceAnnotation:
-    """One posed instance and the figures that say how far to trust it.
-
-    Attributes:
-        object, instance: Which physical part.
-        R, t: Its pose in the reference camera (``x_cam = R x_model + t``, mm).
-        uncertainty_mm: Estimated 1-sigma pose error as RMS surface displacement.
-        reprojection: Reprojection error of the markers used (``reprojection_px`` in JSON).
-        markers: Per camera, the markers used, rejected and recovered.
-        views: Number of cameras whose markers were used.
-        depth: Agreement with the measured depth, or None (no depth, too few pixels).
-        occlusion: Occlusion rates, or None.
-        physics: Whether the pose is physically possible in its pile, or None (not checked).
-        flags: Reasons to look (:class:`Flag`).
-        extra: Fields this version does not know, kept as read.
-    """
-
-    object: str
-    instance: str
-    R: np.ndarray
-    t: np.ndarray
-    uncertainty_mm: float | None = None
-    reprojection: Reprojection | None = None
-    markers: dict[str, MarkerUse] = field(default_factory=dict)
-    views: int = 0
-    depth: DepthCheck | None = None
-    occlusion: Occlusion | None = None
-    physics: PhysicsCheck | None = None
-    flags: list[Flag | str] = field(default_factory=list)
-    extra: dict[str, Any] = field(default_factory=dict)
-
-    @property
-    def key(self) -> str:
-        """``object/instance``, the key used in review.json."""
-        return f"{self.object}/{self.instance}"
-
-    @property
-    def pose(self) -> InstancePose:
-        return InstancePose(self.object, self.instance, self.R, self.t, self.to_json_fields())
-
-    @property
-    def T(self) -> np.ndarray:  # noqa: N802 - matrix name
-        """4x4 ``cam_T_model`` in the reference camera."""
-        return make_transform(self.R, self.t)
-
-    @property
-    def occlusion_rate(self) -> float | None:
-        return None if self.occlusion is None else self.occlusion.rate
-
-    @property
-    def depth_agreement(self) -> float | None:
-        return None if self.depth is None else self.depth.agreement
-
-    @property
-    def reprojection_rms(self) -> float | None:
-        return None if self.reprojection is None else self.reprojection.rms
-
-    def count(self, use: str) -> int:
-        """Markers ``used``, ``rejected`` or ``recovered``, over every camera."""
-        return sum(len(getattr(m, use)) for m in self.markers.values())
-
-    def marker_ids(self, use: str = "used") -> set[int]:
-        """Ids of the markers ``used`` (or ``rejected``, ``recovered``) in any camera."""
-        return {i for m in self.markers.values() for i in getattr(m, use)}
-
-    def to_json_fields(self) -> dict[str, Any]:
-        """Everything but the pose, as JSON fields."""
-        out = dict(self.extra)
-        out.update(
-            uncertainty_mm=self.uncertainty_mm,
-            reprojection_px=None if self.reprojection is None else self.reprojection.to_json(),
-            markers={c: m.to_json() for c, m in self.markers.items()},
-            views=self.views,
-            depth=None if self.depth is None else self.depth.to_json(),
-            occlusion=None if self.occlusion is None else self.occlusion.to_json(),
-            flags=[str(f) for f in self.flags],
-        )
-        if self.physics is not None:
-            out["physics"] = self.physics.to_json()
-        return out
-
-    @classmethod
-    def from_pose(cls, p: InstancePose) -> InstanceAnnotation:
-        e = dict(p.extra)
-        known = {k: e.pop(k) for k in _INSTANCE_KEYS if k in e}
-        return cls(
-            p.object,
-            p.instance,
-            p.R,
-            p.t,
-            uncertainty_mm=known.get("uncertainty_mm"),
-            reprojection=_optional(Reprojection, known.get("reprojection_px")),
-            markers={
-                str(c): MarkerUse.from_json(m)
-                for c, m in (known.get("markers") or {}).items()
-                if isinstance(m, dict)
-            },
-            views=int(known.get("views") or 0),
-            depth=_optional(DepthCheck, known.get("depth")),
-            occlusion=_optional(Occlusion, known.get("occlusion")),
-            physics=_optional(PhysicsCheck, known.get("physics")),
-            flags=[_known(Flag, str(f)) for f in known.get("flags") or []],
-            extra=e,
-        )
-
-
-_INSTANCE_KEYS = (
-    "physics",
-    "uncertainty_mm",
-    "reprojection_px",
-    "markers",
-    "views",
-    "depth",
-    "occlusion",
-    "flags",
-)
-
-
 @dataclass(frozen=True)
 class DepthRegion:
     """A connected region of measured depth that no posed part explains, on the depth
@@ -501,7 +330,11 @@ class SceneWarning:
             if all(isinstance(c, str) for c in d["cameras"]):
                 cameras = tuple(d.pop("cameras"))
         return cls(
-            _known(WarningKind, kind), "" if message is None else str(message), regions, cameras, d
+            known_member(WarningKind, kind),
+            "" if message is None else str(message),
+            regions,
+            cameras,
+            d,
         )
 
 
@@ -541,80 +374,7 @@ class ImageQuality:
         )
 
 
-@dataclass
-class SceneAnnotation:
-    """A scene's annotation.json.
-
-    Attributes:
-        instances: The posed instances.
-        warnings: Scene-level warnings (completeness and image quality).
-        image_quality: Per camera, its :class:`ImageQuality`.
-        unknown_markers: ``{camera: [ids]}`` read but belonging to no instance.
-        unconfirmed_markers: ``{camera: [ids]}`` of poses left out because the measured depth
-            contradicted them and nothing else supported them.
-        duplicates: ``{camera: [ids]}`` seen twice in one image.
-        unexplained_mask: File name of the unexplained-depth mask beside annotation.json
-            (uint8 PNG on the depth camera's grid, 255 = unexplained), or None.
-        created_at, description_digest, errors: Provenance.
-        extra: Top-level fields this version does not know.
-    """
-
-    instances: list[InstanceAnnotation] = field(default_factory=list)
-    warnings: list[SceneWarning] = field(default_factory=list)
-    image_quality: dict[str, ImageQuality] = field(default_factory=dict)
-    unknown_markers: dict[str, list[int]] = field(default_factory=dict)
-    unconfirmed_markers: dict[str, list[int]] = field(default_factory=dict)
-    duplicates: dict[str, list[int]] = field(default_factory=dict)
-    unexplained_mask: str | None = None
-    created_at: str | None = None
-    description_digest: str | None = None
-    errors: list[str] = field(default_factory=list)
-    extra: dict[str, Any] = field(default_factory=dict)
-
-    @property
-    def flagged(self) -> bool:
-        """True if a reviewer should look: a warning or a flagged instance."""
-        return bool(self.warnings) or any(i.flags for i in self.instances)
-
-    def write(self, path: str | Path) -> None:
-        """Write annotation.json atomically."""
-        top = dict(self.extra)
-        top.update(
-            format=FORMAT_VERSION,
-            created_at=self.created_at,
-            description_digest=self.description_digest,
-            unknown_markers=self.unknown_markers,
-            unconfirmed_markers=self.unconfirmed_markers,
-            duplicates=self.duplicates,
-            image_quality={c: q.to_json() for c, q in self.image_quality.items()},
-            unexplained_mask=self.unexplained_mask,
-            warnings=[w.to_json() for w in self.warnings],
-            errors=self.errors,
-        )
-        write_poses(path, [i.pose for i in self.instances], **top)
-
-    @classmethod
-    def read(cls, path: str | Path) -> SceneAnnotation:
-        """Read annotation.json (UserError naming the file if it is malformed)."""
-        poses, top = read_pose_file(path)
-        top = dict(top)
-        top.pop("format", None)
-        return cls(
-            instances=[InstanceAnnotation.from_pose(p) for p in poses],
-            warnings=[SceneWarning.from_json(w) for w in top.pop("warnings", None) or []],
-            image_quality=_qualities(top.pop("image_quality", None)),
-            unknown_markers=top.pop("unknown_markers", None) or {},
-            unconfirmed_markers=top.pop("unconfirmed_markers", None) or {},
-            duplicates=top.pop("duplicates", None) or {},
-            unexplained_mask=top.pop("unexplained_mask", None),
-            created_at=top.pop("created_at", None),
-            description_digest=top.pop("description_digest", None),
-            errors=list(top.pop("errors", None) or []),
-            extra=top,
-        )
-
-
-def _qualities(doc: Any) -> dict[str, ImageQuality]:
+def image_qualities(doc: Any) -> dict[str, ImageQuality]:
     """Per camera, its :class:`ImageQuality` (entries that are not mappings are left out:
     the figures are annotate's own, rewritten on the next run)."""
     if not isinstance(doc, dict):
