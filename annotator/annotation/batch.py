@@ -12,7 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from annotator.annotation.scene import annotate_scene
-from annotator.annotation.sequence_batch import annotate_sequences
+from annotator.annotation.sequence.batch import annotate_sequences
 from annotator.annotation.settings import AnnotateSettings
 from annotator.dataset import Dataset, Scene, as_dataset, cached_dataset, require_meshes
 from annotator.dataset.check import BROKEN_LINK

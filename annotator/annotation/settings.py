@@ -9,6 +9,61 @@ from annotator.occlusion import AGREEMENT_TOLERANCE_MM
 
 
 @dataclass(frozen=True)
+class SequenceSettings:
+    """Thresholds of a sequence's solve (one moving rig; :mod:`annotator.annotation.sequence`).
+
+    Attributes:
+        high_reprojection_px: A frame whose corners reproject worse than this (RMS) after the
+            solve is flagged ``high_reprojection``.
+        few_markers: A frame posed on fewer marker observations is flagged ``few_markers``.
+        moved_share: An instance whose markers disagree with its pose in at least this share
+            of the frames that see it (and in two frames or more) moved during the sequence.
+        frame_max_uncertainty_mm, frame_max_uncertainty_deg: A frame whose pose is more
+            uncertain than this (1-sigma) is not posed: a guess is not written.
+        visibility_step: Each frame's occlusion rates from every this-many-th pixel at most
+            (``annotator occlusion`` gives every frame's exact rates).
+        solve_rounds: Rounds of bundle adjustment, each leaving out what the previous one
+            found disagreeing.
+        scale_rounds: Rounds of taking the scale from the measured depth and adjusting again.
+        scale_sigma: How well the scene's scale is known (1-sigma, relative) when no depth
+            measures it: the markers' printed size alone, read by corners a tenth of a pixel
+            off on 30 px markers.
+        depth_scale_sigma: ... and when the depth measures it: never better than the depth
+            map's own scale (its calibration, the surface under a marker's centre).
+        joint_share: A frame is placed from the markers of all its placed instances at once
+            when this share of them agree with that pose; else from its instances' poses.
+        max_candidates: At most this many candidate poses are scored when an instance is
+            started from all frames.
+        start_frames: At most this many frames' observations start an instance.
+        site_sigma_mm: How well each corner of a marker is known on its part (1-sigma, each
+            on its own: printing, gluing flat, the corner fit's bias); it does not average out
+            over frames.
+        glued_share: When at least this share of a sequence's parts (seen in two frames or
+            more) reproject worse than ``high_residual_px``, the user is told that
+            ``annotator sites`` measures their markers.
+        phantom_frames: A pose on one reading whose part this many other frames should see,
+            and read no marker of, is a misread or stray marker.
+    """
+
+    high_reprojection_px: float = 1.5
+    few_markers: int = 3
+    moved_share: float = 0.2
+    frame_max_uncertainty_mm: float = 2.0
+    frame_max_uncertainty_deg: float = 0.5
+    visibility_step: int = 4
+    solve_rounds: int = 3
+    scale_rounds: int = 3
+    scale_sigma: float = 0.003
+    depth_scale_sigma: float = 0.0003
+    joint_share: float = 0.6
+    max_candidates: int = 120
+    start_frames: int = 24
+    site_sigma_mm: float = 0.15
+    glued_share: float = 0.3
+    phantom_frames: int = 3
+
+
+@dataclass(frozen=True)
 class AnnotateSettings:
     """Thresholds of the annotation (px, mm, ratios).
 
@@ -40,6 +95,7 @@ class AnnotateSettings:
             their rays: the refinement solves for it (with this prior) and a refined pose's
             uncertainty counts it.
         completeness: The completeness checks' own thresholds.
+        sequence: A moving rig's sequences' own thresholds.
     """
 
     inlier_px: float = 4.0
@@ -58,3 +114,4 @@ class AnnotateSettings:
     depth_correlation: float = 30.0
     depth_bias_mm: float = 0.2
     completeness: CompletenessSettings = field(default_factory=CompletenessSettings)
+    sequence: SequenceSettings = field(default_factory=SequenceSettings)

@@ -61,11 +61,11 @@ class FrameFlag(StrEnum):
     UNCONNECTED = "unconnected"
     #: Left out of the solve (``reason`` says why): null too.
     OUTLIER = "outlier"
-    #: Corners reproject worse than :data:`HIGH_REPROJECTION_PX` after the solve.
+    #: Corners reproject worse than the sequence settings' ``high_reprojection_px`` after the solve.
     HIGH_REPROJECTION = "high_reprojection"
-    #: Posed on fewer than :data:`FEW_MARKERS` marker observations.
+    #: Posed on fewer than the sequence settings' ``few_markers`` marker observations.
     FEW_MARKERS = "few_markers"
-    #: Its images are smeared by a motion streak at least :data:`MOTION_BLUR_PX` long.
+    #: Its images are smeared by a motion streak at least :data:`~annotator.annotation.sequence.noise.MOTION_BLUR_PX` long.
     MOTION_BLUR = "motion_blur"
     #: Its markers place several parts differently from the rest of the sequence
     #: (:mod:`~annotator.annotation.consistency`).

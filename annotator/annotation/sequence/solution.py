@@ -1,0 +1,319 @@
+"""A sequence's solve as records (:class:`SequenceSolution`): every frame's ``scene_T_rig``
+with its figures and flags, every instance's pose with its uncertainty and flags
+(:func:`records`)."""
+
+from __future__ import annotations
+
+from collections import defaultdict
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from annotator.annotation.consistency import frame_agreement
+from annotator.annotation.sequence.noise import (
+    MOTION_BLUR_PX,
+    FrameBlur,
+    frame_site_covariance,
+    glue_spread,
+)
+from annotator.annotation.sequence.placing import Placed
+from annotator.annotation.settings import AnnotateSettings
+from annotator.dataset import Dataset
+from annotator.dataset.figures import (
+    MarkerUse,
+    Reprojection,
+    SceneWarning,
+)
+from annotator.dataset.flags import Flag, FrameFlag, WarningKind, sort_flags
+from annotator.dataset.records import (
+    FramePose,
+    InstanceAnnotation,
+)
+from annotator.geometry.mesh import SurfaceMoments
+from annotator.pnp.bundle import BundleObservations, BundleResult
+from annotator.pnp.uncertainty import relative_rms_uncertainty, site_covariance
+
+
+@dataclass
+class SequenceSolution:
+    """The solved sequence: instance poses in the scene frame, every frame's pose and
+    figures, and the instances' records (markers, reprojection, uncertainty, flags)."""
+
+    reference: str | None
+    instances: list[InstanceAnnotation]
+    frames: dict[str, FramePose]
+    warnings: list[SceneWarning] = field(default_factory=list)
+    unknown_markers: dict[str, list[int]] = field(default_factory=dict)
+    duplicates: dict[str, list[int]] = field(default_factory=dict)
+    #: Per posed frame, how many of each instance's marker observations the solve kept.
+    markers_used: dict[str, dict[str, int]] = field(default_factory=dict)
+    #: The scale the measured depth gave the sites (1: not measured, or no depth).
+    site_scale: float = 1.0
+
+
+def _uncertainty(
+    moments: SurfaceMoments,
+    result: BundleResult,
+    instance: int,
+    frames: np.ndarray,
+    sites: np.ndarray,
+    site_mm: float,
+    site_floor_mm: float,
+) -> float:
+    """An instance's uncertainty as the frames that see it do (what a frame's export holds):
+    the median over them of the RMS surface displacement of its pose relative to the frame's,
+    from the joint covariance (a part's pose and the frames' are known together), plus what
+    its markers' own errors on the part give (:func:`~annotator.pnp.uncertainty.site_covariance`: the same in every
+    frame, so more frames do not average them out); infinite where a direction nothing fixes
+    is involved. ``sites``: the corners (model frame) of the markers it was posed on, each
+    off by ``site_mm`` on the part (at least ``site_floor_mm``)."""
+    T = result.scene_T_model[instance]
+    on_part = site_covariance(T[:3, :3], sites, max(site_mm, site_floor_mm))
+    values = []
+    for f in frames.tolist():
+        cov = result.joint_covariance(instance, f)
+        cov[:6, :6] += on_part
+        if not np.isfinite(cov).all():
+            values.append(np.inf)
+            continue
+        values.append(relative_rms_uncertainty(moments, T, result.scene_T_rig[f], cov))
+    return float(np.median(values)) if values else float("inf")
+
+
+def _rejected_markers(
+    obs: BundleObservations, ids: np.ndarray, mine: np.ndarray, keep: np.ndarray
+) -> bool:
+    """True if a marker of the instance was read in two frames or more and never kept."""
+    used = set(ids[mine & keep].tolist())
+    frames: dict[int, set[int]] = defaultdict(set)
+    for k in np.flatnonzero(mine & ~keep):
+        if int(ids[k]) not in used:
+            frames[int(ids[k])].add(int(obs.frame[k]))
+    return any(len(f) >= 2 for f in frames.values())
+
+
+def records(
+    ds: Dataset,
+    keys: list[tuple[str, str]],
+    live: list[int],
+    obs: BundleObservations,
+    ids: np.ndarray,
+    keep: np.ndarray,
+    result,
+    err: np.ndarray,
+    placed: Placed,
+    s: AnnotateSettings,
+    out: SequenceSolution,
+    names: list[str],
+    moved: set[int],
+    blur: FrameBlur,
+    agree_px: np.ndarray,
+    site_mm: np.ndarray,
+    scale: tuple[np.ndarray, float],
+) -> None:
+    """annotation.json's records from the solve: per instance and per frame."""
+    cams = ds.rig.cameras
+    out.reference = names[placed.reference]
+    seen = np.zeros((len(live), len(keys)), dtype=bool)
+    seen[obs.frame, obs.instance] = True
+    agree = np.zeros_like(seen)
+    agree[obs.frame[keep], obs.instance[keep]] = True
+    glued = np.array([glue_spread(ds.objects[o], inst) for o, inst in keys])
+    for i, (obj, inst) in enumerate(keys):
+        mine = obs.instance == i
+        used = mine & keep
+        if not used.any():
+            continue
+        T = result.scene_T_model[i]
+        model = ds.objects[obj]
+        _, first = np.unique(ids[used], return_index=True)
+        corners = obs.model_corners[np.flatnonzero(used)[first]].reshape(-1, 3)
+        unc = _uncertainty(
+            model.mesh.moments,
+            result,
+            i,
+            np.unique(obs.frame[used]),
+            corners,
+            max(site_mm[i], glued[i]),
+            s.sequence.site_sigma_mm,
+        )
+        # The scene's scale, as well as it is known, moves the part along its line of sight.
+        unc = float(np.hypot(unc, scale[1] * float(np.median(scale[0][used]))))
+        markers: dict[str, MarkerUse] = {}
+        per_cam: dict[str, float] = {}
+        for j, cam in enumerate(cams):
+            u = used & (obs.camera == j)
+            r = mine & ~keep & (obs.camera == j)
+            if u.any() or r.any():
+                good = {int(x) for x in ids[u]}
+                markers[cam.name] = MarkerUse(sorted(good), sorted({int(x) for x in ids[r]} - good))
+            if u.any():
+                per_cam[cam.name] = round(float(np.sqrt(np.mean(err[u] ** 2))), 4)
+        rms = float(np.sqrt(np.mean(err[used] ** 2)))
+        flags: list[Flag | str] = []
+        if i in moved:
+            flags.append(Flag.MOVED)
+        if rms > s.high_residual_px:
+            flags.append(Flag.HIGH_RESIDUAL)
+        # A marker left out in a blurred frame is noise; one that two frames or more read
+        # and none agrees with is not (glued elsewhere, or another copy's).
+        if _rejected_markers(obs, ids, mine, keep):
+            flags.append(Flag.REJECTED_MARKERS)
+        if not unc < s.high_uncertainty_fraction * model.mesh.moments.diameter:
+            flags.append(Flag.HIGH_UNCERTAINTY)
+        if int(agree[:, i].sum()) == 1 and len(per_cam) == 1:
+            flags.append(Flag.SINGLE_VIEW)
+        out.instances.append(
+            InstanceAnnotation(
+                obj,
+                inst,
+                T[:3, :3].copy(),
+                T[:3, 3].copy(),
+                uncertainty_mm=round(unc, 4) if np.isfinite(unc) else None,
+                reprojection=Reprojection(round(rms, 4), round(float(err[used].max()), 4), per_cam),
+                markers=markers,
+                views=len(per_cam),
+                flags=sort_flags(flags),
+                frames_seen=int(agree[:, i].sum()),
+            )
+        )
+    several = [r for r in out.instances if (r.frames_seen or 0) >= 2]
+    off = [r for r in several if Flag.HIGH_RESIDUAL in r.flags]
+    if several and len(off) >= s.sequence.glued_share * len(several):
+        out.warnings.append(SceneWarning(WarningKind.NOTE, _sites_hint(len(off), len(several))))
+    if any(Flag.MOVED in r.flags for r in out.instances):
+        which = [r.key for r in out.instances if Flag.MOVED in r.flags]
+        out.warnings.append(
+            SceneWarning(
+                WarningKind.NOTE,
+                f"parts moved during the sequence: {', '.join(which)} (their markers disagree "
+                "with their pose in part of the frames; the pose is the one most frames agree with)",
+            )
+        )
+    by_live = {f: n for n, f in enumerate(live)}
+    sites_off = np.maximum(np.maximum(site_mm, s.sequence.site_sigma_mm), glued)
+    agreement = frame_agreement(obs.frame, obs.instance, ids, err < agree_px, len(live))
+    for f, name in enumerate(names):
+        if f not in by_live:
+            reason = placed.reasons[f]
+            why_not = None
+            if reason == FrameFlag.OUTLIER:
+                why_not = "its markers agree with no placed instance's pose"
+            out.frames[name] = FramePose(
+                name, None, flags=[] if reason is None else [reason], reason=why_not
+            )
+            continue
+        n = by_live[f]
+        mine = (obs.frame == n) & keep
+        T = result.scene_T_rig[n]
+        cov = result.frame_covariance[n]
+        flags_f: list[str] = []
+        if not mine.any():
+            out.frames[name] = FramePose(
+                name,
+                None,
+                flags=[FrameFlag.OUTLIER],
+                reason="none of its markers agree with the solve",
+            )
+            continue
+        blur_mm, blur_deg = blur.uncertainty(n, float(cams[0].K[0, 0]))
+        scale_mm = scale[1] * float(np.linalg.norm(T[:3, 3]))  # its distance to the origin
+        if f == placed.reference:  # the scene frame: its pose is the gauge, exact
+            blur_mm = blur_deg = 0.0
+        else:  # the sites it was posed on are off on their parts the same in every frame
+            cov = cov + frame_site_covariance(obs, mine, result, T, sites_off)
+        unc_mm = float(np.sqrt(max(np.trace(cov[3:, 3:]), 0.0) + blur_mm**2 + scale_mm**2))
+        unc_deg = float(
+            np.sqrt(np.degrees(np.sqrt(max(np.trace(cov[:3, :3]), 0.0))) ** 2 + blur_deg**2)
+        )
+        why = None
+        a = agreement[n]
+        others = ", ".join("/".join(keys[i]) for i in a.disagreeing)
+        if a.refused:
+            why = (
+                f"its markers place {len(a.disagreeing)} parts ({others}) differently from the "
+                f"rest of the sequence and only {len(a.agreeing)} as it does: another "
+                "arrangement, or parts moved"
+            )
+        elif len(set(ids[mine].tolist())) < 2:
+            # One square's two mirror poses fit it about equally well: not evidence enough.
+            why = f"it is posed on one marker only ({int(mine.sum())} observations)"
+        elif not (
+            unc_mm <= s.sequence.frame_max_uncertainty_mm
+            and unc_deg <= s.sequence.frame_max_uncertainty_deg
+        ):
+            why = (
+                f"its {int(mine.sum())} marker observations leave its pose uncertain "
+                f"(1-sigma {unc_mm:.3g} mm, {unc_deg:.3g} degrees)"
+            )
+        if why is not None:
+            out.frames[name] = FramePose(name, None, flags=[FrameFlag.OUTLIER], reason=why)
+            continue
+        rms_f = float(np.sqrt(np.mean(err[mine] ** 2)))
+        reasons: list[str] = []
+        if rms_f > s.sequence.high_reprojection_px:
+            flags_f.append(FrameFlag.HIGH_REPROJECTION)
+        if int(mine.sum()) < s.sequence.few_markers:
+            flags_f.append(FrameFlag.FEW_MARKERS)
+        if blur.streak_px[n] >= MOTION_BLUR_PX:
+            flags_f.append(FrameFlag.MOTION_BLUR)
+            reasons.append(
+                f"motion blur: its markers are smeared {blur.streak_px[n]:.3g} px, and which "
+                "instant of the exposure its pose stands for is not known"
+            )
+        if a.inconsistent:
+            flags_f.append(FrameFlag.INCONSISTENT)
+            reasons.append(
+                f"its markers place {len(a.disagreeing)} parts ({others}) differently from the "
+                "rest of the sequence: parts moved, or another arrangement"
+            )
+        if a.single_part and len(keys) > 1:
+            flags_f.append(FrameFlag.SINGLE_PART)
+            reasons.append(
+                f"posed on the markers of one part only ({'/'.join(keys[a.agreeing[0]])}): "
+                "nothing in it checks that part against the rest"
+            )
+        counts = np.bincount(obs.instance[mine], minlength=len(keys))
+        out.markers_used[name] = {"/".join(keys[i]): int(c) for i, c in enumerate(counts) if c}
+        out.frames[name] = FramePose(
+            name,
+            T,
+            reprojection_px=round(rms_f, 4),
+            markers_used=int(mine.sum()),
+            uncertainty_mm=round(unc_mm, 4),
+            uncertainty_deg=round(unc_deg, 4),
+            instances={},
+            flags=flags_f,
+            reason="; ".join(reasons) if reasons else None,
+        )
+    changed = [
+        n
+        for n, f in zip(names, (out.frames[n] for n in names))
+        if f.has(FrameFlag.INCONSISTENT) or "differently from the rest" in (f.reason or "")
+    ]
+    if changed:
+        parts = sorted(
+            {
+                "/".join(keys[i])
+                for f in live
+                if names[f] in changed
+                for i in agreement[by_live[f]].disagreeing
+            }
+        )
+        out.warnings.append(
+            SceneWarning(
+                WarningKind.NOTE,
+                f"frames {', '.join(changed)} place parts ({', '.join(parts)}) differently from "
+                "the rest of the sequence: parts moved, or frames of another arrangement (each "
+                "frame's reason says which)",
+            )
+        )
+
+
+def _sites_hint(off: int, parts: int) -> str:
+    """The one line that says the markers are not where the layout puts them."""
+    return (
+        f"the markers of {off} of {parts} parts sit off their layout in every frame (glued by "
+        "hand?): their spread is in the uncertainties; `annotator sites` measures where they "
+        "are, and annotating again then tightens the poses"
+    )
