@@ -44,7 +44,7 @@ import cv2
 import numpy as np
 
 from devkit.headless import free_port, launch_chromium
-from viewer.app import ReviewApp
+from viewer.server.app import ReviewApp
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -232,9 +232,9 @@ def browser_switches(url: str) -> tuple[list[float], list[float]]:
 def server_switches(app: ReviewApp) -> tuple[float, list[float]]:
     """Preparing a scene cold, and the server-side work of a switch to a prepared scene
     (mosaic drawn for a 920x1000 canvas and encoded as the page gets it), in ms."""
-    from viewer.mosaic import compose
-    from viewer.pictures import picture_html
-    from viewer.style import Look
+    from viewer.drawing.mosaic import compose
+    from viewer.drawing.style import Look
+    from viewer.page.pictures import picture_html
 
     state = app.state
     t0 = time.perf_counter()
@@ -276,10 +276,10 @@ def browser_repairs(app: ReviewApp) -> dict[str, list[float]]:
     (``"icp"``, ms) of each R."""
     from playwright.sync_api import sync_playwright
 
-    import viewer.repair
+    import viewer.page.repair
 
     icp: list[float] = []
-    real = viewer.repair.refine
+    real = viewer.page.repair.refine
 
     def timed(*args, **kwargs):
         t0 = time.perf_counter()
@@ -288,7 +288,7 @@ def browser_repairs(app: ReviewApp) -> dict[str, list[float]]:
         finally:
             icp.append(1000.0 * (time.perf_counter() - t0))
 
-    viewer.repair.refine = timed
+    viewer.page.repair.refine = timed
     out: dict[str, list[float]] = {
         "R": [],
         "A": [],
@@ -357,7 +357,7 @@ def browser_repairs(app: ReviewApp) -> dict[str, list[float]]:
             finally:
                 browser.close()
     finally:
-        viewer.repair.refine = real
+        viewer.page.repair.refine = real
     out["icp"] = icp
     return out
 

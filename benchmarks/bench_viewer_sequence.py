@@ -29,7 +29,7 @@ from benchmarks.bench_viewer import (
     shown_at,
 )
 from devkit.headless import free_port, launch_chromium
-from viewer.app import ReviewApp
+from viewer.server.app import ReviewApp
 
 FRAMES = 12
 PRESSES = 10

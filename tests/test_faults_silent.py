@@ -16,7 +16,7 @@ import yaml
 
 import annotator
 from annotator.cli import main
-from viewer.state import ReviewState
+from annotator.review import ReviewState
 
 pytestmark = pytest.mark.slow  # sequences annotated again
 

@@ -26,8 +26,8 @@ from annotator.physics.contact import hull_distance, penetration
 from annotator.physics.dataset import physics_of_dataset
 from annotator.physics.labels import pick_labels
 from annotator.physics.scene import bodies_of
-from viewer.panel_text import instance_table
-from viewer.state import SceneInfo
+from annotator.review import SceneInfo
+from viewer.page.panel_text import instance_table
 
 pytestmark = pytest.mark.slow  # a pile rendered
 

@@ -18,7 +18,7 @@ import pytest
 
 from annotator.dataset.review import RepairStep, read_review
 from annotator.geometry.transforms import make_transform
-from viewer.state import Conflict, ReviewState
+from annotator.review import Conflict, ReviewState
 
 SCENE = "000001"
 
@@ -84,7 +84,7 @@ _SERVER = textwrap.dedent(
     import sys, time
     import numpy as np
     from annotator.geometry.transforms import make_transform
-    from viewer.state import ReviewState
+    from annotator.review import ReviewState
     root, me, keys = sys.argv[1], sys.argv[2], sys.argv[3].split(",")
     state = ReviewState(root)
     for n in range(int(sys.argv[4])):
@@ -131,7 +131,7 @@ def test_a_pages_undo_after_another_reviewers_edit_is_refused_and_said(sample_co
     from test_viewer_repair import KEY, _page_on
 
     from devkit.headless import free_port
-    from viewer.app import ReviewApp
+    from viewer.server.app import ReviewApp
 
     app = ReviewApp(sample_copy, host="127.0.0.1", port=free_port())
     try:

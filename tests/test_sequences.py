@@ -295,8 +295,8 @@ def test_bad_frames_get_one_line_and_keep_the_old_annotation(copy: Path, capsys)
 
 
 def test_the_review_state_shows_frames_in_the_scene_frame_and_rejects_one(copy: Path) -> None:
-    from viewer.overlays import prepare
-    from viewer.state import ReviewState
+    from annotator.review import ReviewState
+    from viewer.drawing.overlays import prepare
 
     state = ReviewState(copy)
     sid = state.ids[0]

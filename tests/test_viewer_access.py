@@ -11,12 +11,12 @@ import viser
 from websockets.exceptions import ConnectionClosed
 from websockets.sync.client import connect
 
-import viewer.app
+import viewer.server.app
 from annotator.cli import main
 from annotator.errors import UserError
 from devkit.headless import free_port
-from viewer.access import Access, is_loopback
-from viewer.app import ReviewApp
+from viewer.server.access import Access, is_loopback
+from viewer.server.app import ReviewApp
 
 
 def test_loopback_names() -> None:
@@ -149,9 +149,9 @@ def test_a_non_local_host_needs_a_token(sample_copy, monkeypatch, capsys) -> Non
     # From the command line a token is made up and printed (the test binds 127.0.0.1 only).
     from annotator.commands import review
 
-    real = viewer.app.viser.ViserServer
+    real = viewer.server.app.viser.ViserServer
     monkeypatch.setattr(
-        viewer.app.viser,
+        viewer.server.app.viser,
         "ViserServer",
         lambda host, port, **kw: real(host="127.0.0.1", port=port, **kw),
     )

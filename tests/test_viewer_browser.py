@@ -22,9 +22,9 @@ from devkit.polling import wait_until
 
 playwright = pytest.importorskip("playwright.sync_api")
 
-import viewer.app  # noqa: E402
-from viewer import pictures  # noqa: E402
-from viewer.app import ReviewApp  # noqa: E402
+import viewer.server.app  # noqa: E402
+from viewer.page import pictures  # noqa: E402
+from viewer.server.app import ReviewApp  # noqa: E402
 
 # A page closed while its scene is being sent: viser warns of what it can no longer deliver
 # (the server ignores that warning; pytest records it anyway).
@@ -148,7 +148,7 @@ def test_review_page_end_to_end(browser, served) -> None:
 def test_a_collapsed_panel_leaves_the_picture_on_the_canvas(browser, served) -> None:
     """The pictures live in the control panel and go with it; the canvas then shows its own
     copy, made to the wider canvas, soon after (not after the long wait kept while the
-    panel is open, see viewer.pictures)."""
+    panel is open, see viewer.page.pictures)."""
     app, _ = served
     page = _open(browser, app.url)
     try:
@@ -273,7 +273,7 @@ def _unwritable(folder: Path, monkeypatch):
     def refuse(path, review):
         raise PermissionError(1, "Operation not permitted", str(path))
 
-    monkeypatch.setattr("viewer.state.write_review", refuse)
+    monkeypatch.setattr("annotator.review.state.write_review", refuse)
     yield
 
 
@@ -301,9 +301,9 @@ def test_a_non_local_host_without_a_token_is_refused(browser, sample_copy, monke
 
     # Tests listen on 127.0.0.1 only: the server is asked for 0.0.0.0 (so it behaves as a
     # non-local one) but binds the loopback address.
-    real = viewer.app.viser.ViserServer
+    real = viewer.server.app.viser.ViserServer
     monkeypatch.setattr(
-        viewer.app.viser,
+        viewer.server.app.viser,
         "ViserServer",
         lambda host, port, **kw: real(host="127.0.0.1", port=port, **kw),
     )

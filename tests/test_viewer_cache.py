@@ -8,8 +8,8 @@ import time
 
 import pytest
 
-from viewer import cache
-from viewer.cache import PrefetchCache
+from viewer.drawing import cache
+from viewer.drawing.cache import PrefetchCache
 
 
 @pytest.fixture()

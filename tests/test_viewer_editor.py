@@ -14,9 +14,9 @@ import pytest
 
 from annotator.dataset.review import read_review
 from annotator.geometry.transforms import make_transform
-from viewer.editor import RepairEditor
-from viewer.overlays import Prepared
-from viewer.state import ReviewState, SaveError, SceneInfo
+from annotator.review import ReviewState, SaveError, SceneInfo
+from viewer.drawing.overlays import Prepared
+from viewer.page.editor import RepairEditor
 
 SCENE = "000001"
 KEY = "brick/03"
@@ -40,7 +40,7 @@ class _Host:
 
 @dataclass
 class _Page:
-    """What :class:`viewer.editor.EditorPage` asks for, recording what the editor did."""
+    """What :class:`viewer.page.editor.EditorPage` asks for, recording what the editor did."""
 
     host: _Host
     scene: str | None = SCENE

@@ -19,21 +19,22 @@ import msgspec
 import numpy as np
 import pytest
 
-import viewer.memory
+import viewer.drawing.memory
 from annotator.cli import main
 from annotator.dataset.review import ReviewStatus
 from annotator.errors import UserError
+from annotator.review import ReviewState, SaveError
 from devkit.headless import free_port
 from devkit.polling import wait_until
 from devkit.served import ReviewProcess
 from devkit.wire import camera_message, drop, open_page
-from viewer import memory, startup
-from viewer.app import CACHE_BYTES, ReviewApp
-from viewer.cache import PrefetchCache
-from viewer.frames import conforms, why_malformed
-from viewer.memory import MAX_VIEWPORT, BytesLRU, clamp_viewport, picture_size
-from viewer.session import Session
-from viewer.state import ReviewState, SaveError
+from viewer.drawing import memory
+from viewer.drawing.cache import PrefetchCache
+from viewer.drawing.memory import MAX_VIEWPORT, BytesLRU, clamp_viewport, picture_size
+from viewer.page.session import Session
+from viewer.server import startup
+from viewer.server.app import CACHE_BYTES, ReviewApp
+from viewer.server.messages import conforms, why_malformed
 
 GB = 1e9
 # A page that leaves while its scene is being sent: viser warns of what it can no longer
@@ -133,7 +134,7 @@ def test_canvas_sizes_are_clamped_to_an_8k_screen_keeping_their_aspect() -> None
 
 
 def test_a_canvas_at_a_lowered_pixel_ratio_keeps_its_pictures_full_size() -> None:
-    assert doctest.testmod(viewer.memory).failed == 0
+    assert doctest.testmod(viewer.drawing.memory).failed == 0
     shown = (916, 1000)
     # viser's adaptive pixel ratio after the 3D camera moved on a software renderer: the
     # sizes the page reported in the browser benchmark.

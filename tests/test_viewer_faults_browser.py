@@ -20,9 +20,9 @@ from devkit.polling import wait_until
 playwright = pytest.importorskip("playwright.sync_api")
 
 
-import viewer.session  # noqa: E402
-from viewer.app import ReviewApp  # noqa: E402
-from viewer.panel import Panel  # noqa: E402
+import viewer.page.rendering  # noqa: E402
+from viewer.page.panel import Panel  # noqa: E402
+from viewer.server.app import ReviewApp  # noqa: E402
 
 pytestmark = [
     pytest.mark.browser,
@@ -134,7 +134,7 @@ def test_a_deleted_scene_is_reported_and_never_decided(browser, sample_copy, sho
 def test_a_key_pressed_while_the_page_switches_decides_nothing(
     browser, sample_copy, monkeypatch
 ) -> None:
-    real = viewer.session.compose
+    real = viewer.page.rendering.compose
 
     def slow(*args, **kwargs):  # a scene that takes a second to draw
         time.sleep(1.0)
@@ -143,7 +143,7 @@ def test_a_key_pressed_while_the_page_switches_decides_nothing(
     with _serving(sample_copy) as app:
         page, session = _open(browser, app)
         try:
-            monkeypatch.setattr(viewer.session, "compose", slow)
+            monkeypatch.setattr(viewer.page.rendering, "compose", slow)
             page.keyboard.press("j")
             assert wait_until(lambda: session.nav.current == "000001", 5.0)
             page.keyboard.press("y")  # the page still shows 000000

@@ -18,8 +18,8 @@ from annotator.dataset.review import ReviewStatus
 from devkit.headless import free_port
 from devkit.polling import wait_until
 from devkit.wire import open_page
-from viewer.app import ReviewApp
-from viewer.session import Session
+from viewer.page.session import Session
+from viewer.server.app import ReviewApp
 
 pytestmark = [pytest.mark.slow, pytest.mark.filterwarnings("ignore:Queued a:UserWarning")]
 

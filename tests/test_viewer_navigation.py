@@ -7,7 +7,7 @@ from dataclasses import dataclass, field
 
 import pytest
 
-from viewer.navigation import Navigator
+from viewer.page.navigation import Navigator
 
 
 @dataclass

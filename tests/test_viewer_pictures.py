@@ -16,12 +16,12 @@ from annotator.dataset import load_dataset, read_poses
 from annotator.dataset.figures import DepthRegion
 from annotator.dataset.review import MissingPart, ReviewStatus
 from devkit.polling import wait_until
-from viewer import keyguard, pictures
-from viewer.mosaic import Tile, compose, grid
-from viewer.overlays import _outline, prepare, repose
-from viewer.pictures import picture_html, zoom_html
-from viewer.style import COLOURS, MISSING_COLOUR, UNEXPLAINED_COLOUR, Look
-from viewer.zoom import inner_outline, zoom
+from viewer.drawing.mosaic import Tile, compose, grid
+from viewer.drawing.overlays import _outline, prepare, repose
+from viewer.drawing.style import COLOURS, MISSING_COLOUR, UNEXPLAINED_COLOUR, Look
+from viewer.drawing.zoom import inner_outline, zoom
+from viewer.page import keyguard, pictures
+from viewer.page.pictures import picture_html, zoom_html
 
 
 @pytest.fixture(scope="module")

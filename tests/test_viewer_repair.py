@@ -22,14 +22,14 @@ from annotator.errors import UserError
 from annotator.export.selection import select_scenes
 from annotator.formats import ours
 from annotator.geometry.transforms import axis_angle, make_transform
-from viewer.overlays import prepare, repose
-from viewer.state import ReviewState
+from annotator.review import ReviewState
+from viewer.drawing.overlays import prepare, repose
 
 if TYPE_CHECKING:
     from websockets.sync.client import ClientConnection
 
-    from viewer.app import ReviewApp
-    from viewer.session import Session
+    from viewer.page.session import Session
+    from viewer.server.app import ReviewApp
 
 SCENE = "000001"
 KEY = "brick/03"
@@ -230,7 +230,7 @@ def test_letting_the_gizmo_go_saves_the_pose_it_was_dragged_to(sample) -> None:
     import viser
 
     from devkit.headless import free_port
-    from viewer.scene3d import Scene3D, _wxyz
+    from viewer.page.scene3d import Scene3D, _wxyz
 
     ds = load_dataset(sample)
     sc = next(s for s in ds.scenes() if s.id == SCENE)
@@ -322,16 +322,16 @@ def test_after_an_undo_the_next_move_reuses_the_neighbours_and_equals_one_prepar
 ) -> None:
     """Nudge, undo, nudge: the second move starts from the layers shown before the first
     (the undo shows them again), which keep the neighbours the first move cast."""
-    import viewer.overlays
+    import viewer.drawing.overlays
 
-    cast = viewer.overlays._cast_alone
+    cast = viewer.drawing.overlays._cast_alone
     neighbours: list[int] = []  # per move, the neighbours cast
 
     def counted(camera, placed, rect, bound, earlier):
         neighbours[-1] += bound is not None
         return cast(camera, placed, rect, bound, earlier)
 
-    monkeypatch.setattr(viewer.overlays, "_cast_alone", counted)
+    monkeypatch.setattr(viewer.drawing.overlays, "_cast_alone", counted)
     ds = load_dataset(sample)
     sc = next(s for s in ds.scenes() if s.id == SCENE)
     poses = SceneAnnotation.read(sc.annotation_path).instances
@@ -354,7 +354,7 @@ def test_after_an_undo_the_next_move_reuses_the_neighbours_and_equals_one_prepar
 
 def test_the_overlays_made_ahead_for_a_stay_through_the_scenes_repairs(sample_copy) -> None:
     from devkit.headless import free_port
-    from viewer.app import ReviewApp
+    from viewer.server.app import ReviewApp
 
     app = ReviewApp(sample_copy, host="127.0.0.1", port=free_port())
     try:
@@ -397,16 +397,16 @@ def _page_on(app: ReviewApp, sid: str, key: str) -> tuple[ClientConnection, Sess
 
 
 def test_a_nudge_is_shown_first_and_on_disk_when_its_key_is_done(sample_copy, monkeypatch) -> None:
-    import viewer.pictures
-    import viewer.state
+    import annotator.review.state
+    import viewer.page.pictures
     from devkit.headless import free_port
-    from viewer.app import ReviewApp
+    from viewer.server.app import ReviewApp
 
     app = ReviewApp(sample_copy, host="127.0.0.1", port=free_port())
     try:
         ws, session = _page_on(app, SCENE, KEY)
         order: list[str] = []
-        write, encode = viewer.state.write_review, viewer.pictures.zoom_layers
+        write, encode = annotator.review.state.write_review, viewer.page.pictures.zoom_layers
 
         def writing(path, review):
             order.append("write")
@@ -416,8 +416,8 @@ def test_a_nudge_is_shown_first_and_on_disk_when_its_key_is_done(sample_copy, mo
             order.append("pixels")
             return encode(*args, **kwargs)
 
-        monkeypatch.setattr(viewer.state, "write_review", writing)
-        monkeypatch.setattr(viewer.pictures, "zoom_layers", encoding)
+        monkeypatch.setattr(annotator.review.state, "write_review", writing)
+        monkeypatch.setattr(viewer.page.pictures, "zoom_layers", encoding)
         before = app.state.info(SCENE).pose(KEY).t.copy()
         session.nudge(0, +1)
         # The new zoom went out before the write, and the pose is on disk once the key is
@@ -433,9 +433,9 @@ def test_a_nudge_is_shown_first_and_on_disk_when_its_key_is_done(sample_copy, mo
 
 
 def test_a_nudge_that_cannot_be_written_is_said_so_and_taken_back(sample_copy, monkeypatch) -> None:
-    import viewer.state
+    import annotator.review.state
     from devkit.headless import free_port
-    from viewer.app import ReviewApp
+    from viewer.server.app import ReviewApp
 
     app = ReviewApp(sample_copy, host="127.0.0.1", port=free_port())
     try:
@@ -445,7 +445,7 @@ def test_a_nudge_that_cannot_be_written_is_said_so_and_taken_back(sample_copy, m
         def refuse(path, review):
             raise PermissionError(13, "Permission denied", str(path))
 
-        monkeypatch.setattr(viewer.state, "write_review", refuse)
+        monkeypatch.setattr(annotator.review.state, "write_review", refuse)
         session.nudge(0, +1)
         assert (
             "NOT saved" in session.unsaved[SCENE] and "Permission denied" in session.unsaved[SCENE]

@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 
 from annotator.repair import Nudge, NudgeKind
-from viewer import repair
-from viewer.state import ReviewState
+from annotator.review import ReviewState
+from viewer.page import repair
 
 pytestmark = pytest.mark.slow
 
@@ -77,7 +77,7 @@ def test_a_nudge_goes_along_the_first_shown_frames_camera(copy: Path) -> None:
 
 
 def test_a_sequence_not_annotated_yet_shows_its_first_frame(copy: Path) -> None:
-    from viewer.overlays import prepare
+    from viewer.drawing.overlays import prepare
 
     (copy / "scenes" / "000000" / "annotation.json").unlink()
     state = ReviewState(copy)

@@ -19,7 +19,7 @@ from annotator.dataset.review import (
     write_review,
 )
 from annotator.errors import UserError
-from viewer.state import ReviewState, SaveError
+from annotator.review import ReviewState, SaveError
 
 
 def test_review_status_is_the_json_string() -> None:
@@ -126,7 +126,7 @@ def test_a_failed_write_raises_one_line_and_changes_nothing(sample_copy, monkeyp
     def refuse(path, review):
         raise PermissionError(13, "Permission denied", str(path))
 
-    monkeypatch.setattr("viewer.state.write_review", refuse)
+    monkeypatch.setattr("annotator.review.state.write_review", refuse)
     with pytest.raises(SaveError, match=r"review.json: cannot write \(Permission denied\)") as exc:
         st.set_scene("000000", "accepted")
     assert "\n" not in str(exc.value)

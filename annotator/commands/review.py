@@ -37,11 +37,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def start(args: argparse.Namespace):
     """Start the server and print where to open it; returns the running ``ReviewApp``."""
-    from viewer.startup import check_port
+    from viewer.server.startup import check_port
 
     check_port(args.port)  # at once: before the seconds of importing viser and open3d
-    from viewer.access import is_loopback, new_token
-    from viewer.app import ReviewApp
+    from viewer.server.access import is_loopback, new_token
+    from viewer.server.app import ReviewApp
 
     token = args.token
     if token is None and not is_loopback(args.host):

@@ -1,16 +1,16 @@
 """The review server: one viser server, one shared review state and prefetch cache, and one
-:class:`~viewer.session.Session` per browser page.
+:class:`~viewer.page.session.Session` per browser page.
 
 Each page has its own cursor, filter, selection and zoom. Decisions are shared: a decision
 made in one page reaches the other pages of this server at once, and a poll of the scenes'
 files (every :data:`POLL_SECONDS`) brings those of other servers on the same dataset, so the
 progress bar is the same everywhere.
 
-Connections are checked (:mod:`viewer.access`): only pages of this server, and with a token
+Connections are checked (:mod:`viewer.server.access`): only pages of this server, and with a token
 when one is required. A server listening beyond this machine requires a token. Frames a
-connection sends that are not viser's messages are dropped (:mod:`viewer.frames`).
+connection sends that are not viser's messages are dropped (:mod:`viewer.server.messages`).
 
-Memory (:mod:`viewer.memory`): prepared scenes are kept within :data:`CACHE_BYTES`, the
+Memory (:mod:`viewer.drawing.memory`): prepared scenes are kept within :data:`CACHE_BYTES`, the
 pictures drawn from them for a page are dropped when the page closes, and the freed memory is
 given back to the operating system then.
 """
@@ -27,17 +27,17 @@ from pathlib import Path
 import viser
 
 from annotator.errors import UserError
-from viewer import frames
-from viewer.access import Access, Guard, install, is_loopback
-from viewer.cache import PrefetchCache
-from viewer.memory import bound_allocator, give_back
-from viewer.mosaic import compose, forget
-from viewer.overlays import Prepared, prepare
-from viewer.repair import RepairInputs
-from viewer.session import Session
-from viewer.startup import check_port, start_viser
-from viewer.state import ReviewState, SceneInfo, frames_digest
-from viewer.style import Look
+from annotator.review import ReviewState, SceneInfo, frames_digest
+from viewer.drawing.cache import PrefetchCache
+from viewer.drawing.memory import bound_allocator, give_back
+from viewer.drawing.mosaic import compose, forget
+from viewer.drawing.overlays import Prepared, prepare
+from viewer.drawing.style import Look
+from viewer.page.repair import RepairInputs
+from viewer.page.session import Session
+from viewer.server import messages
+from viewer.server.access import Access, Guard, install, is_loopback
+from viewer.server.startup import check_port, start_viser
 
 # A page that closes while its scene is being sent: the rest of the scene goes nowhere, as
 # it should; viser warns of each such message, which says nothing to the reviewer.
@@ -114,7 +114,7 @@ class ReviewApp:
         self.access = Access(host, self.port, token or None)
         try:
             self.guard: Guard = install(self.server, self.access)
-            self.frames: frames.FrameFilter = frames.install(self.server)
+            self.frames: messages.FrameFilter = messages.install(self.server)
         except BaseException:  # also Ctrl-C meanwhile: never leave a server running
             self.server.stop()
             self.cache.stop()

@@ -46,9 +46,9 @@ import cv2
 import numpy as np
 import viser
 
-from viewer.keyguard import PICTURE_MARK
-from viewer.style import MISSING_COLOUR, UNEXPLAINED_COLOUR
-from viewer.zoom import Zoom, ZoomTile, outline_rects, tile_marks
+from viewer.drawing.style import MISSING_COLOUR, UNEXPLAINED_COLOUR
+from viewer.drawing.zoom import Zoom, ZoomTile, outline_rects, tile_marks
+from viewer.page.keyguard import PICTURE_MARK
 
 JPEG_QUALITY = 85
 BACKGROUND_DELAY = 0.2  # seconds after a change: the canvas's copy, panel collapsed
@@ -121,7 +121,7 @@ def zoom_layers(z: Zoom, *, layer: int = 0) -> list[str]:
     """The zoom ``z`` covering the 3D canvas, as HTML layers: the black ground and the
     "not visible" notes, each crop as a PNG of its own camera pixels (magnified by the
     browser pixel for pixel), and over them one SVG of the outline (the rectangles of
-    :func:`viewer.zoom.outline_rects`), the tiles' titles and marks. Together they show
+    :func:`viewer.drawing.zoom.outline_rects`), the tiles' titles and marks. Together they show
     :attr:`Zoom.image`. Each goes to the page as an element of its own, so that a repair,
     which changes the outline and seldom a crop, sends the page a few kilobytes and the
     browser decodes no picture again. ``layer``: the z-index of the ground, the crops
@@ -179,7 +179,7 @@ _FONT = 'font-family="Helvetica,Arial,sans-serif"'
 
 
 def _svg_tile(part: ZoomTile, z: Zoom) -> str:
-    """A tile's title and marks (:func:`viewer.zoom.tile_marks`), clipped to it."""
+    """A tile's title and marks (:func:`viewer.drawing.zoom.tile_marks`), clipped to it."""
     t = part.tile
     marks = tile_marks(part.panel, t, z.look)
     inner = []
@@ -214,7 +214,7 @@ def _rgb(bgr: tuple[int, int, int]) -> str:
 
 
 #: The data URLs of the zoom's last crops, by content: a repair changes the outline, and
-#: seldom the crops under it (see :func:`viewer.zoom.zoom`'s ``keep``).
+#: seldom the crops under it (see :func:`viewer.drawing.zoom.zoom`'s ``keep``).
 _CROP_URLS: dict[tuple[tuple[int, ...], bytes], str] = {}
 _CROP_URLS_KEPT = 32
 

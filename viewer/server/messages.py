@@ -11,7 +11,7 @@ reaches, with a traceback too.
 :func:`install` wraps, for every connection, the ``recv`` that loop calls: a frame that is
 not a message whose fields match their declared types (:func:`why_malformed`) is dropped
 with one line in the log, and the loop gets the next one; the connection stays open. It
-reaches the connection through the same private table as :mod:`viewer.access`
+reaches the connection through the same private table as :mod:`viewer.server.access`
 (``_live_connections`` of viser's ``WebsockServer``), from a connect callback that runs
 before the loop starts. Whatever still fails in viser's event loop is one line too
 (:func:`install` sets the loop's exception handler).
@@ -152,7 +152,7 @@ class FrameFilter:
 
 def install(server: viser.ViserServer) -> FrameFilter:
     """Filter the frames of every connection to ``server``; RuntimeError if this viser
-    offers no way to (another version), as :func:`viewer.access.install` does."""
+    offers no way to (another version), as :func:`viewer.server.access.install` does."""
     ws = getattr(server, "_websock_server", None)
     live = getattr(ws, "_live_connections", None)
     if ws is None or not isinstance(live, dict) or not hasattr(ws, "on_client_connect"):

@@ -11,7 +11,7 @@ mosaic can be scaled to any browser viewport and the zoom can crop at full resol
   rendered depth, and the unexplained-depth mask (``unexplained.png``) if there is one;
 - the depth point cloud for the 3D view, downsampled once here.
 
-Drawing is done elsewhere (:mod:`viewer.mosaic`, :mod:`viewer.zoom`): a decision only
+Drawing is done elsewhere (:mod:`viewer.drawing.mosaic`, :mod:`viewer.drawing.zoom`): a decision only
 re-colours what was prepared. A repaired pose is rendered again only where it changes
 anything (:func:`repose`: the instance's old and new rectangles, every part cast there), so
 that the new overlay is on screen at once; each part's cast there is kept
@@ -21,7 +21,7 @@ after an undo, casts only the part itself. They are the same arrays in both, wei
 in the cache, by the prepared scene that made them.
 What is drawn from a prepared scene for the pages (panels resized to a page's canvas,
 mosaics) is kept with it, within :data:`SCALED_BYTES` and :data:`PICTURE_BYTES`
-(:mod:`viewer.memory`): the sizes are the pages' to choose.
+(:mod:`viewer.drawing.memory`): the sizes are the pages' to choose.
 """
 
 from __future__ import annotations
@@ -40,7 +40,7 @@ from annotator.geometry.camera import Camera
 from annotator.geometry.mesh import Mesh
 from annotator.io.images import read_image, to_gray8
 from annotator.rendering.raycast import PlacedMesh, RayScene, cast_alone, projected_bbox
-from viewer.memory import BytesLRU
+from viewer.drawing.memory import BytesLRU
 
 DISAGREEMENT_RANGE_MM = 10.0
 #: Every CLOUD_STEP-th pixel of every CLOUD_STEP-th row of the depth map goes to the 3D view.
@@ -133,7 +133,7 @@ class Prepared:
     resized: BytesLRU[tuple[str, int, int], np.ndarray] = field(
         default_factory=lambda: BytesLRU(SCALED_BYTES, _nbytes), repr=False
     )
-    #: ``(width, height, look)`` -> a :class:`viewer.mosaic.Picture` (kept by viewer.mosaic)
+    #: ``(width, height, look)`` -> a :class:`viewer.drawing.mosaic.Picture` (kept by viewer.mosaic)
     pictures: BytesLRU[tuple, Any] = field(
         default_factory=lambda: BytesLRU(PICTURE_BYTES, _nbytes), repr=False
     )

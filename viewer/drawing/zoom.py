@@ -16,9 +16,9 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from viewer.mosaic import Tile, grid, locate
-from viewer.overlays import Panel, Prepared
-from viewer.style import (
+from viewer.drawing.mosaic import Tile, grid, locate
+from viewer.drawing.overlays import Panel, Prepared
+from viewer.drawing.style import (
     UNEXPLAINED_COLOUR,
     Look,
     draw_missing,
@@ -51,7 +51,7 @@ class Zoom:
     """The zoom pictures of one instance: the crops of every panel at full resolution, the
     outline over them, and where the tiles map to camera pixels.
 
-    The page gets them as layers (:func:`viewer.pictures.zoom_html`): each crop at its own
+    The page gets them as layers (:func:`viewer.page.pictures.zoom_html`): each crop at its own
     resolution, magnified by the browser, and the outline and marks as vector shapes, so
     that a repair sends a few kilobytes where a picture of the whole zoom is hundreds.
     :attr:`image` is the same drawn in one picture: what the page shows."""

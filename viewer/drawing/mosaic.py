@@ -13,8 +13,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from viewer.overlays import Panel, Prepared
-from viewer.style import (
+from viewer.drawing.overlays import Panel, Prepared
+from viewer.drawing.style import (
     FLAG_COLOUR,
     SELECTED_COLOUR,
     UNEXPLAINED_COLOUR,

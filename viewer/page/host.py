@@ -1,4 +1,4 @@
-"""What a review page needs of the server it belongs to (:class:`viewer.app.ReviewApp`): the
+"""What a review page needs of the server it belongs to (:class:`viewer.server.app.ReviewApp`): the
 shared review state, the prepared scenes and their cache, the inputs of repairs, and where
 to say that scenes changed. A page holds it as this Protocol, so the page's modules never
 import the app (which imports them), and their tests can hand them a fake.
@@ -8,10 +8,10 @@ from __future__ import annotations
 
 from typing import Any, Protocol
 
-from viewer.cache import PrefetchCache
-from viewer.overlays import Prepared
-from viewer.repair import RepairInputs
-from viewer.state import ReviewState, SceneInfo
+from annotator.review import ReviewState, SceneInfo
+from viewer.drawing.cache import PrefetchCache
+from viewer.drawing.overlays import Prepared
+from viewer.page.repair import RepairInputs
 
 
 class ReviewHost(Protocol):

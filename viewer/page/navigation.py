@@ -1,6 +1,6 @@
 """Where one reviewer is: the current scene, the filter, the selected instance and whether
 the zoom is open. Each browser page has its own :class:`Navigator`; the scenes' decisions are
-shared (:class:`viewer.state.ReviewState`).
+shared (:class:`annotator.review.state.ReviewState`).
 
 It knows nothing of viser, so it is tested on its own; it only asks the shared state which
 scenes there are, which match a filter, which are flagged and which instances a scene has.
@@ -11,7 +11,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Protocol
 
-from viewer.state import FILTERS
+from annotator.review import FILTERS
 
 
 class _SceneLike(Protocol):

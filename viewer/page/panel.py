@@ -6,7 +6,7 @@ decides nothing itself.
 
 Hotkeys (none on W S D Q E or the arrows, which move viser's 3D camera; A, which it takes
 too, and any review key typed at a camera key's place on another keyboard layout, is kept
-from it while the pictures are shown, see :mod:`viewer.keyguard`):
+from it while the pictures are shown, see :mod:`viewer.page.keyguard`):
 
 =====  ==========================================================================
 Y      accept the scene and go to the next
@@ -42,9 +42,9 @@ from typing import Protocol
 import viser
 
 from annotator.dataset.review import ReviewStatus
-from viewer.keyguard import guard_html
-from viewer.panel_text import PanelView
-from viewer.state import FILTERS
+from annotator.review import FILTERS
+from viewer.page.keyguard import guard_html
+from viewer.page.panel_text import PanelView
 
 PANEL_WIDTH = 480  # CSS pixels
 _GUARD_ORDER = -1e9  # first: an empty element, it takes no room

@@ -5,7 +5,7 @@ everything it adds and only updates them afterwards.
   its surface centroid, turned as the part: dragging it moves the part along, and letting it
   go saves the new pose (``on_gizmo``).
 
-- While the pictures are shown (:mod:`viewer.pictures`, laid over the canvas), the canvas
+- While the pictures are shown (:mod:`viewer.page.pictures`, laid over the canvas), the canvas
   draws nothing and a click on it is a click on the picture: it is passed on as a position
   in 0-1 of the canvas's size.
 - **The 3D view**, shown instead of the pictures on request: the cameras, the parts at their
@@ -36,7 +36,7 @@ from annotator.dataset.records import InstanceAnnotation
 from annotator.geometry import MM_PER_M
 from annotator.geometry.camera import Camera
 from annotator.geometry.transforms import invert, make_transform
-from viewer.style import SELECTED_COLOUR, Look
+from viewer.drawing.style import SELECTED_COLOUR, Look
 
 #: A click on the canvas at (x, y), fractions of its width and height (0 to 1).
 CanvasClick = Callable[[float, float], None]

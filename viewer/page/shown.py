@@ -6,9 +6,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from viewer.mosaic import Picture
-from viewer.overlays import Prepared
-from viewer.zoom import Zoom
+from viewer.drawing.mosaic import Picture
+from viewer.drawing.overlays import Prepared
+from viewer.drawing.zoom import Zoom
 
 
 @dataclass

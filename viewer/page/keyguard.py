@@ -2,7 +2,7 @@
 on other keyboard layouts Z, O, ... too) does not also move viser's 3D camera, which listens
 to the keys at the places of W A S D Q E and the arrows on the whole page.
 
-Why: the pictures lie over the 3D canvas (:mod:`viewer.pictures`), so a camera that moves
+Why: the pictures lie over the 3D canvas (:mod:`viewer.page.pictures`), so a camera that moves
 under them is not seen, yet it is there when the reviewer presses V, somewhere else. And
 every frame of its motion is drawn: on a software renderer (headless Chromium, many
 laptops) each WebGL frame is read back for compositing, 25-60 ms of the page's main thread,
@@ -27,7 +27,7 @@ import html
 import json
 from collections.abc import Iterable
 
-#: The attribute every picture element carries (:mod:`viewer.pictures`).
+#: The attribute every picture element carries (:mod:`viewer.page.pictures`).
 PICTURE_MARK = "data-review-picture"
 #: Where viser's keyboard camera keys are (``KeyboardEvent.code``: the key's place on the
 #: keyboard, whatever character it types), as its client's ``CameraControls.tsx`` lists them.

@@ -2,7 +2,7 @@
 (a decision not saved, another reviewer's decision over ours), notices (problems with the
 scene's files, the armed "no pose here" click, the parts offered to add), the instance table
 and the annotation's warnings. Pure functions of the scene's state and the page's; the
-widgets that show them are :mod:`viewer.panel`'s.
+widgets that show them are :mod:`viewer.page.panel`'s.
 """
 
 from __future__ import annotations
@@ -11,8 +11,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 from annotator.dataset.records import InstanceAnnotation
-from viewer.editor import Offer
-from viewer.state import SceneInfo
+from annotator.review import SceneInfo
+from viewer.page.editor import Offer
 
 
 @dataclass
@@ -113,7 +113,7 @@ def panel_view(
         progress: (scenes with a current decision, scenes); pace: decisions per minute.
         repair: What the last repair did.
 
-    >>> from viewer.state import SceneInfo
+    >>> from annotator.review import SceneInfo
     >>> from annotator.dataset.review import Review
     >>> info = SceneInfo("000003", True, (), Review(), False, False, None)
     >>> panel_view(info, position=(4, 10), filter="all", selected=None).title
@@ -165,7 +165,7 @@ def frames_text(info: SceneInfo) -> str:
     """A sequence's line: the frames shown (each ``<frame>:<camera>`` in the pictures), the
     first one's own decision, and how many frames are posed and rejected.
 
-    >>> from viewer.state import SceneInfo
+    >>> from annotator.review import SceneInfo
     >>> from annotator.dataset.review import Review
     >>> info = SceneInfo("s", True, (), Review(frames={"000004": "rejected"}), False, False, None,
     ...                  frames={"000000": None, "000004": None}, shown=("000004", "000000"))

@@ -43,19 +43,17 @@ gone) is known as :attr:`SceneInfo.gone`: it is shown as gone, and a decision fo
 from __future__ import annotations
 
 import contextlib
-import hashlib
 import os
 import threading
 import time
-from collections.abc import Iterator, Mapping
-from dataclasses import dataclass, field, replace
+from collections.abc import Iterator
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
 from annotator.dataset import Dataset, Scene, load_dataset
 from annotator.dataset.figures import SceneWarning
-from annotator.dataset.flags import PHYSICS_FLAGS
 from annotator.dataset.frames import frames_view, shown_frames
 from annotator.dataset.records import (
     FramePose,
@@ -79,212 +77,29 @@ from annotator.dataset.review import (
 )
 from annotator.dataset.validity import unknown_name
 from annotator.errors import UserError
-
-FILTERS = ("all", "pending", "flagged", "rejected", "stale")
-
-# (inode, mtime_ns) of a file, or None if it does not exist. Atomic writes replace the
-# file, so the inode changes with every write even within one clock tick.
-_Stamp = tuple[int, int] | None
-
-
-def _stamp(path: str) -> _Stamp:
-    try:
-        st = os.stat(path)
-    except OSError:  # missing (or unreadable: reading it will say so)
-        return None
-    return (st.st_ino, st.st_mtime_ns)
-
-
-class SaveError(Exception):
-    """A decision could not be written; the message is one line naming the file and why."""
-
-
-class Conflict(SaveError):
-    """A pose edit or an undo was not made: another reviewer changed that part's pose
-    after the page computed its change (the message says who and when)."""
-
+from annotator.review.locks import FolderLocks
+from annotator.review.scenes import (
+    Conflict,
+    SaveError,
+    SceneInfo,
+    Staged,
+    Stamp,
+    added,
+    changed_since,
+    describe,
+    frames_digest,
+    gone_info,
+    same_edit,
+    stamp,
+    view_key,
+    window,
+)
 
 #: ``expect`` of a pose edit that is not checked against what the file holds.
 ANY = object()
 
-#: How long a change waits for another server's lock on the scene.
-LOCK_WAIT_S = 5.0
 #: Frames views of sequences kept (:meth:`ReviewState.view`): a few pages, each on a scene.
 VIEWS_KEPT = 16
-
-
-def same_edit(a: EditedPose | None, b: EditedPose | None) -> bool:
-    """Whether two states of a part's edit are the same one (None: no edit, the auto pose):
-    made by the same page at the same time into the same pose."""
-    if a is None or b is None:
-        return a is b
-    return (
-        a.decided_by == b.decided_by
-        and a.at == b.at
-        and np.allclose(a.R, b.R, rtol=0, atol=1e-9)
-        and np.allclose(a.t, b.t, rtol=0, atol=1e-6)
-    )
-
-
-def _describe(edit: EditedPose | None, by: str | None = None) -> str:
-    if edit is None:
-        return "put back to its auto pose"
-    mine = by is not None and edit.decided_by == by  # a page never blames itself by its id
-    who = "another key of yours on this page" if mine else edit.decided_by or "another reviewer"
-    return f"changed by {who}" + (f" at {edit.at}" if edit.at else "")
-
-
-@dataclass(frozen=True)
-class Staged:
-    """A pose edit made in memory and not written yet (:meth:`ReviewState.commit` writes it)."""
-
-    sid: str
-    review: Review
-    info: SceneInfo  # the scene as it is once ``review`` is written
-    by: str | None
-
-
-@dataclass(frozen=True)
-class SceneInfo:
-    """What is known about a scene: its proposed poses, the decisions about them, and what
-    deserves a look."""
-
-    id: str
-    annotated: bool
-    poses: tuple[InstanceAnnotation, ...]
-    review: Review
-    stale: bool
-    flagged: bool  # a pose has flags, or the annotation has warnings
-    error: str | None  # a problem to show (unreadable annotation, corrupt review.json)
-    warnings: tuple[SceneWarning, ...] = ()
-    fingerprint: str = ""  # of the auto poses (annotator.dataset.review.poses_fingerprint)
-    gone: bool = False  # the scene's folder is no longer there (error says where)
-    auto: tuple[InstanceAnnotation, ...] = ()  # the poses as annotate wrote them
-    edited: frozenset[str] = frozenset()  # instances whose pose is a reviewer's edit
-    stale_edits: frozenset[str] = frozenset()  # edits made on an auto pose changed since
-    view: str = ""  # fingerprint of the poses shown (edits applied): what pictures are made of
-    #: A sequence's frames (annotation.json ``frames``) and those the pages show side by side
-    #: (:func:`annotator.dataset.frames.shown_frames`); empty for a fixed rig's scene.
-    frames: Mapping[str, FramePose] = field(default_factory=dict)
-    shown: tuple[str, ...] = ()
-
-    @property
-    def physics_flagged(self) -> bool:
-        """A pose is physically impossible in its pile (penetrates, floats, unstable)."""
-        return any(f in PHYSICS_FLAGS for p in self.auto for f in p.flags)
-
-    @property
-    def rejected_frames(self) -> set[str]:
-        """The sequence's frames a reviewer rejected on their own."""
-        return self.review.rejected_frames
-
-    @property
-    def status(self) -> ReviewStatus:
-        return self.review.status
-
-    @property
-    def decided(self) -> bool:
-        """A current decision: not pending and not stale."""
-        return self.status != ReviewStatus.PENDING and not self.stale
-
-    def instance_status(self, key: str) -> ReviewStatus:
-        """``accepted``, ``rejected`` or ``pending`` (no decision yet)."""
-        return self.review.instances.get(
-            key,
-            ReviewStatus.ACCEPTED
-            if self.review.status == ReviewStatus.ACCEPTED
-            else ReviewStatus.PENDING,
-        )
-
-    def pose(self, key: str) -> InstanceAnnotation | None:
-        return next((p for p in self.poses if p.key == key), None)
-
-    def auto_pose(self, key: str) -> InstanceAnnotation | None:
-        return next((p for p in self.auto if p.key == key), None)
-
-    def with_pose(self, key: str, T: np.ndarray) -> tuple[list[InstanceAnnotation], str]:
-        """The poses shown with ``key``'s at ``T`` (4x4) instead, and their fingerprint: the
-        :attr:`view` the scene has once that pose is saved (what overlays made ahead of a
-        repair are kept under)."""
-        poses = [
-            replace(p, R=np.array(T[:3, :3]), t=np.array(T[:3, 3])) if p.key == key else p
-            for p in self.poses
-        ]
-        return poses, view_key(poses, self.shown, self.frames)
-
-
-def view_key(
-    poses: list[InstanceAnnotation],
-    shown: tuple[str, ...],
-    frames: Mapping[str, FramePose] | None = None,
-) -> str:
-    """What a scene's pictures are made of: the poses shown and, for a sequence, which
-    frames and where the rig was for each (a new annotation may move a frame and no part:
-    :attr:`SceneInfo.view`)."""
-    key = poses_fingerprint(poses)
-    if not shown:
-        return key
-    return f"{key}#{frames_digest(frames or {}, shown)}@{','.join(shown)}"
-
-
-def frames_digest(frames: Mapping[str, FramePose], shown: tuple[str, ...]) -> str:
-    """A short digest of the shown frames' ``scene_T_rig`` (missing or unposed: none)."""
-    h = hashlib.sha256()
-    for name in shown:
-        T = frames[name].scene_T_rig if name in frames else None
-        h.update(name.encode() + b"\0")
-        if T is not None:
-            h.update(np.ascontiguousarray(T, dtype=np.float64).tobytes())
-    return h.hexdigest()[:16]
-
-
-def _window(info: SceneInfo, at: int) -> SceneInfo:
-    """``info`` with the frames a page whose window is ``at`` frames on shows."""
-    if not info.frames:
-        return info
-    shown = tuple(shown_frames(info.frames, offset=at))
-    if shown == info.shown:
-        return info
-    return replace(info, shown=shown, view=view_key(list(info.poses), shown, info.frames))
-
-
-def changed_since(now: SceneInfo, seen: SceneInfo, by: str | None) -> str | None:
-    """Why a decision made looking at ``seen`` (the scene as a page showed it) is not one
-    about the scene as it is ``now``: annotate wrote other poses or frames, or a part was
-    repaired by someone other than ``by`` since; None if the page showed what is there."""
-    if now.fingerprint != seen.fingerprint or frames_digest(
-        now.frames, tuple(now.frames)
-    ) != frames_digest(seen.frames, tuple(seen.frames)):
-        return "the annotation changed on disk after your page showed it (annotate ran again?)"
-    for key in sorted(set(now.review.poses) | set(seen.review.poses)):
-        edit = now.review.poses.get(key)
-        if not same_edit(edit, seen.review.poses.get(key)) and (
-            edit is None or edit.decided_by != by
-        ):
-            return f"{key} was {_describe(edit, by)} after your page showed it"
-    return None
-
-
-def _added(obj: str, inst: str, R: object, t: object) -> InstanceAnnotation:
-    """The record of an instance added by hand: a pose, and none of annotate's figures."""
-    return InstanceAnnotation(obj, inst, R, t)  # type: ignore[arg-type]
-
-
-def _gone(sid: str, scene: Scene) -> SceneInfo:
-    """What is known of a scene whose folder has gone."""
-    return SceneInfo(
-        id=sid,
-        annotated=False,
-        poses=(),
-        review=Review(),
-        stale=False,
-        flagged=False,
-        error=f"{scene.path}: the scene's folder is gone (deleted or moved since the viewer "
-        "started)",
-        fingerprint=poses_fingerprint([]),
-        gone=True,
-        view=poses_fingerprint([]),
-    )
 
 
 class ReviewState:
@@ -298,21 +113,21 @@ class ReviewState:
         # Paths as strings once: stat-ing every scene is what polling and progress cost.
         self._paths = {s.id: (str(s.annotation_path), str(s.review_path)) for s in scenes}
         self._lock = threading.RLock()
-        self._cache: dict[str, tuple[tuple[_Stamp, _Stamp], SceneInfo]] = {}
-        self._seen: dict[str, tuple[_Stamp, _Stamp]] = {}
+        self._cache: dict[str, tuple[tuple[Stamp, Stamp], SceneInfo]] = {}
+        self._seen: dict[str, tuple[Stamp, Stamp]] = {}
         self._staged: dict[str, Staged] = {}  # scene -> its edit shown and not yet written
         # scene -> (descriptor holding the folder's flock, how many holds): taken and given
         # back only under self._lock, so one thread at a time holds a scene's file lock.
-        self._flocks: dict[str, list[int]] = {}
+        self._flocks = FolderLocks()
         self.started = time.time()
         self.decided = 0  # decisions made through this server
         #: (scene, shown frames, their digest) -> the frames view (:meth:`view`), the latest
         #: few kept.
         self._views: dict[tuple[str, tuple[str, ...], str], tuple[Dataset, Scene]] = {}
 
-    def _stamps(self, sid: str) -> tuple[_Stamp, _Stamp]:
+    def _stamps(self, sid: str) -> tuple[Stamp, Stamp]:
         annotation, review = self._paths[sid]
-        return (_stamp(annotation), _stamp(review))
+        return (stamp(annotation), stamp(review))
 
     def scene(self, sid: str) -> Scene:
         """The scene's folder (which may have gone since: :attr:`SceneInfo.gone`); a
@@ -387,7 +202,7 @@ class ReviewState:
         edit makes it (:meth:`stage_pose`) until it is written; a sequence's with the frames
         a page whose window is ``at`` frames on shows."""
         staged = self._staged.get(sid)
-        return _window(staged.info if staged is not None else self._info(sid), at)
+        return window(staged.info if staged is not None else self._info(sid), at)
 
     def _info(self, sid: str) -> SceneInfo:
         key = self._stamps(sid)
@@ -398,7 +213,7 @@ class ReviewState:
             return hit[1]
         sc = self._scenes[sid]
         if gone:
-            info = _gone(sid, sc)
+            info = gone_info(sid, sc)
             self._cache[sid] = (key, info)
             return info
         error = None
@@ -421,7 +236,7 @@ class ReviewState:
         except (UserError, OSError) as exc:
             review, error = Review(), f"{exc} (it will be replaced by the next decision)"
         fingerprint = poses_fingerprint(poses)
-        edits = apply_edits(poses, review, added=_added)
+        edits = apply_edits(poses, review, added=added)
         unknown = {p.key: unknown_name(self.ds, p.object, p.instance) for p in edits.poses}
         unknown = {k: why for k, why in unknown.items() if why is not None}
         if unknown:  # nothing to draw them with: shown as an error, never drawn
@@ -463,47 +278,6 @@ class ReviewState:
         return changed
 
     # ------------------------------------------------------------ locks
-    def _hold(self, sid: str) -> None:
-        """Take the scene's lock across processes (a ``flock`` on its folder), or once more
-        if this thread has it; called with ``self._lock`` held. SaveError if another server
-        keeps it longer than :data:`LOCK_WAIT_S`, or if the folder has gone."""
-        held = self._flocks.get(sid)
-        if held is not None:
-            held[1] += 1
-            return
-        folder = self._scenes[sid].path
-        try:
-            fd = os.open(folder, os.O_RDONLY)
-        except OSError:
-            raise SaveError(f"{folder}: the scene's folder is gone (deleted or moved)") from None
-        deadline = time.monotonic() + LOCK_WAIT_S
-        try:
-            import fcntl
-        except ImportError:  # not POSIX: the pages of this server are still serialised
-            self._flocks[sid] = [fd, 1]
-            return
-        while True:
-            try:
-                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-                break
-            except OSError:
-                if time.monotonic() > deadline:
-                    os.close(fd)
-                    raise SaveError(
-                        f"{folder}: another review server has kept the scene locked for "
-                        f"{LOCK_WAIT_S:g} s; try again"
-                    ) from None
-                time.sleep(0.01)
-        self._flocks[sid] = [fd, 1]
-
-    def _release(self, sid: str) -> None:
-        """Give back one hold of :meth:`_hold` (the lock goes with the last one)."""
-        held = self._flocks[sid]
-        held[1] -= 1
-        if held[1] == 0:
-            del self._flocks[sid]
-            os.close(held[0])  # closing the descriptor releases the flock
-
     @contextlib.contextmanager
     def _changing(
         self, sid: str, seen: SceneInfo | None = None, by: str | None = None
@@ -512,7 +286,7 @@ class ReviewState:
         ``seen``: the scene as the page deciding showed it; :class:`Conflict` if it has
         changed since (:func:`changed_since`)."""
         with self._lock:
-            self._hold(sid)
+            self._flocks.hold(sid, self._scenes[sid].path)
             try:
                 info = self.info(sid)
                 why = None if seen is None else changed_since(info, seen, by)
@@ -523,7 +297,7 @@ class ReviewState:
                     )
                 yield info
             finally:
-                self._release(sid)
+                self._flocks.release(sid)
 
     @staticmethod
     def _check_expected(
@@ -535,7 +309,7 @@ class ReviewState:
         current = info.review.poses.get(key)
         if not same_edit(current, expect):  # type: ignore[arg-type]
             raise Conflict(
-                f"{key} was {_describe(current, by)} after your page computed this {what}; "
+                f"{key} was {describe(current, by)} after your page computed this {what}; "
                 "nothing was written: look at the part as it is now"
             )
 
@@ -755,7 +529,7 @@ class ReviewState:
                 f"{self._scenes[sid].review_path.parent}: the scene's folder is gone "
                 "(deleted or moved)"
             )
-        edits = apply_edits(list(info.auto), review, added=_added)
+        edits = apply_edits(list(info.auto), review, added=added)
         staged = Staged(
             sid,
             review,
@@ -771,7 +545,7 @@ class ReviewState:
             by,
         )
         self._lock.acquire()
-        self._hold(sid)
+        self._flocks.hold(sid, self._scenes[sid].path)
         self._staged[sid] = staged
         return staged
 
@@ -786,7 +560,7 @@ class ReviewState:
                     if self._staged.get(staged.sid) is staged:
                         del self._staged[staged.sid]
         finally:
-            self._release(staged.sid)
+            self._flocks.release(staged.sid)
             self._lock.release()
 
     # ----------------------------------------------------------- summaries

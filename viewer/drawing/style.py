@@ -17,7 +17,7 @@ from annotator.dataset.figures import DepthRegion, depth_regions
 from annotator.dataset.review import MissingPart, ReviewStatus
 
 if TYPE_CHECKING:
-    from viewer.state import SceneInfo
+    from annotator.review import SceneInfo
 
 COLOURS = {
     ReviewStatus.PENDING: (0, 220, 255),  # yellow

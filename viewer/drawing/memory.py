@@ -8,7 +8,7 @@ page announcing a 30000 x 30000 canvas would otherwise make every mosaic 2.7 GB.
   aspect); the browser scales a clamped picture up to the canvas, and clicks, which are
   fractions of the canvas, still land on the right pixel;
 - the caches of pictures and of prepared scenes are bounded by bytes
-  (:class:`BytesLRU`, and :class:`viewer.cache.PrefetchCache`'s ``max_bytes``), not by a
+  (:class:`BytesLRU`, and :class:`viewer.drawing.cache.PrefetchCache`'s ``max_bytes``), not by a
   count of entries whose size a page chooses;
 - what a page that closed had made is dropped, and the freed memory is handed back to the
   operating system (:func:`give_back`). With glibc's defaults it would mostly stay with the

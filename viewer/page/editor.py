@@ -3,15 +3,15 @@ own), A's candidate poses (the next one made ahead in the background), adding a 
 the reviewer clicked, and per-scene undo and redo of the page's own steps.
 
 Every change is shown first (the scene's overlays re-rendered only where it changed,
-:func:`viewer.overlays.repose`), then written to review.json before the key is done with and
-the next change is made (:meth:`viewer.state.ReviewState.stage_pose`, then ``commit``); one
+:func:`viewer.drawing.overlays.repose`), then written to review.json before the key is done with and
+the next change is made (:meth:`annotator.review.state.ReviewState.stage_pose`, then ``commit``); one
 that cannot be written is said so in red and taken back. Each change names the edit it was
 computed from, so one made on a pose that another page or server has changed since is
-refused and said (:class:`viewer.state.Conflict`), never written over theirs; undo and redo
+refused and said (:class:`annotator.review.scenes.Conflict`), never written over theirs; undo and redo
 only undo the page's own steps, while each is still its part's last change.
 
 The editor needs of its page only what :class:`EditorPage` lists, so it is tested with a
-fake page on a real :class:`~viewer.state.ReviewState`.
+fake page on a real :class:`~annotator.review.state.ReviewState`.
 """
 
 from __future__ import annotations
@@ -29,10 +29,10 @@ import numpy as np
 
 from annotator.dataset.review import EditedPose, RepairOp, RepairStep
 from annotator.repair import NudgeKind
-from viewer import repair
-from viewer.host import ReviewHost
-from viewer.overlays import Prepared, repose
-from viewer.state import Conflict, SaveError, SceneInfo, Staged
+from annotator.review import Conflict, SaveError, SceneInfo, Staged
+from viewer.drawing.overlays import Prepared, repose
+from viewer.page import repair
+from viewer.page.host import ReviewHost
 
 AHEAD_WAIT = 1.0  # seconds a repair waits for its overlays being made ahead, at most
 #: seconds work ahead waits after a key's pixels went out: the browser draws them meanwhile
@@ -65,11 +65,13 @@ class Unsaved(Enum):
     """Why a pose change was not written."""
 
     FAILED = "failed"  # the file could not be written: the same change may be tried again
-    CONFLICT = "conflict"  # another reviewer changed the part first (viewer.state.Conflict)
+    CONFLICT = (
+        "conflict"  # another reviewer changed the part first (annotator.review.scenes.Conflict)
+    )
 
 
 class EditorPage(Protocol):
-    """What the repair editor needs of its page (:class:`viewer.session.Session`)."""
+    """What the repair editor needs of its page (:class:`viewer.page.session.Session`)."""
 
     @property
     def id(self) -> str: ...  # the page's id, recorded as ``decided_by``

@@ -2,7 +2,7 @@
 A (alternatives), the nudge keys and adding a missing part compute, from a scene's markers as
 detected and its depth (:class:`RepairInputs`, made once per scene).
 
-The pose of an instance here is the one the page shows (:attr:`viewer.state.SceneInfo.poses`,
+The pose of an instance here is the one the page shows (:attr:`annotator.review.scenes.SceneInfo.poses`,
 edits applied); the other posed parts are its neighbours for the refinement.
 """
 
@@ -32,7 +32,7 @@ from annotator.repair import (
     used_observations,
 )
 from annotator.repair.candidates import SAME_FRACTION, pose_distance
-from viewer.state import SceneInfo
+from annotator.review import SceneInfo
 
 #: Nudge steps: small and large (the large ones for a part far off).
 SMALL_MM, SMALL_DEG = 1.0, 1.0
@@ -103,7 +103,7 @@ def candidates(ds: Dataset, info: SceneInfo, key: str, inputs: RepairInputs) -> 
 
 def nudge(ds: Dataset, info: SceneInfo, key: str, step: Nudge) -> np.ndarray:
     """The shown pose of ``key`` moved by ``step`` along the reference camera's axes: for a
-    sequence's frames view (``ds`` the view, :meth:`viewer.state.ReviewState.dataset_of`)
+    sequence's frames view (``ds`` the view, :meth:`annotator.review.state.ReviewState.dataset_of`)
     those of the first shown frame's reference camera, the top-left picture, not the scene
     frame's (the first frame's, perhaps not shown and seen from elsewhere)."""
     pose = info.pose(key)
