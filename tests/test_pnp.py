@@ -7,7 +7,8 @@ import pytest
 
 from annotator.geometry.camera import Camera
 from annotator.geometry.mesh import Mesh
-from annotator.geometry.transforms import invert, make_transform, random_rotations, rotvec_to_matrix
+from annotator.geometry.transforms import invert, make_transform, random_rotations
+from annotator.geometry.lie import rotvec_to_matrix
 from annotator.markers.layout import square_corners
 from annotator.parts import build_part
 from annotator.pnp import (
@@ -205,7 +206,8 @@ def test_uncertainty_grows_with_corner_noise() -> None:
 def test_analytic_jacobian_matches_finite_differences() -> None:
     # The refinement's Jacobian (OpenCV's projection derivatives chained with the pose
     # perturbation, distortion included) against central differences of the residuals.
-    from annotator.pnp.multiview import _perturb, residuals_jacobian
+    from annotator.geometry.lie import perturb
+    from annotator.pnp.multiview import residuals_jacobian
 
     rng = np.random.default_rng(11)
     cams = _rig()
@@ -217,8 +219,8 @@ def test_analytic_jacobian_matches_finite_differences() -> None:
     numeric = np.column_stack(
         [
             (
-                residuals_jacobian(cams, obs, _perturb(T, e), x)[0]
-                - residuals_jacobian(cams, obs, _perturb(T, -e), x)[0]
+                residuals_jacobian(cams, obs, perturb(T, e), x)[0]
+                - residuals_jacobian(cams, obs, perturb(T, -e), x)[0]
             )
             / (2 * e[k])
             for k, e in enumerate(np.diag(eps))

@@ -33,7 +33,8 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.linalg import splu
 
-from annotator.geometry.transforms import rotvec_to_matrix
+from annotator.geometry.least_squares import Damping, Stop, levenberg_marquardt
+from annotator.geometry.lie import perturb
 
 #: Names of the intrinsic parameters of a camera, in their order in the parameter vector
 #: (the last three only with the rational model).
@@ -230,13 +231,16 @@ def _apply(state: RigState, step: np.ndarray, layout: _Layout) -> RigState:
     for c in range(layout.cameras):
         new.intrinsics[c, free] += step[layout.intr(c) : layout.intr(c) + len(free)]
         if c > 0:
-            d = step[layout.extr(c) : layout.extr(c) + 6]
-            new.cam_T_rig[c, :3, :3] = rotvec_to_matrix(d[:3]) @ state.cam_T_rig[c, :3, :3]
-            new.cam_T_rig[c, :3, 3] += d[3:]
-    d = step[layout.camera_block :].reshape(-1, 6)
-    new.rig_T_board[:, :3, :3] = rotvec_to_matrix(d[:, :3]) @ state.rig_T_board[:, :3, :3]
-    new.rig_T_board[:, :3, 3] += d[:, 3:]
+            new.cam_T_rig[c] = perturb(
+                state.cam_T_rig[c], step[layout.extr(c) : layout.extr(c) + 6]
+            )
+    new.rig_T_board = perturb(state.rig_T_board, step[layout.camera_block :].reshape(-1, 6))
     return new
+
+
+#: Levenberg's damping of the calibration: it stops once a damping of 1e12 is needed (the
+#: ceiling is the float just below it).
+_DAMPING = Damping(start=1e-4, floor=1e-12, ceiling=float(np.nextafter(1e12, 0)))
 
 
 def refine(
@@ -254,37 +258,39 @@ def refine(
     """
     C = state.intrinsics.shape[0]
     layout = _Layout(C, state.rig_T_board.shape[0], np.asarray(state.free_intrinsics, bool))
-    r, J = residuals_jacobian(state, obs, layout)
-    cost = float(r @ r)
-    damping = 1e-4
-    iterations = 0
-    converged = False
-    while iterations < max_iterations:
-        iterations += 1
+    r0, J0 = residuals_jacobian(state, obs, layout)
+    Linear = tuple[RigState, np.ndarray, sp.csr_matrix]  # the state, its residuals, Jacobian
+    Normal = tuple[np.ndarray, np.ndarray, np.ndarray, sp.csc_matrix]
+
+    def normal(at: Linear) -> Normal:
+        _, r, J = at
         H = (J.T @ J).tocsc()
-        g = J.T @ r
         d = H.diagonal()
         scale = 1.0 / np.sqrt(np.where(d > 0, d, 1.0))
         S = sp.diags(scale)
-        Hs = (S @ H @ S).tocsc()
-        improved, decrease = False, 0.0
-        while damping < 1e12:
-            # Unobserved unknowns (a shot without corners) get a unit diagonal.
-            A = Hs + sp.diags(np.where(d > 0, damping, 1.0))
-            step = -scale * splu(A.tocsc()).solve(scale * g)
-            trial = _apply(state, step, layout)
-            r_new, J_new = residuals_jacobian(trial, obs, layout)
-            cost_new = float(r_new @ r_new)
-            if np.isfinite(cost_new) and cost_new < cost:
-                improved = True
-                decrease = (cost - cost_new) / max(cost, 1e-300)
-                state, r, J, cost = trial, r_new, J_new, cost_new
-                damping = max(damping / 10.0, 1e-12)
-                break
-            damping *= 10.0
-        if not improved or decrease < tolerance:
-            converged = True
-            break
+        return J.T @ r, d, scale, (S @ H @ S).tocsc()
+
+    def trial(at: Linear, normal: Normal, damping: float) -> tuple[Linear, float, np.ndarray]:
+        g, d, scale, Hs = normal
+        # Unobserved unknowns (a shot without corners) get a unit diagonal.
+        A = Hs + sp.diags(np.where(d > 0, damping, 1.0))
+        step = -scale * splu(A.tocsc()).solve(scale * g)
+        moved = _apply(at[0], step, layout)
+        r_new, J_new = residuals_jacobian(moved, obs, layout)
+        return (moved, r_new, J_new), float(r_new @ r_new), step
+
+    found = levenberg_marquardt(
+        (state, r0, J0),
+        float(r0 @ r0),
+        normal,
+        trial,
+        damping=_DAMPING,
+        small=lambda cost, new, step: (cost - new) / max(cost, 1e-300) < tolerance,
+        max_iterations=max_iterations,
+        refused_count=False,
+    )
+    (state, r, J), cost, iterations = found.state, found.cost, found.iterations
+    converged = found.stop in (Stop.SMALL_STEP, Stop.NO_DESCENT)
     dof = max(r.size - layout.size, 1)
     sigma = float(np.sqrt(cost / dof))
     return RefineResult(

@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 
 from annotator.estimation.cloud import OrientedCloud
+from annotator.geometry.lie import skew
 from annotator.geometry.transforms import nearest_rotation
 
 
@@ -52,13 +53,9 @@ def refine_icp(
         b = -np.einsum("ij,ij->i", p - q, nq)
         x, *_ = np.linalg.lstsq(A, b, rcond=None)
         w, dt = x[:3], x[3:]
-        dR = nearest_rotation(np.eye(3) + _skew(w))
+        dR = nearest_rotation(np.eye(3) + skew(w))
         T[:3, :3] = dR @ R
         T[:3, 3] = dR @ t + dt
         if np.linalg.norm(w) < 1e-5 and np.linalg.norm(dt) < 1e-3:
             break
     return T
-
-
-def _skew(w: np.ndarray) -> np.ndarray:
-    return np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])

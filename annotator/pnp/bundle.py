@@ -30,7 +30,8 @@ import cv2
 import numpy as np
 
 from annotator.geometry.camera import Camera
-from annotator.geometry.transforms import rotvec_to_matrix
+from annotator.geometry.least_squares import Damping, levenberg_marquardt
+from annotator.geometry.lie import perturb
 
 __all__ = ["BundleObservations", "BundleResult", "bundle_adjust"]
 
@@ -112,6 +113,10 @@ class BundleResult:
         return out
 
 
+#: Levenberg's damping of the adjustment.
+_DAMPING = Damping(start=1e-4, floor=1e-9, ceiling=1e6)
+
+
 def bundle_adjust(
     cameras: Sequence[Camera],
     obs: BundleObservations,
@@ -153,30 +158,36 @@ def bundle_adjust(
     def linearise(frames: np.ndarray, models: np.ndarray) -> _Linear:
         return _weighed(_linearise(cameras, obs, frames, models, has_depth, depth_weight), scale)
 
-    lam = 1e-4
-    lin = linearise(frames, models)
-    cost = _robust_cost(lin.r, huber_px)
-    iterations = 0
-    while iterations < max_iterations:
-        iterations += 1
-        normal = _normal(lin, obs, _huber_weights(lin.r, huber_px), shape)
-        step = _solve(normal, lam)
+    State = tuple[np.ndarray, np.ndarray, _Linear]  # frames, instances, linearised there
+    Step = tuple[np.ndarray, np.ndarray]
+
+    def normal(state: State) -> _Normal:
+        lin = state[2]
+        return _normal(lin, obs, _huber_weights(lin.r, huber_px), shape)
+
+    def trial(state: State, normal: _Normal, damping: float) -> tuple[State, float, Step] | None:
+        step = _solve(normal, damping)
         if step is None:
-            break
-        f_new, m_new = _apply(frames, models, *step)
+            return None
+        f_new, m_new = _apply(state[0], state[1], *step)
         lin_new = linearise(f_new, m_new)
-        cost_new = _robust_cost(lin_new.r, huber_px)
-        if cost_new < cost:
-            biggest = max(float(np.abs(step[0]).max(initial=0.0)), float(np.abs(step[1]).max()))
-            done = cost - cost_new < 1e-7 * max(cost, 1e-12) or biggest < 1e-8
-            frames, models, lin, cost = f_new, m_new, lin_new, cost_new
-            lam = max(lam / 10, 1e-9)
-            if done:
-                break
-        else:
-            lam *= 10
-            if lam > 1e6:
-                break
+        return (f_new, m_new, lin_new), _robust_cost(lin_new.r, huber_px), step
+
+    def small(cost: float, new: float, step: Step) -> bool:
+        biggest = max(float(np.abs(step[0]).max(initial=0.0)), float(np.abs(step[1]).max()))
+        return cost - new < 1e-7 * max(cost, 1e-12) or biggest < 1e-8
+
+    lin0 = linearise(frames, models)
+    found = levenberg_marquardt(
+        (frames, models, lin0),
+        _robust_cost(lin0.r, huber_px),
+        normal,
+        trial,
+        damping=_DAMPING,
+        small=small,
+        max_iterations=max_iterations,
+    )
+    (frames, models, lin), iterations = found.state, found.iterations
     corners = lin.r[: 8 * len(obs)].reshape(-1, 4, 2)
     per_obs = np.sqrt(np.mean(np.sum(corners**2, axis=-1), axis=-1)) / scale
     # The corner noise as the inliers show it (median absolute deviation, robust to the
@@ -397,14 +408,7 @@ def _apply(
     frames: np.ndarray, models: np.ndarray, df: np.ndarray, dm: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
     """The poses moved by the step (left perturbations in the scene frame)."""
-    return _perturbed(frames, df), _perturbed(models, dm)
-
-
-def _perturbed(T: np.ndarray, d: np.ndarray) -> np.ndarray:
-    out = T.copy()
-    out[:, :3, :3] = rotvec_to_matrix(d[:, :3]) @ T[:, :3, :3]
-    out[:, :3, 3] = T[:, :3, 3] + d[:, 3:]
-    return out
+    return perturb(frames, df), perturb(models, dm)
 
 
 def _huber_weights(r: np.ndarray, k: float) -> np.ndarray:

@@ -16,7 +16,9 @@ import cv2
 import numpy as np
 
 from annotator.geometry.camera import Camera
-from annotator.geometry.transforms import make_transform, rotvec_to_matrix
+from annotator.geometry.least_squares import Damping, levenberg_marquardt
+from annotator.geometry.lie import perturb
+from annotator.geometry.transforms import make_transform
 
 
 @dataclass(frozen=True)
@@ -164,6 +166,11 @@ def lone_marker_poses(cam: Camera, o: Observation) -> list[np.ndarray]:
     ]
 
 
+#: A pose, its corner residuals and their Jacobian.
+_Linear = tuple[np.ndarray, np.ndarray, np.ndarray]
+_DAMPING = Damping(start=1e-3, floor=1e-9, ceiling=1e8)
+
+
 def refine_pose(
     cameras: Sequence[Camera],
     obs: Sequence[Observation],
@@ -181,26 +188,34 @@ def refine_pose(
     the corner noise (the pose absorbs part of it).
     """
     x = np.stack([o.image_corners for o in obs])
-    T = np.array(T0, dtype=float)
-    r, J = residuals_jacobian(cameras, obs, T, x)
-    cost = r @ r
-    damping = 1e-3
-    for _ in range(max_iterations):
-        JtJ, g = J.T @ J, J.T @ r
+    T0 = np.array(T0, dtype=float)
+    r0, J0 = residuals_jacobian(cameras, obs, T0, x)
+
+    def normal(state: _Linear) -> tuple[np.ndarray, np.ndarray]:
+        _, r, J = state
+        return J.T @ J, J.T @ r
+
+    def trial(
+        state: _Linear, lin: tuple[np.ndarray, np.ndarray], damping: float
+    ) -> tuple[_Linear, float, np.ndarray]:
+        JtJ, g = lin
         step = np.linalg.solve(JtJ + damping * np.diag(np.diag(JtJ) + 1e-12), -g)
-        T_new = _perturb(T, step)
+        T_new = perturb(state[0], step)
         r_new, J_new = residuals_jacobian(cameras, obs, T_new, x)
-        cost_new = r_new @ r_new
-        if cost_new < cost:
-            done = cost - cost_new < 1e-12 * max(cost, 1e-12) or np.abs(step).max() < 1e-10
-            T, r, J, cost = T_new, r_new, J_new, cost_new
-            damping = max(damping / 10, 1e-9)
-            if done:
-                break
-        else:
-            damping *= 10
-            if damping > 1e8:
-                break
+        return (T_new, r_new, J_new), r_new @ r_new, step
+
+    found = levenberg_marquardt(
+        (T0, r0, J0),
+        r0 @ r0,
+        normal,
+        trial,
+        damping=_DAMPING,
+        small=lambda cost, new, step: (
+            cost - new < 1e-12 * max(cost, 1e-12) or np.abs(step).max() < 1e-10
+        ),
+        max_iterations=max_iterations,
+    )
+    (T, r, J), cost = found.state, found.cost
     dof = max(r.size - 6, 1)
     sigma = max(float(np.sqrt(cost / dof)), sigma_floor)
     try:
@@ -210,11 +225,6 @@ def refine_pose(
     return PoseEstimate(
         T=T, covariance=cov, residual_rms=float(np.sqrt(np.mean(r**2) * 2)), sigma_px=sigma
     )
-
-
-def _perturb(T: np.ndarray, d: np.ndarray) -> np.ndarray:
-    """``R -> exp([w]x) R``, ``t -> t + v`` for ``d = (w, v)``."""
-    return make_transform(rotvec_to_matrix(d[:3]) @ T[:3, :3], T[:3, 3] + d[3:])
 
 
 def residuals_jacobian(

@@ -11,11 +11,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from annotator.geometry.lie import skew
 from annotator.geometry.mesh import SurfaceMoments
-
-
-def _skew(a: np.ndarray) -> np.ndarray:
-    return np.array([[0, -a[2], a[1]], [a[2], 0, -a[0]], [-a[1], a[0], 0]])
 
 
 def rms_displacement_matrix(moments: SurfaceMoments, R: np.ndarray) -> np.ndarray:
@@ -26,7 +23,7 @@ def rms_displacement_matrix(moments: SurfaceMoments, R: np.ndarray) -> np.ndarra
     Q = np.zeros((6, 6))
     Q[:3, :3] = A
     Q[3:, 3:] = np.eye(3)
-    Q[3:, :3] = -_skew(ybar)
+    Q[3:, :3] = -skew(ybar)
     Q[:3, 3:] = Q[3:, :3].T
     return Q
 
@@ -64,13 +61,13 @@ def relative_rms_uncertainty(
     S = R @ moments.second @ R.T + np.outer(ybar, ybar)  # E[y y^T], y = R x
     A0 = np.zeros((3, 12))
     A0[:, 3:6] = np.eye(3)
-    A0[:, 6:9] = _skew(t - c)
+    A0[:, 6:9] = skew(t - c)
     A0[:, 9:12] = -np.eye(3)
     Ak = np.zeros((3, 3, 12))  # the part of A linear in y's components
     for k in range(3):
         e = np.eye(3)[k]
-        Ak[k, :, 0:3] = -_skew(e)
-        Ak[k, :, 6:9] = _skew(e)
+        Ak[k, :, 0:3] = -skew(e)
+        Ak[k, :, 6:9] = skew(e)
     Q = A0.T @ A0
     for k in range(3):
         cross = A0.T @ Ak[k] + Ak[k].T @ A0
@@ -98,7 +95,7 @@ def site_covariance(R: np.ndarray, corners: np.ndarray, sigma: float | np.ndarra
     weights = np.broadcast_to(1.0 / np.asarray(sigma, dtype=float) ** 2, (len(pts),))
     A = np.zeros((6, 6))
     for x, wk in zip(pts, weights):
-        B = np.hstack([-_skew(R @ x), np.eye(3)])
+        B = np.hstack([-skew(R @ x), np.eye(3)])
         A += wk * (B.T @ B)
     w, V = np.linalg.eigh(A)
     if w[0] <= 1e-9 * max(float(w[-1]), 1e-300):

@@ -34,8 +34,8 @@ from scipy.spatial import cKDTree
 
 from annotator.dataset.review import RepairOp, RepairStep
 from annotator.geometry.camera import Camera
+from annotator.geometry.lie import perturb
 from annotator.geometry.mesh import Mesh, surface_samples
-from annotator.geometry.transforms import make_transform, rotvec_to_matrix
 from annotator.pnp.multiview import Observation, reprojection_errors, residuals_jacobian
 from annotator.rendering.raycast import PlacedMesh, cast_alone, clip_region, projected_bbox
 
@@ -218,12 +218,6 @@ def _grid_normals(grid: np.ndarray) -> np.ndarray:
     n[jump] = np.nan
     out[1:-1, 1:-1] = n
     return out
-
-
-def _perturb(T: np.ndarray, d: np.ndarray) -> np.ndarray:
-    """``R -> exp([w]x) R``, ``t -> t + v`` for ``d = (w, v)``: the perturbation of
-    :mod:`annotator.pnp.multiview`, so that both terms' Jacobians share it."""
-    return make_transform(rotvec_to_matrix(d[:3]) @ T[:3, :3], T[:3, 3] + d[3:])
 
 
 #: A measured point matches a model point whose normal is within 45 degrees of its own.
@@ -411,7 +405,7 @@ def _gauss_newton(
         if not np.any(H):
             return T, k, False
         step = _solve(H, g)
-        T = _perturb(T, step[:6])
+        T = perturb(T, step[:6])
         if len(step) > 6 and term is not None:
             term.offset += float(step[6])
         # Converged when the step moves the residuals (mm, px) by a few hundredths RMS: a

@@ -27,7 +27,8 @@ from typing import Any, Literal, get_args
 
 import numpy as np
 
-from annotator.geometry.transforms import axis_angle, matrix_to_rotvec
+from annotator.geometry.lie import matrix_to_rotvec
+from annotator.geometry.transforms import axis_angle
 from annotator.symmetry.group import finite_group
 
 #: The classes of proper symmetry (object.yaml ``symmetry.class``).
