@@ -21,9 +21,15 @@ placed, the relative pose over the shots both saw is rigid under the right readi
 drifts under the wrong one (a mirror in one camera's frame is no rigid motion of the
 board). The spread is measured as the distance (mm, RMS over the board's corners) between
 each shot's board seen through the robust mean relative pose and the board as the camera saw
-it; the smaller spread wins. Geometry cannot tell a whole rig mirrored from one that is not,
-so of the two the one in which more cameras saw mostly the board's front is taken (of two as
-good, the one with fewer mirrored cameras).
+it; the smaller spread wins. Geometry cannot tell a whole rig mirrored from one that is not:
+turning every camera's reading the other way turns each camera's pair (mirrored, mostly
+behind the board) into its opposite. Of the two, the one that asks for fewer of those
+oddities (mirrored cameras and cameras that saw mostly the board's back, summed over the
+cameras) is taken: a board printed mirrored (every camera in front reads it flipped, a
+camera behind it reads it as it is) is then a board seen from behind by ordinary cameras,
+not a rig of mirrored cameras one of which sees the back. When both ask for as many (every
+camera reads the board flipped), the one in which more cameras saw mostly the board's front
+(of two as good, the one with fewer mirrored cameras).
 
 A view whose pose does not agree with the camera it is compared with while its board read
 the other way than in that camera's other shots (an image stored mirrored among plain ones)
@@ -244,11 +250,14 @@ def _choose(
         spreads[b] = (mirror, plain) if mirrored[b] else (plain, mirror)
     if C == 1:
         return [_mostly_flipped(views, 0)], spreads, parent
-    # A whole rig mirrored fits as well as the rig: the one in which more cameras saw mostly
-    # the board's front, and of two as good the one with fewer mirrored cameras (per camera,
-    # not per view, so that a camera with a few more views does not tip it).
-    front = sum(_mostly_flipped(views, c) == mirrored[c] for c in range(C))
-    if 2 * front < C or (2 * front == C and 2 * sum(mirrored) > C):
+    # A whole rig mirrored fits as well as the rig (see the module docstring): the one with
+    # fewer oddities, then the one in which more cameras saw mostly the board's front, then
+    # the one with fewer mirrored cameras (per camera, not per view, so that a camera with a
+    # few more views does not tip it). Turned round, a camera's oddities o become 2 - o.
+    behind = [_mostly_flipped(views, c) != mirrored[c] for c in range(C)]
+    odd = sum(mirrored) + sum(behind)
+    front = C - sum(behind)
+    if odd > C or (odd == C and (2 * front < C or (2 * front == C and 2 * sum(mirrored) > C))):
         mirrored = [not m for m in mirrored]
     return mirrored, spreads, parent
 

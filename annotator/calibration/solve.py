@@ -60,6 +60,12 @@ DISTORTION_MODELS = {
 }
 
 
+#: A view whose RMS in the joint fit is over this many times its camera's RMS alone ...
+MOMENT_FACTOR = 2.0
+#: ... and this many pixels more is of another moment than its shot (:class:`_Moments`).
+MOMENT_MARGIN_PX = 0.25
+
+
 @dataclass(frozen=True)
 class View:
     """The board as detected by one camera in one shot.
@@ -339,12 +345,23 @@ def calibrate_rig(
     rig_T_board = _initial_board_poses(initial, cam_T_rig, len(shots))
     state = RigState(initial.intrinsics, cam_T_rig, rig_T_board, _free_intrinsics(setup))
     obs = _observations(initial.usable, board)
-    fit, dropped_views = _refine_without_outliers(state, obs, setup.opts)
+    fit, dropped_views = _refine_without_outliers(state, obs, setup.opts, initial.rms)
+    if _short_camera(fit, len(cameras), setup.opts.min_shots):
+        # Leaving out views of other moments left a camera too few: its views disagree with
+        # the rig beyond leaving some out; the rig is solved without that rule, and the
+        # checks say what is wrong.
+        fit, dropped_views = _refine_without_outliers(state, obs, setup.opts)
     for (c, s), why in sorted(dropped_views.items(), key=lambda kv: (kv[0][1], kv[0][0])):
         rejections.append(Rejection(shots[s], cameras[c], why))
     used_views = {obs.keys[i] for i in np.unique(obs.view_index[fit.keep])}
     setup.require_shots([v for v in initial.usable if (v.camera, v.shot) in used_views])
     return _assemble(fit, setup, initial, rejections)
+
+
+def _short_camera(fit: _Fit, n_cameras: int, min_shots: int) -> bool:
+    """Whether some camera has fewer than ``min_shots`` views in the fit."""
+    per_camera = np.bincount([c for c, _ in fit.used_views], minlength=n_cameras)
+    return bool(np.any(per_camera < min_shots))
 
 
 def _calibrate_cameras(setup: _Setup, usable: list[View], rejections: list[Rejection]) -> _Initial:
@@ -410,19 +427,33 @@ def _observations(usable: list[View], board: BoardSpec) -> _Observations:
 
 
 def _refine_without_outliers(
-    state: RigState, observations: _Observations, opts: CalibrationOptions
+    state: RigState,
+    observations: _Observations,
+    opts: CalibrationOptions,
+    camera_rms: Sequence[float] | None = None,
 ) -> tuple[_Fit, dict[tuple[int, int], str]]:
     """4-5. Joint refinement, outliers out, again, until the selection settles (at most 8
     rounds): the last fit, and the views dropped as a whole (``(camera, shot)`` -> why)."""
     obs, keys, view_index = observations.corners, observations.keys, observations.view_index
     keep = np.ones(len(obs.camera), bool)
     dropped_views: dict[tuple[int, int], str] = {}
+    moments = (
+        _Moments(np.array([k[1] for k in keys], np.int64), np.asarray(camera_rms, float))
+        if camera_rms is not None
+        else None
+    )
     for _ in range(8):
         result = refine(state, obs.subset(keep))
         state = result.state
         err = np.linalg.norm(project(state, obs) - obs.pixel, axis=1)
         new_keep, new_dropped = _inliers(
-            err, keep, view_index, len(keys), opts, np.array([k[0] for k in keys], np.int64)
+            err,
+            keep,
+            view_index,
+            len(keys),
+            opts,
+            np.array([k[0] for k in keys], np.int64),
+            moments,
         )
         if np.array_equal(new_keep, keep):
             break
@@ -646,6 +677,7 @@ def _inliers(
     n_views: int,
     opts: CalibrationOptions,
     view_camera: np.ndarray | None = None,
+    moments: _Moments | None = None,
 ) -> tuple[np.ndarray, dict[int, str]]:
     """Corners to keep after a refinement with residual norms ``err``, and the views dropped
     as a whole (index -> reason). Each camera is judged by its own noise (``view_camera``:
@@ -690,8 +722,76 @@ def _inliers(
                 f"outlier residuals: RMS {rms[i]:.2f} px, over {view_limit:.2f} px "
                 "(three times the median view's of its camera)"
             )
+    if moments is not None:
+        was_kept = np.bincount(view_index, weights=keep, minlength=n_views) > 0
+        fitted = present & (good > 0)
+        dropped.update(
+            moments.other_moments(rms, fitted, was_kept, dropped, view_camera, opts.min_shots)
+        )
     ok &= ~np.isin(view_index, list(dropped))
     return ok, dropped
+
+
+@dataclass(frozen=True)
+class _Moments:
+    """Views of a shot taken at another moment than the rest of the shot's (webcams that are
+    not synchronised, a board held by hand): such a view fits its own camera as well as any,
+    and the rig only with the board moved. A view whose RMS in the joint fit exceeds
+    ``MOMENT_FACTOR`` times its camera's RMS alone (``calibrateCamera``: its own corner
+    noise), and ``MOMENT_MARGIN_PX`` more, disagrees with its shot; of a shot's views that
+    do, only the one furthest over its limit is left out in a round (it pulls the shot's
+    board pose towards itself, and so the others' residuals up), and one left out stays out
+    while it still disagrees; never so many that a camera keeps fewer than ``min_shots``
+    views (a rig whose views disagree that much is one the checks refuse, naming why).
+
+    Attributes:
+        view_shot: The shot of each view.
+        camera_rms: Each camera's RMS alone, px.
+    """
+
+    view_shot: np.ndarray
+    camera_rms: np.ndarray
+
+    def other_moments(
+        self,
+        rms: np.ndarray,
+        fitted: np.ndarray,
+        was_kept: np.ndarray,
+        dropped: Mapping[int, str],
+        view_camera: np.ndarray,
+        min_shots: int,
+    ) -> dict[int, str]:
+        """Index -> why of the views left out as of another moment (see the class), among
+        the ``fitted`` views not already ``dropped`` (``was_kept``: the views the last fit
+        used)."""
+        own = self.camera_rms[view_camera]
+        limit = np.maximum(MOMENT_FACTOR * own, own + MOMENT_MARGIN_PX)
+        over = rms / limit
+        candidates = fitted & (over > 1.0)
+        candidates[list(dropped)] = False
+        # Left out before and still off: out again. Of the views the fit used, the worst of
+        # each shot, unless it is the shot's last view (nothing to disagree with).
+        chosen = set(np.flatnonzero(candidates & ~was_kept).tolist())
+        used = fitted & was_kept
+        used[list(dropped)] = False
+        views_in_shot = np.bincount(self.view_shot[used], minlength=int(self.view_shot.max()) + 1)
+        for s in np.unique(self.view_shot[candidates & was_kept]).tolist():
+            mine = np.flatnonzero(candidates & was_kept & (self.view_shot == s))
+            if views_in_shot[s] >= 2:
+                chosen.add(int(mine[np.argmax(over[mine])]))
+        left = np.bincount(view_camera[used], minlength=len(self.camera_rms))
+        out: dict[int, str] = {}
+        for i in sorted(chosen, key=lambda i: (-over[i], i)):
+            if was_kept[i]:
+                if left[view_camera[i]] <= min_shots:
+                    continue
+                left[view_camera[i]] -= 1
+            out[i] = (
+                f"disagrees with the shot's other views: RMS {rms[i]:.2f} px in the rig, "
+                f"against {own[i]:.2f} px for its camera alone (limit {limit[i]:.2f} px): an "
+                "image of another moment (the board moved between the cameras' images)?"
+            )
+        return out
 
 
 def _assemble(
