@@ -44,14 +44,9 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from annotator.calibration.board import BoardSpec
-from annotator.calibration.solve import (
-    CalibrationOptions,
-    View,
-    _calibrate_camera,
-    _flags,
-    _screen,
-    robust_mean_transform,
-)
+from annotator.calibration.records import CalibrationSettings, View
+from annotator.calibration.rig import robust_mean_transform
+from annotator.calibration.single import calibrate_camera, opencv_flags, screen_views
 from annotator.errors import UserError
 from annotator.geometry.transforms import invert
 
@@ -138,11 +133,11 @@ def decide_readings(
     sizes: Sequence[tuple[int, int]],
     shots: Sequence[str],
     board: BoardSpec,
-    options: CalibrationOptions | None = None,
+    options: CalibrationSettings | None = None,
 ) -> Readings:
     """Decide for each camera whether it is mirrored (see the module docstring); the views
     come back with a mirrored camera's corners flipped and the views left out marked."""
-    opts = options or CalibrationOptions()
+    opts = options or CalibrationSettings()
     flipped = [[v.shot for v in views if v.camera == c and v.flipped] for c in range(len(cameras))]
     if not any(flipped):  # the common case: nothing read flipped, nothing to decide
         return Readings(
@@ -169,12 +164,12 @@ def _camera_poses(
     sizes: Sequence[tuple[int, int]],
     shots: Sequence[str],
     board: BoardSpec,
-    opts: CalibrationOptions,
+    opts: CalibrationSettings,
 ) -> list[dict[int, np.ndarray]]:
     """Per camera, ``shot -> cam_T_board`` of its views as recorded, from OpenCV's
     calibrateCamera on that camera alone (empty for a camera it cannot calibrate: the
     calibration itself will say why)."""
-    usable = _screen(views, cameras, shots, board, opts, [])
+    usable = screen_views(views, cameras, shots, board, opts, [])
     out: list[dict[int, np.ndarray]] = []
     for c, name in enumerate(cameras):
         mine = [v for v in usable if v.camera == c]
@@ -182,7 +177,9 @@ def _camera_poses(
             out.append({})
             continue
         try:
-            _, _, poses, _ = _calibrate_camera(mine, board, sizes[c], _flags(4), [], name, shots, 5)
+            _, _, poses, _ = calibrate_camera(
+                mine, board, sizes[c], opencv_flags(4), [], name, shots, 5
+            )
         except UserError:
             out.append({})
             continue
