@@ -140,18 +140,38 @@ def pair_rms(held, skip: str | None = None) -> float:  # noqa: ANN001
     return float(np.sqrt(sum(p.rms_px**2 * p.corners for p in pairs) / n))
 
 
+def rendered_and_calibrated(cfg: CaptureConfig):  # noqa: ANN201
+    """The captures of ``cfg`` rendered and detected, and ``annotator calibrate``'s
+    calibration of them: the plan, the views and the calibration."""
+    plan = plan_captures(cfg)
+    views = detect_plan(plan)
+    cal = calibrate_and_assess(
+        views,
+        cameras=[c.name for c in plan.rig.cameras],
+        sizes=[c.size for c in plan.rig.cameras],
+        shots=plan.shot_names,
+        board=cfg.board,
+    )
+    return plan, views, cal
+
+
+def print_rows(title: str, rows: dict[str, list[float]]) -> None:
+    """A table of figures over seeds: each row's median and maximum."""
+    print(f"\n{title}, median (max):")
+    for k, vals in rows.items():
+        print(f"  {k:60s} {np.median(vals):.3f} ({max(vals):.3f})")
+
+
 def behind_part(n_seeds: int) -> None:
     """The camera behind the board (see the module docstring)."""
     rows: dict[str, list[float]] = {}
     for seed in range(n_seeds):
         base = {"shots": 20, "seed": seed, "noise": 12.0, "blur": 1.0, "size": (1280, 720)}
         cfg = CaptureConfig(**base, extra_cameras=2, behind=("cam3",))
-        plan = plan_captures(cfg)
+        plan, views, cal = rendered_and_calibrated(cfg)
         names = [c.name for c in plan.rig.cameras]
         sizes = [c.size for c in plan.rig.cameras]
         common = {"sizes": sizes, "shots": plan.shot_names, "board": cfg.board}
-        views = detect_plan(plan)
-        cal = calibrate_and_assess(views, cameras=names, **common)
         mirrored = cal.readings.mirrored
         used = sum(rep.shots > 0 for rep in cal.cameras)
         # The same rig without that camera.
@@ -198,9 +218,7 @@ def behind_part(n_seeds: int) -> None:
             f"{mirrored or 'none'}, refused: {[str(p) for p in cal.problems] or 'no'}; "
             + "; ".join(f"{k} {v:.3f}" for k, v in row.items())
         )
-    print(f"\na camera behind the board, {n_seeds} seeds, held-out error (px RMS), median (max):")
-    for k, vals in rows.items():
-        print(f"  {k:60s} {np.median(vals):.3f} ({max(vals):.3f})")
+    print_rows(f"a camera behind the board, {n_seeds} seeds, held-out error (px RMS)", rows)
     ratio = [
         a / b
         for a, b in zip(
@@ -253,12 +271,9 @@ def webcams_part(n_seeds: int) -> None:
     for speed in (40.0, 60.0):
         for seed in range(n_seeds):
             cfg = CaptureConfig(**WEBCAMS, seed=seed, speed=(speed, speed / 5))  # type: ignore[arg-type]
-            plan = plan_captures(cfg)
+            plan, views, cal = rendered_and_calibrated(cfg)
             names = [c.name for c in plan.rig.cameras]
             sizes = [c.size for c in plan.rig.cameras]
-            common = {"sizes": sizes, "shots": plan.shot_names, "board": cfg.board}
-            views = detect_plan(plan)
-            cal = calibrate_and_assess(views, cameras=names, **common)
             kept = used_views(cal, views)
             # The right reading: nobody mirrored, every view's corners as recorded.
             right = [v for v in views if not v.rejected]
@@ -283,9 +298,7 @@ def webcams_part(n_seeds: int) -> None:
                 f"{moved} of {len(kept) + moved}; "
                 + "; ".join(f"{k.split(': ')[1]} {v:.3f}" for k, v in row.items())
             )
-    print(f"\nfour webcams, {n_seeds} seeds, held-out transfer error (px RMS), median (max):")
-    for k, vals in rows.items():
-        print(f"  {k:60s} {np.median(vals):.3f} ({max(vals):.3f})")
+    print_rows(f"four webcams, {n_seeds} seeds, held-out transfer error (px RMS)", rows)
 
 
 def main() -> None:
