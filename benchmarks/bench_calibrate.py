@@ -12,7 +12,12 @@ pipeline fitted on the same folds: ours with OpenCV's five coefficients, ours wi
 chosen by the held-out error (``annotator calibrate``'s default), and OpenCV's pipeline
 (per-camera calibrateCamera, then stereoCalibrate with the intrinsics fixed; and joint).
 
-    .venv/bin/python -m benchmarks.bench_calibrate [--seeds 3] [--part reference|behind]
+    .venv/bin/python -m benchmarks.bench_calibrate [--seeds 3] [--part reference|behind|webcams]
+
+Four webcams as a real session records them (``--part webcams``, issue 48): a board printed
+colour-inverted and mirrored, the fourth camera behind it, webcam noise, webcams not in step
+while the hand-held board moves: whether all four join, none mirrored, and the held-out
+transfer error of ours against OpenCV's pairwise pipeline given the right reading.
 
 A camera behind the board (``--part behind``): a four-camera rig of 1280x720 cameras (the
 synthetic pair and two more above and below the reference camera), 20 shots, the fourth
@@ -39,7 +44,8 @@ from annotator.calibration.detect import BoardDetector
 from annotator.calibration.heldout import held_out_error
 from annotator.calibration.model_choice import calibrate_and_assess
 from annotator.calibration.readings import decide_readings
-from annotator.calibration.solve import CalibrationOptions, View, calibrate_rig
+from annotator.calibration.records import CalibrationSettings, View
+from annotator.calibration.rig import solve_rig
 from annotator.geometry.camera import Camera
 from annotator.geometry.transforms import invert
 from annotator.synthesis.board import BLACK, WHITE, CaptureConfig, plan_captures, true_corners
@@ -84,7 +90,7 @@ def held_out_table(views, plan, cfg) -> dict[str, float]:  # noqa: ANN001
     common = {"cameras": names, "sizes": sizes, "shots": plan.shot_names, "board": cfg.board}
 
     def ours(views):  # noqa: ANN001, ANN202
-        return calibrate_rig(views, **common, options=CalibrationOptions(min_shots=3)).rig_cameras
+        return solve_rig(views, **common, options=CalibrationSettings(min_shots=3)).rig_cameras
 
     chosen = calibrate_and_assess(views, **common)
     return {
@@ -134,18 +140,38 @@ def pair_rms(held, skip: str | None = None) -> float:  # noqa: ANN001
     return float(np.sqrt(sum(p.rms_px**2 * p.corners for p in pairs) / n))
 
 
+def rendered_and_calibrated(cfg: CaptureConfig):  # noqa: ANN201
+    """The captures of ``cfg`` rendered and detected, and ``annotator calibrate``'s
+    calibration of them: the plan, the views and the calibration."""
+    plan = plan_captures(cfg)
+    views = detect_plan(plan)
+    cal = calibrate_and_assess(
+        views,
+        cameras=[c.name for c in plan.rig.cameras],
+        sizes=[c.size for c in plan.rig.cameras],
+        shots=plan.shot_names,
+        board=cfg.board,
+    )
+    return plan, views, cal
+
+
+def print_rows(title: str, rows: dict[str, list[float]]) -> None:
+    """A table of figures over seeds: each row's median and maximum."""
+    print(f"\n{title}, median (max):")
+    for k, vals in rows.items():
+        print(f"  {k:60s} {np.median(vals):.3f} ({max(vals):.3f})")
+
+
 def behind_part(n_seeds: int) -> None:
     """The camera behind the board (see the module docstring)."""
     rows: dict[str, list[float]] = {}
     for seed in range(n_seeds):
         base = {"shots": 20, "seed": seed, "noise": 12.0, "blur": 1.0, "size": (1280, 720)}
         cfg = CaptureConfig(**base, extra_cameras=2, behind=("cam3",))
-        plan = plan_captures(cfg)
+        plan, views, cal = rendered_and_calibrated(cfg)
         names = [c.name for c in plan.rig.cameras]
         sizes = [c.size for c in plan.rig.cameras]
         common = {"sizes": sizes, "shots": plan.shot_names, "board": cfg.board}
-        views = detect_plan(plan)
-        cal = calibrate_and_assess(views, cameras=names, **common)
         mirrored = cal.readings.mirrored
         used = sum(rep.shots > 0 for rep in cal.cameras)
         # The same rig without that camera.
@@ -192,9 +218,7 @@ def behind_part(n_seeds: int) -> None:
             f"{mirrored or 'none'}, refused: {[str(p) for p in cal.problems] or 'no'}; "
             + "; ".join(f"{k} {v:.3f}" for k, v in row.items())
         )
-    print(f"\na camera behind the board, {n_seeds} seeds, held-out error (px RMS), median (max):")
-    for k, vals in rows.items():
-        print(f"  {k:60s} {np.median(vals):.3f} ({max(vals):.3f})")
+    print_rows(f"a camera behind the board, {n_seeds} seeds, held-out error (px RMS)", rows)
     ratio = [
         a / b
         for a, b in zip(
@@ -219,14 +243,79 @@ def behind_part(n_seeds: int) -> None:
     )
 
 
+#: The four-webcam session of issue 48 (``--part webcams``): a board printed colour-inverted
+#: and mirrored, the fourth camera behind it (through the paper, dimmer and blurred), webcam
+#: noise, each webcam 33 ms after the one before (give or take 10 ms) while the hand-held
+#: board is mostly still, now and then moving.
+WEBCAMS = {
+    "shots": 20,
+    "noise": 14.0,
+    "blur": 1.3,
+    "size": (1280, 720),
+    "extra_cameras": 2,
+    "behind": ("cam3",),
+    "inverted": True,
+    "printed_mirrored": True,
+    "paper_blur": 1.5,
+    "timing_ms": 10.0,
+    "rolling_ms": 33.0,
+}
+
+
+def webcams_part(n_seeds: int) -> None:
+    """The four-webcam session (see :data:`WEBCAMS`), the board moving at up to 40 and 60 mm/s:
+    cameras joined, mirrored, views left out, the held-out transfer error of ours and of
+    OpenCV's pairwise pipeline given the right reading (no camera mirrored), on every view and
+    on the views ours kept, and of the true rig on those."""
+    rows: dict[str, list[float]] = {}
+    for speed in (40.0, 60.0):
+        for seed in range(n_seeds):
+            cfg = CaptureConfig(**WEBCAMS, seed=seed, speed=(speed, speed / 5))  # type: ignore[arg-type]
+            plan, views, cal = rendered_and_calibrated(cfg)
+            names = [c.name for c in plan.rig.cameras]
+            sizes = [c.size for c in plan.rig.cameras]
+            kept = used_views(cal, views)
+            # The right reading: nobody mirrored, every view's corners as recorded.
+            right = [v for v in views if not v.rejected]
+            fit = partial(opencv_rig, board=cfg.board, sizes=sizes, names=names)
+            opencv_all = held_out_error(right, fit, cfg.board, names).rms_px
+            opencv_kept = held_out_error(kept, fit, cfg.board, names).rms_px
+            truth = held_out_error(kept, fixed(plan.rig.cameras), cfg.board, names).rms_px
+            moved = sum("another moment" in r.reason for r in cal.rejections)
+            row = {
+                f"{speed:.0f} mm/s: ours": cal.held_out.rms_px,
+                f"{speed:.0f} mm/s: OpenCV pairwise, every view": opencv_all,
+                f"{speed:.0f} mm/s: OpenCV pairwise, the views ours kept": opencv_kept,
+                f"{speed:.0f} mm/s: the true rig, the views ours kept": truth,
+            }
+            for k, v in row.items():
+                rows.setdefault(k, []).append(v)
+            print(
+                f"webcams, {speed:.0f} mm/s, seed {seed}: cameras used "
+                f"{sum(rep.shots > 0 for rep in cal.cameras)} of {len(names)}, declared mirrored: "
+                f"{cal.readings.mirrored or 'none'}, refused: "
+                f"{[str(p) for p in cal.problems] or 'no'}; views left out as of another moment "
+                f"{moved} of {len(kept) + moved}; "
+                + "; ".join(f"{k.split(': ')[1]} {v:.3f}" for k, v in row.items())
+            )
+    print_rows(f"four webcams, {n_seeds} seeds, held-out transfer error (px RMS)", rows)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser()
     parser.add_argument("--seeds", type=int, default=3, help="sets of captures (default 3)")
     parser.add_argument(
-        "--part", choices=("all", "reference", "behind"), default="all", help="what to measure"
+        "--part",
+        choices=("all", "reference", "behind", "webcams"),
+        default="all",
+        help="what to measure",
     )
     args = parser.parse_args()
     n_seeds = args.seeds
+    if args.part in ("all", "webcams"):
+        webcams_part(n_seeds)
+    if args.part == "webcams":
+        return
     if args.part in ("all", "behind"):
         behind_part(n_seeds)
     if args.part == "behind":
@@ -247,7 +336,7 @@ def main() -> None:
         noise.append(float(np.sqrt(np.mean(np.sum(np.concatenate(err) ** 2, axis=1)))))
         sizes = [c.size for c in plan.rig.cameras]
         t0 = time.perf_counter()
-        cal = calibrate_rig(
+        cal = solve_rig(
             views,
             cameras=[c.name for c in plan.rig.cameras],
             sizes=sizes,

@@ -1,5 +1,5 @@
 """OpenCV's own two-camera calibration pipelines, kept as the reference that the joint
-refinement (:mod:`annotator.calibration.solve`) is measured against (tests, benchmark).
+refinement (:mod:`annotator.calibration.rig`) is measured against (tests, benchmark).
 
 - **Two-step:** ``calibrateCamera`` per camera, then ``stereoCalibrate`` with the intrinsics
   fixed (``CALIB_FIX_INTRINSIC``): the extrinsics absorb the intrinsics' errors.
@@ -22,7 +22,7 @@ import cv2
 import numpy as np
 
 from annotator.calibration.board import BoardSpec
-from annotator.calibration.solve import View
+from annotator.calibration.records import View
 from annotator.geometry.camera import Camera
 from annotator.geometry.transforms import invert, make_transform
 

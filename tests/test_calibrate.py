@@ -22,8 +22,8 @@ from annotator.calibration.board import BoardSpec, read_board_yaml
 from annotator.calibration.bundle import Corners, RigState, _apply, _Layout, residuals_jacobian
 from annotator.calibration.captures import find_captures
 from annotator.calibration.detect import detect_captures
+from annotator.calibration.rig import solve_rig
 from annotator.calibration.rig_yaml import updated_text
-from annotator.calibration.solve import calibrate_rig
 from annotator.cli import main
 from annotator.dataset import load_dataset
 from annotator.geometry.camera import Camera
@@ -133,7 +133,7 @@ def test_recovers_the_rig_at_least_as_well_as_opencv_joint_stereo(detected: dict
         detected["truth"],
     )
     caps = detected["captures"]
-    cal = calibrate_rig(views, cameras=caps.cameras, sizes=sizes, shots=caps.shots, board=board)
+    cal = solve_rig(views, cameras=caps.cameras, sizes=sizes, shots=caps.shots, board=board)
     ours = _errors([c.camera.K for c in cal.cameras], cal.cameras[1].camera.rig_T_cam, truth)
     two = opencv_stereo(views, board, sizes, joint=False)
     joint = opencv_stereo(views, board, sizes, joint=True)
@@ -422,7 +422,7 @@ def test_a_mirrored_view_of_the_board_is_a_proper_board_pose() -> None:
 def _projected_views(config, mirrored=(), missing=(), noise=0.1):  # noqa: ANN001, ANN202
     """Views of ``plan_captures(config)`` from the true corners (no rendering): a camera
     behind the board reads it flipped, a camera in ``mirrored`` stores it mirrored."""
-    from annotator.calibration.solve import View
+    from annotator.calibration.records import View
     from annotator.synthesis.board import plan_captures
 
     plan = plan_captures(config)

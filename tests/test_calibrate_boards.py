@@ -439,12 +439,13 @@ def test_a_rig_that_diverges_is_never_written(
     tmp_path_factory: pytest.TempPathFactory, capsys: pytest.CaptureFixture
 ) -> None:
     """A plain chessboard looks the same mirrored, so a camera mirrored in some shots is only
-    seen by the geometry: the joint solve runs off (focal lengths of thousands of px, a
-    held-out error of hundreds); it is refused, naming the camera and the check, the report
-    is written, dataset.yaml is not."""
+    seen by the geometry. A few such views disagree with their shots and are left out; in half
+    the shots they are too many to leave out (the camera would keep too few): the joint solve
+    runs off (focal lengths of thousands of px, a held-out error of hundreds); it is refused,
+    naming the camera and the check, the report is written, dataset.yaml is not."""
     root = tmp_path_factory.mktemp("diverge")
     captures = _synth(root / "captures", "--scenes", "10", "--board-kind", "chessboard")
-    for shot in ("001", "004", "007"):
+    for shot in ("001", "002", "004", "007", "009"):
         p = captures / "right" / f"{shot}.png"
         cv2.imwrite(str(p), cv2.imread(str(p), cv2.IMREAD_UNCHANGED)[:, ::-1])
     ds, report = root / "ds", root / "report"
@@ -481,3 +482,62 @@ def test_report_inside_a_camera_folder_is_refused(
         line = one_error_line(["calibrate", str(caps), "--report", str(report)], capsys)
         assert line.startswith(f"annotator: error: {report}: {words}"), line
     assert sorted(p.name for p in (caps / "right").iterdir()) == [f"{k:03d}.png" for k in range(6)]
+
+
+# ---------------------------------------------------------------- a real rig's session (issue 48)
+
+#: Four webcams that are not synchronised, one behind a board printed colour-inverted and
+#: mirrored: the cameras in front read it only flipped, the one behind (through the paper,
+#: dimmer and blurred) as it is; each webcam takes its image 33 ms after the one before, give
+#: or take 10 ms, while the hand-held board is mostly still, now and then moving.
+WEBCAMS = CaptureConfig(
+    shots=16,
+    noise=14.0,
+    blur=1.3,
+    size=(1280, 720),
+    extra_cameras=2,
+    behind=("cam3",),
+    inverted=True,
+    printed_mirrored=True,
+    paper_blur=1.5,
+    timing_ms=10.0,
+    rolling_ms=33.0,
+    speed=(40.0, 8.0),
+)
+
+
+@pytest.fixture(scope="module")
+def webcams(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("webcams") / "captures"
+    write_captures(WEBCAMS, out, workers=2)
+    return out
+
+
+def test_four_webcams_one_behind_a_mirrored_print_join_as_one_rig(
+    webcams: Path, tmp_path: Path, capsys: pytest.CaptureFixture
+) -> None:
+    """All four cameras join, none declared mirrored (the board is printed mirrored: the
+    three in front see its back in the board's own frame, the fourth its front), and the
+    views taken at another moment than their shot's others are left out, named."""
+    out, doc, rig = _calibrate(webcams, tmp_path, capsys)
+    assert [c.get("flip") for c in rig["cameras"]] == [None] * 4
+    assert not doc["refused"]
+    # The cameras in folder order: cam2 (the rig frame), cam3 (behind), left, right.
+    names = [c["name"] for c in doc["cameras"]]
+    behind = {c["name"]: len(c["reading"]["behind_shots"]) for c in doc["cameras"]}
+    assert behind == {"cam2": 16, "cam3": 0, "left": 16, "right": 16}
+    assert all(c["shots"] >= 6 for c in doc["cameras"])
+    # The rig, in its own frame, against the truth moved into it.
+    true = {
+        c["name"]: np.reshape(c["rig_T_cam"], (4, 4)) for c in _truth(webcams)["rig"]["cameras"]
+    }
+    for cam, c in zip(rig["cameras"], doc["cameras"]):
+        T0 = invert(true[names[0]]) @ true[cam["name"]]
+        T = np.reshape(cam["rig_T_cam"], (4, 4))
+        off = float(np.linalg.norm(T[:3, 3] - T0[:3, 3]))
+        assert off <= max(1.0, 3 * c["std"]["position_mm"]), (cam["name"], off, c["std"])
+    # The views left out disagree with their shots' others: the board moved between the
+    # cameras' images; each is named with its shot and camera.
+    moved = [r for r in doc["rejected"] if "another moment" in r["reason"]]
+    assert moved and f"rejected: shot {moved[0]['shot']}, camera {moved[0]['camera']}: " in out
+    assert doc["held_out"]["rms_px"] <= 1.3

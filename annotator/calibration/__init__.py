@@ -10,7 +10,10 @@ One concept per module:
   every image of the captures;
 - :mod:`.readings`: a board that reads only flipped: a mirrored camera or a board seen from
   behind, decided by the other cameras' board poses;
-- :mod:`.solve`: screening, per-camera ``calibrateCamera``, initial extrinsics, outliers;
+- :mod:`.records`: the views, the settings and the result's records;
+- :mod:`.single`: one camera alone: usable views, ``calibrateCamera``;
+- :mod:`.rig`: initial extrinsics, the joint refinement with outliers left out, the result;
+- :mod:`.outliers`: which corners and views of the joint fit are outliers;
 - :mod:`.bundle`: the joint Levenberg-Marquardt refinement of every camera and shot;
 - :mod:`.heldout`: the held-out error, k-fold over shots, predicted across cameras;
 - :mod:`.extrapolation`: where a distortion model is extrapolated, and by how much;

@@ -27,7 +27,8 @@ import numpy as np
 
 from annotator.calibration.board import BoardSpec
 from annotator.calibration.heldout import held_out_error
-from annotator.calibration.solve import Calibration, View, _calibrate_camera, _flags
+from annotator.calibration.records import Calibration, View
+from annotator.calibration.single import calibrate_camera, opencv_flags
 from annotator.geometry.camera import Camera
 
 RMS_FACTOR, RMS_MARGIN_PX = 5.0, 1.0
@@ -73,8 +74,8 @@ def camera_held_out(
 
         def fit(train: Sequence[View], name: str = name, w: int = w, h: int = h) -> list[Camera]:
             shots = [str(k) for k in range(max((v.shot for v in train), default=0) + 1)]
-            K, dist, _, _ = _calibrate_camera(
-                list(train), board, (w, h), _flags(dist_coeffs), [], name, shots, n_dist
+            K, dist, _, _ = calibrate_camera(
+                list(train), board, (w, h), opencv_flags(dist_coeffs), [], name, shots, n_dist
             )
             return [Camera(name, w, h, K, dist)]
 

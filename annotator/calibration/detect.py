@@ -35,7 +35,7 @@ import numpy as np
 
 from annotator.calibration.board import BoardSpec
 from annotator.calibration.captures import Captures, read_images
-from annotator.calibration.solve import View
+from annotator.calibration.records import View
 from annotator.io.images import to_gray8
 
 
@@ -195,7 +195,7 @@ class CapturesDetection:
     """The board in every image of a captures folder.
 
     Attributes:
-        views: One per camera and shot, shot by shot (what :func:`calibrate_rig` takes).
+        views: One per camera and shot, shot by shot (what :func:`solve_rig` takes).
         sizes: Each camera's image size ``(width, height)``, in camera order.
         foreign_markers: Markers of the dictionary seen with ids not on the board, in all.
         flipped: Per camera, the shots whose board read only in the flipped image.

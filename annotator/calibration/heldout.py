@@ -24,7 +24,7 @@ import cv2
 import numpy as np
 
 from annotator.calibration.board import BoardSpec
-from annotator.calibration.solve import View
+from annotator.calibration.records import View
 from annotator.errors import UserError
 from annotator.geometry.camera import Camera
 from annotator.geometry.transforms import make_transform

@@ -23,7 +23,8 @@ from annotator.calibration.checks import camera_held_out, rig_problems
 from annotator.calibration.extrapolation import extrapolation
 from annotator.calibration.heldout import FOLDS, HeldOut, held_out_error
 from annotator.calibration.readings import decide_readings
-from annotator.calibration.solve import Calibration, CalibrationOptions, View, calibrate_rig
+from annotator.calibration.records import Calibration, CalibrationSettings, View
+from annotator.calibration.rig import solve_rig
 from annotator.geometry.camera import Camera
 
 #: The models tried by default (number of coefficients), simplest first.
@@ -71,7 +72,7 @@ def choose(held_out: Mapping[int, HeldOut]) -> tuple[int, str]:
 
 @dataclass(frozen=True)
 class _Problem:
-    """The detections and what they are of: everything :func:`calibrate_rig` needs besides
+    """The detections and what they are of: everything :func:`solve_rig` needs besides
     its options."""
 
     views: Sequence[View]
@@ -81,9 +82,9 @@ class _Problem:
     board: BoardSpec
     where: Mapping[str, Path] | None
 
-    def calibrate(self, options: CalibrationOptions) -> Calibration:
+    def calibrate(self, options: CalibrationSettings) -> Calibration:
         """The calibration on every view."""
-        return calibrate_rig(
+        return solve_rig(
             self.views,
             cameras=self.cameras,
             sizes=self.sizes,
@@ -93,10 +94,10 @@ class _Problem:
             where=self.where,
         )
 
-    def fit(self, options: CalibrationOptions, train: Sequence[View]) -> tuple[Camera, ...]:
+    def fit(self, options: CalibrationSettings, train: Sequence[View]) -> tuple[Camera, ...]:
         """The cameras calibrated on ``train`` only (a fold of the held-out error: its
         errors are passed over, so no folder needs naming)."""
-        return calibrate_rig(
+        return solve_rig(
             train,
             cameras=self.cameras,
             sizes=self.sizes,
@@ -113,7 +114,7 @@ def calibrate_and_assess(
     sizes: Sequence[tuple[int, int]],
     shots: Sequence[str],
     board: BoardSpec,
-    options: CalibrationOptions | None = None,
+    options: CalibrationSettings | None = None,
     candidates: Sequence[int] = CANDIDATES,
     folds: int = FOLDS,
     where: Mapping[str, Path] | None = None,
@@ -123,7 +124,7 @@ def calibrate_and_assess(
     that model, still measured), and check that the rig holds together (:mod:`.checks`).
     The result carries ``readings``, ``held_out``, ``model_choice``, the extrapolation
     warnings, ``camera_held_out`` and ``problems`` (empty: the rig may be written)."""
-    opts = options or CalibrationOptions()
+    opts = options or CalibrationSettings()
     readings = decide_readings(
         views, cameras=cameras, sizes=sizes, shots=shots, board=board, options=opts
     )
@@ -162,7 +163,7 @@ def calibrate_and_assess(
 
 
 def _calibrate_and_hold_out(
-    problem: _Problem, opts: CalibrationOptions, folds: int
+    problem: _Problem, opts: CalibrationSettings, folds: int
 ) -> tuple[Calibration, HeldOut]:
     """One model's calibration on every shot, and its held-out error on the views it kept."""
     cal = problem.calibrate(opts)

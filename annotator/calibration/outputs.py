@@ -11,6 +11,7 @@ from typing import Any
 
 from annotator.calibration.board import BoardSpec
 from annotator.calibration.captures import Captures
+from annotator.calibration.records import Calibration
 from annotator.calibration.report import write_report
 from annotator.calibration.rig_yaml import (
     keep_other_fields,
@@ -18,7 +19,6 @@ from annotator.calibration.rig_yaml import (
     rig_yaml_text,
     updated_text,
 )
-from annotator.calibration.solve import Calibration
 from annotator.dataset.model import DepthSpec
 from annotator.io.atomic import write_text
 from annotator.io.documents import unified_diff

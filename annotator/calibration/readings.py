@@ -21,9 +21,15 @@ placed, the relative pose over the shots both saw is rigid under the right readi
 drifts under the wrong one (a mirror in one camera's frame is no rigid motion of the
 board). The spread is measured as the distance (mm, RMS over the board's corners) between
 each shot's board seen through the robust mean relative pose and the board as the camera saw
-it; the smaller spread wins. Geometry cannot tell a whole rig mirrored from one that is not,
-so of the two the one in which more cameras saw mostly the board's front is taken (of two as
-good, the one with fewer mirrored cameras).
+it; the smaller spread wins. Geometry cannot tell a whole rig mirrored from one that is not:
+turning every camera's reading the other way turns each camera's pair (mirrored, mostly
+behind the board) into its opposite. Of the two, the one that asks for fewer of those
+oddities (mirrored cameras and cameras that saw mostly the board's back, summed over the
+cameras) is taken: a board printed mirrored (every camera in front reads it flipped, a
+camera behind it reads it as it is) is then a board seen from behind by ordinary cameras,
+not a rig of mirrored cameras one of which sees the back. When both ask for as many (every
+camera reads the board flipped), the one in which more cameras saw mostly the board's front
+(of two as good, the one with fewer mirrored cameras).
 
 A view whose pose does not agree with the camera it is compared with while its board read
 the other way than in that camera's other shots (an image stored mirrored among plain ones)
@@ -38,14 +44,9 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from annotator.calibration.board import BoardSpec
-from annotator.calibration.solve import (
-    CalibrationOptions,
-    View,
-    _calibrate_camera,
-    _flags,
-    _screen,
-    robust_mean_transform,
-)
+from annotator.calibration.records import CalibrationSettings, View
+from annotator.calibration.rig import robust_mean_transform
+from annotator.calibration.single import calibrate_camera, opencv_flags, screen_views
 from annotator.errors import UserError
 from annotator.geometry.transforms import invert
 
@@ -132,11 +133,11 @@ def decide_readings(
     sizes: Sequence[tuple[int, int]],
     shots: Sequence[str],
     board: BoardSpec,
-    options: CalibrationOptions | None = None,
+    options: CalibrationSettings | None = None,
 ) -> Readings:
     """Decide for each camera whether it is mirrored (see the module docstring); the views
     come back with a mirrored camera's corners flipped and the views left out marked."""
-    opts = options or CalibrationOptions()
+    opts = options or CalibrationSettings()
     flipped = [[v.shot for v in views if v.camera == c and v.flipped] for c in range(len(cameras))]
     if not any(flipped):  # the common case: nothing read flipped, nothing to decide
         return Readings(
@@ -163,12 +164,12 @@ def _camera_poses(
     sizes: Sequence[tuple[int, int]],
     shots: Sequence[str],
     board: BoardSpec,
-    opts: CalibrationOptions,
+    opts: CalibrationSettings,
 ) -> list[dict[int, np.ndarray]]:
     """Per camera, ``shot -> cam_T_board`` of its views as recorded, from OpenCV's
     calibrateCamera on that camera alone (empty for a camera it cannot calibrate: the
     calibration itself will say why)."""
-    usable = _screen(views, cameras, shots, board, opts, [])
+    usable = screen_views(views, cameras, shots, board, opts, [])
     out: list[dict[int, np.ndarray]] = []
     for c, name in enumerate(cameras):
         mine = [v for v in usable if v.camera == c]
@@ -176,7 +177,9 @@ def _camera_poses(
             out.append({})
             continue
         try:
-            _, _, poses, _ = _calibrate_camera(mine, board, sizes[c], _flags(4), [], name, shots, 5)
+            _, _, poses, _ = calibrate_camera(
+                mine, board, sizes[c], opencv_flags(4), [], name, shots, 5
+            )
         except UserError:
             out.append({})
             continue
@@ -244,11 +247,14 @@ def _choose(
         spreads[b] = (mirror, plain) if mirrored[b] else (plain, mirror)
     if C == 1:
         return [_mostly_flipped(views, 0)], spreads, parent
-    # A whole rig mirrored fits as well as the rig: the one in which more cameras saw mostly
-    # the board's front, and of two as good the one with fewer mirrored cameras (per camera,
-    # not per view, so that a camera with a few more views does not tip it).
-    front = sum(_mostly_flipped(views, c) == mirrored[c] for c in range(C))
-    if 2 * front < C or (2 * front == C and 2 * sum(mirrored) > C):
+    # A whole rig mirrored fits as well as the rig (see the module docstring): the one with
+    # fewer oddities, then the one in which more cameras saw mostly the board's front, then
+    # the one with fewer mirrored cameras (per camera, not per view, so that a camera with a
+    # few more views does not tip it). Turned round, a camera's oddities o become 2 - o.
+    behind = [_mostly_flipped(views, c) != mirrored[c] for c in range(C)]
+    odd = sum(mirrored) + sum(behind)
+    front = C - sum(behind)
+    if odd > C or (odd == C and (2 * front < C or (2 * front == C and 2 * sum(mirrored) > C))):
         mirrored = [not m for m in mirrored]
     return mirrored, spreads, parent
 

@@ -25,7 +25,7 @@ import numpy as np
 from annotator.calibration.board import BoardSpec
 from annotator.calibration.captures import Captures
 from annotator.calibration.extrapolation import Extrapolation, displacement
-from annotator.calibration.solve import Calibration
+from annotator.calibration.records import Calibration
 from annotator.io.atomic import write_json
 from annotator.io.images import write_png
 

@@ -23,7 +23,7 @@ if TYPE_CHECKING:  # imported when the command runs, so that `annotator --help` 
     from annotator.calibration.board import BoardSpec
     from annotator.calibration.captures import Captures
     from annotator.calibration.detect import CapturesDetection
-    from annotator.calibration.solve import Calibration, View
+    from annotator.calibration.records import Calibration, View
     from annotator.dataset.model import DepthSpec
 
 DESCRIPTION = """\
@@ -299,7 +299,7 @@ def _captures(args: argparse.Namespace, root: Path, report_dir: Path, target: _T
 def _calibrate(args: argparse.Namespace, inputs: _Inputs) -> Calibration:
     """The calibration, its distortion model from --dist-coeffs (auto: the held-out choice)."""
     from annotator.calibration.model_choice import CANDIDATES, calibrate_and_assess
-    from annotator.calibration.solve import CalibrationOptions
+    from annotator.calibration.records import CalibrationSettings
 
     auto = args.dist_coeffs == "auto"
     captures = inputs.captures
@@ -309,7 +309,7 @@ def _calibrate(args: argparse.Namespace, inputs: _Inputs) -> Calibration:
         sizes=inputs.found.sizes,
         shots=captures.shots,
         board=inputs.board,
-        options=CalibrationOptions(
+        options=CalibrationSettings(
             min_shots=args.min_shots, dist_coeffs=5 if auto else int(args.dist_coeffs)
         ),
         candidates=CANDIDATES if auto else (int(args.dist_coeffs),),

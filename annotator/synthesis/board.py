@@ -18,14 +18,23 @@ when asked (a board that covers only the middle of the image: the case where a d
 model extrapolates).
 
 Boards as people print and film them: ``inverted`` prints the board colour-inverted (white
-markers on black, a black margin), ``mirrored`` cameras store their images flipped left to
+markers on black, a black margin), ``printed_mirrored`` prints it mirrored left to right (a
+printer's "mirror" setting, as for iron-on transfers: every camera in front reads it only
+flipped, and a camera behind it sees, through the paper, the board as it should be), ``mirrored`` cameras store their images flipped left to
 right (their truth carries ``flip: horizontal``), and a board of a custom dictionary gets the
 dictionary file copied beside board.yaml. A board seen from behind: ``behind`` cameras are
 placed on the far side of the board (turned half a turn about the vertical through the
 middle of the working distance on the reference camera's axis), ``turned`` shots have the
 board turned round (its back to the rig). Either makes the board thin back-lit paper, printed
 on its front face: seen from behind the print shows through it mirrored, with less contrast,
-lit evenly by the light behind it; seen from the front it is the ordinary print. :func:`write_videos` turns the shot folders into
+lit evenly by the light behind it; seen from the front it is the ordinary print.
+
+Webcams that are not synchronised (``timing_ms``): each camera takes its image of a shot up
+to that much before or after the shot's moment, while the board, held by hand, moves at up
+to ``speed`` (mm/s of its centre, degrees/s about it; each shot its own, in a random
+direction): the cameras' images of one shot then show the board a little apart, by as much
+as that shot's motion and their time apart make (the truth keeps each shot's moment and
+each camera's offset from it). :func:`write_videos` turns the shot folders into
 one lossless video per camera (FFV1), the second camera's video one frame late, with
 timestamps files that pair the frames.
 """
@@ -90,14 +99,23 @@ class CaptureConfig:
         blur: Image blur sigma, px.
         supersample: Sub-pixel rays per axis at texture edges.
         inverted: The board is printed colour-inverted.
+        printed_mirrored: The board is printed mirrored left to right.
         mirrored: Cameras whose images are stored mirrored (left to right).
         centre: Every corner within the central fraction of each image (1: anywhere).
         behind: Cameras placed behind the board (they see it through the paper).
         turned: Shots (indices) in which the board is turned round, its back to the rig.
         through_paper: Grey of the paper and of the ink seen from behind, through the paper.
+        paper_blur: Blur (sigma, px) that the paper adds to the print seen through it.
         extra_cameras: Cameras added to the rig's two (``cam2``, ``cam3``, ...: copies of the
             right camera, 120 mm above and below the reference camera in turn, aimed at the
             middle of the working distance).
+        timing_ms: Each camera's image of a shot is taken up to this long before or after the
+            shot's moment (0: all at once) ...
+        rolling_ms: ... and camera ``k`` (rig order) this much times ``k`` later (webcams read
+            one after another).
+        speed: The board's largest motion during a shot: its centre's speed (mm/s) and its
+            turn (degrees/s); each shot's is that times the cube of a uniform random number
+            (a board held by hand is mostly still, now and then moving).
     """
 
     shots: int = 30
@@ -111,12 +129,17 @@ class CaptureConfig:
     blur: float = 0.6
     supersample: int = 4
     inverted: bool = False
+    printed_mirrored: bool = False
     mirrored: tuple[str, ...] = ()
     centre: float = 1.0
     behind: tuple[str, ...] = ()
     turned: tuple[int, ...] = ()
     through_paper: tuple[float, float] = (BACK_WHITE, BACK_BLACK)
+    paper_blur: float = 0.0
     extra_cameras: int = 0
+    timing_ms: float = 0.0
+    rolling_ms: float = 0.0
+    speed: tuple[float, float] = (0.0, 0.0)
 
     @property
     def paper(self) -> bool:
@@ -218,6 +241,7 @@ class BoardModel:
         spec: BoardSpec,
         *,
         inverted: bool = False,
+        printed_mirrored: bool = False,
         paper: bool = False,
         through_paper: tuple[float, float] = (BACK_WHITE, BACK_BLACK),
     ) -> None:
@@ -239,6 +263,8 @@ class BoardModel:
             rows, cols = np.indices((spec.squares_y, spec.squares_x))
             squares = np.where((rows + cols) % 2 == 0, 0, 255).astype(np.uint8)
             image = np.kron(squares, np.ones((TEXELS_PER_SQUARE, TEXELS_PER_SQUARE), np.uint8))
+        if printed_mirrored:  # the print's column x shows the board's column W - x
+            image = np.ascontiguousarray(image[:, ::-1])
         white, black = (BLACK, WHITE) if inverted else (WHITE, BLACK)
         self.texture = np.where(image > 127, white, black).astype(np.float32)
         self.margin = white
@@ -333,16 +359,23 @@ def render_shot(
     model: BoardModel,
     config: CaptureConfig,
     rng: np.random.Generator,
+    *,
+    shot: int = -1,
 ) -> list[np.ndarray]:
-    """The uint8 image of every rig camera for one board pose (blur and noise included)."""
+    """The uint8 image of every rig camera for one board pose ``(4, 4)``, or one per camera
+    ``(C, 4, 4)`` (blur and noise included; the paper's blur where a camera sees the back
+    of shot ``shot``)."""
+    poses = np.broadcast_to(rig_T_board, (len(rig.cameras), 4, 4))
     return [
         finish_image(
-            render_board(cam, cam.cam_T_rig @ rig_T_board, model, supersample=config.supersample),
-            blur=config.blur,
+            render_board(cam, cam.cam_T_rig @ T, model, supersample=config.supersample),
+            blur=float(np.hypot(config.blur, config.paper_blur))
+            if config.paper and config.from_behind(cam.name, shot)
+            else config.blur,
             noise=config.noise,
             rng=rng,
         )
-        for cam in rig.cameras
+        for cam, T in zip(rig.cameras, poses)
     ]
 
 
@@ -354,12 +387,36 @@ def true_corners(cam: Camera, rig_T_board: np.ndarray, spec: BoardSpec) -> np.nd
 
 @dataclass
 class CapturePlan:
-    """The rig, the board and its poses: everything but the images."""
+    """The rig, the board and its poses: everything but the images.
+
+    Attributes:
+        offsets: (shots, cameras) when each camera took its image of each shot, s after the
+            shot's moment (zeros: all at once).
+        motion: (shots, 6) each shot's board motion: its centre's velocity (mm/s, rig frame)
+            and its angular velocity about the centre (rad/s, rig frame).
+    """
 
     config: CaptureConfig
     rig: Rig
     poses: list[np.ndarray]
     model: BoardModel
+    offsets: np.ndarray | None = None
+    motion: np.ndarray | None = None
+
+    def camera_poses(self, k: int) -> np.ndarray:
+        """(cameras, 4, 4) ``rig_T_board`` of shot ``k`` when each camera took its image."""
+        T = self.poses[k]
+        out = np.tile(T, (len(self.rig.cameras), 1, 1))
+        if self.offsets is None or self.motion is None:
+            return out
+        centre = T[:3, :3] @ np.array([*np.asarray(self.config.board.size_mm) / 2, 0.0]) + T[:3, 3]
+        v, w = self.motion[k, :3], self.motion[k, 3:]
+        for c, dt in enumerate(self.offsets[k]):
+            angle = float(np.linalg.norm(w)) * dt
+            R = axis_angle(w / max(float(np.linalg.norm(w)), 1e-12), angle)
+            out[c, :3, :3] = R @ T[:3, :3]
+            out[c, :3, 3] = R @ (T[:3, 3] - centre) + centre + v * dt
+        return out
 
     @property
     def shot_names(self) -> list[str]:
@@ -370,7 +427,7 @@ class CapturePlan:
     def render(self, k: int) -> list[np.ndarray]:
         """The images of shot ``k`` (uint8, one per camera), the same bytes every time."""
         rng = np.random.default_rng([self.config.seed, k, _NOISE_STREAM])
-        return render_shot(self.rig, self.poses[k], self.model, self.config, rng)
+        return render_shot(self.rig, self.camera_poses(k), self.model, self.config, rng, shot=k)
 
 
 def plan_captures(config: CaptureConfig) -> CapturePlan:
@@ -404,10 +461,31 @@ def plan_captures(config: CaptureConfig) -> CapturePlan:
     model = BoardModel(
         config.board,
         inverted=config.inverted,
+        printed_mirrored=config.printed_mirrored,
         paper=config.paper,
         through_paper=config.through_paper,
     )
-    return CapturePlan(config, rig, poses, model)
+    offsets, motion = _timing(config, len(rig.cameras))
+    return CapturePlan(config, rig, poses, model, offsets, motion)
+
+
+def _timing(config: CaptureConfig, n_cameras: int) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """Each camera's time offset in each shot and each shot's board motion (see
+    :class:`CaptureConfig`), from their own random stream; None when the cameras are in step."""
+    if not (config.timing_ms > 0 or config.rolling_ms > 0) or not any(config.speed):
+        return None, None
+    rng = np.random.default_rng([config.seed, _TIMING_STREAM])
+    offsets = rng.uniform(-1.0, 1.0, (config.shots, n_cameras)) * config.timing_ms / 1000.0
+    offsets += np.arange(n_cameras) * config.rolling_ms / 1000.0
+    directions = rng.normal(size=(config.shots, 2, 3))
+    directions /= np.linalg.norm(directions, axis=2, keepdims=True)
+    # Mostly still, now and then moving: the cube of a uniform number.
+    amounts = rng.uniform(0.0, 1.0, (config.shots, 1)) ** 3 * [
+        config.speed[0],
+        np.radians(config.speed[1]),
+    ]
+    motion = (directions * amounts[:, :, None]).reshape(config.shots, 6)
+    return offsets, motion
 
 
 def _with_extra_cameras(rig: Rig, config: CaptureConfig) -> Rig:
@@ -471,6 +549,17 @@ def write_truth(plan: CapturePlan, root: Path) -> None:
             "extra_cameras": cfg.extra_cameras,
         },
     }
+    if cfg.printed_mirrored or cfg.paper_blur:
+        doc["synth"].update(printed_mirrored=cfg.printed_mirrored, paper_blur=cfg.paper_blur)
+    if plan.offsets is not None:
+        # Only when the cameras are not in step: the truth of captures that are stays as it was.
+        doc["synth"].update(
+            timing_ms=cfg.timing_ms, rolling_ms=cfg.rolling_ms, speed=list(cfg.speed)
+        )
+        doc["camera_offsets_s"] = {
+            name: {cam.name: round(float(dt), 6) for cam, dt in zip(plan.rig.cameras, row)}
+            for name, row in zip(plan.shot_names, plan.offsets)
+        }
     header = (
         "# The truth behind these synthetic captures (annotator synth --calibration):\n"
         "# rig: the rig that rendered them, in dataset.yaml's format; board_poses: rig_T_board\n"
@@ -538,7 +627,7 @@ def write_videos(root: Path, cameras: list[str]) -> list[Path]:
     return out
 
 
-_POSE_STREAM, _NOISE_STREAM = 7919, 104729
+_POSE_STREAM, _NOISE_STREAM, _TIMING_STREAM = 7919, 104729, 15485863
 _PLANS: dict[CaptureConfig, CapturePlan] = {}
 
 

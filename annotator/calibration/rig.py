@@ -27,13 +27,10 @@ Euclidean distance (px) between detected and projected corners.
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Iterator, Mapping, Sequence
-from contextlib import contextmanager
-from dataclasses import dataclass, field
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
-import cv2
 import numpy as np
 from scipy.spatial.transform import Rotation
 
@@ -46,191 +43,32 @@ from annotator.calibration.bundle import (
     project,
     refine,
 )
+from annotator.calibration.outliers import Moments, inliers
+from annotator.calibration.records import (
+    DISTORTION_MODELS,
+    Calibration,
+    CalibrationSettings,
+    CameraReport,
+    Rejection,
+    ShotReport,
+    View,
+)
+from annotator.calibration.single import calibrate_camera, opencv_flags, require_shots, screen_views
 from annotator.errors import UserError
 from annotator.geometry.camera import Camera
 from annotator.geometry.transforms import invert, make_transform
 
-#: The distortion models offered: number of coefficients -> coefficients estimated (8:
-#: OpenCV's rational model).
-DISTORTION_MODELS = {
-    2: ("k1", "k2"),
-    4: ("k1", "k2", "p1", "p2"),
-    5: ("k1", "k2", "p1", "p2", "k3"),
-    8: ("k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6"),
-}
-
-
-@dataclass(frozen=True)
-class View:
-    """The board as detected by one camera in one shot.
-
-    Attributes:
-        camera: Index of the camera.
-        shot: Index of the shot.
-        ids: (n,) chessboard corner ids.
-        corners: (n, 2) their pixel positions.
-        markers: Markers of the board identified (0: the board was not found at all).
-        flipped: The board read only in the image flipped left to right (a mirrored camera,
-            or the board seen from behind: :mod:`.readings` decides which).
-        rejected: Why the view is left out before the calibration starts (empty: it is not).
-    """
-
-    camera: int
-    shot: int
-    ids: np.ndarray
-    corners: np.ndarray
-    markers: int = 0
-    flipped: bool = False
-    rejected: str = ""
-
-
-@dataclass(frozen=True)
-class CalibrationOptions:
-    """Settings of :func:`calibrate_rig`.
-
-    Attributes:
-        min_shots: Usable shots each camera needs.
-        min_corners: Corners a view needs to be used.
-        dist_coeffs: Distortion model: 2 (k1 k2), 4 (+ p1 p2), 5 (+ k3, OpenCV's default) or
-            8 (+ k4 k5 k6, OpenCV's rational model).
-        outlier_sigmas: A corner is an outlier beyond this many robust standard deviations.
-        min_outlier_px: ... and never below this residual (px).
-    """
-
-    min_shots: int = 6
-    min_corners: int = 8
-    dist_coeffs: int = 5
-    outlier_sigmas: float = 5.0
-    min_outlier_px: float = 0.5
-
-    def __post_init__(self) -> None:
-        if self.dist_coeffs not in DISTORTION_MODELS:
-            raise UserError(
-                f"the distortion model must have 2, 4, 5 or 8 coefficients, not {self.dist_coeffs}"
-            )
-        if self.min_shots < 3:
-            raise UserError(f"at least 3 shots are needed per camera, not {self.min_shots}")
-        if self.min_corners < 6:
-            raise UserError(f"a view needs at least 6 corners, not {self.min_corners}")
-
-
-@dataclass(frozen=True)
-class Rejection:
-    """A shot, or one camera's view of it, left out of the calibration, and why."""
-
-    shot: str
-    camera: str | None
-    reason: str
-
-    def __str__(self) -> str:
-        who = f"shot {self.shot}" + (f", camera {self.camera}" if self.camera else "")
-        return f"{who}: {self.reason}"
-
-
-@dataclass(frozen=True)
-class CameraReport:
-    """How well one camera is calibrated.
-
-    Attributes:
-        camera: The calibrated camera (K, dist, rig_T_cam).
-        rms_px: RMS reprojection error of its corners after the joint refinement.
-        initial_rms_px: RMS of OpenCV's ``calibrateCamera`` for this camera alone.
-        shots: Shots whose view of this camera was used.
-        corners: Corners used.
-        outlier_corners: Corners left out as outliers (in views that were used).
-        std: One standard deviation of each estimated intrinsic (``fx`` ... ``k3``), of the
-            camera's orientation (``rotation_deg``) and of its position in the rig
-            (``position_mm``), from the refinement's covariance.
-        initial_focal_px: Focal lengths ``(fx, fy)`` of OpenCV's ``calibrateCamera`` for this
-            camera alone.
-        board_distance_mm: The farthest the board's centre was from this camera, by
-            ``calibrateCamera`` for this camera alone.
-    """
-
-    camera: Camera
-    rms_px: float
-    initial_rms_px: float
-    shots: int
-    corners: int
-    outlier_corners: int
-    std: dict[str, float]
-    initial_focal_px: tuple[float, float] = (float("nan"), float("nan"))
-    board_distance_mm: float = float("nan")
-
-
-@dataclass(frozen=True)
-class ShotReport:
-    """One shot: its board pose and each camera's fit (cameras whose view was used)."""
-
-    name: str
-    rig_T_board: np.ndarray | None
-    rms_px: dict[str, float]
-    corners: dict[str, int]
-
-    @property
-    def used(self) -> bool:
-        return self.rig_T_board is not None
-
-
-@dataclass(frozen=True)
-class Calibration:
-    """The result of :func:`calibrate_rig`.
-
-    Attributes:
-        cameras: Per camera, the calibrated :class:`Camera` and its figures (rig order).
-        shots: Per shot, in input order.
-        rejections: Shots and views left out, and why.
-        rms_px: RMS reprojection error over every corner used.
-        iterations: Levenberg-Marquardt iterations of the last refinement.
-        converged: Whether that refinement converged (rather than stopping at its limit).
-        corners: Every corner of the usable views (including the outliers).
-        residuals: (N, 2) projected minus detected position of each of ``corners``.
-        used: (N,) bool, which of ``corners`` the refinement used.
-        sizes: Image size (width, height) per camera.
-        warnings: Things worth knowing that did not stop the calibration.
-        held_out: The held-out error (:mod:`.heldout`), when measured.
-        model_choice: How the distortion model was chosen (:mod:`.model_choice`), if it was.
-        extrapolation: Per camera, where its distortion is extrapolated (:mod:`.extrapolation`).
-        readings: Per camera, mirrored or not and where it saw the board from behind
-            (:mod:`.readings`), when decided.
-        camera_held_out: Per camera, the held-out error of that camera alone (:mod:`.checks`).
-        problems: Why the rig does not hold together (:mod:`.checks`); empty: it does.
-    """
-
-    cameras: tuple[CameraReport, ...]
-    shots: tuple[ShotReport, ...]
-    rejections: tuple[Rejection, ...]
-    rms_px: float
-    iterations: int
-    corners: Corners
-    residuals: np.ndarray
-    used: np.ndarray
-    sizes: tuple[tuple[int, int], ...]
-    warnings: tuple[str, ...] = field(default=())
-    held_out: Any = None
-    model_choice: Any = None
-    extrapolation: tuple[Any, ...] = ()
-    converged: bool = True
-    readings: Any = None
-    camera_held_out: tuple[float, ...] = ()
-    problems: tuple[Any, ...] = ()
-
-    @property
-    def rig_cameras(self) -> tuple[Camera, ...]:
-        """The calibrated cameras, the first being the rig frame."""
-        return tuple(c.camera for c in self.cameras)
-
 
 @dataclass(frozen=True)
 class _Setup:
-    """What :func:`calibrate_rig` was given, passed along its steps."""
+    """What :func:`solve_rig` was given, passed along its steps."""
 
     views: Sequence[View]
     cameras: Sequence[str]
     sizes: Sequence[tuple[int, int]]
     shots: Sequence[str]
     board: BoardSpec
-    opts: CalibrationOptions
+    opts: CalibrationSettings
     where: Mapping[str, Path]
 
     @property
@@ -241,7 +79,7 @@ class _Setup:
     def require_shots(self, usable: Sequence[View]) -> None:
         """Every camera still has enough usable shots (else a UserError naming it)."""
         for c, name in enumerate(self.cameras):
-            _require_shots(usable, c, name, self.views, self.opts, self.where)
+            require_shots(usable, c, name, self.views, self.opts, self.where)
 
 
 @dataclass(frozen=True)
@@ -301,14 +139,14 @@ class _Fit:
         return {(int(c), int(s)) for c, s in zip(obs.camera[keep], obs.shot[keep])}
 
 
-def calibrate_rig(
+def solve_rig(
     views: Sequence[View],
     *,
     cameras: Sequence[str],
     sizes: Sequence[tuple[int, int]],
     shots: Sequence[str],
     board: BoardSpec,
-    options: CalibrationOptions | None = None,
+    options: CalibrationSettings | None = None,
     where: Mapping[str, Path] | None = None,
 ) -> Calibration:
     """Calibrate the rig (see the module docstring).
@@ -328,10 +166,10 @@ def calibrate_rig(
             the same shot, or a calibration that cannot fit the detections.
     """
     setup = _Setup(
-        views, cameras, sizes, shots, board, options or CalibrationOptions(), where or {}
+        views, cameras, sizes, shots, board, options or CalibrationSettings(), where or {}
     )
     rejections: list[Rejection] = []
-    usable = _screen(views, cameras, shots, board, setup.opts, rejections)
+    usable = screen_views(views, cameras, shots, board, setup.opts, rejections)
     setup.require_shots(usable)
     initial = _calibrate_cameras(setup, usable, rejections)
     # 3. Extrinsics and board poses.
@@ -339,7 +177,12 @@ def calibrate_rig(
     rig_T_board = _initial_board_poses(initial, cam_T_rig, len(shots))
     state = RigState(initial.intrinsics, cam_T_rig, rig_T_board, _free_intrinsics(setup))
     obs = _observations(initial.usable, board)
-    fit, dropped_views = _refine_without_outliers(state, obs, setup.opts)
+    fit, dropped_views = _refine_without_outliers(state, obs, setup.opts, initial.rms)
+    if _short_camera(fit, len(cameras), setup.opts.min_shots):
+        # Leaving out views of other moments left a camera too few: its views disagree with
+        # the rig beyond leaving some out; the rig is solved without that rule, and the
+        # checks say what is wrong.
+        fit, dropped_views = _refine_without_outliers(state, obs, setup.opts)
     for (c, s), why in sorted(dropped_views.items(), key=lambda kv: (kv[0][1], kv[0][0])):
         rejections.append(Rejection(shots[s], cameras[c], why))
     used_views = {obs.keys[i] for i in np.unique(obs.view_index[fit.keep])}
@@ -347,14 +190,20 @@ def calibrate_rig(
     return _assemble(fit, setup, initial, rejections)
 
 
+def _short_camera(fit: _Fit, n_cameras: int, min_shots: int) -> bool:
+    """Whether some camera has fewer than ``min_shots`` views in the fit."""
+    per_camera = np.bincount([c for c, _ in fit.used_views], minlength=n_cameras)
+    return bool(np.any(per_camera < min_shots))
+
+
 def _calibrate_cameras(setup: _Setup, usable: list[View], rejections: list[Rejection]) -> _Initial:
     """2. Each camera alone: OpenCV's calibrateCamera; the views it cannot fit left out."""
-    flags = _flags(setup.opts.dist_coeffs)
+    flags = opencv_flags(setup.opts.dist_coeffs)
     intrinsics = np.zeros((len(setup.cameras), 4 + setup.n_dist))
     poses: dict[tuple[int, int], np.ndarray] = {}
     initial_rms = []
     for c, name in enumerate(setup.cameras):
-        K, dist, cam_poses, rms = _calibrate_camera(
+        K, dist, cam_poses, rms = calibrate_camera(
             [v for v in usable if v.camera == c],
             setup.board,
             setup.sizes[c],
@@ -365,7 +214,7 @@ def _calibrate_cameras(setup: _Setup, usable: list[View], rejections: list[Rejec
             setup.n_dist,
         )
         usable = [v for v in usable if v.camera != c or (c, v.shot) in cam_poses]
-        _require_shots(usable, c, name, setup.views, setup.opts, setup.where)
+        require_shots(usable, c, name, setup.views, setup.opts, setup.where)
         intrinsics[c] = [K[0, 0], K[1, 1], K[0, 2], K[1, 2], *dist]
         poses.update(cam_poses)
         initial_rms.append(rms)
@@ -410,19 +259,33 @@ def _observations(usable: list[View], board: BoardSpec) -> _Observations:
 
 
 def _refine_without_outliers(
-    state: RigState, observations: _Observations, opts: CalibrationOptions
+    state: RigState,
+    observations: _Observations,
+    opts: CalibrationSettings,
+    camera_rms: Sequence[float] | None = None,
 ) -> tuple[_Fit, dict[tuple[int, int], str]]:
     """4-5. Joint refinement, outliers out, again, until the selection settles (at most 8
     rounds): the last fit, and the views dropped as a whole (``(camera, shot)`` -> why)."""
     obs, keys, view_index = observations.corners, observations.keys, observations.view_index
     keep = np.ones(len(obs.camera), bool)
     dropped_views: dict[tuple[int, int], str] = {}
+    moments = (
+        Moments(np.array([k[1] for k in keys], np.int64), np.asarray(camera_rms, float))
+        if camera_rms is not None
+        else None
+    )
     for _ in range(8):
         result = refine(state, obs.subset(keep))
         state = result.state
         err = np.linalg.norm(project(state, obs) - obs.pixel, axis=1)
-        new_keep, new_dropped = _inliers(
-            err, keep, view_index, len(keys), opts, np.array([k[0] for k in keys], np.int64)
+        new_keep, new_dropped = inliers(
+            err,
+            keep,
+            view_index,
+            len(keys),
+            opts,
+            np.array([k[0] for k in keys], np.int64),
+            moments,
         )
         if np.array_equal(new_keep, keep):
             break
@@ -435,156 +298,6 @@ def _refine_without_outliers(
         state = result.state
     residuals = project(state, obs) - obs.pixel
     return _Fit(state, result, obs, residuals, keep), dropped_views
-
-
-def _flags(dist_coeffs: int) -> int:
-    flags = cv2.CALIB_RATIONAL_MODEL if dist_coeffs == 8 else 0
-    if dist_coeffs < 5:
-        flags |= cv2.CALIB_FIX_K3
-    if dist_coeffs < 4:
-        flags |= cv2.CALIB_ZERO_TANGENT_DIST
-    return flags
-
-
-def _screen(
-    views: Sequence[View],
-    cameras: Sequence[str],
-    shots: Sequence[str],
-    board: BoardSpec,
-    opts: CalibrationOptions,
-    rejections: list[Rejection],
-) -> list[View]:
-    """The usable views; the others are recorded as rejections (whole shots when no camera
-    could use the shot)."""
-    usable: list[View] = []
-    reasons: dict[int, list[tuple[str, str]]] = {}
-    for v in sorted(views, key=lambda v: (v.shot, v.camera)):
-        n = len(v.ids)
-        if v.rejected:
-            why = v.rejected
-        elif n == 0:
-            why = (
-                "board not found"
-                if v.markers == 0
-                else f"board not found ({v.markers} of its markers, but no corner between two of them)"
-            )
-        elif n < opts.min_corners:
-            why = (
-                f"only {n} corner{'s' if n > 1 else ''} found (at least {opts.min_corners} needed)"
-            )
-        elif _collinear(board.corners[v.ids]):
-            why = f"the {n} corners found lie on one line"
-        else:
-            usable.append(v)
-            continue
-        reasons.setdefault(v.shot, []).append((cameras[v.camera], why))
-    seen = {v.shot for v in usable}
-    for s in sorted(reasons):
-        items = reasons[s]
-        if s not in seen and len(items) == len(cameras) and len({w for _, w in items}) == 1:
-            rejections.append(Rejection(shots[s], None, f"{items[0][1]} in any camera"))
-        else:
-            rejections.extend(Rejection(shots[s], cam, why) for cam, why in items)
-    return usable
-
-
-def _collinear(points: np.ndarray) -> bool:
-    """True if the board points (n, 3) lie on a line (within a tenth of their extent)."""
-    centred = points[:, :2] - points[:, :2].mean(axis=0)
-    s = np.linalg.svd(centred, compute_uv=False)
-    return bool(s[1] <= 0.1 * s[0])
-
-
-def _require_shots(
-    usable: Sequence[View],
-    c: int,
-    name: str,
-    views: Sequence[View],
-    opts: CalibrationOptions,
-    where: Mapping[str, Path],
-) -> None:
-    n = sum(1 for v in usable if v.camera == c)
-    if n >= opts.min_shots:
-        return
-    total = sum(1 for v in views if v.camera == c)
-    found = sum(1 for v in views if v.camera == c and len(v.ids) > 0)
-    if found == 0:
-        msg = f"the board was not found in any of the {total} images of camera {name}"
-    else:
-        msg = (
-            f"too few shots: camera {name} has {n} usable of {total} (the board was found in "
-            f"{found}), and calibration needs at least {opts.min_shots}"
-        )
-    raise UserError(msg, path=where.get(name))
-
-
-def _calibrate_camera(
-    views: list[View],
-    board: BoardSpec,
-    size: tuple[int, int],
-    flags: int,
-    rejections: list[Rejection],
-    name: str,
-    shots: Sequence[str],
-    n_dist: int = 5,
-) -> tuple[np.ndarray, np.ndarray, dict[tuple[int, int], np.ndarray], float]:
-    """OpenCV's calibrateCamera on one camera's views; views it cannot fit are rejected.
-
-    Returns K, dist (``n_dist``: 5, or 8 for the rational model), ``{(camera, shot):
-    cam_T_board}`` and the RMS (px)."""
-    criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-12)
-    while True:
-        obj = [board.corners[v.ids].astype(np.float32).reshape(-1, 1, 3) for v in views]
-        img = [v.corners.astype(np.float32).reshape(-1, 1, 2) for v in views]
-        try:
-            with _one_opencv_thread():
-                rms, K, dist, rvecs, tvecs = cv2.calibrateCamera(
-                    obj, img, tuple(size), None, None, flags=flags, criteria=criteria
-                )
-        except cv2.error as exc:
-            first = str(exc).strip().splitlines()[-1] if str(exc).strip() else "cv2.error"
-            raise UserError(
-                f"OpenCV could not calibrate camera {name} from its {len(views)} views ({first})"
-            ) from None
-        dist = np.asarray(dist, float).reshape(-1)[:n_dist]
-        dist = np.pad(dist, (0, n_dist - len(dist)))
-        view_rms = []
-        for v, rv, tv in zip(views, rvecs, tvecs):
-            uv, _ = cv2.projectPoints(board.corners[v.ids], rv, tv, K, dist)
-            view_rms.append(np.sqrt(np.mean(np.sum((uv.reshape(-1, 2) - v.corners) ** 2, 1))))
-        per_view = np.asarray(view_rms)
-        limit = max(5.0 * float(np.median(per_view)), 2.0)
-        bad = per_view > limit
-        if not np.any(bad) or bad.sum() > len(views) // 2:
-            break
-        for v, e in zip(views, per_view):
-            if e > limit:
-                rejections.append(
-                    Rejection(
-                        shots[v.shot],
-                        name,
-                        f"calibrateCamera cannot fit it (RMS {e:.2f} px, limit {limit:.2f} px)",
-                    )
-                )
-        views = [v for v, b in zip(views, bad) if not b]
-    poses = {
-        (v.camera, v.shot): make_transform(cv2.Rodrigues(rv)[0], np.ravel(tv))
-        for v, rv, tv in zip(views, rvecs, tvecs)
-    }
-    return np.asarray(K, float), dist, poses, float(rms)
-
-
-@contextmanager
-def _one_opencv_thread() -> Iterator[None]:
-    """OpenCV on one thread meanwhile: with several, ``calibrateCamera`` sums in a varying
-    order and its results differ from run to run in the ninth digit, enough to change the
-    written dataset.yaml when nothing else changed."""
-    before = cv2.getNumThreads()
-    cv2.setNumThreads(1)
-    try:
-        yield
-    finally:
-        cv2.setNumThreads(before)
 
 
 def _initial_extrinsics(
@@ -637,61 +350,6 @@ def robust_mean_transform(Ts: np.ndarray) -> np.ndarray:
     R = rots[keep].mean().as_matrix()
     t = np.median(Ts[keep, :3, 3], axis=0)
     return make_transform(R, t)
-
-
-def _inliers(
-    err: np.ndarray,
-    keep: np.ndarray,
-    view_index: np.ndarray,
-    n_views: int,
-    opts: CalibrationOptions,
-    view_camera: np.ndarray | None = None,
-) -> tuple[np.ndarray, dict[int, str]]:
-    """Corners to keep after a refinement with residual norms ``err``, and the views dropped
-    as a whole (index -> reason). Each camera is judged by its own noise (``view_camera``:
-    the camera of each view), never below the rig's nor above three times it: a camera
-    whose corners are noisier (a board seen through the paper) keeps its good corners, and
-    one that runs off is not excused."""
-    if view_camera is None:
-        view_camera = np.zeros(n_views, np.int64)
-    corner_camera = view_camera[view_index]
-    # The norm of a 2D Gaussian residual has median 1.1774 sigma.
-    rig_sigma = float(np.median(err[keep])) / 1.1774
-    sigma = np.full(int(view_camera.max(initial=0)) + 1, rig_sigma)
-    for c in np.unique(corner_camera[keep]).tolist():
-        own = float(np.median(err[keep & (corner_camera == c)])) / 1.1774
-        sigma[c] = min(max(own, rig_sigma), 3.0 * rig_sigma)
-    limits = np.maximum(opts.outlier_sigmas * sigma, opts.min_outlier_px)
-    ok = err <= limits[corner_camera]
-    counts = np.bincount(view_index, minlength=n_views)
-    good = np.bincount(view_index, weights=ok, minlength=n_views)
-    sq = np.bincount(view_index, weights=np.where(ok, err**2, 0.0), minlength=n_views)
-    rms = np.sqrt(sq / np.maximum(good, 1))
-    present = counts > 0
-    view_limits = {}
-    for c in np.unique(view_camera[present]).tolist():
-        mine = present & (good > 0) & (view_camera == c)
-        median_rms = float(np.median(rms[mine])) if np.any(mine) else 0.0
-        view_limits[c] = max(3.0 * median_rms, 1.0)
-    dropped: dict[int, str] = {}
-    for i in np.flatnonzero(present).tolist():
-        lost = counts[i] - good[i]
-        limit = float(limits[view_camera[i]])
-        view_limit = view_limits[int(view_camera[i])]
-        if good[i] < opts.min_corners or lost > 0.25 * counts[i]:
-            dropped[i] = (
-                f"outlier residuals: {int(lost)} of its {counts[i]} corners off by more than "
-                f"{limit:.2f} px"
-            )
-            if lost == counts[i]:
-                dropped[i] += " (an image of another moment, or the board moved during the shot?)"
-        elif rms[i] > view_limit:
-            dropped[i] = (
-                f"outlier residuals: RMS {rms[i]:.2f} px, over {view_limit:.2f} px "
-                "(three times the median view's of its camera)"
-            )
-    ok &= ~np.isin(view_index, list(dropped))
-    return ok, dropped
 
 
 def _assemble(
