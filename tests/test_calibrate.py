@@ -27,8 +27,8 @@ from annotator.calibration.rig_yaml import updated_text
 from annotator.cli import main
 from annotator.dataset import load_dataset
 from annotator.geometry.camera import Camera
-from annotator.geometry.transforms import invert, make_transform
 from annotator.geometry.lie import rotvec_to_matrix
+from annotator.geometry.transforms import invert, make_transform
 from annotator.synthesis.board import true_corners
 from devkit.opencv_baseline import opencv_stereo
 

@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 from annotator.geometry.camera import Camera
+from annotator.geometry.lie import rotvec_to_matrix
 from annotator.geometry.mesh import Mesh
 from annotator.geometry.transforms import invert, make_transform, random_rotations
-from annotator.geometry.lie import rotvec_to_matrix
 from annotator.markers.layout import square_corners
 from annotator.parts import build_part
 from annotator.pnp import (

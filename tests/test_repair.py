@@ -13,8 +13,8 @@ import pytest
 from annotator.dataset import load_dataset, read_poses
 from annotator.dataset.records import SceneAnnotation
 from annotator.detection import MarkerDetector
-from annotator.geometry.transforms import axis_angle, make_transform
 from annotator.geometry.lie import matrix_to_rotvec
+from annotator.geometry.transforms import axis_angle, make_transform
 from annotator.io.images import to_gray8
 from annotator.refinement import measured_points
 from annotator.rendering.raycast import PlacedMesh

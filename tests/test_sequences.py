@@ -22,8 +22,8 @@ from annotator.dataset.frames import read_frames
 from annotator.dataset.records import SceneAnnotation, frames_from_json
 from annotator.detection.aruco import Detection, ImageReading
 from annotator.geometry.camera import Camera
-from annotator.geometry.transforms import invert, make_transform
 from annotator.geometry.lie import rotvec_to_matrix
+from annotator.geometry.transforms import invert, make_transform
 from annotator.pnp.bundle import BundleObservations, bundle_adjust
 from devkit.sequence_truth import sequence_errors
 

@@ -26,8 +26,8 @@ from test_viewer_browser import (  # noqa: E402
 
 from annotator.cli import main as cli  # noqa: E402
 from annotator.dataset import load_dataset, read_poses  # noqa: E402
-from annotator.geometry.transforms import axis_angle  # noqa: E402
 from annotator.geometry.lie import matrix_to_rotvec  # noqa: E402
+from annotator.geometry.transforms import axis_angle  # noqa: E402
 from annotator.symmetry import PoseSpace  # noqa: E402
 
 pytestmark = [
