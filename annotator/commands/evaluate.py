@@ -20,6 +20,7 @@ if TYPE_CHECKING:
     from types import ModuleType
 
     from annotator.evaluation.bop19 import Bop19Scores
+    from annotator.evaluation.bop24 import Bop24Scores
     from annotator.evaluation.evaluate import EvaluationOptions, EvaluationReport
     from annotator.formats.base import GroundTruth, PoseResults
     from annotator.physics.results import ResultsPhysics
@@ -111,6 +112,14 @@ def _add_report_options(parser: argparse.ArgumentParser) -> None:
         "as bop_toolkit's eval_bop19_pose.py computes it; BOP ground truth and a result CSV",
     )
     group.add_argument(
+        "--bop24",
+        action="store_true",
+        help="also BOP's 6D detection scores: bop24_mAP (MSSD and MSPD), bop25_mAP (MSSD), "
+        "bop25_mAP_mm (MSSD in mm), as bop_toolkit's eval_bop24_pose.py computes them "
+        "(images of test_targets_bop24.json, instances under 10%% visible ignored, the best "
+        "100 estimates per image); BOP ground truth and a result CSV",
+    )
+    group.add_argument(
         "--physics",
         action="store_true",
         help="also the share of estimates physically impossible in the real pile (through a "
@@ -137,6 +146,7 @@ def run(args: argparse.Namespace) -> int:
     _print_header(args, fmt.NAME, source, gt, results, report)
     per_object = args.per_object or len(report.per_object) > 1
     bop = _bop19(args, gt_path, gt) if args.bop19 else None
+    bop24 = _bop24(args, gt_path, gt) if args.bop24 else None
     twin_report = _twin(args, opts) if args.twin else None
     if twin_report is not None:
         others = {"real": report, "twin": twin_report}
@@ -145,6 +155,8 @@ def run(args: argparse.Namespace) -> int:
         print(format_table(report, per_object=per_object))
     if bop is not None:
         _print_bop19(bop, report, gt)
+    if bop24 is not None:
+        _print_bop24(bop24, gt)
     if not args.results and fmt.NAME == "ours":
         _print_annotation_errors(gt_path)
     physics = _physics(args, gt, results, opts) if args.physics else None
@@ -156,6 +168,8 @@ def run(args: argparse.Namespace) -> int:
             doc = {"real": doc, "twin": twin_report.to_json()}
         if bop is not None:
             doc["bop19"] = bop.to_json()
+        if bop24 is not None:
+            doc["bop24"] = bop24.to_json()
         if physics is not None:
             doc["physics"] = physics.to_json()
         write_json(args.json, doc)
@@ -206,13 +220,14 @@ def _check_options(args: argparse.Namespace) -> None:
     )
     if (args.twin or args.twin_results) and not (args.twin and args.twin_results and args.results):
         raise UserError("--twin needs --twin-results, and --results for GT")
-    if args.bop19 and not args.results:
-        raise UserError(
-            "--bop19 scores a BOP dataset against a result CSV (--results); export ours "
-            "first with `annotator export DATASET OUT --format bop`"
-        )
-    if args.bop19 and args.twin:
-        raise UserError("--bop19 and --twin cannot be combined")
+    for flag in ("bop19", "bop24"):
+        if getattr(args, flag) and not args.results:
+            raise UserError(
+                f"--{flag} scores a BOP dataset against a result CSV (--results); export ours "
+                "first with `annotator export DATASET OUT --format bop`"
+            )
+        if getattr(args, flag) and args.twin:
+            raise UserError(f"--{flag} and --twin cannot be combined")
     from annotator.formats import detect_format
 
     if args.physics and detect_format(Path(args.gt)).NAME != "ours":
@@ -228,12 +243,13 @@ def _inputs(args: argparse.Namespace) -> tuple[ModuleType, GroundTruth, PoseResu
 
     gt_path = Path(args.gt)
     fmt = detect_format(gt_path)
-    if args.bop19 and fmt.NAME != "bop":
-        raise UserError(
-            "--bop19 scores a BOP dataset; export ours first with "
-            "`annotator export DATASET OUT --format bop`",
-            path=gt_path,
-        )
+    for flag in ("bop19", "bop24"):
+        if getattr(args, flag) and fmt.NAME != "bop":
+            raise UserError(
+                f"--{flag} scores a BOP dataset; export ours first with "
+                "`annotator export DATASET OUT --format bop`",
+                path=gt_path,
+            )
     gt = fmt.read_ground_truth(gt_path, symmetry=args.symmetry)
     if args.results:
         results = fmt.read_results(Path(args.results), gt)
@@ -326,6 +342,49 @@ def _bop19(args: argparse.Namespace, gt_path: Path, gt: GroundTruth) -> Bop19Sco
         )
     scores.notes[:0] = split.notes
     return scores
+
+
+def _bop24(args: argparse.Namespace, gt_path: Path, gt: GroundTruth) -> Bop24Scores:
+    from annotator.evaluation.bop24 import bop24_scores, max_estimates_for
+    from annotator.formats.bop_images import read_bop_split
+
+    results = Path(args.results)
+    split = read_bop_split(gt_path, results, gt, task="detection")
+    limit = max_estimates_for(results.name)
+    scores = bop24_scores(
+        split.images, split.estimates, split.objects, max_per_image=limit, times=split.times
+    )
+    scores.notes[:0] = split.notes
+    if scores.dropped:
+        scores.notes.append(
+            f"{scores.dropped} estimates beyond the best {limit} of their image not scored"
+        )
+    if scores.ignored:
+        scores.notes.append(
+            f"{scores.ignored} estimates of instances under 10% visible ignored (at MSSD 0.05)"
+        )
+    return scores
+
+
+def _print_bop24(bop: Bop24Scores, gt: GroundTruth) -> None:
+    def f(v: float | None) -> str:
+        return "   -  " if v is None else f"{v:.4f}"
+
+    print(
+        f"BOP's 6D detection scores (bop_toolkit's eval_bop24_pose.py: {bop.targets} instances "
+        f"to find, {bop.estimates} estimates scored):"
+    )
+    print(f"  {'object':<14} {'mAP_MSSD':>8} {'mAP_MSPD':>8} {'mAP_MSSD_mm':>11}")
+    rows = [(gt.object_ids.get(o, f"obj_{o:06d}"), r) for o, r in sorted(bop.per_object.items())]
+    rows.append(("all", bop.maps))
+    for name, row in rows:
+        print(f"  {name:<14} {f(row['mssd']):>8} {f(row['mspd']):>8} {f(row['mssd_mm']):>11}")
+    print(
+        f"  bop24_mAP {f(bop.bop24_map)}  bop25_mAP {f(bop.maps['mssd'])}  "
+        f"bop25_mAP_mm {f(bop.maps['mssd_mm'])}"
+    )
+    for note in bop.notes:
+        print(f"note: {note}")
 
 
 def _print_bop19(bop: Bop19Scores, report: EvaluationReport, gt: GroundTruth) -> None:

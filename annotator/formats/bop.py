@@ -352,6 +352,7 @@ class CsvRows:
     R: Any  # (N, 9) numbers, or one list per line (its length checked with the pose)
     t: Any
     score_cells: Sequence[str] | None = None  # as written, to name a bad one
+    times: np.ndarray | None = None  # the time column (s), None without one
 
 
 #: How many numbers each column holds.
@@ -397,6 +398,7 @@ def _numeric_rows(lines: list[str], numbers: list[int], header: list[str] | None
         scores=col("score")[:, 0].copy(),
         R=col("R", 9),
         t=col("t", 3),
+        times=col("time")[:, 0].copy() if "time" in names else None,
     )
 
 
@@ -409,7 +411,7 @@ def _as_text(values: np.ndarray) -> Sequence[str]:
 def _cell_rows(lines: list[str], numbers: list[int], index: dict[str, int], path: Path) -> CsvRows:
     """The rows read cell by cell; the first bad line is named."""
     table = list(csv.reader(lines[n - 1] for n in numbers))
-    width = max(index.values()) + 1
+    width = max(index[c] for c in CSV_COLUMNS[:6]) + 1
     for n, row in zip(numbers, table):
         if len(row) < width:
             raise UserError(f"line {n}: expected {','.join(CSV_COLUMNS)}", path=path)
@@ -419,6 +421,13 @@ def _cell_rows(lines: list[str], numbers: list[int], index: dict[str, int], path
         return [row[i].strip() for row in table]
 
     scores = column("score")
+    times = None
+    at = index.get("time", width)
+    if all(len(row) > at for row in table):
+        try:
+            times = np.array([float(row[at]) for row in table])
+        except ValueError:
+            times = None  # not needed to score: BOP then reports no time
     return CsvRows(
         scene_ids=column("scene_id"),
         im_ids=_parsed(column("im_id"), numbers, path, int, "malformed number"),
@@ -427,6 +436,7 @@ def _cell_rows(lines: list[str], numbers: list[int], index: dict[str, int], path
         R=_vectors(column("R"), numbers, path),
         t=_vectors(column("t"), numbers, path),
         score_cells=scores,
+        times=times,
     )
 
 
@@ -438,7 +448,7 @@ def _header(names: list[str], path: Path) -> dict[str, int]:
             f"line 1: the header lacks {', '.join(missing)} (columns: {','.join(CSV_COLUMNS)})",
             path=path,
         )
-    return {c: names.index(c) for c in CSV_COLUMNS[:6]}
+    return {c: names.index(c) for c in CSV_COLUMNS if c in names}
 
 
 def _parsed(
