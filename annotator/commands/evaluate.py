@@ -21,6 +21,7 @@ if TYPE_CHECKING:
 
     from annotator.evaluation.bop19 import Bop19Scores
     from annotator.evaluation.bop24 import Bop24Scores
+    from annotator.evaluation.coco import CocoScores
     from annotator.evaluation.evaluate import EvaluationOptions, EvaluationReport
     from annotator.formats.base import GroundTruth, PoseResults
     from annotator.physics.results import ResultsPhysics
@@ -120,6 +121,14 @@ def _add_report_options(parser: argparse.ArgumentParser) -> None:
         "100 estimates per image); BOP ground truth and a result CSV",
     )
     group.add_argument(
+        "--coco-results",
+        metavar="RESULTS.json",
+        help="also BOP's 2D detection and segmentation scores (COCO's AP and AR, as "
+        "bop_toolkit's eval_bop22_coco.py) of a COCO results file, on a BOP dataset's "
+        "scene_gt_coco files: boxes if every result has one, masks likewise; alone (without "
+        "--results) only these",
+    )
+    group.add_argument(
         "--physics",
         action="store_true",
         help="also the share of estimates physically impossible in the real pile (through a "
@@ -134,6 +143,14 @@ def run(args: argparse.Namespace) -> int:
 
     _check_options(args)
     gt_path = Path(args.gt)
+    if args.coco_results and not args.results:
+        coco = _coco(args, gt_path)
+        _print_coco(coco)
+        if args.json:
+            from annotator.io.atomic import write_json
+
+            write_json(args.json, {f"bop22_coco_{c.ann_type}": c.to_json() for c in coco})
+        return 0
     fmt, gt, results, source = _inputs(args)
     opts = EvaluationOptions(
         max_occlusion=args.max_occlusion,
@@ -147,6 +164,7 @@ def run(args: argparse.Namespace) -> int:
     per_object = args.per_object or len(report.per_object) > 1
     bop = _bop19(args, gt_path, gt) if args.bop19 else None
     bop24 = _bop24(args, gt_path, gt) if args.bop24 else None
+    coco = _coco(args, gt_path) if args.coco_results else []
     twin_report = _twin(args, opts) if args.twin else None
     if twin_report is not None:
         others = {"real": report, "twin": twin_report}
@@ -157,6 +175,7 @@ def run(args: argparse.Namespace) -> int:
         _print_bop19(bop, report, gt)
     if bop24 is not None:
         _print_bop24(bop24, gt)
+    _print_coco(coco)
     if not args.results and fmt.NAME == "ours":
         _print_annotation_errors(gt_path)
     physics = _physics(args, gt, results, opts) if args.physics else None
@@ -170,6 +189,8 @@ def run(args: argparse.Namespace) -> int:
             doc["bop19"] = bop.to_json()
         if bop24 is not None:
             doc["bop24"] = bop24.to_json()
+        for c in coco:
+            doc[f"bop22_coco_{c.ann_type}"] = c.to_json()
         if physics is not None:
             doc["physics"] = physics.to_json()
         write_json(args.json, doc)
@@ -215,7 +236,7 @@ def _check_options(args: argparse.Namespace) -> None:
             raise UserError("is a folder; give a file name", path=out)
     check_output_files(
         [("--json", args.json), ("--plot", args.plot)],
-        inputs=[args.results, args.twin_results],
+        inputs=[args.results, args.twin_results, args.coco_results],
         datasets=[args.gt, args.twin],
     )
     if (args.twin or args.twin_results) and not (args.twin and args.twin_results and args.results):
@@ -385,6 +406,51 @@ def _print_bop24(bop: Bop24Scores, gt: GroundTruth) -> None:
     )
     for note in bop.notes:
         print(f"note: {note}")
+
+
+def _coco(args: argparse.Namespace, gt_path: Path) -> list[CocoScores]:
+    """COCO's scores of ``--coco-results``, for boxes and masks as the results have them."""
+    from annotator.evaluation.coco import coco_scores
+    from annotator.formats import detect_format
+    from annotator.formats.coco_results import (
+        ANN_TYPES,
+        read_coco_ground_truth,
+        read_coco_results,
+    )
+    from annotator.io.documents import read_json
+
+    if detect_format(gt_path).NAME != "bop":
+        raise UserError(
+            "--coco-results scores 2D detections on a BOP dataset's scene_gt_coco files; "
+            "export ours first with `annotator export DATASET OUT --format bop`",
+            path=gt_path,
+        )
+    path = Path(args.coco_results)
+    doc = read_json(path) if path.is_file() else None
+    has = {"bbox": "bbox", "segm": "segmentation"}
+    types = [
+        t
+        for t in ANN_TYPES
+        if isinstance(doc, list) and doc and all(isinstance(r, dict) and has[t] in r for r in doc)
+    ]
+    if not types:
+        read_coco_results(path, "bbox")  # names what is wrong with the file
+        raise UserError("no result has a 'bbox' or a 'segmentation' to score", path=path)
+    gt = read_coco_ground_truth(gt_path)
+    return [coco_scores(gt, read_coco_results(path, t), t) for t in types]
+
+
+def _print_coco(scores: list[CocoScores]) -> None:
+    for c in scores:
+        what = "2D detection (boxes)" if c.ann_type == "bbox" else "2D segmentation (masks)"
+        print(
+            f"BOP's {what} scores (bop_toolkit's eval_bop22_coco.py, COCO's AP and AR: "
+            f"{c.annotations} true instances in {c.images} images, {c.results} results):"
+        )
+        print("  " + "  ".join(f"{k} {v:.4f}" for k, v in list(c.stats.items())[:6]))
+        print("  " + "  ".join(f"{k} {v:.4f}" for k, v in list(c.stats.items())[6:]))
+        for note in c.notes:
+            print(f"note: {note}")
 
 
 def _print_bop19(bop: Bop19Scores, report: EvaluationReport, gt: GroundTruth) -> None:

@@ -1,0 +1,122 @@
+"""BOP's 2D detection and segmentation scores (COCO's AP and AR) against bop_toolkit's own
+numbers on the sample's BOP export, and results that are the ground truth itself."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from test_bop24 import LOW_VISIBILITY
+
+DATA = Path(__file__).parent / "data"
+
+#: bop_toolkit's scripts/eval_bop22_coco.py (commit cea62d6, with BOP's fork of pycocotools
+#: that keeps the ``ignore`` flag, ``--targets_filename test_targets_bop24.json``) on the
+#: sample's export (as tests/test_bop24.py) with tests/data/coco_results.json (made by
+#: tests/data/make_coco_results.py): its scores_bop22_coco_<type>.json.
+BOP_TOOLKIT = {
+    "bbox": {"AP": 0.18271590254263517, "AP50": 0.44104481876759105,
+             "AP75": 0.0896956362302897, "AP_large": 0.18948032898527947,
+             "AR1": 0.08523809523809524, "AR10": 0.30341269841269836,
+             "AR100": 0.30341269841269836, "AP_small": -1.0,
+             "average_time_per_image": 0.6333333333333333},
+    "segm": {"AP": 0.5444032974726044, "AP50": 0.6011697598331261,
+             "AP75": 0.5392671409998143, "AP_large": 0.5657422885145656,
+             "AR1": 0.24007936507936511, "AR10": 0.6827777777777778,
+             "AR100": 0.6827777777777778, "AP_small": -1.0,
+             "average_time_per_image": 0.6333333333333333},
+}  # fmt: skip
+#: The same with the instances of test_bop24.LOW_VISIBILITY flagged ``ignore`` (less than
+#: 10 % visible) in scene_gt_coco.json.
+BOP_TOOLKIT_LOW_VISIBILITY = {
+    "bbox": {"AP": 0.17268048233394767, "AP50": 0.42590759075907597,
+             "AP75": 0.07628477133427627, "AP_large": 0.17948125581788948,
+             "AR1": 0.09025252525252524, "AR10": 0.29287878787878785},
+    "segm": {"AP": 0.5443869386938693, "AP50": 0.5937018701870187,
+             "AP75": 0.5498774877487749, "AP_large": 0.566935264955067,
+             "AR1": 0.25176767676767675, "AR10": 0.6943939393939395},
+}  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def export(sample: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("coco") / "bop"
+    subprocess.run(
+        [sys.executable, "-m", "annotator", "export", str(sample), str(out), "--format", "bop"]
+        + ["--include-pending", "--poses", "gt", "--cameras", "left", "--quiet"],
+        check=True,
+        capture_output=True,
+    )
+    return out
+
+
+def _scores(data: Path, results: Path, tmp_path: Path) -> dict:
+    report = tmp_path / "report.json"
+    run = subprocess.run(
+        [sys.executable, "-m", "annotator", "evaluate", str(data), "--coco-results"]
+        + [str(results), "--json", str(report)],
+        capture_output=True,
+        text=True,
+    )
+    assert run.returncode == 0, run.stderr
+    assert "2D detection (boxes)" in run.stdout and "2D segmentation (masks)" in run.stdout
+    return json.loads(report.read_text())
+
+
+def test_same_numbers_as_bop_toolkit(export: Path, tmp_path: Path) -> None:
+    got = _scores(export, DATA / "coco_results.json", tmp_path)
+    for kind, want in BOP_TOOLKIT.items():
+        for key, value in want.items():
+            assert got[f"bop22_coco_{kind}"][key] == pytest.approx(value, abs=1e-12), (kind, key)
+
+
+def test_ignored_instances_as_bop_toolkit(export: Path, tmp_path: Path) -> None:
+    """Instances flagged ``ignore`` are neither found nor missed (published pycocotools would
+    count them: the numbers would be those of the export as it is)."""
+    import shutil
+
+    data = tmp_path / "lv"
+    shutil.copytree(export, data)
+    for scene, entries in LOW_VISIBILITY.items():
+        file = data / "test" / f"{scene:06d}" / "scene_gt_coco.json"
+        doc = json.loads(file.read_text())
+        for ann in doc["annotations"]:
+            ann["ignore"] = ann["ignore"] or ann["id"] - 1 in entries
+        file.write_text(json.dumps(doc))
+    got = _scores(data, DATA / "coco_results.json", tmp_path)
+    for kind, want in BOP_TOOLKIT_LOW_VISIBILITY.items():
+        for key, value in want.items():
+            assert got[f"bop22_coco_{kind}"][key] == pytest.approx(value, abs=1e-12), (kind, key)
+
+
+def test_ground_truth_as_results_scores_one(export: Path, tmp_path: Path) -> None:
+    results = []
+    for scene in range(4):
+        doc = json.loads((export / "test" / f"{scene:06d}" / "scene_gt_coco.json").read_text())
+        for ann in doc["annotations"]:
+            results.append(
+                {"scene_id": scene, "image_id": ann["image_id"], "category_id":
+                 ann["category_id"], "score": 1.0, "bbox": ann["bbox"],
+                 "segmentation": ann["segmentation"]}
+            )  # fmt: skip
+    file = tmp_path / "perfect.json"
+    file.write_text(json.dumps(results))
+    got = _scores(export, file, tmp_path)
+    for kind in ("bbox", "segm"):
+        assert got[f"bop22_coco_{kind}"]["AP"] == pytest.approx(1.0)
+        assert got[f"bop22_coco_{kind}"]["average_time_per_image"] == -1.0
+
+
+def test_bad_results_file_is_one_line(export: Path, tmp_path: Path) -> None:
+    file = tmp_path / "bad.json"
+    file.write_text(json.dumps([{"scene_id": 0, "image_id": "0", "category_id": 1}]))
+    run = subprocess.run(
+        [sys.executable, "-m", "annotator", "evaluate", str(export), "--coco-results", str(file)],
+        capture_output=True,
+        text=True,
+    )
+    assert run.returncode == 2
+    assert len(run.stderr.strip().splitlines()) == 1 and "bad.json" in run.stderr
