@@ -120,3 +120,30 @@ def test_bad_results_file_is_one_line(export: Path, tmp_path: Path) -> None:
     )
     assert run.returncode == 2
     assert len(run.stderr.strip().splitlines()) == 1 and "bad.json" in run.stderr
+
+
+def test_estimate_writes_coco_results_bop_reads(export: Path, sample: Path, tmp_path: Path) -> None:
+    """``annotator estimate``'s COCO results of the true poses: the silhouettes' boxes are
+    BOP's (amodal) true boxes, AP 1."""
+    import numpy as np
+
+    import annotator
+    from annotator.estimation.results import ResultRow, coco_path, coco_results
+    from annotator.export.undistort import pinhole_rig
+
+    ds = annotator.load_dataset(sample)
+    rows = []
+    for scene in range(4):
+        for g in json.loads((export / "test" / f"{scene:06d}" / "scene_gt.json").read_text())["0"]:
+            T = np.eye(4)
+            T[:3, :3] = np.reshape(g["cam_R_m2c"], (3, 3))
+            T[:3, 3] = g["cam_t_m2c"]
+            rows.append(ResultRow(str(scene), g["obj_id"], 0.9, T, 1.5))
+    cam = pinhole_rig(ds.rig).cameras[0]
+    meshes = [ds.objects[name].mesh for name in ds.objects]
+    file = coco_path(tmp_path / "mine_annot-test.csv")
+    assert file.name == "mine_annot-test.json"
+    file.write_text(json.dumps(coco_results(rows, meshes, cam.K, cam.width, cam.height)))
+    got = _scores(export, file, tmp_path)
+    assert got["bop22_coco_bbox"]["AP"] == pytest.approx(1.0)
+    assert got["bop22_coco_bbox"]["average_time_per_image"] == 1.5
