@@ -33,6 +33,7 @@ from annotator.formats.bop import evaluated_sensor, read_csv_rows
 from annotator.geometry.mesh import Mesh, load_mesh
 from annotator.io.documents import read_json
 from annotator.io.images import read_image
+from annotator.symmetry.classes import Symmetry, symmetry_to_bop
 
 #: Continuous symmetries: the farthest point moves at most this fraction of the diameter
 #: between samples (bop_toolkit's ``max_sym_disc_step``).
@@ -138,6 +139,17 @@ def symmetry_transformations(
             Rs.append(Rc.dot(Rd))
             ts.append(Rc.dot(td) + tc)
     return np.array(Rs), np.array(ts)
+
+
+def bop_symmetries(
+    sym: Symmetry, centroid: np.ndarray, max_disc_step: float = MAX_SYM_DISC_STEP
+) -> tuple[np.ndarray, np.ndarray]:
+    """One of the paper's symmetry classes as BOP's evaluation samples it: its models_info.json
+    entry (:func:`annotator.symmetry.classes.symmetry_to_bop`, axes through ``centroid``)
+    made into transforms by :func:`symmetry_transformations`, each continuous axis in
+    ``ceil(pi / max_disc_step)`` turns, so that a point at half the diameter from the axis
+    moves at most ``max_disc_step`` diameters between two. (S, 3, 3) and (S, 3)."""
+    return symmetry_transformations(symmetry_to_bop(sym, centroid), max_disc_step)
 
 
 def _axis_rotation(angle: float, unit_axis: np.ndarray) -> np.ndarray:
