@@ -61,15 +61,8 @@ LOW_VISIBILITY = {0: (1, 5), 2: (5,)}
 
 
 @pytest.fixture(scope="module")
-def export(sample: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
-    out = tmp_path_factory.mktemp("bop24") / "bop"
-    subprocess.run(
-        [sys.executable, "-m", "annotator", "export", str(sample), str(out), "--format", "bop"]
-        + ["--include-pending", "--poses", "gt", "--cameras", "left", "--quiet"],
-        check=True,
-        capture_output=True,
-    )
-    return out
+def export(bop_export: Path) -> Path:
+    return bop_export
 
 
 def low_visibility(export: Path, out: Path) -> Path:

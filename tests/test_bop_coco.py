@@ -42,15 +42,8 @@ BOP_TOOLKIT_LOW_VISIBILITY = {
 
 
 @pytest.fixture(scope="module")
-def export(sample: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
-    out = tmp_path_factory.mktemp("coco") / "bop"
-    subprocess.run(
-        [sys.executable, "-m", "annotator", "export", str(sample), str(out), "--format", "bop"]
-        + ["--include-pending", "--poses", "gt", "--cameras", "left", "--quiet"],
-        check=True,
-        capture_output=True,
-    )
-    return out
+def export(bop_export: Path) -> Path:
+    return bop_export
 
 
 def _scores(data: Path, results: Path, tmp_path: Path) -> dict:

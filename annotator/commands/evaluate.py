@@ -387,10 +387,12 @@ def _bop24(args: argparse.Namespace, gt_path: Path, gt: GroundTruth) -> Bop24Sco
     return scores
 
 
-def _print_bop24(bop: Bop24Scores, gt: GroundTruth) -> None:
-    def f(v: float | None) -> str:
-        return "   -  " if v is None else f"{v:.4f}"
+def _score(v: float | None) -> str:
+    """A score in the printed tables (``-`` where there is none)."""
+    return "   -  " if v is None else f"{v:.4f}"
 
+
+def _print_bop24(bop: Bop24Scores, gt: GroundTruth) -> None:
     print(
         f"BOP's 6D detection scores (bop_toolkit's eval_bop24_pose.py: {bop.targets} instances "
         f"to find, {bop.estimates} estimates scored):"
@@ -399,10 +401,12 @@ def _print_bop24(bop: Bop24Scores, gt: GroundTruth) -> None:
     rows = [(gt.object_ids.get(o, f"obj_{o:06d}"), r) for o, r in sorted(bop.per_object.items())]
     rows.append(("all", bop.maps))
     for name, row in rows:
-        print(f"  {name:<14} {f(row['mssd']):>8} {f(row['mspd']):>8} {f(row['mssd_mm']):>11}")
+        print(
+            f"  {name:<14} {_score(row['mssd']):>8} {_score(row['mspd']):>8} {_score(row['mssd_mm']):>11}"
+        )
     print(
-        f"  bop24_mAP {f(bop.bop24_map)}  bop25_mAP {f(bop.maps['mssd'])}  "
-        f"bop25_mAP_mm {f(bop.maps['mssd_mm'])}"
+        f"  bop24_mAP {_score(bop.bop24_map)}  bop25_mAP {_score(bop.maps['mssd'])}  "
+        f"bop25_mAP_mm {_score(bop.maps['mssd_mm'])}"
     )
     for note in bop.notes:
         print(f"note: {note}")
@@ -454,9 +458,6 @@ def _print_coco(scores: list[CocoScores]) -> None:
 
 
 def _print_bop19(bop: Bop19Scores, report: EvaluationReport, gt: GroundTruth) -> None:
-    def f(v: float | None) -> str:
-        return "   -  " if v is None else f"{v:.4f}"
-
     print(
         f"BOP's scores (bop_toolkit's eval_bop19_pose.py: {bop.targets} instances to find, "
         f"{bop.estimates} estimates scored):"
@@ -466,12 +467,12 @@ def _print_bop19(bop: Bop19Scores, report: EvaluationReport, gt: GroundTruth) ->
         name = gt.object_ids.get(oid, f"obj_{oid:06d}")
         ap = report.per_object.get(name)
         print(
-            f"  {name:<14} {f(row['AR'])} {f(row['vsd'])}  {f(row['mssd'])}  {f(row['mspd'])}"
-            f"   {f(ap.ap if ap else None)}"
+            f"  {name:<14} {_score(row['AR'])} {_score(row['vsd'])}  {_score(row['mssd'])}  {_score(row['mspd'])}"
+            f"   {_score(ap.ap if ap else None)}"
         )
     print(
-        f"  {'all':<14} {f(bop.ar)} {f(bop.metrics['vsd'])}  {f(bop.metrics['mssd'])}  "
-        f"{f(bop.metrics['mspd'])}   {f(report.overall.ap)}"
+        f"  {'all':<14} {_score(bop.ar)} {_score(bop.metrics['vsd'])}  {_score(bop.metrics['mssd'])}  "
+        f"{_score(bop.metrics['mspd'])}   {_score(report.overall.ap)}"
     )
     for note in bop.notes:
         print(f"note: {note}")

@@ -209,16 +209,24 @@ def read_bop_split(
 EVERY_POSE: dict[int, int] = {}
 
 
-def _detection_targets(path: Path) -> dict[tuple[int, int], dict[int, int]] | None:
-    """The images test_targets_bop24.json lists, in its order (bop_toolkit's targets_org:
-    scenes in the order they first appear, then images), each mapped to
-    :data:`EVERY_POSE`."""
-    file = path / "test_targets_bop24.json"
+def _targets_list(file: Path, entries: str) -> tuple[Path, list[Any]] | None:
+    """A targets file's list of ``entries`` (None without the file)."""
     if not file.is_file():
         return None
     doc = read_json(file)
     if not isinstance(doc, list):
-        raise UserError("expected a list of {scene_id, im_id}", path=file)
+        raise UserError(f"expected a list of {entries}", path=file)
+    return file, doc
+
+
+def _detection_targets(path: Path) -> dict[tuple[int, int], dict[int, int]] | None:
+    """The images test_targets_bop24.json lists, in its order (bop_toolkit's targets_org:
+    scenes in the order they first appear, then images), each mapped to
+    :data:`EVERY_POSE`."""
+    found = _targets_list(path / "test_targets_bop24.json", "{scene_id, im_id}")
+    if found is None:
+        return None
+    file, doc = found
     by_scene: dict[int, dict[int, dict[int, int]]] = {}
     for i, e in enumerate(doc):
         try:
@@ -278,12 +286,10 @@ def _split_folder(path: Path, notes: list[str]) -> Path:
 
 
 def _targets(path: Path) -> dict[tuple[int, int], dict[int, int]] | None:
-    file = path / "test_targets_bop19.json"
-    if not file.is_file():
+    found = _targets_list(path / "test_targets_bop19.json", "{scene_id, im_id, obj_id, inst_count}")
+    if found is None:
         return None
-    doc = read_json(file)
-    if not isinstance(doc, list):
-        raise UserError("expected a list of {scene_id, im_id, obj_id, inst_count}", path=file)
+    file, doc = found
     out: dict[tuple[int, int], dict[int, int]] = {}
     for i, e in enumerate(doc):
         try:
