@@ -140,3 +140,68 @@ def test_estimate_writes_coco_results_bop_reads(export: Path, sample: Path, tmp_
     got = _scores(export, file, tmp_path)
     assert got["bop22_coco_bbox"]["AP"] == pytest.approx(1.0)
     assert got["bop22_coco_bbox"]["average_time_per_image"] == 1.5
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_same_stats_as_cocoeval(seed: int) -> None:
+    """coco_stats against pycocotools' own COCOeval, made to keep ``ignore`` as BOP's fork
+    does, on random boxes: several categories, every area range, tied scores, ignored and
+    crowd instances, images without detections or without instances, more than 100
+    detections in an image."""
+    import contextlib
+    import io
+
+    import numpy as np
+    from pycocotools.coco import COCO
+    from pycocotools.cocoeval import COCOeval
+
+    from annotator.evaluation.coco import coco_stats
+
+    rng = np.random.default_rng(seed)
+    images = [{"id": i, "width": 640, "height": 480} for i in range(12)]
+    anns, results = [], []
+    for img in range(12):
+        for _ in range(int(rng.integers(0, 8)) if img != 3 else 0):
+            w, h = rng.uniform(5, 200, 2)
+            box = [float(rng.uniform(0, 400)), float(rng.uniform(0, 300)), float(w), float(h)]
+            anns.append({"id": len(anns) + 1, "image_id": img, "category_id": int(rng.integers(1, 4)),
+                         "bbox": box, "area": float(w * h * rng.uniform(0.3, 1)),
+                         "iscrowd": int(rng.random() < 0.05), "ignore": bool(rng.random() < 0.15)})  # fmt: skip
+            for _ in range(int(rng.integers(0, 4))):
+                j = rng.normal(scale=0.2, size=4)
+                results.append({"image_id": img, "category_id": anns[-1]["category_id"],
+                                "bbox": [box[0] + j[0] * w, box[1] + j[1] * h, w * (1 + j[2]),
+                                         h * (1 + j[3])],
+                                "score": round(float(rng.uniform()), 1)})  # fmt: skip
+        for _ in range(int(rng.integers(0, 5)) if img != 5 else 130):
+            results.append({"image_id": img, "category_id": int(rng.integers(1, 4)),
+                            "bbox": [float(v) for v in rng.uniform(0, 300, 2)]
+                            + [float(v) for v in rng.uniform(5, 150, 2)],
+                            "score": round(float(rng.uniform()), 1)})  # fmt: skip
+    doc = {"images": images, "annotations": anns,
+           "categories": [{"id": c, "name": str(c)} for c in (1, 2, 3)]}  # fmt: skip
+
+    def load() -> tuple[COCO, COCO]:
+        with contextlib.redirect_stdout(io.StringIO()):
+            gt = COCO()
+            gt.dataset = json.loads(json.dumps(doc))
+            gt.createIndex()
+            return gt, gt.loadRes(json.loads(json.dumps(results)))
+
+    class ForkEval(COCOeval):
+        def _prepare(self) -> None:
+            keep = {a["id"]: a.get("ignore", 0) for a in self.cocoGt.dataset["annotations"]}
+            super()._prepare()
+            for gts in self._gts.values():
+                for g in gts:
+                    g["ignore"] = keep[g["id"]]
+
+    gt, dt = load()
+    with contextlib.redirect_stdout(io.StringIO()):
+        ev = ForkEval(gt, dt, "bbox")
+        ev.params.imgIds = sorted(gt.getImgIds())
+        ev.evaluate()
+        ev.accumulate()
+        ev.summarize()
+    gt, dt = load()
+    assert np.array_equal(coco_stats(gt, dt, "bbox"), ev.stats)
