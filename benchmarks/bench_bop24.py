@@ -24,7 +24,11 @@ Target: the same numbers to 1e-12, and at least 30x faster. The COCO scores cann
 sides hand the same work to pycocotools' COCOeval, and bop_toolkit's whole process on this
 case takes a few tenths of a second, most of it starting Python.
 
-    .venv/bin/python -m benchmarks.bench_bop24 [--runs 5] [--sensors]
+    .venv/bin/python -m benchmarks.bench_bop24 [--runs 5] [--sensors] [--coco-images 500]
+
+``--coco-images N`` also scores a larger 2D detection case: the export's four images
+repeated as N scenes, with three boxes moved by up to 25 % per true instance and ten false
+ones per image (N = 500: 18 500 results; bop_toolkit 2.49 s, :data:`BOP_TOOLKIT_LARGE`).
 """
 
 from __future__ import annotations
@@ -57,6 +61,49 @@ BOP_TOOLKIT = {
     "coco segm AP": 0.5444032974726044,
 }
 TARGET_RATIO = 30.0
+#: bop_toolkit's eval_bop22_coco.py (boxes) on ``--coco-images 500``: seconds and AP.
+BOP_TOOLKIT_LARGE = {"images": 500, "seconds": 2.49, "AP": 0.11936042587720029}
+
+
+def _large_coco(export: Path, out: Path, n: int) -> Path:
+    """The ``--coco-images`` case in ``out``; returns its results file."""
+    import shutil
+
+    import numpy as np
+
+    (out / "models").mkdir(parents=True)
+    shutil.copy(export / "models" / "models_info.json", out / "models")
+    rng = np.random.default_rng(1)
+    targets, results = [], []
+    for s in range(n):
+        base = export / "test" / f"{s % 4:06d}"
+        d = out / "test" / f"{s:06d}"
+        d.mkdir(parents=True)
+        for name in ("scene_gt.json", "scene_gt_coco.json"):
+            shutil.copy(base / name, d / name)
+        targets.append({"scene_id": s, "im_id": 0})
+        for ann in json.loads((base / "scene_gt_coco.json").read_text())["annotations"]:
+            for _ in range(3):
+                x, y, w, h = ann["bbox"]
+                j = rng.uniform(-0.25, 0.25, 4)
+                results.append(
+                    {"scene_id": s, "image_id": 0, "category_id": ann["category_id"],
+                     "score": round(float(rng.uniform(0, 1)), 3),
+                     "bbox": [x + j[0] * w, y + j[1] * h, w * (1 + j[2]), h * (1 + j[3])],
+                     "time": 0.5}
+                )  # fmt: skip
+        for _ in range(10):
+            results.append(
+                {"scene_id": s, "image_id": 0, "category_id": int(rng.integers(1, 4)),
+                 "score": round(float(rng.uniform(0, 1)), 3),
+                 "bbox": [float(rng.uniform(0, 1000)), float(rng.uniform(0, 800)),
+                          float(rng.uniform(50, 300)), float(rng.uniform(50, 300))],
+                 "time": 0.5}
+            )  # fmt: skip
+    (out / "test_targets_bop24.json").write_text(json.dumps(targets))
+    file = out / "mine_large-test.json"
+    file.write_text(json.dumps(results))
+    return file
 
 
 def _timed(cmd: list[str], runs: int) -> list[float]:
@@ -72,6 +119,7 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--runs", type=int, default=5)
     ap.add_argument("--sensors", action="store_true", help="the multi-sensor layout")
+    ap.add_argument("--coco-images", type=int, default=0, help="also the larger COCO case")
     args = ap.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         export = Path(tmp) / "bop"
@@ -91,6 +139,19 @@ def main() -> int:
             ),
             "coco": _timed(evaluate + [str(coco_report), "--coco-results", str(COCO)], args.runs),
         }
+        if args.coco_images:
+            large = _large_coco(export, Path(tmp) / "large", args.coco_images)
+            large_report = Path(tmp) / "large.json"
+            seconds["coco large"] = _timed(
+                [sys.executable, "-m", "annotator", "evaluate", str(large.parent)]
+                + ["--coco-results", str(large), "--json", str(large_report)],
+                args.runs,
+            )
+            large_ap = json.loads(large_report.read_text())["bop22_coco_bbox"]["AP"]
+            print(f"coco large ({args.coco_images} images) AP: ours {large_ap!r}", end="")
+            if args.coco_images == BOP_TOOLKIT_LARGE["images"]:
+                print(f", bop_toolkit {BOP_TOOLKIT_LARGE['AP']!r}", end="")
+            print()
         got = json.loads(poses_report.read_text())["bop24"]
         coco = json.loads(coco_report.read_text())
         got["coco bbox AP"] = coco["bop22_coco_bbox"]["AP"]
@@ -101,17 +162,23 @@ def main() -> int:
         print(f"{key:<16} {got[key]:>20.16f} {value:>20.16f}")
     print(f"largest difference: {worst:.2e} (target 1e-12)")
     ok = worst <= 1e-12
+    known = dict(BOP_TOOLKIT_SECONDS)
+    if args.coco_images == BOP_TOOLKIT_LARGE["images"]:
+        known["coco large"] = BOP_TOOLKIT_LARGE["seconds"]
     for what, runs in seconds.items():
         median = statistics.median(runs)
-        ratio = BOP_TOOLKIT_SECONDS[what] / median
+        if what not in known:
+            print(f"{what}: whole process ours {median:.2f} s (bop_toolkit not measured)")
+            continue
+        ratio = known[what] / median
         met = "" if ratio >= TARGET_RATIO else "  NOT met"
         print(
             f"{what}: whole process ours {median:.2f} s (median of {args.runs}; "
             f"{', '.join(f'{s:.2f}' for s in runs)}), bop_toolkit "
-            f"{BOP_TOOLKIT_SECONDS[what]:.2f} s: {ratio:.1f}x faster "
+            f"{known[what]:.2f} s: {ratio:.1f}x faster "
             f"(target {TARGET_RATIO:g}x){met}"
         )
-        ok = ok and (ratio >= TARGET_RATIO or what == "coco")
+        ok = ok and (ratio >= TARGET_RATIO or what.startswith("coco"))
     return 0 if ok else 1
 
 
