@@ -70,6 +70,13 @@ _HOMES = {
     "evaluate": "annotator.evaluation.evaluate",
     "EvaluationOptions": "annotator.evaluation.evaluate",
     "EvaluationReport": "annotator.evaluation.evaluate",
+    "bop24_scores": "annotator.evaluation.bop24",
+    "Bop24Scores": "annotator.evaluation.bop24",
+    "coco_scores": "annotator.evaluation.coco",
+    "CocoScores": "annotator.evaluation.coco",
+    "symmetry_to_bop": "annotator.symmetry.classes",
+    "symmetry_from_bop": "annotator.symmetry.classes",
+    "bop_symmetries": "annotator.formats.bop_images",
     # physics: is the pile possible?
     "physics_of_dataset": "annotator.physics.dataset",
     "PhysicsSummary": "annotator.physics.dataset",

@@ -47,6 +47,14 @@ from annotator.detection import (
 from annotator.errors import (
     UserError as UserError,
 )
+from annotator.evaluation.bop24 import (
+    Bop24Scores as Bop24Scores,
+    bop24_scores as bop24_scores,
+)
+from annotator.evaluation.coco import (
+    CocoScores as CocoScores,
+    coco_scores as coco_scores,
+)
 from annotator.evaluation.evaluate import (
     EvaluationOptions as EvaluationOptions,
     EvaluationReport as EvaluationReport,
@@ -66,6 +74,9 @@ from annotator.formats.base import (
     GroundTruth as GroundTruth,
     PoseResults as PoseResults,
 )
+from annotator.formats.bop_images import (
+    bop_symmetries as bop_symmetries,
+)
 from annotator.formats.ours import (
     annotations_as_results as annotations_as_results,
 )
@@ -79,6 +90,10 @@ from annotator.physics.check import (
 from annotator.physics.dataset import (
     PhysicsSummary as PhysicsSummary,
     physics_of_dataset as physics_of_dataset,
+)
+from annotator.symmetry.classes import (
+    symmetry_from_bop as symmetry_from_bop,
+    symmetry_to_bop as symmetry_to_bop,
 )
 from annotator.synthesis.generate import (
     SynthConfig as SynthConfig,

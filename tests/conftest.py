@@ -6,6 +6,8 @@ many scenes, real browsers."""
 from __future__ import annotations
 
 import shutil
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -13,6 +15,20 @@ import pytest
 from annotator.cli import main
 
 SAMPLE = Path(__file__).resolve().parent.parent / "sample_scenes"
+
+
+@pytest.fixture(scope="session")
+def bop_export(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The sample exported to BOP as bop_toolkit was run on it (true poses, the left camera),
+    read-only."""
+    out = tmp_path_factory.mktemp("bop") / "bop"
+    subprocess.run(
+        [sys.executable, "-m", "annotator", "export", str(SAMPLE), str(out), "--format", "bop"]
+        + ["--include-pending", "--poses", "gt", "--cameras", "left", "--quiet"],
+        check=True,
+        capture_output=True,
+    )
+    return out
 
 
 @pytest.fixture()

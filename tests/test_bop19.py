@@ -146,15 +146,8 @@ def test_targets_decide_what_is_scored() -> None:
 
 
 @pytest.fixture(scope="module")
-def export(sample: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
-    out = tmp_path_factory.mktemp("bop") / "bop"
-    subprocess.run(
-        [sys.executable, "-m", "annotator", "export", str(sample), str(out), "--format", "bop"]
-        + ["--include-pending", "--poses", "gt", "--cameras", "left", "--quiet"],
-        check=True,
-        capture_output=True,
-    )
-    return out
+def export(bop_export: Path) -> Path:
+    return bop_export
 
 
 def test_same_numbers_as_bop_toolkit(export: Path, tmp_path: Path) -> None:

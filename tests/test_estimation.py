@@ -226,6 +226,9 @@ def test_estimate_results_pass_evaluate(
     assert summary["done"] == 1 and summary["failed"] == 0 and summary["results"] > 0
     lines = out.read_text().splitlines()
     assert lines[0] == "scene_id,im_id,obj_id,score,R,t,time"
+    coco = json.loads((tmp_path / "results.json").read_text())  # BOP's 2D results beside it
+    assert len(coco) == len(lines) - 1 and summary["coco"] == str(tmp_path / "results.json")
+    assert all(r["image_id"] == 0 and len(r["bbox"]) == 4 and r["segmentation"] for r in coco)
     report = tmp_path / "report.json"
     assert main(["evaluate", str(easy_scene), "--results", str(out), "--json", str(report)]) == 0
     ap = json.loads(report.read_text())["overall"]["AP"]

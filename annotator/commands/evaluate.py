@@ -20,6 +20,8 @@ if TYPE_CHECKING:
     from types import ModuleType
 
     from annotator.evaluation.bop19 import Bop19Scores
+    from annotator.evaluation.bop24 import Bop24Scores
+    from annotator.evaluation.coco import CocoScores
     from annotator.evaluation.evaluate import EvaluationOptions, EvaluationReport
     from annotator.formats.base import GroundTruth, PoseResults
     from annotator.physics.results import ResultsPhysics
@@ -111,6 +113,22 @@ def _add_report_options(parser: argparse.ArgumentParser) -> None:
         "as bop_toolkit's eval_bop19_pose.py computes it; BOP ground truth and a result CSV",
     )
     group.add_argument(
+        "--bop24",
+        action="store_true",
+        help="also BOP's 6D detection scores: bop24_mAP (MSSD and MSPD), bop25_mAP (MSSD), "
+        "bop25_mAP_mm (MSSD in mm), as bop_toolkit's eval_bop24_pose.py computes them "
+        "(images of test_targets_bop24.json, instances under 10%% visible ignored, the best "
+        "100 estimates per image); BOP ground truth and a result CSV",
+    )
+    group.add_argument(
+        "--coco-results",
+        metavar="RESULTS.json",
+        help="also BOP's 2D detection and segmentation scores (COCO's AP and AR, as "
+        "bop_toolkit's eval_bop22_coco.py) of a COCO results file, on a BOP dataset's "
+        "scene_gt_coco files: boxes if every result has one, masks likewise; alone (without "
+        "--results) only these",
+    )
+    group.add_argument(
         "--physics",
         action="store_true",
         help="also the share of estimates physically impossible in the real pile (through a "
@@ -125,6 +143,14 @@ def run(args: argparse.Namespace) -> int:
 
     _check_options(args)
     gt_path = Path(args.gt)
+    if args.coco_results and not args.results:
+        coco = _coco(args, gt_path)
+        _print_coco(coco)
+        if args.json:
+            from annotator.io.atomic import write_json
+
+            write_json(args.json, {f"bop22_coco_{c.ann_type}": c.to_json() for c in coco})
+        return 0
     fmt, gt, results, source = _inputs(args)
     opts = EvaluationOptions(
         max_occlusion=args.max_occlusion,
@@ -137,6 +163,8 @@ def run(args: argparse.Namespace) -> int:
     _print_header(args, fmt.NAME, source, gt, results, report)
     per_object = args.per_object or len(report.per_object) > 1
     bop = _bop19(args, gt_path, gt) if args.bop19 else None
+    bop24 = _bop24(args, gt_path, gt) if args.bop24 else None
+    coco = _coco(args, gt_path) if args.coco_results else []
     twin_report = _twin(args, opts) if args.twin else None
     if twin_report is not None:
         others = {"real": report, "twin": twin_report}
@@ -145,6 +173,9 @@ def run(args: argparse.Namespace) -> int:
         print(format_table(report, per_object=per_object))
     if bop is not None:
         _print_bop19(bop, report, gt)
+    if bop24 is not None:
+        _print_bop24(bop24, gt)
+    _print_coco(coco)
     if not args.results and fmt.NAME == "ours":
         _print_annotation_errors(gt_path)
     physics = _physics(args, gt, results, opts) if args.physics else None
@@ -156,6 +187,10 @@ def run(args: argparse.Namespace) -> int:
             doc = {"real": doc, "twin": twin_report.to_json()}
         if bop is not None:
             doc["bop19"] = bop.to_json()
+        if bop24 is not None:
+            doc["bop24"] = bop24.to_json()
+        for c in coco:
+            doc[f"bop22_coco_{c.ann_type}"] = c.to_json()
         if physics is not None:
             doc["physics"] = physics.to_json()
         write_json(args.json, doc)
@@ -201,18 +236,19 @@ def _check_options(args: argparse.Namespace) -> None:
             raise UserError("is a folder; give a file name", path=out)
     check_output_files(
         [("--json", args.json), ("--plot", args.plot)],
-        inputs=[args.results, args.twin_results],
+        inputs=[args.results, args.twin_results, args.coco_results],
         datasets=[args.gt, args.twin],
     )
     if (args.twin or args.twin_results) and not (args.twin and args.twin_results and args.results):
         raise UserError("--twin needs --twin-results, and --results for GT")
-    if args.bop19 and not args.results:
-        raise UserError(
-            "--bop19 scores a BOP dataset against a result CSV (--results); export ours "
-            "first with `annotator export DATASET OUT --format bop`"
-        )
-    if args.bop19 and args.twin:
-        raise UserError("--bop19 and --twin cannot be combined")
+    for flag in ("bop19", "bop24"):
+        if getattr(args, flag) and not args.results:
+            raise UserError(
+                f"--{flag} scores a BOP dataset against a result CSV (--results); export ours "
+                "first with `annotator export DATASET OUT --format bop`"
+            )
+        if getattr(args, flag) and args.twin:
+            raise UserError(f"--{flag} and --twin cannot be combined")
     from annotator.formats import detect_format
 
     if args.physics and detect_format(Path(args.gt)).NAME != "ours":
@@ -228,12 +264,13 @@ def _inputs(args: argparse.Namespace) -> tuple[ModuleType, GroundTruth, PoseResu
 
     gt_path = Path(args.gt)
     fmt = detect_format(gt_path)
-    if args.bop19 and fmt.NAME != "bop":
-        raise UserError(
-            "--bop19 scores a BOP dataset; export ours first with "
-            "`annotator export DATASET OUT --format bop`",
-            path=gt_path,
-        )
+    for flag in ("bop19", "bop24"):
+        if getattr(args, flag) and fmt.NAME != "bop":
+            raise UserError(
+                f"--{flag} scores a BOP dataset; export ours first with "
+                "`annotator export DATASET OUT --format bop`",
+                path=gt_path,
+            )
     gt = fmt.read_ground_truth(gt_path, symmetry=args.symmetry)
     if args.results:
         results = fmt.read_results(Path(args.results), gt)
@@ -328,10 +365,99 @@ def _bop19(args: argparse.Namespace, gt_path: Path, gt: GroundTruth) -> Bop19Sco
     return scores
 
 
-def _print_bop19(bop: Bop19Scores, report: EvaluationReport, gt: GroundTruth) -> None:
-    def f(v: float | None) -> str:
-        return "   -  " if v is None else f"{v:.4f}"
+def _bop24(args: argparse.Namespace, gt_path: Path, gt: GroundTruth) -> Bop24Scores:
+    from annotator.evaluation.bop24 import bop24_scores, max_estimates_for
+    from annotator.formats.bop_images import read_bop_split
 
+    results = Path(args.results)
+    split = read_bop_split(gt_path, results, gt, task="detection")
+    limit = max_estimates_for(results.name)
+    scores = bop24_scores(
+        split.images, split.estimates, split.objects, max_per_image=limit, times=split.times
+    )
+    scores.notes[:0] = split.notes
+    if scores.dropped:
+        scores.notes.append(
+            f"{scores.dropped} estimates beyond the best {limit} of their image not scored"
+        )
+    if scores.ignored:
+        scores.notes.append(
+            f"{scores.ignored} estimates of instances under 10% visible ignored (at MSSD 0.05)"
+        )
+    return scores
+
+
+def _score(v: float | None) -> str:
+    """A score in the printed tables (``-`` where there is none)."""
+    return "   -  " if v is None else f"{v:.4f}"
+
+
+def _print_bop24(bop: Bop24Scores, gt: GroundTruth) -> None:
+    print(
+        f"BOP's 6D detection scores (bop_toolkit's eval_bop24_pose.py: {bop.targets} instances "
+        f"to find, {bop.estimates} estimates scored):"
+    )
+    print(f"  {'object':<14} {'mAP_MSSD':>8} {'mAP_MSPD':>8} {'mAP_MSSD_mm':>11}")
+    rows = [(gt.object_ids.get(o, f"obj_{o:06d}"), r) for o, r in sorted(bop.per_object.items())]
+    rows.append(("all", bop.maps))
+    for name, row in rows:
+        print(
+            f"  {name:<14} {_score(row['mssd']):>8} {_score(row['mspd']):>8} {_score(row['mssd_mm']):>11}"
+        )
+    print(
+        f"  bop24_mAP {_score(bop.bop24_map)}  bop25_mAP {_score(bop.maps['mssd'])}  "
+        f"bop25_mAP_mm {_score(bop.maps['mssd_mm'])}"
+    )
+    for note in bop.notes:
+        print(f"note: {note}")
+
+
+def _coco(args: argparse.Namespace, gt_path: Path) -> list[CocoScores]:
+    """COCO's scores of ``--coco-results``, for boxes and masks as the results have them."""
+    from annotator.evaluation.coco import coco_scores
+    from annotator.formats import detect_format
+    from annotator.formats.coco_results import (
+        ANN_TYPES,
+        read_coco_ground_truth,
+        read_coco_results,
+    )
+    from annotator.io.documents import read_json
+
+    if detect_format(gt_path).NAME != "bop":
+        raise UserError(
+            "--coco-results scores 2D detections on a BOP dataset's scene_gt_coco files; "
+            "export ours first with `annotator export DATASET OUT --format bop`",
+            path=gt_path,
+        )
+    path = Path(args.coco_results)
+    doc = read_json(path) if path.is_file() else None
+    has = {"bbox": "bbox", "segm": "segmentation"}
+    types = [
+        t
+        for t in ANN_TYPES
+        if isinstance(doc, list) and doc and all(isinstance(r, dict) and has[t] in r for r in doc)
+    ]
+    if not types:
+        read_coco_results(path, "bbox")  # names what is wrong with the file
+        raise UserError("no result has a 'bbox' or a 'segmentation' to score", path=path)
+    gt = read_coco_ground_truth(gt_path)
+    return [coco_scores(gt, read_coco_results(path, t), t) for t in types]
+
+
+def _print_coco(scores: list[CocoScores]) -> None:
+    for c in scores:
+        what = "2D detection (boxes)" if c.ann_type == "bbox" else "2D segmentation (masks)"
+        print(
+            f"BOP's {what} scores (bop_toolkit's eval_bop22_coco.py, COCO's AP and AR: "
+            f"{c.annotations} true instances in {c.images} images, {c.results} results):"
+        )
+        print("  " + "  ".join(f"{k} {v:.4f}" for k, v in list(c.stats.items())[:6]))
+        print("  " + "  ".join(f"{k} {v:.4f}" for k, v in list(c.stats.items())[6:]))
+        for note in c.notes:
+            print(f"note: {note}")
+
+
+def _print_bop19(bop: Bop19Scores, report: EvaluationReport, gt: GroundTruth) -> None:
     print(
         f"BOP's scores (bop_toolkit's eval_bop19_pose.py: {bop.targets} instances to find, "
         f"{bop.estimates} estimates scored):"
@@ -341,12 +467,12 @@ def _print_bop19(bop: Bop19Scores, report: EvaluationReport, gt: GroundTruth) ->
         name = gt.object_ids.get(oid, f"obj_{oid:06d}")
         ap = report.per_object.get(name)
         print(
-            f"  {name:<14} {f(row['AR'])} {f(row['vsd'])}  {f(row['mssd'])}  {f(row['mspd'])}"
-            f"   {f(ap.ap if ap else None)}"
+            f"  {name:<14} {_score(row['AR'])} {_score(row['vsd'])}  {_score(row['mssd'])}  {_score(row['mspd'])}"
+            f"   {_score(ap.ap if ap else None)}"
         )
     print(
-        f"  {'all':<14} {f(bop.ar)} {f(bop.metrics['vsd'])}  {f(bop.metrics['mssd'])}  "
-        f"{f(bop.metrics['mspd'])}   {f(report.overall.ap)}"
+        f"  {'all':<14} {_score(bop.ar)} {_score(bop.metrics['vsd'])}  {_score(bop.metrics['mssd'])}  "
+        f"{_score(bop.metrics['mspd'])}   {_score(report.overall.ap)}"
     )
     for note in bop.notes:
         print(f"note: {note}")

@@ -50,6 +50,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "tar shards",
     )
     parser.add_argument(
+        "--sensors",
+        action="store_true",
+        help="BOP: every rig camera a sensor of BOP's multi-sensor layout (gray_<camera>/, "
+        "scene_gt_<camera>.json, camera_<camera>.json...), as BOP's industrial datasets, "
+        "even a single camera (default: that layout for several cameras, the classic one "
+        "for one)",
+    )
+    parser.add_argument(
         "--remove-markers",
         action="store_true",
         help="write the intensity images with the markers filled in, and mask_markers (where "
@@ -96,6 +104,7 @@ def run(args: argparse.Namespace) -> int:
             drop_rejected_instances=args.drop_rejected_instances,
             poses=args.poses,
             layout=args.layout,
+            sensors=args.sensors,
             overwrite=args.overwrite,
             progress=progress,
             remove_markers=args.remove_markers,

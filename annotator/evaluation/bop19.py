@@ -120,9 +120,16 @@ _SYMMETRIC: dict[int, tuple[BopObject, np.ndarray]] = {}
 
 
 def mssd(
-    R_e: np.ndarray, t_e: np.ndarray, R_g: np.ndarray, t_g: np.ndarray, obj: BopObject
+    R_e: np.ndarray,
+    t_e: np.ndarray,
+    R_g: np.ndarray,
+    t_g: np.ndarray,
+    obj: BopObject,
+    *,
+    cutoff: float = math.inf,
 ) -> float:
-    """Maximum symmetry-aware surface distance in mm (not divided by the diameter).
+    """Maximum symmetry-aware surface distance in mm (not divided by the diameter); infinite
+    when it is certainly ``cutoff`` or more (an error no threshold of interest accepts).
 
     The true pose is applied as written, to the symmetric copies of the points computed once
     per object (:func:`symmetric_points`): a rotation that is not quite orthonormal, as BOP's
@@ -136,10 +143,10 @@ def mssd(
     sym = symmetric_points(obj)
 
     def squared(rows: np.ndarray, cols: slice | np.ndarray) -> np.ndarray:
-        d = sym[rows][:, cols] @ R_g.T + (t_g - pts_e[cols])
+        d = sym[:, cols][rows] @ R_g.T + (t_g - pts_e[cols])
         return np.einsum("snk,snk->sn", d, d)
 
-    return math.sqrt(_min_max(squared, len(sym), len(pts_e)))
+    return math.sqrt(_min_max(squared, len(sym), len(pts_e), cutoff * cutoff))
 
 
 def _project(K: np.ndarray, pts_cam: np.ndarray) -> np.ndarray:
@@ -154,34 +161,49 @@ def mspd(
     t_g: np.ndarray,
     K: np.ndarray,
     obj: BopObject,
+    *,
+    cutoff: float = math.inf,
 ) -> float:
-    """Maximum symmetry-aware projection distance in pixels (not rescaled)."""
+    """Maximum symmetry-aware projection distance in pixels (not rescaled); infinite when it
+    is certainly ``cutoff`` or more."""
     uv_e = _project(K, obj.points @ R_e.T + t_e)
     sym = symmetric_points(obj)
 
     def squared(rows: np.ndarray, cols: slice | np.ndarray) -> np.ndarray:
-        d = _project(K, sym[rows][:, cols] @ R_g.T + t_g) - uv_e[cols]
+        d = _project(K, sym[:, cols][rows] @ R_g.T + t_g) - uv_e[cols]
         return np.einsum("snk,snk->sn", d, d)
 
-    return math.sqrt(_min_max(squared, len(sym), len(uv_e)))
+    return math.sqrt(_min_max(squared, len(sym), len(uv_e), cutoff * cutoff))
 
 
 #: Points the first pass of :func:`_min_max` looks at.
 _SAMPLE_POINTS = 64
 
 
+def sample_points(N: int) -> np.ndarray:
+    """The points of :func:`_min_max`'s first pass, of ``N``."""
+    return np.linspace(0, N - 1, _SAMPLE_POINTS).astype(int)
+
+
 def _min_max(
-    squared: Callable[[np.ndarray, slice | np.ndarray], np.ndarray], S: int, N: int
+    squared: Callable[[np.ndarray, slice | np.ndarray], np.ndarray],
+    S: int,
+    N: int,
+    cutoff: float = math.inf,
+    bound: np.ndarray | None = None,
 ) -> float:
     """min over symmetries s of max over points n of ``squared(s, n)``, exactly, without
-    computing every symmetry on every point: the largest over a sample of points is a lower
-    bound for each symmetry, and only those whose bound is below the best exact value found
-    so far are computed on all points."""
+    computing every symmetry on every point: the largest over a sample of points
+    (:func:`sample_points`) is a lower bound for each symmetry (``bound``, if already
+    computed), and only those whose bound is below the best exact value found so far are
+    computed on all points. Infinite when the bound says the value is ``cutoff`` or more."""
     everything = np.arange(S)
     if S <= 4 or N <= 2 * _SAMPLE_POINTS:
         return float(squared(everything, slice(None)).max(axis=1).min())
-    sample = np.linspace(0, N - 1, _SAMPLE_POINTS).astype(int)
-    bound = squared(everything, sample).max(axis=1)
+    if bound is None:
+        bound = squared(everything, sample_points(N)).max(axis=1)
+    if float(bound.min()) >= cutoff:
+        return math.inf
     best = np.inf
     order = np.argsort(bound, kind="stable")
     for start in range(0, S, 8):
@@ -265,19 +287,25 @@ def vsd(
 # -------------------------------------------------------------------------------- matching
 
 
-def matched_count(errors: np.ndarray, valid: np.ndarray, threshold: float) -> int:
-    """True poses matched by bop_toolkit's greedy matching: ``errors`` (E, G) with estimates
-    already in decreasing score; each takes the valid free true pose of least error strictly
-    below ``threshold`` (on equal errors the first)."""
+def greedy_match(errors: np.ndarray, valid: np.ndarray, threshold: float) -> np.ndarray:
+    """bop_toolkit's greedy matching (``pose_matching.match_poses``): ``errors`` (E, G) with
+    estimates already in decreasing score; each takes the valid free true pose of least error
+    strictly below ``threshold`` (on equal errors the first). Returns (E,) the true pose each
+    took, -1 for none."""
     taken = ~valid.copy()
-    count = 0
-    for row in errors:
+    out = np.full(len(errors), -1)
+    for i, row in enumerate(errors):
         ok = (row < threshold) & ~taken
         if ok.any():
             g = int(np.flatnonzero(ok)[np.argmin(row[ok])])
             taken[g] = True
-            count += 1
-    return count
+            out[i] = g
+    return out
+
+
+def matched_count(errors: np.ndarray, valid: np.ndarray, threshold: float) -> int:
+    """True poses matched by :func:`greedy_match`."""
+    return int(np.sum(greedy_match(errors, valid, threshold) >= 0))
 
 
 @dataclass

@@ -93,17 +93,20 @@ def export_bop(
     remove_markers: bool = False,
     fill: str = "surface",
     markers_filled: Callable[[int], None] | None = None,
+    sensors: bool = False,
 ) -> dict[str, str]:
     """Write ``selected`` scenes into the empty folder ``out``; returns the scenes left out
     because an input was unreadable (scene id -> one-line reason). ``remove_markers``: the
     images with their markers filled in by ``fill`` (:mod:`annotator.export.fill`), and
     ``mask_markers``; ``markers_filled`` is told how many markers each scene's images had
-    filled in."""
+    filled in. ``sensors``: every camera is a BOP sensor named after it, as in BOP's
+    industrial datasets, even when only one is exported (:data:`SENSORS_FILE` names the one
+    the targets are for); otherwise a single camera is written in the classic layout."""
     if layout not in LAYOUTS:
         raise UserError(f"unknown layout {layout!r} (expected one of {', '.join(LAYOUTS)})")
     obj_ids = _write_models(ds, out)
     rig = pinhole_rig(ds.rig)
-    multi = len(cameras) > 1
+    multi = sensors or len(cameras) > 1
     depth_scale = ds.rig.depth.scale if ds.rig.depth else 1.0
     for name in cameras:
         cam = rig.camera(name)
@@ -135,6 +138,7 @@ def export_bop(
             bop_id = len(ids)
             ids[f"{bop_id:06d}"] = item.scene.id
             scene = _SceneWriter(ds, rig, cameras, obj_ids, out / "test" / f"{bop_id:06d}")
+            scene.multi = multi
             scene.remove_markers, scene.fill = remove_markers, fill
             scene.markers_filled = markers_filled
             targets += scene.write(item, shots, bop_id)
@@ -144,14 +148,21 @@ def export_bop(
     write_json(out / "test" / "scene_ids.json", ids)
     write_json(out / "test_targets_bop19.json", targets)
     write_json(out / "test_targets_bop24.json", images)
+    if sensors:
+        write_json(out / SENSORS_FILE, {"sensors": list(cameras), "eval_sensor": cameras[0]})
     if layout != "scenewise":
-        _imagewise(out / "test", out / "test_imagewise", cameras)
+        _imagewise(out / "test", out / "test_imagewise", cameras, multi)
         if layout == "webdataset":
             _webdataset(out / "test_imagewise", out / "test_webdataset")
             shutil.rmtree(out / "test_imagewise")
         shutil.move(out / "test" / "scene_ids.json", out / "scene_ids.json")
         shutil.rmtree(out / "test")
     return failed
+
+
+#: With ``sensors``: the exported sensors and the one the targets files are for (BOP keeps
+#: this in bop_toolkit's ``dataset_params.py``; readers here look for it first).
+SENSORS_FILE = "sensors.json"
 
 
 def suffix(name: str, multi: bool) -> str:
@@ -193,6 +204,7 @@ class _SceneWriter:
         self.remove_markers = False
         self.fill = "surface"
         self.markers_filled: Callable[[int], None] | None = None
+        self.multi = len(cameras) > 1
 
     def write(
         self, item: Selected, shots: list[tuple[int, Shot, SceneInputs]], bop_id: int
@@ -223,9 +235,8 @@ class _SceneWriter:
                 if ci == 0:
                     ids = [self.obj_ids[p.object] for p in poses]
                     targets += _targets(bop_id, im_id, ids, visib)
-        multi = len(self.cameras) > 1
         for name, f in files.items():
-            sfx = suffix(name, multi)
+            sfx = suffix(name, self.multi)
             write_json(self.folder / f"scene_camera{sfx}.json", f.camera)
             write_json(self.folder / f"scene_gt{sfx}.json", f.gt)
             write_json(self.folder / f"scene_gt_info{sfx}.json", f.gt_info)
@@ -264,11 +275,12 @@ class _SceneWriter:
             vis, images = removed.visibility, removed.images
             if self.markers_filled:
                 self.markers_filled(removed.filled)
-            sfx = len(self.cameras) > 1
             im = _image_name(shot, item)
             for name, m in removed.markers.items():
                 mask = m.mask.astype(np.uint8) * 255
-                write_png(self.folder / f"mask_markers{suffix(name, sfx)}" / f"{im}.png", mask)
+                write_png(
+                    self.folder / f"mask_markers{suffix(name, self.multi)}" / f"{im}.png", mask
+                )
                 markers[name] = m.regions
         else:
             meshes = [self.ds.objects[p.object].mesh for p in poses]
@@ -296,7 +308,7 @@ class _SceneWriter:
         files: _CameraFiles,
         picks: list[PickLabel],
     ) -> list[float]:
-        sfx = suffix(name, len(self.cameras) > 1)
+        sfx = suffix(name, self.multi)
         cam = self.rig.camera(name)
         d = self.folder
         im = f"{im_id:06d}"
@@ -521,11 +533,10 @@ def marker_category(obj_ids: dict[str, int]) -> int:
 # -------------------------------------------------------------------------------- layouts
 
 
-def _imagewise(scenes: Path, out: Path, cameras: Sequence[str]) -> None:
+def _imagewise(scenes: Path, out: Path, cameras: Sequence[str], multi: bool) -> None:
     """bop_toolkit's bop_imagewise files from the scene-wise export: one image per (scene,
     image, camera), numbered ``image * cameras + camera`` (a fixed rig's cameras are images
     0, 1, ... of their scene)."""
-    multi = len(cameras) > 1
     for scene in sorted(p for p in scenes.iterdir() if p.is_dir()):
         for ci, name in enumerate(cameras):
             sfx = suffix(name, multi)

@@ -90,6 +90,7 @@ def export_dataset(
     progress: Callable[[int], Callable[[], None]] | None = None,
     remove_markers: bool = False,
     fill: str = "surface",
+    sensors: bool = False,
 ) -> ExportSummary:
     """Export the accepted scenes of ``ds`` into the new folder ``out`` (or, with
     ``overwrite``, one an earlier export wrote).
@@ -108,6 +109,9 @@ def export_dataset(
         fill: How marker regions are filled: ``surface`` (from the pixels of the same
             surface around them) or ``telea`` (OpenCV's inpainting); see
             :mod:`annotator.export.fill`.
+        sensors: BOP only: every camera a sensor of BOP's multi-sensor layout
+            (``gray_<camera>/``, ``scene_gt_<camera>.json``...), even a single one; see
+            :func:`annotator.export.bop.export_bop`.
 
     Raises:
         UserError: a bad option, an output folder that may not be written, or no scene to
@@ -124,6 +128,8 @@ def export_dataset(
         raise UserError(f"unknown layout {layout!r} (expected one of {', '.join(LAYOUTS)})")
     if layout != "scenewise" and format != "bop":
         raise UserError("--layout is for --format bop")
+    if sensors and format != "bop":
+        raise UserError("--sensors is for --format bop")
     if format == "sileane" and ds.rig.moving:
         raise UserError(
             "the Siléane format holds one shot per scene: export a moving rig's sequences "
@@ -161,7 +167,14 @@ def export_dataset(
             from annotator.export.bop import export_bop
 
             unreadable = export_bop(
-                ds, sel.scenes, tmp, cameras=chosen, progress=tick, layout=layout, **markers
+                ds,
+                sel.scenes,
+                tmp,
+                cameras=chosen,
+                progress=tick,
+                layout=layout,
+                sensors=sensors,
+                **markers,
             )
         else:
             from annotator.export.sileane import export_sileane

@@ -13,15 +13,19 @@ industrial sets)::
     OUT/test/scene_ids.json                     BOP scene id -> our scene id
 
 With a single exported camera the suffix is dropped (``gray/``, ``scene_gt.json``...), the
-classic single-sensor layout. Each of our scenes is one BOP scene with one image (im_id 0), in
+classic single-sensor layout, unless ``export --sensors`` asks for BOP's multi-sensor layout
+(then also ``OUT/sensors.json``: ``{"sensors": [...], "eval_sensor": <first camera>}``, the
+sensor the targets files are for). BOP's own industrial datasets (IPD, XYZ-IBD, ITODD-MV) are
+read in that layout too: ``rgb_<sensor>/`` or ``gray_<sensor>/``, ``depth_<sensor>/``,
+``scene_*_<sensor>.json``, ``camera_<sensor>.json``. Each of our scenes is one BOP scene with one image (im_id 0), in
 sorted order. Poses are ``cam_R_m2c``/``cam_t_m2c`` (mm) in each camera's own frame;
 ``cam_R_w2c``/``cam_t_w2c`` give the camera in the rig's reference frame. Object ids follow
 dataset.yaml's order from 1. Symmetries: :func:`annotator.symmetry.classes.symmetry_to_bop`.
 
 Ground truth: ``<split>/<scene>/scene_gt[_<sensor>].json`` and ``scene_gt_info`` (occlusion =
 1 - visib_fract), ``models/models_info.json`` and ``models/obj_XXXXXX.ply``; scenes are keyed
-``<scene_id>/<im_id>`` and objects ``obj_XXXXXX``; a multi-sensor dataset is evaluated on its
-first sensor (sorted by name).
+``<scene_id>/<im_id>`` and objects ``obj_XXXXXX``; a multi-sensor dataset is evaluated on the
+sensor :func:`evaluated_sensor` picks (BOP's own for IPD, XYZ-IBD and ITODD-MV).
 
 Results: BOP's CSV ``scene_id,im_id,obj_id,score,R,t,time`` (R row-major, t in mm).
 """
@@ -199,15 +203,33 @@ def off_centre(entry: dict[str, Any], centroid: np.ndarray, diameter: float) -> 
     return lines
 
 
+#: The sensor BOP evaluates its industrial multi-sensor datasets on (bop_toolkit's
+#: ``dataset_params.py``: ``eval_sensor``), by the dataset folder's name.
+EVAL_SENSORS = {"ipd": "photoneo", "xyzibd": "xyz", "itoddmv": "3dlong"}
+
+
 def evaluated_sensor(scene_dir: Path) -> str:
     """The file suffix of the sensor a scene is evaluated on: ``""`` for the classic
-    single-sensor layout, else the first sensor by name (``_<sensor>``)."""
+    single-sensor layout; else BOP's own choice for its industrial datasets
+    (:data:`EVAL_SENSORS`, by the dataset folder's name), the ``eval_sensor`` of the
+    dataset's ``sensors.json`` (written by ``export --sensors``), or the first sensor by name
+    (``_<sensor>``)."""
     sensors = sorted(
         p.name[len("scene_gt") : -len(".json")]
         for p in scene_dir.glob("scene_gt*.json")
         if not p.name.startswith(("scene_gt_info", "scene_gt_coco"))
     )
-    return "" if "" in sensors or not sensors else sensors[0]
+    if "" in sensors or not sensors:
+        return ""
+    root = scene_dir.resolve().parent.parent
+    chosen = EVAL_SENSORS.get(root.name)
+    listed = root / "sensors.json"
+    if chosen is None and listed.is_file():
+        doc = read_json(listed)
+        chosen = doc.get("eval_sensor") if isinstance(doc, dict) else None
+    if isinstance(chosen, str) and f"_{chosen}" in sensors:
+        return f"_{chosen}"
+    return sensors[0]
 
 
 #: BOP's lists of what is to be found, in the order they are looked for at the dataset's
@@ -352,6 +374,7 @@ class CsvRows:
     R: Any  # (N, 9) numbers, or one list per line (its length checked with the pose)
     t: Any
     score_cells: Sequence[str] | None = None  # as written, to name a bad one
+    times: np.ndarray | None = None  # the time column (s), None without one
 
 
 #: How many numbers each column holds.
@@ -397,6 +420,7 @@ def _numeric_rows(lines: list[str], numbers: list[int], header: list[str] | None
         scores=col("score")[:, 0].copy(),
         R=col("R", 9),
         t=col("t", 3),
+        times=col("time")[:, 0].copy() if "time" in names else None,
     )
 
 
@@ -409,7 +433,7 @@ def _as_text(values: np.ndarray) -> Sequence[str]:
 def _cell_rows(lines: list[str], numbers: list[int], index: dict[str, int], path: Path) -> CsvRows:
     """The rows read cell by cell; the first bad line is named."""
     table = list(csv.reader(lines[n - 1] for n in numbers))
-    width = max(index.values()) + 1
+    width = max(index[c] for c in CSV_COLUMNS[:6]) + 1
     for n, row in zip(numbers, table):
         if len(row) < width:
             raise UserError(f"line {n}: expected {','.join(CSV_COLUMNS)}", path=path)
@@ -419,6 +443,13 @@ def _cell_rows(lines: list[str], numbers: list[int], index: dict[str, int], path
         return [row[i].strip() for row in table]
 
     scores = column("score")
+    times = None
+    at = index.get("time", width)
+    if all(len(row) > at for row in table):
+        try:
+            times = np.array([float(row[at]) for row in table])
+        except ValueError:
+            times = None  # not needed to score: BOP then reports no time
     return CsvRows(
         scene_ids=column("scene_id"),
         im_ids=_parsed(column("im_id"), numbers, path, int, "malformed number"),
@@ -427,6 +458,7 @@ def _cell_rows(lines: list[str], numbers: list[int], index: dict[str, int], path
         R=_vectors(column("R"), numbers, path),
         t=_vectors(column("t"), numbers, path),
         score_cells=scores,
+        times=times,
     )
 
 
@@ -438,7 +470,7 @@ def _header(names: list[str], path: Path) -> dict[str, int]:
             f"line 1: the header lacks {', '.join(missing)} (columns: {','.join(CSV_COLUMNS)})",
             path=path,
         )
-    return {c: names.index(c) for c in CSV_COLUMNS[:6]}
+    return {c: names.index(c) for c in CSV_COLUMNS if c in names}
 
 
 def _parsed(

@@ -8,6 +8,9 @@ What is read, as bop_toolkit's ``eval_calc_errors.py`` reads it:
   a note); VSD renders the same meshes.
 - ``test_targets_bop19.json``; without one, targets are made as bop_toolkit's
   ``enumerate_test_targets.py`` makes them (instances at least 10 % visible), said in a note.
+  For 6D detection (BOP 2024 on, ``task="detection"``), ``test_targets_bop24.json``'s images
+  (every image without one), in its order, each with every true pose of the image, as
+  bop_toolkit's ``inout.get_im_targets`` in detection mode.
 - Per scene of the split (``test`` if there is one): ``scene_gt``, ``scene_gt_info``
   (``visib_fract``), ``scene_camera`` (``cam_K``, ``depth_scale``) and ``depth/``, of the
   sensor :func:`annotator.formats.bop.evaluated_sensor` picks.
@@ -30,6 +33,7 @@ from annotator.formats.bop import evaluated_sensor, read_csv_rows
 from annotator.geometry.mesh import Mesh, load_mesh
 from annotator.io.documents import read_json
 from annotator.io.images import read_image
+from annotator.symmetry.classes import Symmetry, symmetry_to_bop
 
 #: Continuous symmetries: the farthest point moves at most this fraction of the diameter
 #: between samples (bop_toolkit's ``max_sym_disc_step``).
@@ -137,6 +141,17 @@ def symmetry_transformations(
     return np.array(Rs), np.array(ts)
 
 
+def bop_symmetries(
+    sym: Symmetry, centroid: np.ndarray, max_disc_step: float = MAX_SYM_DISC_STEP
+) -> tuple[np.ndarray, np.ndarray]:
+    """One of the paper's symmetry classes as BOP's evaluation samples it: its models_info.json
+    entry (:func:`annotator.symmetry.classes.symmetry_to_bop`, axes through ``centroid``)
+    made into transforms by :func:`symmetry_transformations`, each continuous axis in
+    ``ceil(pi / max_disc_step)`` turns, so that a point at half the diameter from the axis
+    moves at most ``max_disc_step`` diameters between two. (S, 3, 3) and (S, 3)."""
+    return symmetry_transformations(symmetry_to_bop(sym, centroid), max_disc_step)
+
+
 def _axis_rotation(angle: float, unit_axis: np.ndarray) -> np.ndarray:
     """Rodrigues' rotation, term by term as bop_toolkit's ``transform.rotation_matrix``."""
     sina, cosa = math.sin(angle), math.cos(angle)
@@ -159,23 +174,75 @@ class BopSplit:
     estimates: dict[tuple[int, int], BopEstimates]
     delta: float
     notes: list[str] = field(default_factory=list)
+    times: dict[tuple[int, int], float] | None = None  # image -> seconds; None: not given
 
 
-def read_bop_split(path: Path, results: Path, gt: GroundTruth) -> BopSplit:
+def read_bop_split(
+    path: Path, results: Path, gt: GroundTruth, *, task: str = "localization"
+) -> BopSplit:
     """The dataset at ``path`` and the result CSV ``results`` (already readable as ``gt``'s
-    results), for :func:`annotator.evaluation.bop19.bop19_scores`."""
+    results), for :func:`annotator.evaluation.bop19.bop19_scores` (``task="localization"``)
+    or :func:`annotator.evaluation.bop24.bop24_scores` (``task="detection"``)."""
     notes: list[str] = []
     objects = _objects(path, notes)
     split = _split_folder(path, notes)
-    targets = _targets(path)
-    images = _images(split, objects, targets, notes)
-    if targets is None:
-        notes.append(
-            "no test_targets_bop19.json: targets are the instances at least "
-            f"{TARGETS_MIN_VISIB:g} visible, as bop_toolkit's enumerate_test_targets.py"
-        )
+    if task == "detection":
+        targets = _detection_targets(path)
+        if targets is None:
+            notes.append("no test_targets_bop24.json: every image of the split is scored")
+    else:
+        targets = _targets(path)
+        if targets is None:
+            notes.append(
+                "no test_targets_bop19.json: targets are the instances at least "
+                f"{TARGETS_MIN_VISIB:g} visible, as bop_toolkit's enumerate_test_targets.py"
+            )
+    images = _images(split, objects, targets, every_pose=task == "detection")
+    if task == "detection":
+        images = _in_targets_order(images, targets)
     delta = VSD_DELTA_ITODD_MM if path.resolve().name.startswith("itodd") else VSD_DELTA_MM
-    return BopSplit(images, objects, _estimates(results, gt), delta, notes)
+    estimates, times = _estimates(results, gt)
+    return BopSplit(images, objects, estimates, delta, notes, times)
+
+
+#: Wanted objects of an image that are every true pose of it (6D detection).
+EVERY_POSE: dict[int, int] = {}
+
+
+def _targets_list(file: Path, entries: str) -> tuple[Path, list[Any]] | None:
+    """A targets file's list of ``entries`` (None without the file)."""
+    if not file.is_file():
+        return None
+    doc = read_json(file)
+    if not isinstance(doc, list):
+        raise UserError(f"expected a list of {entries}", path=file)
+    return file, doc
+
+
+def _detection_targets(path: Path) -> dict[tuple[int, int], dict[int, int]] | None:
+    """The images test_targets_bop24.json lists, in its order (bop_toolkit's targets_org:
+    scenes in the order they first appear, then images), each mapped to
+    :data:`EVERY_POSE`."""
+    found = _targets_list(path / "test_targets_bop24.json", "{scene_id, im_id}")
+    if found is None:
+        return None
+    file, doc = found
+    by_scene: dict[int, dict[int, dict[int, int]]] = {}
+    for i, e in enumerate(doc):
+        try:
+            by_scene.setdefault(int(e["scene_id"]), {})[int(e["im_id"])] = EVERY_POSE
+        except (KeyError, TypeError, ValueError):
+            raise UserError(f"entry {i}: needs integer scene_id and im_id", path=file) from None
+    return {(s, im): w for s, ims in by_scene.items() for im, w in ims.items()}
+
+
+def _in_targets_order(
+    images: list[BopImage], targets: dict[tuple[int, int], dict[int, int]] | None
+) -> list[BopImage]:
+    if targets is None:
+        return images
+    rank = {key: k for k, key in enumerate(targets)}
+    return sorted(images, key=lambda im: rank[(im.scene_id, im.im_id)])
 
 
 def _objects(path: Path, notes: list[str]) -> dict[int, BopObject]:
@@ -219,12 +286,10 @@ def _split_folder(path: Path, notes: list[str]) -> Path:
 
 
 def _targets(path: Path) -> dict[tuple[int, int], dict[int, int]] | None:
-    file = path / "test_targets_bop19.json"
-    if not file.is_file():
+    found = _targets_list(path / "test_targets_bop19.json", "{scene_id, im_id, obj_id, inst_count}")
+    if found is None:
         return None
-    doc = read_json(file)
-    if not isinstance(doc, list):
-        raise UserError("expected a list of {scene_id, im_id, obj_id, inst_count}", path=file)
+    file, doc = found
     out: dict[tuple[int, int], dict[int, int]] = {}
     for i, e in enumerate(doc):
         try:
@@ -241,7 +306,8 @@ def _images(
     split: Path,
     objects: dict[int, BopObject],
     targets: dict[tuple[int, int], dict[int, int]] | None,
-    notes: list[str],
+    *,
+    every_pose: bool = False,
 ) -> list[BopImage]:
     images: list[BopImage] = []
     scenes = {int(d.name): d for d in split.iterdir() if d.is_dir() and d.name.isdigit()}
@@ -249,7 +315,7 @@ def _images(
     for scene_id in wanted:
         if scene_id not in scenes:
             raise UserError(f"the targets name scene {scene_id}, which is not in {split}")
-        images += _scene_images(scene_id, scenes[scene_id], objects, targets)
+        images += _scene_images(scene_id, scenes[scene_id], objects, targets, every_pose)
     return images
 
 
@@ -258,6 +324,7 @@ def _scene_images(
     folder: Path,
     objects: dict[int, BopObject],
     targets: dict[tuple[int, int], dict[int, int]] | None,
+    every_pose: bool,
 ) -> list[BopImage]:
     sfx = evaluated_sensor(folder)
     gt_path = folder / f"scene_gt{sfx}.json"
@@ -274,11 +341,11 @@ def _scene_images(
         obj_ids = np.array([int(g.get("obj_id", -1)) for g in insts], int)
         visib = _visible_fractions(info.get(im_key) or [], len(insts), im_key, info_path)
         if targets is None:
-            wanted: dict[int, int] = {}
-            for oid in obj_ids[visib >= 0.1]:
-                wanted[int(oid)] = wanted.get(int(oid), 0) + 1
+            wanted = _counts(obj_ids if every_pose else obj_ids[visib >= TARGETS_MIN_VISIB])
         elif (scene_id, im_id) in targets:
             wanted = targets[(scene_id, im_id)]
+            if wanted is EVERY_POSE:
+                wanted = _counts(obj_ids)
         else:
             continue
         unknown = [o for o in wanted if o not in objects]
@@ -289,6 +356,14 @@ def _scene_images(
         K = _camera_matrix(cam, im_key, cams_path)
         depth = _depth_reader(folder, sfx, im_id, cam)
         out.append(BopImage(scene_id, im_id, K, width, height, obj_ids, R, t, visib, wanted, depth))
+    return out
+
+
+def _counts(obj_ids: np.ndarray) -> dict[int, int]:
+    """Poses per object id, in the order the ids first appear."""
+    out: dict[int, int] = {}
+    for oid in obj_ids.tolist():
+        out[oid] = out.get(oid, 0) + 1
     return out
 
 
@@ -371,7 +446,11 @@ def _depth_reader(
     return None
 
 
-def _estimates(results: Path, gt: GroundTruth) -> dict[tuple[int, int], BopEstimates]:
+def _estimates(
+    results: Path, gt: GroundTruth
+) -> tuple[dict[tuple[int, int], BopEstimates], dict[tuple[int, int], float] | None]:
+    """The result file's estimates per image, in its order, and each image's time (None when
+    a line has none or a negative one, as bop_toolkit's ``check_consistent_timings``)."""
     rows, _, objects, _, t, _ = read_csv_rows(results, gt)
     R = np.asarray(rows.R, float).reshape(-1, 3, 3)  # as written: bop_toolkit does not project
     names = {name: oid for oid, name in gt.object_ids.items()}
@@ -379,8 +458,13 @@ def _estimates(results: Path, gt: GroundTruth) -> dict[tuple[int, int], BopEstim
     scene = np.array([int(s) for s in rows.scene_ids], int)
     im = np.asarray(rows.im_ids, int)
     out: dict[tuple[int, int], BopEstimates] = {}
+    times: dict[tuple[int, int], float] | None = None
+    if rows.times is not None and np.all(rows.times >= 0):
+        times = {}
+        for s_, i_, dt in zip(scene.tolist(), im.tolist(), rows.times.tolist()):
+            times.setdefault((s_, i_), dt)
     if not len(obj):
-        return out
+        return out, times
     keys = scene * (int(im.max()) + 1) + im
     order = np.argsort(keys, kind="stable")
     starts = np.flatnonzero(np.r_[True, np.diff(keys[order]) != 0])
@@ -389,4 +473,4 @@ def _estimates(results: Path, gt: GroundTruth) -> dict[tuple[int, int], BopEstim
         out[(int(scene[idx[0]]), int(im[idx[0]]))] = BopEstimates(
             obj[idx], rows.scores[idx], R[idx], t[idx]
         )
-    return out
+    return out, times
