@@ -214,3 +214,31 @@ def sequence_annotation_of(sol, readings):
     from annotator.annotation.sequence import sequence_annotation
 
     return sequence_annotation(sol, readings, {})
+
+
+@pytest.mark.slow
+def test_a_frame_left_out_is_one_the_truth_shows_hard(tmp_path) -> None:
+    """Issue 48: every frame a 12-frame hand-held sequence leaves out is refused for a reason
+    the truth confirms: its images are smeared (the truth's streak at least the blur flag's
+    3 px) or it shows at most one part. Scene 000001 of this seed once lost two sharp frames
+    that saw seven parts, 'uncertain (1-sigma inf mm)': a misread marker's pose, free once
+    its corners were held back, was taken as freeing the frame that read it."""
+    root = tmp_path / "s12"
+    synth = ["synth", str(root), "--scenes", "2", "--frames", "12", "--size", "640x512"]
+    assert main([*synth, "--instances", "6-8", "--seed", "1", "--quiet"]) == 0
+    assert main(["annotate", str(root), "--quiet"]) == 0
+    left = 0
+    for sid in ("000000", "000001"):
+        truth = read_frames(root / "scenes" / sid / "gt.json")
+        found = read_frames(root / "scenes" / sid / "annotation.json")
+        for name, frame in found.items():
+            if frame.posed:
+                continue
+            left += 1
+            true = truth[name]
+            in_view = [
+                k for k, v in (true.instances or {}).items() if min(v["occlusion"].values()) < 0.9
+            ]
+            smeared = (true.motion_blur_px or 0.0) >= 3.0
+            assert smeared or len(in_view) <= 1, (sid, name, frame.flags, frame.reason)
+    assert left >= 1  # the case still leaves frames out: it tests something

@@ -448,8 +448,14 @@ def _covariance(normal: _Normal, sigma: float) -> tuple[np.ndarray, np.ndarray, 
     cross = -TM.reshape(len(c), 6, n_models, 6).transpose(0, 2, 1, 3)  # (F, I, 6, 6)
     cov_f = c + TM @ np.swapaxes(c @ B, 1, 2)
     cov_m = np.stack([M4[i, :, i, :] for i in range(n_models)])
-    sees = np.abs(normal.afm).max(axis=(2, 3)) > 0  # (F, I): the frame read the instance
-    bad_f = loose_f | (sees & loose_m[None, :]).any(axis=1)
+    # A frame is loose when a free motion moves it: a frame and an instance that only see
+    # each other move together. An instance free on its own (a misread marker whose corners
+    # the weights hold back) leaves the frames that read it where the others put them.
+    free = np.zeros((S.shape[0], int(null.sum())))
+    free[idx] = V[:, null] * scale[idx, None]
+    frame_scale = np.sqrt(np.maximum(np.einsum("kii->ki", normal.aff), 0.0))
+    moved = np.abs(((c @ B) @ free) * frame_scale[:, :, None]).max(axis=(1, 2), initial=0.0)
+    bad_f = loose_f | (moved > 1e-3)
     cov_m[loose_m] = np.inf
     cov_f[bad_f] = np.inf
     cross[bad_f] = np.inf
