@@ -1,7 +1,7 @@
 """Marker recovery: once an instance is posed, each of its markers that should be visible in
 a camera where it was not read is looked for among the unread candidate squares.
 
-A square within 2.5 px (or 12% of its side) of the projected marker, whose bits differ from
+A square within the settings' ``final_inlier_px`` (or 12% of its side) of the projected marker, whose bits differ from
 the marker's in at most :data:`RECOVER_MAX_BIT_ERRORS`, is *recovered*: it joins the
 instance's observations as a soft reading, held to the support of the others by the
 consensus (:mod:`annotator.annotation.consensus`).
@@ -35,16 +35,19 @@ def recover_markers(
     readings: list[ImageReading],
     grays: list[np.ndarray],
     detector: MarkerDetector,
+    *,
+    within_px: float,
 ) -> bool:
     """Add to ``obs`` the markers of instance ``obj/inst``, posed at ``T`` (rig frame), found
-    among the unread candidate squares where the pose puts them; True if any was."""
+    among the unread candidate squares where the pose puts them (within ``within_px`` or 12%
+    of the marker's side); True if any was."""
     seen = {(o.camera, o.marker_id) for o in obs}
     added = False
     for j, (cam, reading) in enumerate(zip(ds.rig.cameras, readings)):
         if len(reading.unread) == 0:
             continue
         read = {mid for c, mid in seen if c == j}
-        for mid, X, corners in _found_in(ds, obj, inst, T, cam, reading, read):
+        for mid, X, corners in _found_in(ds, obj, inst, T, cam, reading, read, within_px):
             obs.append(
                 Observation(j, mid, X, detector.refine(grays[j], corners[None])[0], soft=True)
             )
@@ -61,6 +64,7 @@ def _found_in(
     cam: Camera,
     reading: ImageReading,
     read: set[int],
+    within_px: float,
 ) -> list[tuple[int, np.ndarray, np.ndarray]]:
     """(marker id, model corners, image corners) of the instance's markers facing ``cam``,
     not among the ids already ``read``, that one of its unread squares matches."""
@@ -76,7 +80,7 @@ def _found_in(
         if mid in read:
             continue
         uv = cam.project(C_all[site])
-        match = _matching_square(ds.dictionary, mid, uv, reading, centres)
+        match = _matching_square(ds.dictionary, mid, uv, reading, centres, within_px)
         if match is not None:
             out.append((mid, X_all[site], match))
     return out
@@ -93,7 +97,12 @@ def _facing(C_all: np.ndarray) -> np.ndarray:
 
 
 def _matching_square(
-    dictionary: str, mid: int, uv: np.ndarray, reading: ImageReading, centres: np.ndarray
+    dictionary: str,
+    mid: int,
+    uv: np.ndarray,
+    reading: ImageReading,
+    centres: np.ndarray,
+    within_px: float,
 ) -> np.ndarray | None:
     """The unread square (its corners in the marker's order) near the projected corners
     ``uv`` whose bits are marker ``mid``'s, or None."""
@@ -102,7 +111,7 @@ def _matching_square(
     for k in near:
         quads = [np.roll(reading.unread[k], m, axis=0) for m in range(4)]
         m = int(np.argmin([np.abs(q - uv).max() for q in quads]))
-        if np.linalg.norm(quads[m] - uv, axis=1).max() > max(2.5, 0.12 * side):
+        if np.linalg.norm(quads[m] - uv, axis=1).max() > max(within_px, 0.12 * side):
             continue
         expected = np.rot90(_inner_bits(dictionary, mid), m)
         if int(np.sum(reading.unread_bits[k] != expected)) <= RECOVER_MAX_BIT_ERRORS:

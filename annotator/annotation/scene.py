@@ -81,7 +81,9 @@ def annotate_scene(
     instances = []
     for (obj, inst), obs in sorted(markers.per_instance.items()):
         r = pose_instance(ds, obj, inst, obs, settings)
-        if r is not None and recover_markers(ds, obj, inst, r.T, obs, readings, grays, detector):
+        if r is not None and recover_markers(
+            ds, obj, inst, r.T, obs, readings, grays, detector, within_px=settings.final_inlier_px
+        ):
             r = pose_instance(ds, obj, inst, obs, settings) or r
         if r is not None:
             instances.append(r)

@@ -5,6 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from annotator.annotation.completeness import CompletenessSettings
+from annotator.noise import NOISE
 from annotator.occlusion import AGREEMENT_TOLERANCE_MM
 
 
@@ -58,7 +59,7 @@ class SequenceSettings:
     joint_share: float = 0.6
     max_candidates: int = 120
     start_frames: int = 24
-    site_sigma_mm: float = 0.15
+    site_sigma_mm: float = NOISE.site_mm
     glued_share: float = 0.3
     phantom_frames: int = 3
 
@@ -109,8 +110,8 @@ class AnnotateSettings:
     refine_max_markers: int = 2
     refine_inner_px: int = 2
     refine_marker_px: float = 0.5
-    measured_site_mm: float = 0.1
-    measured_site_deg: float = 0.5
+    measured_site_mm: float = NOISE.measured_site_mm
+    measured_site_deg: float = NOISE.measured_site_deg
     depth_correlation: float = 30.0
     depth_bias_mm: float = 0.2
     completeness: CompletenessSettings = field(default_factory=CompletenessSettings)

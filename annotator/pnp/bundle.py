@@ -32,6 +32,7 @@ import numpy as np
 from annotator.geometry.camera import Camera
 from annotator.geometry.least_squares import Damping, levenberg_marquardt
 from annotator.geometry.lie import perturb
+from annotator.noise import NOISE
 
 __all__ = ["BundleObservations", "BundleResult", "bundle_adjust"]
 
@@ -125,8 +126,8 @@ def bundle_adjust(
     *,
     fixed_frame: int,
     depth_camera: int | None = None,
-    corner_sigma_px: float = 0.3,
-    depth_sigma_mm: float = 2.0,
+    corner_sigma_px: float = NOISE.corner_px,
+    depth_sigma_mm: float = NOISE.marker_depth_mm,
     huber_px: float = 1.0,
     max_iterations: int = 30,
     covariance: bool = True,

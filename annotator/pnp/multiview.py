@@ -19,6 +19,7 @@ from annotator.geometry.camera import Camera
 from annotator.geometry.least_squares import Damping, levenberg_marquardt
 from annotator.geometry.lie import perturb
 from annotator.geometry.transforms import make_transform
+from annotator.noise import NOISE
 
 
 @dataclass(frozen=True)
@@ -176,7 +177,7 @@ def refine_pose(
     obs: Sequence[Observation],
     T0: np.ndarray,
     *,
-    sigma_floor: float = 0.3,
+    sigma_floor: float = NOISE.corner_px,
     max_iterations: int = 50,
 ) -> PoseEstimate:
     """Jointly refine ``rig_T_model`` over all observations (all cameras), from ``T0``.

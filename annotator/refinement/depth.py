@@ -36,6 +36,7 @@ from annotator.dataset.review import RepairOp, RepairStep
 from annotator.geometry.camera import Camera
 from annotator.geometry.lie import perturb
 from annotator.geometry.mesh import Mesh, surface_samples
+from annotator.noise import NOISE
 from annotator.pnp.multiview import Observation, reprojection_errors, residuals_jacobian
 from annotator.rendering.raycast import PlacedMesh, cast_alone, clip_region, projected_bbox
 
@@ -56,8 +57,8 @@ class RefineSettings:
     gate_iterations: int = 12  # the gate shrinks over these, then stays
     iterations: int = 40
     max_points: int = 4000
-    depth_sigma_mm: float = 1.0
-    marker_sigma_px: float = 0.5
+    depth_sigma_mm: float = NOISE.depth_mm
+    marker_sigma_px: float = NOISE.refined_corner_px
     #: A pixel another part's surface is rendered within this of the measured depth is its.
     explained_mm: float = 4.0
     min_points: int = 30

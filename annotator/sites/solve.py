@@ -45,6 +45,7 @@ from scipy.spatial.transform import Rotation
 
 from annotator.geometry.camera import Camera
 from annotator.markers.glue import site_frames
+from annotator.noise import NOISE
 
 #: The 1-sigma prior on the depth sensor's offset per view (mm).
 OFFSET_PRIOR_MM = 5.0
@@ -54,8 +55,8 @@ OFFSET_PRIOR_MM = 5.0
 class SiteSettings:
     """Standard deviations and bounds of the solve (px, mm, degrees)."""
 
-    sigma_px: float = 0.4
-    depth_sigma_mm: float = 1.0
+    sigma_px: float = NOISE.site_corner_px
+    depth_sigma_mm: float = NOISE.depth_mm
     prior_mm: float = 1.0
     prior_deg: float = 3.0
     #: Residuals beyond this many standard deviations weigh less and less (soft_l1).

@@ -12,7 +12,6 @@ import numpy as np
 
 from annotator.annotation.depth_scale import depth_scale
 from annotator.annotation.sequence.noise import (
-    CORNER_SIGMA_PX,
     FrameBlur,
     corner_sigma,
     frame_sigma,
@@ -28,6 +27,7 @@ from annotator.annotation.settings import AnnotateSettings
 from annotator.dataset import Dataset
 from annotator.geometry.camera import Camera
 from annotator.geometry.transforms import invert
+from annotator.noise import NOISE
 from annotator.pnp import (
     Observation,
     reprojection_errors,
@@ -75,7 +75,7 @@ def bundle(
     # the image more than the other), else its image's.
     streak = np.array([readings[live[r[0]]].streak_px(r[2].camera, r[2].marker_id) for r in rows])
     sigma = corner_sigma(streak)
-    keep = err < s.inlier_px * sigma / CORNER_SIGMA_PX
+    keep = err < s.inlier_px * sigma / NOISE.corner_px
 
     def solve(covariance: bool) -> BundleResult:
         return bundle_adjust(
@@ -86,14 +86,14 @@ def bundle(
             fixed_frame=fidx[placed.reference],
             depth_camera=depth_cam,
             covariance=covariance,
-            corner_sigma_px=CORNER_SIGMA_PX,
+            corner_sigma_px=NOISE.corner_px,
             obs_sigma_px=sigma[keep],
         )
 
     def kept(err: np.ndarray, limit: float) -> np.ndarray:
         # An observation is left out with the rest of its frame's view of its instance: a
         # part that moved disagrees as a whole. Limits in units of each corner's own noise.
-        err = err * CORNER_SIGMA_PX / sigma
+        err = err * NOISE.corner_px / sigma
         bad_edge = _edge_rms(all_obs, err) > limit
         return (err < 2 * limit) & ~bad_edge[all_obs.frame, all_obs.instance]
 
@@ -148,7 +148,7 @@ def bundle(
         streaks[live].max(axis=1), median_by(all_obs.frame[keep], depth[keep], len(live))
     )
     site_mm = site_sigma(all_obs, err, keep, depth, float(cams[0].K[0, 0]), len(keys))
-    agree_px = limit * sigma / CORNER_SIGMA_PX
+    agree_px = limit * sigma / NOISE.corner_px
     records(
         ds,
         keys,

@@ -18,11 +18,11 @@ from annotator.dataset import Dataset
 from annotator.dataset.model import ObjectModel
 from annotator.geometry.camera import Camera
 from annotator.geometry.transforms import invert
+from annotator.noise import NOISE
 from annotator.pnp.bundle import BundleObservations, BundleResult
 from annotator.pnp.uncertainty import site_covariance
 
 __all__ = [
-    "CORNER_SIGMA_PX",
     "MOTION_BLUR_PX",
     "FrameBlur",
     "corner_sigma",
@@ -36,14 +36,10 @@ __all__ = [
 ]
 
 
-#: The corner noise of a sharp image (px, 1-sigma, each coordinate).
-CORNER_SIGMA_PX = 0.3
-
-
 def corner_sigma(streak_px: np.ndarray) -> np.ndarray:
     """Each corner's noise (px) in an image smeared by a streak ``streak_px`` long: the sharp
     image's, plus the spread of a point uniformly anywhere along the streak."""
-    return np.sqrt(CORNER_SIGMA_PX**2 + np.asarray(streak_px, float) ** 2 / 12)
+    return np.sqrt(NOISE.corner_px**2 + np.asarray(streak_px, float) ** 2 / 12)
 
 
 def frame_sigma(

@@ -1,0 +1,56 @@
+"""The measurement noise every solver weighs its residuals by, written once (1-sigma).
+
+Each figure is what one kind of measurement is worth; a solver reads the ones its residuals
+are made of, as the defaults of its settings (a user changes them there, per run):
+
+- PnP and the sequences' bundle adjustment weigh marker corners by :attr:`NoiseModel.corner_px`
+  (a sharp corner as the detector fits it; a blurred one is worse, by its streak) and the
+  depth under a marker's centre by :attr:`NoiseModel.marker_depth_mm`;
+- the depth refinement weighs measured surface points by :attr:`NoiseModel.depth_mm` and the
+  markers of the pose it moves by :attr:`NoiseModel.refined_corner_px`;
+- ``annotator sites`` weighs corners against the part by :attr:`NoiseModel.site_corner_px`
+  and depth points by :attr:`NoiseModel.depth_mm`;
+- a sequence's uncertainties count each marker corner off on its part by
+  :attr:`NoiseModel.site_mm`, and a site ``annotator sites`` measured by
+  :attr:`NoiseModel.measured_site_mm` and :attr:`NoiseModel.measured_site_deg`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+__all__ = ["NOISE", "NoiseModel"]
+
+
+@dataclass(frozen=True)
+class NoiseModel:
+    """Measurement noise, 1-sigma (px, mm, degrees).
+
+    Attributes:
+        corner_px: A sharp marker corner as the detector fits it (the floor of PnP's
+            residual sigma: with few corners the residuals underestimate it).
+        site_corner_px: A corner against the part's model across scenes: the detector's
+            noise and what is left of the site's own error.
+        refined_corner_px: A corner in the depth refinement, whose pose the depth pulls off
+            the markers' own fit (the sites' error on top of the detector's).
+        depth_mm: A measured depth point on a part's surface.
+        marker_depth_mm: The depth under a marker's centre, read on a few pixels where the
+            printed pattern spoils the stereo match.
+        site_mm: Each corner of a marker on its part (printing, gluing flat, the corner
+            fit's bias); it does not average out over frames.
+        measured_site_mm, measured_site_deg: A site ``annotator sites`` measured (its shift
+            in its plane, its turn about its normal).
+    """
+
+    corner_px: float = 0.3
+    site_corner_px: float = 0.4
+    refined_corner_px: float = 0.5
+    depth_mm: float = 1.0
+    marker_depth_mm: float = 2.0
+    site_mm: float = 0.15
+    measured_site_mm: float = 0.1
+    measured_site_deg: float = 0.5
+
+
+#: The noise the solvers assume unless told otherwise.
+NOISE = NoiseModel()
