@@ -29,7 +29,7 @@ from annotator.dataset import load_dataset
 from annotator.errors import UserError
 from annotator.geometry.transforms import invert
 from annotator.markers.dictionary import dictionary, min_distance
-from annotator.runner.bundle import description_files
+from annotator.runner.files import description_files
 from annotator.synthesis.board import CaptureConfig, write_captures, write_videos
 
 pytestmark = pytest.mark.slow  # calibration captures rendered and solved

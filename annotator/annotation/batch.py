@@ -27,7 +27,7 @@ from annotator.errors import UserError
 from annotator.io.images import write_png
 from annotator.physics.scene import empty_bin
 from annotator.runner import BatchReport, run_batch
-from annotator.runner.bundle import description_files, dictionary_files
+from annotator.runner.files import description_files, dictionary_files
 from annotator.values import number, of_type, whole
 
 

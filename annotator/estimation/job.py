@@ -9,7 +9,7 @@ from typing import Any
 from annotator.dataset import cached_dataset
 from annotator.estimation.estimator import PPFSettings, estimate_scene, train_all
 from annotator.estimation.results import result_rows
-from annotator.runner.bundle import description_files
+from annotator.runner.files import description_files
 
 
 @dataclass(frozen=True)

@@ -15,7 +15,7 @@ from annotator.dataset.records import frames_from_json
 from annotator.errors import UserError
 from annotator.io.atomic import write_json
 from annotator.occlusion import scene_visibility
-from annotator.runner.bundle import description_files
+from annotator.runner.files import description_files
 
 #: What the job writes in each scene folder.
 VISIBILITY_FILE = "visibility.json"

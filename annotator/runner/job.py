@@ -15,7 +15,7 @@ reads (``synth --twin``) has an ``out`` field too: its outputs are then relative
 and a task runs with ``out`` an empty folder of its own. Scene folders are
 ``scenes/<scene_id>`` (docs/FORMAT.md).
 
-See :mod:`annotator.runner.bundle` (files as bytes) and :mod:`annotator.runner.ray_cluster`
+See :mod:`annotator.runner.files` (files as bytes) and :mod:`annotator.runner.ray_cluster`
 (joining the cluster, tasks, retries, cancellation). Ray itself is imported only when
 ``--ray`` is given: it is an optional extra, ``pip install 'bin-annotator[ray]'``.
 """

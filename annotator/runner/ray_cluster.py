@@ -45,7 +45,7 @@ from typing import Any
 from annotator.dataset.model import SCENES_DIR
 from annotator.errors import UserError
 from annotator.io.atomic import remove_if_abandoned, temporary_folder
-from annotator.runner.bundle import (
+from annotator.runner.files import (
     Bundle,
     Files,
     Outputs,

@@ -309,7 +309,7 @@ class TwinJob:
     def shared_files(self) -> list[str]:
         """The dataset description (dataset.yaml, objects, background depth)."""
         from annotator.dataset import cached_dataset
-        from annotator.runner.bundle import description_files
+        from annotator.runner.files import description_files
 
         return description_files(cached_dataset(self.root))
 

@@ -34,7 +34,7 @@ from annotator.dataset.review import now_iso
 from annotator.detection import MarkerDetector
 from annotator.physics.scene import record_physics
 from annotator.runner import BatchReport, run_batch
-from annotator.runner.bundle import description_files
+from annotator.runner.files import description_files
 
 __all__ = ["FrameReadJob", "FrameSeeJob", "SequenceSolveJob", "annotate_sequences"]
 
