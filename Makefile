@@ -36,7 +36,7 @@ test: $(STAMP)
 	$(BIN)/python -m pytest -q
 
 # The inner loop: everything but the tests marked slow (Ray, calibration, browsers, real
-# processes and servers), on every core.
+# processes and servers, rendered scenes and BOP exports), on every core: under a minute.
 test-fast: $(STAMP)
 	$(BIN)/ruff check .
 	$(BIN)/python -m pytest -q -m "not slow" -n auto

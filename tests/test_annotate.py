@@ -9,6 +9,7 @@ import time
 
 import cv2
 import numpy as np
+import pytest
 import yaml
 
 from annotator.cli import main
@@ -145,6 +146,7 @@ def test_mislabeled_and_duplicated_markers_are_caught(sample_copy, capsys) -> No
             assert flags, f"{key} is {err:.1f} mm off without a flag"
 
 
+@pytest.mark.slow
 def test_two_workers_give_the_same_annotations_as_one(sample_copy, capsys) -> None:
     # Workers are forked from a parent that has already used OpenCV's thread pool and open3d
     # (as here, after other tests): they must neither hang nor differ from a single process.

@@ -25,6 +25,7 @@ def _readme_example() -> str:
     return match.group(1)
 
 
+@pytest.mark.slow
 def test_the_readme_example_runs(sample: Path, tmp_path: Path, monkeypatch, capsys) -> None:
     shutil.copytree(sample, tmp_path / "sample_scenes")
     monkeypatch.chdir(tmp_path)
@@ -96,6 +97,7 @@ def copies(sample: Path, tmp_path_factory: pytest.TempPathFactory) -> tuple[Path
     return a, b
 
 
+@pytest.mark.slow
 def test_annotate_cli_is_the_api(copies: tuple[Path, Path]) -> None:
     cli, api = copies
     from_cli = _cli("annotate", str(cli), "--workers", "1", "--json", "--quiet")
@@ -127,6 +129,7 @@ def test_evaluate_cli_is_the_api(copies: tuple[Path, Path], tmp_path: Path) -> N
     assert json.loads(report.read_text()) == json.loads(json.dumps(from_api))
 
 
+@pytest.mark.slow
 def test_export_cli_is_the_api(sample: Path, tmp_path: Path) -> None:
     from_cli = _cli(
         "export",

@@ -84,6 +84,7 @@ def test_nan_in_a_pose_is_refused(sample_copy, capsys, field, where) -> None:
     assert code == 1 and f"{field} has a NaN" in out
 
 
+@pytest.mark.slow
 def test_a_nan_pose_is_never_exported(sample_copy, tmp_path, capsys) -> None:
     scene = sample_copy / "scenes" / "000000"
     fp = poses_fingerprint(read_poses(scene / "annotation.json"))
@@ -166,6 +167,7 @@ def test_json_the_fast_parser_refuses_is_read_as_the_standard_library_reads_it()
     assert parse_json(_deep_json(MAX_NESTING), "x.json") is not None
 
 
+@pytest.mark.slow
 def test_deeply_nested_results_and_yaml_are_one_line(sample_copy, tmp_path, capsys) -> None:
     results = tmp_path / "results"
     results.mkdir()
@@ -234,6 +236,7 @@ def test_an_inside_out_mesh_is_reported(sample_copy, capsys) -> None:
     assert code == 1 and "mesh is inside out (signed volume -" in out
 
 
+@pytest.mark.slow
 def test_scenes_that_is_a_file_or_broken_links_are_reported(sample_copy, capsys) -> None:
     scenes = sample_copy / "scenes"
     (scenes / "000009").symlink_to(scenes / "nowhere")  # dangling

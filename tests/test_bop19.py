@@ -26,6 +26,8 @@ from annotator.formats.bop_images import (
 from annotator.geometry.mesh import Mesh
 from annotator.rendering.raycast import render_depth
 
+pytestmark = pytest.mark.slow  # a BOP export of sample_scenes made first
+
 DATA = Path(__file__).parent / "data"
 
 #: bop_toolkit (scripts/eval_bop19_pose.py, vispy renderer, one worker) on the export below

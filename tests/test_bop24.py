@@ -20,6 +20,8 @@ from annotator.evaluation.bop24 import (
 )
 from annotator.formats.bop_images import BopEstimates, BopImage, BopObject
 
+pytestmark = pytest.mark.slow  # a BOP export of sample_scenes made first
+
 DATA = Path(__file__).parent / "data"
 
 #: bop_toolkit (scripts/eval_bop24_pose.py at commit cea62d6, one worker, in a separate

@@ -11,6 +11,8 @@ from pathlib import Path
 import pytest
 from test_bop24 import LOW_VISIBILITY
 
+pytestmark = pytest.mark.slow  # a BOP export of sample_scenes made first
+
 DATA = Path(__file__).parent / "data"
 
 #: bop_toolkit's scripts/eval_bop22_coco.py (commit cea62d6, with BOP's fork of pycocotools

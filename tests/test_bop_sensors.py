@@ -16,6 +16,8 @@ from test_bop24 import BOP_TOOLKIT
 import annotator
 from annotator.formats.bop import evaluated_sensor
 
+pytestmark = pytest.mark.slow  # a BOP export of sample_scenes made first
+
 DATA = Path(__file__).parent / "data"
 
 

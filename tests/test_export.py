@@ -111,6 +111,7 @@ def _gt(root, scene_id):
     return json.loads((root / "scenes" / scene_id / "gt.json").read_text())["instances"]
 
 
+@pytest.mark.slow
 def test_bop_export_against_independent_truth(sample_copy, tmp_path, capsys) -> None:
     out = tmp_path / "bop"
     _export(sample_copy, out, "bop")
@@ -169,6 +170,7 @@ def test_bop_export_against_independent_truth(sample_copy, tmp_path, capsys) -> 
     assert (rep["TP"], rep["FP"], rep["FN"]) == (of_interest, 0, 0) and of_interest > 0
 
 
+@pytest.mark.slow
 def test_sileane_export_against_independent_truth(sample_copy, tmp_path) -> None:
     out = tmp_path / "sil"
     _export(sample_copy, out, "sileane")

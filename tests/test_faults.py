@@ -62,6 +62,7 @@ def test_refused_exports_leave_the_dataset_intact(sample_copy, tmp_path, capsys)
     assert _tree_digest(sample_copy) == before
 
 
+@pytest.mark.slow
 def test_overwrite_replaces_only_an_earlier_export(sample_copy, tmp_path, capsys) -> None:
     _accept_all(sample_copy, 1)
     foreign = tmp_path / "precious"
@@ -82,6 +83,7 @@ def test_overwrite_replaces_only_an_earlier_export(sample_copy, tmp_path, capsys
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".bop.")]
 
 
+@pytest.mark.slow
 def test_interrupted_export_leaves_out_as_it_was(
     sample_copy, tmp_path, monkeypatch, capsys
 ) -> None:
@@ -137,6 +139,7 @@ def test_abandoned_temporary_folders_are_removed(tmp_path) -> None:
     assert not (out / ".annotator-temporary").exists()
 
 
+@pytest.mark.slow
 def test_folders_named_like_ours_are_never_removed_or_renamed(sample_copy, tmp_path) -> None:
     """``.bop.backup`` and ``.bop.old.1`` are the user's: no export touches them."""
     _accept_all(sample_copy, 1)
@@ -199,6 +202,7 @@ def test_a_kill_between_the_two_renames_gives_the_old_folder_back(tmp_path, monk
     assert [p.name for p in tmp_path.iterdir()] == ["out"]
 
 
+@pytest.mark.slow
 def test_a_symlinked_out_is_followed(sample_copy, tmp_path) -> None:
     _accept_all(sample_copy, 1)
     disk = tmp_path / "other_disk" / "bop"
@@ -212,6 +216,7 @@ def test_a_symlinked_out_is_followed(sample_copy, tmp_path) -> None:
     assert link.is_symlink() and (disk / ".annotator-output.json").exists()
 
 
+@pytest.mark.slow
 def test_unreadable_scenes_are_skipped_named_and_exit_1(sample_copy, tmp_path, capsys) -> None:
     _accept_all(sample_copy)
     scenes = load_dataset(sample_copy).scenes()
@@ -314,6 +319,7 @@ def test_files_and_folders_honour_the_umask(tmp_path) -> None:
 # ------------------------------------------------------------------- 5. up-to-date check
 
 
+@pytest.mark.slow
 def test_annotate_redoes_what_changed(sample_copy, capsys) -> None:
     args = [
         "annotate",

@@ -78,6 +78,7 @@ def test_no_output_is_written_over_an_input(sample_copy: Path, tmp_path: Path, c
 
 
 @pytest.mark.timeout(120)
+@pytest.mark.slow
 def test_depth_holes_written_as_65535_are_holes(sample_copy: Path, tmp_path: Path) -> None:
     args = ["--scenes", "000000", "--workers", "1", "--quiet"]
     assert main(["estimate", str(sample_copy), str(tmp_path / "zero.csv"), *args]) == 0
@@ -229,6 +230,8 @@ def _copy(bop_export: Path, tmp_path: Path) -> Path:
     return root
 
 
+@pytest.mark.slow
+@pytest.mark.slow
 def test_bop_discrete_symmetries_must_fit_the_continuous_axis(bop_export, tmp_path, capsys) -> None:
     from annotator.geometry.transforms import axis_angle
     from annotator.symmetry.classes import symmetry_from_bop
@@ -259,6 +262,7 @@ def test_bop_discrete_symmetries_must_fit_the_continuous_axis(bop_export, tmp_pa
     assert f"models_info.json: object {key}: symmetries_discrete[0]" in err
 
 
+@pytest.mark.slow
 def test_bop_scene_gt_naming_an_unknown_object_is_refused(bop_export, tmp_path, capsys) -> None:
     root = _copy(bop_export, tmp_path)
     csv = _results_for(root, tmp_path)
@@ -276,6 +280,7 @@ def test_bop_scene_gt_naming_an_unknown_object_is_refused(bop_export, tmp_path, 
 
 
 @pytest.mark.parametrize("diameter", [-45.0, float("nan"), 0.0])
+@pytest.mark.slow
 def test_bop_diameters_must_be_positive(bop_export, tmp_path, capsys, diameter) -> None:
     root = _copy(bop_export, tmp_path)
     csv = _results_for(root, tmp_path)
@@ -289,6 +294,7 @@ def test_bop_diameters_must_be_positive(bop_export, tmp_path, capsys, diameter) 
     assert f"object {key}: diameter must be a positive number of mm" in err
 
 
+@pytest.mark.slow
 def test_bop_cam_k_must_be_a_camera_matrix(bop_export, tmp_path, capsys) -> None:
     root = _copy(bop_export, tmp_path)
     csv = _results_for(root, tmp_path)

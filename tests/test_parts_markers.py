@@ -104,6 +104,7 @@ def test_layout_sites_lie_on_the_surface_and_do_not_overlap(name: str) -> None:
     assert layout.min_facing >= 2
 
 
+@pytest.mark.slow
 def test_markers_command_writes_object_sheets_and_textured_mesh(tmp_path, capsys) -> None:
     out = tmp_path / "brick"
     assert main(["markers", "brick", str(out), "--instances", "2", "--dpi", "300", "--json"]) == 0

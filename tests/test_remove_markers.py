@@ -25,6 +25,8 @@ from annotator.geometry.mesh import Mesh
 from annotator.geometry.transforms import make_transform
 from devkit.marker_twins import export_twins, render_twins
 
+pytestmark = pytest.mark.slow  # scenes rendered and exported first
+
 SYNTH = ["--parts", "bracket,brick,cylinder", "--scenes", "2", "--instances", "6-8"]
 SYNTH += ["--seed", "5", "--size", "640x512", "--workers", "1", "--quiet"]
 

@@ -15,6 +15,8 @@ import pytest
 from devkit.aruco_settings import SETTINGS, detections, detector, new_in
 from devkit.marker_twins import export_twins, render_twins
 
+pytestmark = pytest.mark.slow  # scenes rendered twice and exported first
+
 COMMON = ["--parts", "bracket,brick,gear,cup,cylinder,ball", "--instances", "14-22"]
 COMMON += ["--size", "640x512", "--supersample", "1", "--no-depth", "--workers", "1", "--quiet"]
 #: Seed 41's second scene has a cup's marker seen edge-on over the cup's own inner wall, its

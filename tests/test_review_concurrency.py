@@ -127,6 +127,7 @@ def test_two_servers_at_once_lose_nothing(sample_copy: Path) -> None:
     assert set(doc["instances"]) == set(keys)
 
 
+@pytest.mark.slow
 def test_a_pages_undo_after_another_reviewers_edit_is_refused_and_said(sample_copy: Path) -> None:
     from test_viewer_repair import KEY, _page_on
 

@@ -20,6 +20,8 @@ from annotator.dataset.frames import read_frames
 from annotator.markers.texture import marker_bits
 from annotator.synthesis.sequence import motion_blur
 
+pytestmark = pytest.mark.slow  # sequences rendered first
+
 GRID = marker_bits("DICT_4X4_1000", 7)
 
 
@@ -216,7 +218,6 @@ def sequence_annotation_of(sol, readings):
     return sequence_annotation(sol, readings, {})
 
 
-@pytest.mark.slow
 def test_a_frame_left_out_is_one_the_truth_shows_hard(tmp_path) -> None:
     """Issue 48: every frame a 12-frame hand-held sequence leaves out is refused for a reason
     the truth confirms: its images are smeared (the truth's streak at least the blur flag's

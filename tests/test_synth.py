@@ -14,6 +14,8 @@ from annotator.dataset import load_dataset, read_poses
 from annotator.detection import MarkerDetector
 from annotator.rendering.raycast import PlacedMesh, render
 
+pytestmark = pytest.mark.slow  # scenes rendered first
+
 
 @pytest.fixture(scope="module")
 def fresh(tmp_path_factory):

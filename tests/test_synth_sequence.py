@@ -39,6 +39,7 @@ def small(tmp_path_factory) -> Path:
     return out
 
 
+@pytest.mark.slow
 def test_the_sequences_load_as_a_moving_rig_dataset(small: Path) -> None:
     ds = load_dataset(small)
     assert ds.rig.moving and ds.rig.depth is not None and ds.rig.depth.background is None
@@ -74,6 +75,7 @@ def test_the_sequences_load_as_a_moving_rig_dataset(small: Path) -> None:
             assert set(p.extra["occlusion"]["per_camera"]) == {"left", "right"}
 
 
+@pytest.mark.slow
 def test_same_bytes_with_one_worker_and_the_summary(small: Path, tmp_path: Path, capsys) -> None:
     out = tmp_path / "again"
     assert main(["synth", str(out), *SMALL, "--workers", "1", "--json"]) == 0
@@ -83,6 +85,7 @@ def test_same_bytes_with_one_worker_and_the_summary(small: Path, tmp_path: Path,
     assert _digest(out) == _digest(small)
 
 
+@pytest.mark.slow
 def test_truth_through_each_frame_lands_on_the_detected_corners(tmp_path: Path) -> None:
     out = tmp_path / "big"
     args = ["synth", str(out), "--scenes", "1", "--frames", "3", "--size", "960x768"]

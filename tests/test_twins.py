@@ -14,6 +14,8 @@ from annotator.dataset import load_dataset, read_poses
 from annotator.dataset.poses import read_pose_file, write_poses
 from annotator.dataset.review import Review, now_iso, poses_fingerprint, write_review
 
+pytestmark = pytest.mark.slow  # twin scenes rendered first
+
 
 @pytest.fixture(scope="module")
 def twin(tmp_path_factory):

@@ -175,6 +175,7 @@ def test_the_prefetch_cache_is_bounded_by_the_bytes_its_values_hold_now() -> Non
         cache.stop()
 
 
+@pytest.mark.slow
 def test_a_hostile_canvas_is_drawn_within_8k_and_forgotten_when_the_page_leaves(
     sample_copy,
 ) -> None:

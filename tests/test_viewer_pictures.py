@@ -275,6 +275,7 @@ def quick(monkeypatch):
     p.close()
 
 
+@pytest.mark.slow
 def test_the_canvas_copy_waits_until_the_pictures_and_keys_are_still(quick) -> None:
     p, scene = quick
     image = np.zeros((40, 60, 3), np.uint8)
