@@ -70,6 +70,8 @@ _HOMES = {
     "evaluate": "annotator.evaluation.evaluate",
     "EvaluationOptions": "annotator.evaluation.evaluate",
     "EvaluationReport": "annotator.evaluation.evaluate",
+    "evaluate_dataset": "annotator.evaluation.dataset",
+    "EvaluationSummary": "annotator.evaluation.dataset",
     "bop24_scores": "annotator.evaluation.bop24",
     "Bop24Scores": "annotator.evaluation.bop24",
     "coco_scores": "annotator.evaluation.coco",

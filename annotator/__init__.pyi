@@ -55,6 +55,10 @@ from annotator.evaluation.coco import (
     CocoScores as CocoScores,
     coco_scores as coco_scores,
 )
+from annotator.evaluation.dataset import (
+    EvaluationSummary as EvaluationSummary,
+    evaluate_dataset as evaluate_dataset,
+)
 from annotator.evaluation.evaluate import (
     EvaluationOptions as EvaluationOptions,
     EvaluationReport as EvaluationReport,
