@@ -49,11 +49,9 @@ from annotator.errors import (
 )
 from annotator.evaluation.bop24 import (
     Bop24Scores as Bop24Scores,
-    bop24_scores as bop24_scores,
 )
 from annotator.evaluation.coco import (
     CocoScores as CocoScores,
-    coco_scores as coco_scores,
 )
 from annotator.evaluation.dataset import (
     EvaluationSummary as EvaluationSummary,

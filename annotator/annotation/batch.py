@@ -205,6 +205,13 @@ def annotate_dataset(
     annotation.json is not up to date (all of them with ``force``), in ``workers`` processes
     or on a Ray cluster (``ray_address``); a scene that fails is reported, the others go on.
 
+        >>> import shutil, tempfile
+    >>> from pathlib import Path
+    >>> root = shutil.copytree("sample_scenes", Path(tempfile.mkdtemp()) / "ds")
+    >>> summary = annotate_dataset(root, scenes="000000", force=True)
+    >>> summary.scenes, sorted(summary.report.done), summary.report.failed
+    (1, ['000000'], {})
+
     Raises:
         UserError: no scene matches, or a mesh is unreadable.
     """

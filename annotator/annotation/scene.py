@@ -70,7 +70,14 @@ def annotate_scene(
     *,
     settings: AnnotateSettings = AnnotateSettings(),
 ) -> SceneResult:
-    """Pose every instance with detected markers, and check the scene's completeness."""
+    """Pose every instance with detected markers, and check the scene's completeness.
+
+    >>> from annotator import MarkerDetector, load_dataset
+    >>> ds = load_dataset("sample_scenes")
+    >>> result = annotate_scene(ds, ds.scene("000000"), MarkerDetector(ds.dictionary))
+    >>> len(result.annotation.instances), result.annotation.instances[0].key
+    (8, 'bracket/01')
+    """
     of_type(ds, Dataset, name="ds", what="a Dataset (annotator.load_dataset)")
     of_type(scene, Scene, name="scene", what="a Scene of the dataset (ds.scene(id))")
     of_type(detector, MarkerDetector, name="detector", what="an annotator.MarkerDetector")

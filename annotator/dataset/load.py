@@ -48,7 +48,12 @@ class Problem:
 
 
 def load_dataset(root: str | Path) -> Dataset:
-    """Read a dataset; raise a one-line UserError on the first problem (see ``annotator check``)."""
+    """Read a dataset; raise a one-line UserError on the first problem (see ``annotator check``).
+
+    >>> ds = load_dataset("sample_scenes")
+    >>> [c.name for c in ds.rig.cameras], [s.id for s in ds.scenes()]
+    (['left', 'right'], ['000000', '000001', '000002', '000003'])
+    """
     dataset, problems = read_dataset(root)
     if problems:
         more = (

@@ -127,7 +127,15 @@ def thresholds_for(gt: GroundTruth, options: EvaluationOptions) -> dict[str, flo
 def evaluate(
     gt: GroundTruth, results: PoseResults, options: EvaluationOptions = EvaluationOptions()
 ) -> EvaluationReport:
-    """Score ``results`` against ``gt`` (see :mod:`annotator.evaluation.metrics`)."""
+    """Score ``results`` against ``gt`` (see :mod:`annotator.evaluation.metrics`).
+
+    >>> from pathlib import Path
+    >>> from annotator import annotations_as_results, read_ground_truth
+    >>> gt = read_ground_truth("sample_scenes")
+    >>> report = evaluate(gt, annotations_as_results(Path("sample_scenes"), gt))
+    >>> round(report.overall.ap, 3), report.overall.tp, report.overall.fp
+    (1.0, 35, 1)
+    """
     of_type(gt, GroundTruth, name="gt", what="a GroundTruth (annotator.read_ground_truth)")
     of_type(results, PoseResults, name="results", what="PoseResults (annotator.read_results)")
     of_type(options, EvaluationOptions, name="options", what="annotator.EvaluationOptions")

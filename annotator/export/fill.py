@@ -64,7 +64,15 @@ def fill_markers(
     the image's blur (Gaussian sigma, px); ``noise``: give the filled pixels the sensor
     noise the image has around them (a smooth patch is a cue a network could learn as it
     learns the markers), drawn from the image's own content, so the same image is always
-    filled the same way."""
+    filled the same way.
+
+    >>> img = np.full((32, 32), 100, np.uint8)
+    >>> img[10:20, 10:20] = 0  # a marker's black square
+    >>> mask = np.zeros((32, 32), bool)
+    >>> mask[10:20, 10:20] = True
+    >>> int(fill_markers(img, mask, noise=False)[15, 15])
+    100
+    """
     if method not in METHODS:
         raise ValueError(f"unknown fill method {method!r} (expected one of {', '.join(METHODS)})")
     out = image.copy()

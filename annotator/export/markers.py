@@ -369,6 +369,17 @@ def scene_markers(
     ``masks=True``) and the markers of every camera's image, from one cast of each instance
     per camera: the casts the visibility needs are the ones the markers need.
 
+    >>> from annotator import load_dataset
+    >>> from annotator.dataset import read_poses
+    >>> ds = load_dataset("sample_scenes")
+    >>> p = read_poses(ds.scene("000000").gt_path)[0]  # brick/01, alone in the scene
+    >>> brick = ds.objects[p.object]
+    >>> ids = tuple(brick.instance(p.instance).marker_ids)
+    >>> part = MarkedInstance(p.object, p.instance, brick.mesh, p.T, brick.site_corners(p.instance), ids)
+    >>> seen, images = scene_markers(ds.rig, [part], cameras=["left"])
+    >>> seen[0].occlusion, sum(r.px_visib > 0 for r in images["left"].regions)  # markers in view
+    (0.0, 13)
+
     Args:
         rig: The cameras (the export's pinhole ones).
         instances: The posed instances and their markers.

@@ -47,13 +47,27 @@ def detect_format(path: str | Path) -> ModuleType:
 
 def read_ground_truth(path: str | Path, *, symmetry: str | None = None) -> GroundTruth:
     """The true poses of the dataset at ``path``, whatever its format (:func:`detect_format`):
-    ours, BOP or the paper's. ``symmetry``: the class for a Siléane folder with only a mesh."""
+    ours, BOP or the paper's. ``symmetry``: the class for a Siléane folder with only a mesh.
+
+    >>> gt = read_ground_truth("sample_scenes")
+    >>> gt.unit, sorted(gt.scenes)
+    ('mm', ['000000', '000001', '000002', '000003'])
+    """
     return detect_format(path).read_ground_truth(Path(path), symmetry=symmetry)
 
 
 def read_results(path: str | Path, gt: GroundTruth) -> PoseResults:
     """Results to score against ``gt``: a BOP CSV or a folder of per-scene JSON lists, in
-    ``gt``'s unit."""
+    ``gt``'s unit.
+
+    >>> import json, tempfile
+    >>> gt = read_ground_truth("sample_scenes")
+    >>> folder = Path(tempfile.mkdtemp())
+    >>> pose = {"object": "brick", "R": [1, 0, 0, 0, 1, 0, 0, 0, 1], "t": [0, 0, 500], "score": 1}
+    >>> _ = (folder / "000000.json").write_text(json.dumps([pose]))
+    >>> sorted(read_results(folder, gt).scenes)
+    ['000000']
+    """
     of_type(path, (str, Path), name="path", what="a results file or folder (str or Path)")
     of_type(gt, GroundTruth, name="gt", what="a GroundTruth (annotator.read_ground_truth)")
     return get_format(gt.format).read_results(Path(path), gt)

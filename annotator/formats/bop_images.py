@@ -148,7 +148,13 @@ def bop_symmetries(
     entry (:func:`annotator.symmetry.classes.symmetry_to_bop`, axes through ``centroid``)
     made into transforms by :func:`symmetry_transformations`, each continuous axis in
     ``ceil(pi / max_disc_step)`` turns, so that a point at half the diameter from the axis
-    moves at most ``max_disc_step`` diameters between two. (S, 3, 3) and (S, 3)."""
+    moves at most ``max_disc_step`` diameters between two. (S, 3, 3) and (S, 3).
+
+    >>> from annotator.symmetry.classes import Symmetry
+    >>> R, t = bop_symmetries(Symmetry("revolution", axis=np.array([0.0, 0.0, 1.0])), np.zeros(3))
+    >>> R.shape, t.shape  # ceil(pi / 0.01) turns
+    ((315, 3, 3), (315, 3))
+    """
     return symmetry_transformations(symmetry_to_bop(sym, centroid), max_disc_step)
 
 

@@ -174,7 +174,13 @@ def _scene_key(scene_id: str, gt: GroundTruth, frames: dict | None = None) -> st
 def annotations_as_results(root: Path, gt: GroundTruth) -> PoseResults:
     """annotation.json poses (repaired ones applied) as results, scored ``1 / (1 +
     uncertainty_mm)`` (an instance added by hand has none: score 0); a sequence's in each
-    of its posed frames."""
+    of its posed frames.
+
+    >>> from annotator import read_ground_truth
+    >>> gt = read_ground_truth("sample_scenes")
+    >>> sorted(annotations_as_results(Path("sample_scenes"), gt).scenes)
+    ['000000', '000001', '000002', '000003']
+    """
     from annotator.dataset import load_dataset
     from annotator.dataset.records import SceneAnnotation
 

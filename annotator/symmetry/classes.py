@@ -128,6 +128,9 @@ def symmetry_to_bop(sym: Symmetry, centroid: np.ndarray) -> dict[str, Any]:
     Revolution gives one continuous axis through the centroid; revolution_flip adds the
     half turn about an axis perpendicular to it; a spherical part (which BOP cannot express)
     gets three continuous axes; a finite group lists all its non-identity elements.
+
+    >>> symmetry_to_bop(Symmetry("revolution", axis=np.array([0.0, 0.0, 1.0])), np.zeros(3))
+    {'symmetries_continuous': [{'axis': [0.0, 0.0, 1.0], 'offset': [0.0, 0.0, 0.0]}]}
     """
     c = np.asarray(centroid, float)
 
@@ -178,6 +181,10 @@ def symmetry_from_bop(
     group they generate must be exactly the listed elements plus the identity. An element
     that is not of finite order but within :data:`SNAP_DEG` of a turn that is, is taken as
     that turn about its own axis; a line saying so is added to ``snapped``.
+
+    >>> sym = symmetry_from_bop({"symmetries_continuous": [{"axis": [0, 0, 1], "offset": [0, 0, 0]}]})
+    >>> sym.kind, sym.axis.tolist()
+    ('revolution', [0.0, 0.0, 1.0])
     """
     cont = entry.get("symmetries_continuous") or []
     disc = entry.get("symmetries_discrete") or []
