@@ -84,7 +84,7 @@ BACK_WHITE, BACK_BLACK = 0.72, 0.3
 
 
 @dataclass(frozen=True)
-class CaptureConfig:
+class CaptureSettings:
     """What defines a set of synthetic calibration captures (with the seed, every byte).
 
     Attributes:
@@ -151,7 +151,7 @@ class CaptureConfig:
         return (camera in self.behind) != (shot in self.turned)
 
 
-def board_poses(rig: Rig, config: CaptureConfig, rng: np.random.Generator) -> list[np.ndarray]:
+def board_poses(rig: Rig, config: CaptureSettings, rng: np.random.Generator) -> list[np.ndarray]:
     """``config.shots`` random poses ``rig_T_board`` (see the module docstring)."""
     spec = config.board
     ref = rig.cameras[0]
@@ -357,7 +357,7 @@ def render_shot(
     rig: Rig,
     rig_T_board: np.ndarray,
     model: BoardModel,
-    config: CaptureConfig,
+    config: CaptureSettings,
     rng: np.random.Generator,
     *,
     shot: int = -1,
@@ -396,7 +396,7 @@ class CapturePlan:
             and its angular velocity about the centre (rad/s, rig frame).
     """
 
-    config: CaptureConfig
+    config: CaptureSettings
     rig: Rig
     poses: list[np.ndarray]
     model: BoardModel
@@ -430,7 +430,7 @@ class CapturePlan:
         return render_shot(self.rig, self.camera_poses(k), self.model, self.config, rng, shot=k)
 
 
-def plan_captures(config: CaptureConfig) -> CapturePlan:
+def plan_captures(config: CaptureSettings) -> CapturePlan:
     """The synthetic rig of ``annotator synth --seed`` (the same rig as its scenes) and the
     board poses, all from the seed."""
     rig = _with_extra_cameras(
@@ -469,9 +469,9 @@ def plan_captures(config: CaptureConfig) -> CapturePlan:
     return CapturePlan(config, rig, poses, model, offsets, motion)
 
 
-def _timing(config: CaptureConfig, n_cameras: int) -> tuple[np.ndarray | None, np.ndarray | None]:
+def _timing(config: CaptureSettings, n_cameras: int) -> tuple[np.ndarray | None, np.ndarray | None]:
     """Each camera's time offset in each shot and each shot's board motion (see
-    :class:`CaptureConfig`), from their own random stream; None when the cameras are in step."""
+    :class:`CaptureSettings`), from their own random stream; None when the cameras are in step."""
     if not (config.timing_ms > 0 or config.rolling_ms > 0) or not any(config.speed):
         return None, None
     rng = np.random.default_rng([config.seed, _TIMING_STREAM])
@@ -488,8 +488,8 @@ def _timing(config: CaptureConfig, n_cameras: int) -> tuple[np.ndarray | None, n
     return offsets, motion
 
 
-def _with_extra_cameras(rig: Rig, config: CaptureConfig) -> Rig:
-    """``rig`` with ``config.extra_cameras`` more cameras (see :class:`CaptureConfig`)."""
+def _with_extra_cameras(rig: Rig, config: CaptureSettings) -> Rig:
+    """``rig`` with ``config.extra_cameras`` more cameras (see :class:`CaptureSettings`)."""
     from annotator.synthesis.rig import look_at
 
     middle = np.array([0.0, 0.0, float(np.mean(config.distance))])
@@ -504,7 +504,7 @@ def _with_extra_cameras(rig: Rig, config: CaptureConfig) -> Rig:
     return Rig(tuple(rig.cameras) + tuple(extra), rig.depth, rig.flipped)
 
 
-def _behind(config: CaptureConfig) -> np.ndarray:
+def _behind(config: CaptureSettings) -> np.ndarray:
     """Half a turn about the vertical through the middle of the working distance on the
     reference camera's axis: a camera moved so turns to face the rig from the far side."""
     T = make_transform(axis_angle(np.array([0.0, 1.0, 0.0]), np.pi), np.zeros(3))
@@ -575,7 +575,7 @@ def write_truth(plan: CapturePlan, root: Path) -> None:
 class ShotJob:
     """Render and write one shot (a job of :func:`annotator.runner.run_batch`, picklable)."""
 
-    config: CaptureConfig
+    config: CaptureSettings
     root: str
 
     def prepare(self) -> None:
@@ -628,17 +628,17 @@ def write_videos(root: Path, cameras: list[str]) -> list[Path]:
 
 
 _POSE_STREAM, _NOISE_STREAM, _TIMING_STREAM = 7919, 104729, 15485863
-_PLANS: dict[CaptureConfig, CapturePlan] = {}
+_PLANS: dict[CaptureSettings, CapturePlan] = {}
 
 
-def _plan(config: CaptureConfig) -> CapturePlan:
+def _plan(config: CaptureSettings) -> CapturePlan:
     if config not in _PLANS:
         _PLANS[config] = plan_captures(config)
     return _PLANS[config]
 
 
 def write_captures(
-    config: CaptureConfig,
+    config: CaptureSettings,
     out: Path,
     *,
     workers: int = 1,
