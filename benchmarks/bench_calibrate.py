@@ -48,7 +48,8 @@ from annotator.calibration.records import CalibrationSettings, View
 from annotator.calibration.rig import solve_rig
 from annotator.geometry.camera import Camera
 from annotator.geometry.transforms import invert
-from annotator.synthesis.board import BLACK, WHITE, CaptureSettings, plan_captures, true_corners
+from annotator.synthesis.board import CaptureSettings, plan_captures
+from annotator.synthesis.board_render import BLACK, WHITE, true_corners
 
 # OpenCV's pipelines, the reference, are test support code: they live beside the tests.
 from devkit.opencv_baseline import opencv_rig, opencv_stereo

@@ -29,7 +29,7 @@ from annotator.dataset import load_dataset
 from annotator.geometry.camera import Camera
 from annotator.geometry.lie import rotvec_to_matrix
 from annotator.geometry.transforms import invert, make_transform
-from annotator.synthesis.board import true_corners
+from annotator.synthesis.board_render import true_corners
 from devkit.opencv_baseline import opencv_stereo
 
 pytestmark = pytest.mark.slow  # calibration captures rendered and solved

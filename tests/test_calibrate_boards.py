@@ -30,7 +30,8 @@ from annotator.errors import UserError
 from annotator.geometry.transforms import invert
 from annotator.markers.dictionary import dictionary, min_distance
 from annotator.runner.bundle import description_files
-from annotator.synthesis.board import CaptureSettings, write_captures, write_videos
+from annotator.synthesis.board import CaptureSettings, write_captures
+from annotator.synthesis.board_video import write_videos
 
 pytestmark = pytest.mark.slow  # calibration captures rendered and solved
 
