@@ -8,7 +8,7 @@ import argparse
 import json
 from pathlib import Path
 
-from annotator.commands import number
+from annotator.commands import number, number_pair
 from annotator.errors import UserError
 from annotator.synthesis.board import CaptureSettings
 from annotator.synthesis.generate import SynthSettings
@@ -94,21 +94,12 @@ def add_calibration_options(parser: argparse.ArgumentParser) -> None:
     )
     calib.add_argument(
         "--speed",
-        type=_speed,
+        type=number_pair("MM_S,DEG_S", "40,5"),
         default=CaptureSettings.speed,
         metavar="MM_S,DEG_S",
         help="the board held by hand: its centre's largest speed (mm/s) and turn (deg/s) "
         "during a shot, each shot a random fraction of it (default 0,0: still)",
     )
-
-
-def _speed(text: str) -> tuple[float, float]:
-    """``MM_S,DEG_S`` for --speed: two finite numbers, at least 0."""
-    parts = text.split(",")
-    finite = number(low=0)
-    if len(parts) != 2:
-        raise argparse.ArgumentTypeError(f"must be MM_S,DEG_S (e.g. 40,5), not {text!r}")
-    return finite(parts[0]), finite(parts[1])
 
 
 def synth_calibration(args: argparse.Namespace, config: SynthSettings) -> int:

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import argparse
 
-from annotator.commands import number, whole
+from annotator.commands import number, number_pair, whole
 from annotator.errors import UserError
 from annotator.parts import PART_NAMES, build_part
 from annotator.synthesis.generate import GLUED_SITES, SynthSettings
@@ -65,7 +65,7 @@ def add_rendering_options(parser: argparse.ArgumentParser) -> None:
     )
     group.add_argument(
         "--glue",
-        type=_glue,
+        type=number_pair("MM,DEG", "0.7,2"),
         default=(0.0, 0.0),
         metavar="MM,DEG",
         help="markers glued by hand: each marker of each instance moved in its own plane by "
@@ -103,15 +103,6 @@ def add_rendering_options(parser: argparse.ArgumentParser) -> None:
         help="render the parts bare (object.yaml still lists the markers): with the same seed "
         "and options, the same scenes as with markers, pixel for pixel away from them",
     )
-
-
-def _glue(text: str) -> tuple[float, float]:
-    """``MM,DEG`` for --glue: two finite numbers, at least 0."""
-    parts = text.split(",")
-    finite = number(low=0)
-    if len(parts) != 2:
-        raise argparse.ArgumentTypeError(f"must be MM,DEG (e.g. 0.7,2), not {text!r}")
-    return finite(parts[0]), finite(parts[1])
 
 
 def scene_settings(args: argparse.Namespace) -> SynthSettings:
