@@ -49,10 +49,10 @@ _HOMES = {
     "CheckReport": "annotator.dataset.check",
     "Problem": "annotator.dataset",
     # sequences: synthetic ones, and recorded ones into a moving rig's dataset
-    "SynthConfig": "annotator.synthesis.generate",
+    "SynthSettings": "annotator.synthesis.generate",
     "synthesize_sequences": "annotator.synthesis.sequence",
     "SequenceSummary": "annotator.synthesis.sequence",
-    "ingest_scene": "annotator.ingest.scene",
+    "ingest_recording": "annotator.ingest.scene",
     "IngestSummary": "annotator.ingest.scene",
     # marker detection and auto-annotation
     "MarkerDetector": "annotator.detection",
@@ -88,6 +88,19 @@ _HOMES = {
     "scene_markers": "annotator.export.markers",
     "MarkerRegion": "annotator.export.markers",
     "fill_markers": "annotator.export.fill",
+    # the other stages, each a dataset-level function and its summary
+    "calibrate_rig": "annotator.calibration.workflow",
+    "CalibrationSummary": "annotator.calibration.workflow",
+    "measure_sites": "annotator.sites.survey",
+    "SitesSummary": "annotator.sites.survey",
+    "synthesize_scenes": "annotator.synthesis.scenes",
+    "SynthesisSummary": "annotator.synthesis.scenes",
+    "synthesize_twins": "annotator.twins.dataset",
+    "TwinSummary": "annotator.twins.dataset",
+    "compute_occlusion": "annotator.occlusion.dataset",
+    "OcclusionSummary": "annotator.occlusion.dataset",
+    "estimate_dataset": "annotator.estimation.dataset",
+    "EstimateSummary": "annotator.estimation.dataset",
     # errors
     "UserError": "annotator.errors",
     "BadValue": "annotator.values",
@@ -99,6 +112,8 @@ _RENAMED = {
     "Options": "EvaluationOptions",
     "Report": "EvaluationReport",
     "Results": "PoseResults",
+    "SynthConfig": "SynthSettings",
+    "ingest_scene": "ingest_recording",
 }
 
 __all__ = sorted(_HOMES)

@@ -11,6 +11,12 @@ from annotator.annotation.scene import (
 from annotator.annotation.settings import (
     AnnotateSettings as AnnotateSettings,
 )
+
+# the other stages, each a dataset-level function and its summary
+from annotator.calibration.workflow import (
+    CalibrationSummary as CalibrationSummary,
+    calibrate_rig as calibrate_rig,
+)
 from annotator.dataset import (
     Dataset as Dataset,
     InstancePose as InstancePose,
@@ -46,6 +52,10 @@ from annotator.detection import (
 )
 from annotator.errors import (
     UserError as UserError,
+)
+from annotator.estimation.dataset import (
+    EstimateSummary as EstimateSummary,
+    estimate_dataset as estimate_dataset,
 )
 from annotator.evaluation.bop24 import (
     Bop24Scores as Bop24Scores,
@@ -84,7 +94,11 @@ from annotator.formats.ours import (
 )
 from annotator.ingest.scene import (
     IngestSummary as IngestSummary,
-    ingest_scene as ingest_scene,
+    ingest_recording as ingest_recording,
+)
+from annotator.occlusion.dataset import (
+    OcclusionSummary as OcclusionSummary,
+    compute_occlusion as compute_occlusion,
 )
 from annotator.physics.check import (
     PhysicsSettings as PhysicsSettings,
@@ -93,16 +107,28 @@ from annotator.physics.dataset import (
     PhysicsSummary as PhysicsSummary,
     physics_of_dataset as physics_of_dataset,
 )
+from annotator.sites.survey import (
+    SitesSummary as SitesSummary,
+    measure_sites as measure_sites,
+)
 from annotator.symmetry.classes import (
     symmetry_from_bop as symmetry_from_bop,
     symmetry_to_bop as symmetry_to_bop,
 )
 from annotator.synthesis.generate import (
-    SynthConfig as SynthConfig,
+    SynthSettings as SynthSettings,
+)
+from annotator.synthesis.scenes import (
+    SynthesisSummary as SynthesisSummary,
+    synthesize_scenes as synthesize_scenes,
 )
 from annotator.synthesis.sequence import (
     SequenceSummary as SequenceSummary,
     synthesize_sequences as synthesize_sequences,
+)
+from annotator.twins.dataset import (
+    TwinSummary as TwinSummary,
+    synthesize_twins as synthesize_twins,
 )
 from annotator.values import (
     BadValue as BadValue,

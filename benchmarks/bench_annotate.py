@@ -44,13 +44,13 @@ from annotator.markers.texture import marker_image  # noqa: E402
 from annotator.rendering.raycast import PlacedMesh, RayScene  # noqa: E402
 from annotator.runner import run_batch  # noqa: E402
 from annotator.symmetry import PoseSpace  # noqa: E402
-from annotator.synthesis.generate import SynthConfig, plan_dataset, write_dataset_files  # noqa: E402
+from annotator.synthesis.generate import SynthSettings, plan_dataset, write_dataset_files  # noqa: E402
 
 BASELINE_S = 0.41  # annotate, warm, one worker, per scene, before blur reading and completeness
-CONFIG = SynthConfig(parts=("bracket", "brick", "cylinder"), instances=(12, 20), seed=11)
+CONFIG = SynthSettings(parts=("bracket", "brick", "cylinder"), instances=(12, 20), seed=11)
 
 
-def make_dataset(root: Path, scenes: int, config: SynthConfig = CONFIG) -> None:
+def make_dataset(root: Path, scenes: int, config: SynthSettings = CONFIG) -> None:
     plan = plan_dataset(config)
     write_dataset_files(plan, root)
     ids = [f"{k:06d}" for k in range(scenes)]

@@ -48,7 +48,8 @@ from annotator.calibration.records import CalibrationSettings, View
 from annotator.calibration.rig import solve_rig
 from annotator.geometry.camera import Camera
 from annotator.geometry.transforms import invert
-from annotator.synthesis.board import BLACK, WHITE, CaptureConfig, plan_captures, true_corners
+from annotator.synthesis.board import CaptureSettings, plan_captures
+from annotator.synthesis.board_render import BLACK, WHITE, true_corners
 
 # OpenCV's pipelines, the reference, are test support code: they live beside the tests.
 from devkit.opencv_baseline import opencv_rig, opencv_stereo
@@ -140,7 +141,7 @@ def pair_rms(held, skip: str | None = None) -> float:  # noqa: ANN001
     return float(np.sqrt(sum(p.rms_px**2 * p.corners for p in pairs) / n))
 
 
-def rendered_and_calibrated(cfg: CaptureConfig):  # noqa: ANN201
+def rendered_and_calibrated(cfg: CaptureSettings):  # noqa: ANN201
     """The captures of ``cfg`` rendered and detected, and ``annotator calibrate``'s
     calibration of them: the plan, the views and the calibration."""
     plan = plan_captures(cfg)
@@ -167,7 +168,7 @@ def behind_part(n_seeds: int) -> None:
     rows: dict[str, list[float]] = {}
     for seed in range(n_seeds):
         base = {"shots": 20, "seed": seed, "noise": 12.0, "blur": 1.0, "size": (1280, 720)}
-        cfg = CaptureConfig(**base, extra_cameras=2, behind=("cam3",))
+        cfg = CaptureSettings(**base, extra_cameras=2, behind=("cam3",))
         plan, views, cal = rendered_and_calibrated(cfg)
         names = [c.name for c in plan.rig.cameras]
         sizes = [c.size for c in plan.rig.cameras]
@@ -179,13 +180,13 @@ def behind_part(n_seeds: int) -> None:
             [v for v in views if v.camera < 3], cameras=names[:3], **{**common, "sizes": sizes[:3]}
         )
         # The same rig with that camera in front.
-        front_plan = plan_captures(CaptureConfig(**base, extra_cameras=2))
+        front_plan = plan_captures(CaptureSettings(**base, extra_cameras=2))
         front_views = detect_plan(front_plan)
         front = calibrate_and_assess(front_views, cameras=names, **common)
         # The same rig, the back seen as sharply as the front (the print's own greys): what
         # is left is the reading from behind alone, without the paper's loss of contrast.
         sharp_plan = plan_captures(
-            CaptureConfig(**base, extra_cameras=2, behind=("cam3",), through_paper=(WHITE, BLACK))
+            CaptureSettings(**base, extra_cameras=2, behind=("cam3",), through_paper=(WHITE, BLACK))
         )
         sharp = calibrate_and_assess(detect_plan(sharp_plan), cameras=names, **common)
         # OpenCV's pairwise pipeline, given the right reading.
@@ -270,7 +271,7 @@ def webcams_part(n_seeds: int) -> None:
     rows: dict[str, list[float]] = {}
     for speed in (40.0, 60.0):
         for seed in range(n_seeds):
-            cfg = CaptureConfig(**WEBCAMS, seed=seed, speed=(speed, speed / 5))  # type: ignore[arg-type]
+            cfg = CaptureSettings(**WEBCAMS, seed=seed, speed=(speed, speed / 5))  # type: ignore[arg-type]
             plan, views, cal = rendered_and_calibrated(cfg)
             names = [c.name for c in plan.rig.cameras]
             sizes = [c.size for c in plan.rig.cameras]
@@ -324,7 +325,7 @@ def main() -> None:
     solve_s, noise = [], []
     held: list[dict[str, float]] = []
     for seed in range(n_seeds):
-        cfg = CaptureConfig(shots=30, seed=seed, noise=12.0, blur=1.0)
+        cfg = CaptureSettings(shots=30, seed=seed, noise=12.0, blur=1.0)
         plan = plan_captures(cfg)
         detector = BoardDetector(cfg.board)
         views, err = [], []

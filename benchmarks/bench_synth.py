@@ -34,14 +34,14 @@ import yaml  # noqa: E402
 
 from annotator.dataset import read_poses  # noqa: E402
 from annotator.rendering.raycast import set_threads  # noqa: E402
-from annotator.synthesis.generate import SynthConfig, make_scene, plan_dataset  # noqa: E402
+from annotator.synthesis.generate import SynthSettings, make_scene, plan_dataset  # noqa: E402
 
 TARGET_S = 5.0
 SAMPLE = Path(__file__).resolve().parent.parent / "sample_scenes"
 
 
 def speed(scenes: int) -> None:
-    config = SynthConfig(parts=("bracket", "brick", "cylinder"), instances=(20, 20), seed=5)
+    config = SynthSettings(parts=("bracket", "brick", "cylinder"), instances=(20, 20), seed=5)
     plan = plan_dataset(config)
     with tempfile.TemporaryDirectory() as tmp:
         # The first scene also builds per-camera ray tables (cached afterwards): time it apart.
@@ -85,7 +85,7 @@ def sameness(scenes: int) -> bool:
     doc = yaml.safe_load((SAMPLE / "dataset.yaml").read_text())
     scale = float(doc["rig"]["depth"]["scale"])
     synth = doc["synth"]
-    config = SynthConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in synth.items()})
+    config = SynthSettings(**{k: tuple(v) if isinstance(v, list) else v for k, v in synth.items()})
     plan = plan_dataset(config)
     ok = True
 

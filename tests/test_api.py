@@ -71,7 +71,12 @@ def test_one_list_of_public_names_drives_the_imports_and_the_types() -> None:
 
 
 def test_the_names_of_an_earlier_release_still_work_with_a_warning() -> None:
-    for old, new in [("Settings", "AnnotateSettings"), ("Options", "EvaluationOptions")]:
+    for old, new in [
+        ("Settings", "AnnotateSettings"),
+        ("Options", "EvaluationOptions"),
+        ("SynthConfig", "SynthSettings"),
+        ("ingest_scene", "ingest_recording"),
+    ]:
         with pytest.warns(DeprecationWarning, match=f"annotator.{old} is now annotator.{new}"):
             assert getattr(annotator, old) is getattr(annotator, new)
     with pytest.warns(DeprecationWarning, match="annotator.FLAGS"):

@@ -29,7 +29,7 @@ from annotator.dataset import load_dataset
 from annotator.geometry.camera import Camera
 from annotator.geometry.lie import rotvec_to_matrix
 from annotator.geometry.transforms import invert, make_transform
-from annotator.synthesis.board import true_corners
+from annotator.synthesis.board_render import true_corners
 from devkit.opencv_baseline import opencv_stereo
 
 pytestmark = pytest.mark.slow  # calibration captures rendered and solved
@@ -457,9 +457,9 @@ def test_mirrored_or_behind_is_decided_by_the_geometry(
     behind: tuple, mirrored: tuple, missing: tuple
 ) -> None:
     from annotator.calibration.readings import decide_readings
-    from annotator.synthesis.board import CaptureConfig
+    from annotator.synthesis.board import CaptureSettings
 
-    config = CaptureConfig(shots=12, size=(1024, 820), behind=behind, turned=(4,))
+    config = CaptureSettings(shots=12, size=(1024, 820), behind=behind, turned=(4,))
     plan, views = _projected_views(config, mirrored, missing)
     names = [c.name for c in plan.rig.cameras]
     readings = decide_readings(
@@ -483,9 +483,9 @@ def test_the_checks_of_a_rig_name_the_camera_and_the_check() -> None:
 
     from annotator.calibration.checks import rig_problems
     from annotator.calibration.model_choice import calibrate_and_assess
-    from annotator.synthesis.board import CaptureConfig
+    from annotator.synthesis.board import CaptureSettings
 
-    config = CaptureConfig(shots=10, size=(1024, 820))
+    config = CaptureSettings(shots=10, size=(1024, 820))
     plan, views = _projected_views(config)
     cal = calibrate_and_assess(
         views,

@@ -30,7 +30,8 @@ from annotator.errors import UserError
 from annotator.geometry.transforms import invert
 from annotator.markers.dictionary import dictionary, min_distance
 from annotator.runner.files import description_files
-from annotator.synthesis.board import CaptureConfig, write_captures, write_videos
+from annotator.synthesis.board import CaptureSettings, write_captures
+from annotator.synthesis.board_video import write_videos
 
 pytestmark = pytest.mark.slow  # calibration captures rendered and solved
 
@@ -392,7 +393,7 @@ def behind(tmp_path_factory: pytest.TempPathFactory) -> Path:
     paper, mirrored, with less contrast), and the board turned round in three shots: then the
     left camera sees its back and the right camera its front."""
     out = tmp_path_factory.mktemp("behind") / "captures"
-    config = CaptureConfig(
+    config = CaptureSettings(
         shots=SHOTS, noise=12.0, blur=1.0, size=(1024, 820), behind=("right",), turned=(2, 6, 10)
     )
     write_captures(config, out, workers=2)
@@ -490,7 +491,7 @@ def test_report_inside_a_camera_folder_is_refused(
 #: mirrored: the cameras in front read it only flipped, the one behind (through the paper,
 #: dimmer and blurred) as it is; each webcam takes its image 33 ms after the one before, give
 #: or take 10 ms, while the hand-held board is mostly still, now and then moving.
-WEBCAMS = CaptureConfig(
+WEBCAMS = CaptureSettings(
     shots=16,
     noise=14.0,
     blur=1.3,

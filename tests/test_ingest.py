@@ -17,7 +17,7 @@ from annotator.dataset import load_dataset
 from annotator.dataset.model import DepthSpec, Rig
 from annotator.dataset.write import write_dataset_yaml
 from annotator.geometry.camera import Camera
-from annotator.ingest.scene import ingest_scene
+from annotator.ingest.scene import ingest_recording
 from annotator.ingest.selection import running_median, select, sharpness
 from annotator.ingest.sources import open_source, read_name
 
@@ -146,10 +146,10 @@ def test_a_video_every_second_frame_and_the_summary_line(
 def test_blur_dropping_picks_the_blurred_frames_of_a_video(tmp_path: Path, sample: Path) -> None:
     ds = _dataset(tmp_path / "ds", sample)
     video = _video(tmp_path / "take.avi")
-    summary = ingest_scene(ds, video, "v")
+    summary = ingest_recording(ds, video, "v")
     assert sorted(summary.blurred) == sorted(BLURRED)
     assert summary.written == 10
-    again = ingest_scene(ds, video, "w", blur_threshold=0.0)
+    again = ingest_recording(ds, video, "w", blur_threshold=0.0)
     assert again.written == 12 and again.blurred == []
     # The measure itself: blurring lowers it a lot.
     assert sharpness(_picture(4)) < 0.3 * sharpness(_picture(2))

@@ -136,10 +136,10 @@ def test_marker_texture_matches_a_point_by_point_reference() -> None:
     from annotator.geometry.camera import Camera
     from annotator.geometry.transforms import make_transform
     from annotator.markers.texture import marker_bits
-    from annotator.synthesis.generate import DICTIONARY, SynthConfig, plan_dataset
+    from annotator.synthesis.generate import DICTIONARY, SynthSettings, plan_dataset
     from annotator.synthesis.shading import Surface, render_view
 
-    plan = plan_dataset(SynthConfig(parts=("cylinder", "brick"), instances=(2, 2), seed=4))
+    plan = plan_dataset(SynthSettings(parts=("cylinder", "brick"), instances=(2, 2), seed=4))
     cam = Camera("c", 480, 400, np.array([[900.0, 0, 239.5], [0, 900.0, 199.5], [0, 0, 1]]))
     rng = np.random.default_rng(0)
     for part, layout in zip(plan.parts, plan.layouts):

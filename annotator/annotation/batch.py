@@ -3,7 +3,6 @@
 
 from __future__ import annotations
 
-import fnmatch
 import functools
 import hashlib
 import os
@@ -18,10 +17,10 @@ from annotator.dataset import Dataset, Scene, as_dataset, cached_dataset, requir
 from annotator.dataset.check import BROKEN_LINK
 from annotator.dataset.flags import WarningKind
 from annotator.dataset.frames import frames_left_out
-from annotator.dataset.model import SCENES_DIR
 from annotator.dataset.poses import read_pose_file
 from annotator.dataset.records import SceneAnnotation
 from annotator.dataset.review import now_iso
+from annotator.dataset.selection import matches, matching_scenes
 from annotator.detection import MarkerDetector
 from annotator.errors import UserError
 from annotator.io.images import write_png
@@ -223,9 +222,7 @@ def annotate_dataset(
         ray_wait = number(ray_wait, name="ray_wait", low=0)
     if settings is not None:
         of_type(settings, AnnotateSettings, name="settings", what="annotator.AnnotateSettings")
-    chosen = [s for s in ds.scenes() if fnmatch.fnmatch(s.id, scenes)]
-    if not chosen:
-        raise UserError(f"no scene matches {scenes!r}", path=ds.root / SCENES_DIR)
+    chosen = matching_scenes(ds, scenes)
     require_meshes(ds)
     job = AnnotateJob.for_dataset(ds, settings)
     todo = [s.id for s in chosen if force or not is_up_to_date(ds, s, job.digest)]
@@ -251,7 +248,7 @@ def annotate_dataset(
             ray_wait=ray_wait,
         )
     for link in ds.broken_scene_links():
-        if fnmatch.fnmatch(link.name, scenes):
+        if matches(link.name, scenes):
             report.failed[link.name] = f"{link}: {BROKEN_LINK}"
     left, notes = {}, {}
     for sid in sorted(report.done) if ds.rig.moving else []:

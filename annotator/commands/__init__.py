@@ -89,6 +89,20 @@ def number(
     return parse
 
 
+def number_pair(form: str, example: str) -> Callable[[str], tuple[float, float]]:
+    """An argparse type: two finite numbers, at least 0, written ``A,B`` (``form`` names
+    them, ``MM,DEG``; ``example`` shows one, for the error line)."""
+    finite = number(low=0)
+
+    def parse(text: str) -> tuple[float, float]:
+        parts = text.split(",")
+        if len(parts) != 2:
+            raise argparse.ArgumentTypeError(f"must be {form} (e.g. {example}), not {text!r}")
+        return finite(parts[0]), finite(parts[1])
+
+    return parse
+
+
 def confirm(path: Path) -> bool:
     """Ask on the terminal whether to write ``path``; anything but y/yes is no."""
     print(f"write {path}? [y/N] ", end="", file=sys.stderr, flush=True)

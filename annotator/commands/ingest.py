@@ -1,5 +1,5 @@
 """``annotator ingest DATASET SOURCE --scene ID``: a recorded sequence into a moving rig's
-dataset (:func:`annotator.ingest.scene.ingest_scene`)."""
+dataset (:func:`annotator.ingest.scene.ingest_recording`)."""
 
 from __future__ import annotations
 
@@ -111,9 +111,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from annotator.ingest.scene import ingest_scene
+    from annotator.ingest.scene import ingest_recording
 
-    summary = ingest_scene(
+    summary = ingest_recording(
         args.dataset,
         args.source,
         args.scene,

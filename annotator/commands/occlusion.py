@@ -9,15 +9,10 @@ rates in annotation.json; this command gives the full per-camera detail.
 from __future__ import annotations
 
 import argparse
-import fnmatch
 
 from annotator.commands import add_ray_option, add_workers_option, finish_batch, number
-from annotator.dataset import load_dataset
-from annotator.dataset.model import SCENES_DIR
-from annotator.errors import UserError
 from annotator.occlusion import DEPTH_TOLERANCE_MM
-from annotator.occlusion.job import VisibilityJob, is_fresh
-from annotator.runner import run_batch
+from annotator.occlusion.dataset import compute_occlusion
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -38,33 +33,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    ds = load_dataset(args.dataset)
-    scenes = [s for s in ds.scenes() if fnmatch.fnmatch(s.id, args.scenes)]
-    if not scenes:
-        raise UserError(f"no scene matches {args.scenes!r}", path=ds.root / SCENES_DIR)
-
-    todo = [
-        s.id for s in scenes if args.force or not is_fresh(ds, s, args.poses, args.depth_tolerance)
-    ]
-    report = run_batch(
-        VisibilityJob(str(ds.root), args.poses, args.depth_tolerance),
-        todo,
+    summary = compute_occlusion(
+        args.dataset,
+        poses=args.poses,
+        scenes=args.scenes,
+        depth_tolerance=args.depth_tolerance,
+        force=args.force,
         workers=args.workers,
-        desc="occlusion",
         quiet=args.quiet,
         ray_address=args.ray,
         ray_wait=args.ray_wait,
     )
-    summary = {
-        "done": len(report.done),
-        "skipped": len(scenes) - len(todo),
-        "failed": len(report.failed),
-        "failures": report.failed,
-    }
-    return finish_batch(
-        report,
-        summary,
-        f"occlusion: {summary['done']} scenes done, {summary['skipped']} up to date, "
-        f"{summary['failed']} failed",
-        as_json=args.json,
-    )
+    return finish_batch(summary.report, summary.to_json(), summary.line(), as_json=args.json)

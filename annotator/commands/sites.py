@@ -7,19 +7,14 @@ The work is in :mod:`annotator.sites`; this module reads options, prints and ask
 from __future__ import annotations
 
 import argparse
-import fnmatch
 import json
 import sys
-from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from annotator.commands import add_workers_option, confirm, number
 from annotator.dataset import load_dataset
-from annotator.dataset.model import SCENES_DIR
-from annotator.errors import UserError
-from annotator.io.atomic import write_together
 
 if TYPE_CHECKING:  # imported when the command runs, so that `annotator --help` stays fast
     from annotator.sites.measure import InstanceSites
@@ -52,29 +47,28 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from annotator.sites.survey import annotated_scenes, survey_sites
+    from annotator.sites.survey import measure_sites
 
-    ds = load_dataset(args.dataset)
-    scenes = annotated_scenes(ds, args.scenes)
-    if not any(fnmatch.fnmatch(s.id, args.scenes) for s in ds.scenes()):
-        raise UserError(f"no scene matches {args.scenes!r}", path=ds.root / SCENES_DIR)
-    if not scenes:
-        raise UserError(
-            "no scene has an annotation.json: run `annotator annotate "
-            f"{args.dataset}` first (sites are measured from annotated scenes)",
-            path=ds.root / SCENES_DIR,
-        )
-    survey = survey_sites(
-        ds, scenes, max_move_mm=args.max_move, workers=args.workers, quiet=args.quiet
+    summary = measure_sites(
+        load_dataset(args.dataset),
+        scenes=args.scenes,
+        max_move_mm=args.max_move,
+        workers=args.workers,
+        quiet=args.quiet,
     )
+    survey = summary.survey
     if not args.json:
         _print_report(survey)
-    written, declined = _write(args, survey, ds.root)
+    if not args.dry_run:
+        # Asked about each on a terminal, unless --yes; every question first, then all are
+        # written, or none.
+        asking = not args.yes and sys.stdin.isatty()
+        summary.write(confirm=confirm if asking else None)
     if args.json:
-        print(json.dumps(_json(survey, written), indent=1))
+        print(json.dumps(summary.to_json(), indent=1))
     else:
-        print(_last_line(args, survey, written))
-    return 1 if survey.report.failed or declined else 0
+        print(_last_line(args, survey, summary.written))
+    return 1 if survey.report.failed or summary.declined else 0
 
 
 def _print_report(survey: SitesSurvey) -> None:
@@ -84,42 +78,6 @@ def _print_report(survey: SitesSurvey) -> None:
         print("\n".join(_lines(m)))
     for update in survey.updates:
         print(update.diff, end="" if update.diff.endswith("\n") else "\n")
-
-
-def _write(args: argparse.Namespace, survey: SitesSurvey, root: Path) -> tuple[list[str], bool]:
-    """Write the object.yaml files (asking about each on a terminal, unless --yes; none with
-    --dry-run), all together (:func:`annotator.io.atomic.write_together`): the paths written,
-    and whether the user declined any."""
-    written: list[str] = []
-    declined = False
-    if not survey.updates or args.dry_run:
-        return written, declined
-    asking = not args.yes and sys.stdin.isatty()
-    chosen = {}
-    for update in survey.updates:  # every question first: then all are written, or none
-        if not asking or confirm(update.path):
-            chosen[update.path] = update.text
-            written.append(str(update.path))
-        else:
-            declined = True
-    write_together(root, chosen)
-    return written, declined
-
-
-def _json(survey: SitesSurvey, written: list[str]) -> dict[str, Any]:
-    spread = survey.spread
-    return {
-        "scenes": len(survey.scenes),
-        "glue_spread": None
-        if spread is None
-        else {"mm": round(spread[0], 4), "deg": round(spread[1], 3)},
-        "instances": [m.to_json() for m in survey.measured],
-        "rounds": survey.rounds,
-        "round_moves_mm": [round(m, 4) for m in survey.moves],
-        "flagged_markers": survey.flagged,
-        "written": written,
-        "failures": dict(sorted(survey.report.failed.items())),
-    }
 
 
 def _last_line(args: argparse.Namespace, survey: SitesSurvey, written: list[str]) -> str:

@@ -21,6 +21,7 @@ from annotator.dataset.frames import Shot, frames_left_out, scene_shots
 from annotator.dataset.poses import read_pose_file
 from annotator.dataset.records import frames_from_json
 from annotator.dataset.review import ReviewStatus, apply_edits, poses_fingerprint, read_review
+from annotator.dataset.selection import EVERY_SCENE, matching_scenes
 from annotator.dataset.validity import pose_problem
 from annotator.errors import UserError
 
@@ -67,10 +68,12 @@ def select_scenes(
     include_pending: bool = False,
     drop_rejected_instances: bool = False,
     poses_from: str = "annotation",
+    scenes: str = EVERY_SCENE,
 ) -> Selection:
-    """Scenes to export and why the others are left out."""
+    """Scenes to export among those whose id matches ``scenes``
+    (:func:`annotator.dataset.selection.matching_scenes`), and why the others are left out."""
     sel = Selection()
-    for scene in ds.scenes():
+    for scene in matching_scenes(ds, scenes, required=False):
         path = scene.annotation_path if poses_from == "annotation" else scene.gt_path
         if not path.exists():
             sel.skipped[scene.id] = f"no {path.name}"

@@ -9,5 +9,5 @@ to OpenCV's, :mod:`.registration` draws depth taken by another camera on the col
 grid, :mod:`.rig` writes the rig a file describes or checks it against the dataset's;
 :mod:`.selection` picks every N-th frame and drops those too blurred to read; :mod:`.write`
 writes the frames as the dataset stores them and frames.json; :mod:`.scene` runs the whole
-(:func:`~.scene.ingest_scene`).
+(:func:`~.scene.ingest_recording`).
 """

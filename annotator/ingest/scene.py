@@ -47,12 +47,12 @@ from annotator.ingest.write import (
 from annotator.io.atomic import atomic_folder, write_json
 from annotator.runner.report import progress_bar
 
-__all__ = ["IngestSummary", "ingest_scene"]
+__all__ = ["IngestSummary", "ingest_recording"]
 
 
 @dataclass(frozen=True)
 class IngestSummary:
-    """What :func:`ingest_scene` did (``--json`` prints :meth:`to_json`).
+    """What :func:`ingest_recording` did (``--json`` prints :meth:`to_json`).
 
     Attributes:
         scene: The scene folder written.
@@ -133,7 +133,7 @@ def _frame(label: str | int) -> str:
     return f"frame {label}" if isinstance(label, int) else label
 
 
-def ingest_scene(
+def ingest_recording(
     dataset: str | Path | Dataset,
     source: str | Path,
     scene_id: str,
@@ -204,11 +204,11 @@ def ingest_scene(
     )
     made = _new_folders(dataset) if rig_from_source else []
     ds, rig_written = _dataset(dataset, src, camera, depth, rig_from_source, dictionary)
-    options = _Options(
+    settings = _IngestSettings(
         camera, every, blur_threshold, depth, depth_scale, tolerance_s, overwrite, quiet
     )
     try:
-        return _ingest(ds, src, Path(source), scene_id, options, rig_written)
+        return _ingest(ds, src, Path(source), scene_id, settings, rig_written)
     except BaseException:
         if rig_written:  # the dataset this call made goes with the scene it failed to write
             _unmake(ds.root, made)
@@ -216,8 +216,8 @@ def ingest_scene(
 
 
 @dataclass(frozen=True)
-class _Options:
-    """What :func:`ingest_scene` was asked (its arguments of the same names)."""
+class _IngestSettings:
+    """What :func:`ingest_recording` was asked (its arguments of the same names)."""
 
     camera: str | None
     every: int
@@ -234,41 +234,41 @@ def _ingest(
     src: Recording,
     source: Path,
     scene_id: str,
-    options: _Options,
+    settings: _IngestSettings,
     rig_written: bool,
 ) -> IngestSummary:
-    """The ingest once the dataset is there (:func:`ingest_scene`)."""
+    """The ingest once the dataset is there (:func:`ingest_recording`)."""
     if not ds.rig.moving:
         raise UserError(
             "the rig is not a moving one: ingest writes sequences into a dataset whose "
             "dataset.yaml says rig: {moving: true} (FORMAT.md, sequences)",
             path=ds.root / "dataset.yaml",
         )
-    cam = _camera(ds, options.camera)
+    cam = _camera(ds, settings.camera)
     if src.calibration is not None and not rig_written:
         check_rig_matches(cam, src.calibration, ds.root / "dataset.yaml", src.path)
     folder = ds.root / SCENES_DIR / scene_id
-    check_replaceable(folder, overwrite=options.overwrite)
+    check_replaceable(folder, overwrite=settings.overwrite)
     real = Path(source).resolve()
     if real == folder.resolve() or folder.resolve() in real.parents:
         raise UserError(
             "lies in the scene it would be written to; move it out of the dataset first",
             path=source,
         )
-    with_depth = options.depth and any(d is not None for d in src.depth_for)
+    with_depth = settings.depth and any(d is not None for d in src.depth_for)
     if with_depth:
         _check_depth_camera(ds, cam)
-    scale = _depth_factor(src, options.depth_scale)
-    option = _depth_option(src, options.depth_scale)
-    chosen = candidates(len(src.times), options.every)
+    scale = _depth_factor(src, settings.depth_scale)
+    option = _depth_option(src, settings.depth_scale)
+    chosen = candidates(len(src.times), settings.every)
     dropped: list[dict[str, Any]] = [{"frame": lbl, "why": why} for lbl, why in src.dropped]
     if with_depth:
-        tol = f"{options.tolerance_s * 1000:g} ms"
+        tol = f"{settings.tolerance_s * 1000:g} ms"
         lonely = [i for i in chosen if src.depth_for[i] is None]
         dropped += [{"frame": src.labels[i], "why": f"no depth frame within {tol}"} for i in lonely]
         chosen = [i for i in chosen if src.depth_for[i] is not None]
-    good, values = _measure(src, chosen, cam, options.quiet, dropped)
-    selection = select(good, values, threshold=options.blur_threshold)
+    good, values = _measure(src, chosen, cam, settings.quiet, dropped)
+    selection = select(good, values, threshold=settings.blur_threshold)
     kept = list(selection.kept)
     if not kept:
         why = "all dropped as blurred" if good else "none could be decoded"
@@ -278,7 +278,7 @@ def _ingest(
     sweep_abandoned(ds.root / SCENES_DIR)
     with atomic_folder(folder) as tmp:
         written = _write_frames(
-            ds, src, kept, cam, tmp, (with_depth, scale, option), options.quiet, dropped
+            ds, src, kept, cam, tmp, (with_depth, scale, option), settings.quiet, dropped
         )
         if not written:
             raise UserError("no frame is left to write (none could be decoded)", path=src.path)
@@ -297,8 +297,8 @@ def _ingest(
             "intrinsics": src.calibration.origin
             if rig_written and src.calibration
             else "dataset.yaml",
-            "every": options.every,
-            "blur_threshold": options.blur_threshold,
+            "every": settings.every,
+            "blur_threshold": settings.blur_threshold,
             "time_origin_s": t0,
             "blurred": blurred,
             "dropped": dropped,
@@ -313,7 +313,7 @@ def _ingest(
         kind=src.kind,
         camera=cam.name,
         source_frames=len(src.times),
-        candidates=len(candidates(len(src.times), options.every)),
+        candidates=len(candidates(len(src.times), settings.every)),
         written=len(written),
         blurred=blurred,
         dropped=dropped,
@@ -325,8 +325,8 @@ def _ingest(
         file_calibration=src.calibration.origin if src.calibration else None,
         depth_registered=with_depth and _registers(src),
         rig_written=rig_written,
-        every=options.every,
-        blur_threshold=options.blur_threshold,
+        every=settings.every,
+        blur_threshold=settings.blur_threshold,
     )
 
 

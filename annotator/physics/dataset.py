@@ -4,7 +4,6 @@ poses applied, or gt.json), one line per scene that cannot be read (see
 
 from __future__ import annotations
 
-import fnmatch
 import time
 from dataclasses import dataclass, field
 from typing import Any
@@ -15,6 +14,7 @@ from annotator.dataset.load import Problem
 from annotator.dataset.poses import read_pose_file
 from annotator.dataset.records import FramePose, SceneAnnotation, frames_from_json
 from annotator.dataset.review import apply_edits, read_review
+from annotator.dataset.selection import matching_scenes
 from annotator.errors import UserError
 from annotator.physics.check import InstancePhysics, PhysicsSettings
 from annotator.physics.scene import shot_physics
@@ -87,9 +87,7 @@ def physics_of_dataset(
     (['000000', '000001', '000002', '000003'], 0)
     """
     out = PhysicsSummary()
-    for scene in ds.scenes():
-        if not fnmatch.fnmatch(scene.id, scenes):
-            continue
+    for scene in matching_scenes(ds, scenes, required=False):
         path = scene.annotation_path if poses == "annotation" else scene.gt_path
         if not path.exists():
             continue

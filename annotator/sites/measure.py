@@ -119,7 +119,7 @@ class InstanceSites:
         }
 
 
-def measure_sites(
+def measure_instances(
     ds: Dataset,
     scenes: Sequence[Scene | Frame],
     detections: dict[str, list[tuple[int, int, np.ndarray]]],

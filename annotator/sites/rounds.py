@@ -35,7 +35,7 @@ from annotator.dataset import Dataset, Scene, cached_dataset
 from annotator.dataset.records import SceneAnnotation
 from annotator.detection import MarkerDetector
 from annotator.runner import BatchReport, run_batch
-from annotator.sites.measure import InstanceSites, measure_sites, units
+from annotator.sites.measure import InstanceSites, measure_instances, units
 from annotator.sites.solve import SiteSettings
 
 #: Rounds end once the site corners move by less than this between two rounds (mm, RMS):
@@ -174,14 +174,14 @@ def measure_in_rounds(
 
     annotations = annotated([], "sites: markers")
     shots = units(ds, scenes)  # a sequence's sites are measured on its frames
-    measured, spread = measure_sites(
+    measured, spread = measure_instances(
         ds, shots, detections, settings=settings, annotations=annotations
     )
     moves: list[float] = []
     rounds = 1
     while rounds < MAX_ROUNDS and measured:
         annotations = annotated(measured, f"sites: round {rounds + 1}")
-        again, _ = measure_sites(
+        again, _ = measure_instances(
             ds, shots, detections, settings=settings, annotations=annotations, spread=spread
         )
         rounds += 1

@@ -1,18 +1,22 @@
 """Sites measured over a dataset's annotated scenes, the whole ``annotator sites`` run short
-of printing and asking: the markers read in every scene (one batch job per scene), the sites
-solved from them (:func:`~annotator.sites.measure.measure_sites`), and each object.yaml's new
-text with its diff."""
+of printing and asking (:func:`measure_sites`): the markers read in every scene (one batch job
+per scene), the sites solved from them (:func:`~annotator.sites.measure.measure_instances`),
+and each object.yaml's new text with its diff, written by :meth:`SitesSummary.write`."""
 
 from __future__ import annotations
 
-import fnmatch
-from dataclasses import dataclass
+from collections.abc import Callable
+from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
-from annotator.dataset import Dataset, Scene, require_meshes
+from annotator.dataset import Dataset, Scene, as_dataset, require_meshes
+from annotator.dataset.model import SCENES_DIR
 from annotator.dataset.records import SceneAnnotation
+from annotator.dataset.selection import EVERY_SCENE, matching_scenes
 from annotator.dataset.validity import unknown_name
 from annotator.errors import UserError
+from annotator.io.atomic import write_together
 from annotator.io.documents import unified_diff
 from annotator.runner import BatchReport, run_batch
 from annotator.sites.measure import DetectJob, InstanceSites, units, updated_object_yaml
@@ -51,7 +55,7 @@ class SitesSurvey:
 
 def annotated_scenes(ds: Dataset, pattern: str) -> list[Scene]:
     """The scenes whose id matches ``pattern`` (fnmatch) and that carry an annotation.json."""
-    return [s for s in ds.scenes() if fnmatch.fnmatch(s.id, pattern) and s.annotation_path.exists()]
+    return [s for s in matching_scenes(ds, pattern, required=False) if s.annotation_path.exists()]
 
 
 def survey_sites(
@@ -130,3 +134,80 @@ def object_updates(ds: Dataset, measured: list[InstanceSites]) -> list[ObjectUpd
                 ObjectUpdate(path, new, unified_diff(old, new, path, label="measured sites"))
             )
     return updates
+
+
+@dataclass
+class SitesSummary:
+    """What :func:`measure_sites` measured (:attr:`survey`) and which object.yaml files
+    :meth:`write` wrote; :meth:`to_json` is ``annotator sites --json``."""
+
+    survey: SitesSurvey
+    root: Path
+    #: The object.yaml files written, and whether the user declined any.
+    written: list[str] = field(default_factory=list)
+    declined: bool = False
+
+    def write(self, *, confirm: Callable[[Path], bool] | None = None) -> None:
+        """Write every object.yaml whose sites change, all together
+        (:func:`annotator.io.atomic.write_together`): those ``confirm`` says yes to, asked
+        about each first (every question before any file is written), or all of them."""
+        chosen = {}
+        for update in self.survey.updates:
+            if confirm is None or confirm(update.path):
+                chosen[update.path] = update.text
+                self.written.append(str(update.path))
+            else:
+                self.declined = True
+        if self.survey.updates:
+            write_together(self.root, chosen)
+
+    def to_json(self) -> dict[str, Any]:
+        survey, spread = self.survey, self.survey.spread
+        return {
+            "scenes": len(survey.scenes),
+            "glue_spread": None
+            if spread is None
+            else {"mm": round(spread[0], 4), "deg": round(spread[1], 3)},
+            "instances": [m.to_json() for m in survey.measured],
+            "rounds": survey.rounds,
+            "round_moves_mm": [round(m, 4) for m in survey.moves],
+            "flagged_markers": survey.flagged,
+            "written": self.written,
+            "failures": dict(sorted(survey.report.failed.items())),
+        }
+
+
+def measure_sites(
+    ds: Dataset | str | Path,
+    *,
+    scenes: str = EVERY_SCENE,
+    max_move_mm: float = 2.0,
+    write: bool = False,
+    workers: int = 1,
+    quiet: bool = True,
+) -> SitesSummary:
+    """Measure where every instance's markers really are (markers glued by hand) from the
+    annotated scenes of ``ds`` matching ``scenes``: the markers found again in every camera,
+    each instance's sites solved until they settle, markers farther than ``max_move_mm``
+    from the layout's flagged. With ``write``, the object.yaml files whose sites change are
+    written (``annotator annotate`` then uses the measured sites); without, nothing is:
+    :meth:`SitesSummary.write` does it later, and each update's diff is in
+    ``summary.survey.updates``.
+
+    Raises:
+        UserError: no scene matches, none is annotated, or a mesh is unreadable.
+    """
+    ds = as_dataset(ds, name="ds")
+    chosen = annotated_scenes(ds, scenes)
+    matching_scenes(ds, scenes)  # none matches: say so
+    if not chosen:
+        raise UserError(
+            "no scene has an annotation.json: run `annotator annotate "
+            f"{ds.root}` first (sites are measured from annotated scenes)",
+            path=ds.root / SCENES_DIR,
+        )
+    survey = survey_sites(ds, chosen, max_move_mm=max_move_mm, workers=workers, quiet=quiet)
+    summary = SitesSummary(survey, ds.root)
+    if write:
+        summary.write()
+    return summary

@@ -1,13 +1,9 @@
 """Synthetic calibration captures: a ChArUco board in random poses seen by the synthetic rig.
 
-The board is OpenCV's own picture of it (``CharucoBoard.generateImage``, 20 texels per mm
-for 30 mm squares, square edges exactly on texel edges) on the face of a thin slab with a
-white margin, posed in front of the rig of :mod:`annotator.synthesis.rig`. Each camera casts
-one ray per exact (distorted) OpenCV pixel centre (:meth:`Camera.pixel_rays`) with the
-project's ray caster; pixels near a change of the texture are supersampled on an ``n x n``
-grid of sub-pixel rays; the image is lit from the camera (Lambert plus ambient), blurred,
-noised and quantised like the bin scenes (:func:`annotator.synthesis.shading.finish_image`).
-The true chessboard corners therefore project exactly with ``cv2.projectPoints``.
+The board (:mod:`annotator.synthesis.board_render`: the textured slab and its ray-cast
+picture) is posed in front of the rig of :mod:`annotator.synthesis.rig`; each image is
+blurred, noised and quantised like the bin scenes
+(:func:`annotator.synthesis.shading.finish_image`).
 
 Board poses (reproducible from the seed): the board centre at a depth of 520-760 mm in the
 reference camera, anywhere in its image; the board facing the rig, tilted by up to 40
@@ -34,9 +30,8 @@ to that much before or after the shot's moment, while the board, held by hand, m
 to ``speed`` (mm/s of its centre, degrees/s about it; each shot its own, in a random
 direction): the cameras' images of one shot then show the board a little apart, by as much
 as that shot's motion and their time apart make (the truth keeps each shot's moment and
-each camera's offset from it). :func:`write_videos` turns the shot folders into
-one lossless video per camera (FFV1), the second camera's video one frame late, with
-timestamps files that pair the frames.
+each camera's offset from it). :func:`~annotator.synthesis.board_video.write_videos` turns
+the shot folders into one lossless video per camera.
 """
 
 from __future__ import annotations
@@ -46,45 +41,36 @@ import shutil
 from dataclasses import dataclass
 from pathlib import Path
 
-import cv2
 import numpy as np
-import trimesh
 import yaml
 
 from annotator.calibration.board import BOARD_FILE, BoardSpec
-from annotator.calibration.captures import TIMESTAMPS_SUFFIX
 from annotator.dataset.model import Rig, orient_image
 from annotator.dataset.write import rig_to_yaml
 from annotator.errors import UserError
 from annotator.geometry.camera import Camera
-from annotator.geometry.mesh import Mesh
 from annotator.geometry.transforms import axis_angle, make_transform
 from annotator.io.atomic import write_text
 from annotator.io.images import write_png
 from annotator.markers.dictionary import is_predefined
-from annotator.rendering.raycast import PlacedMesh, RayScene, clip_region, projected_bbox
+from annotator.synthesis.board_render import (
+    BACK_BLACK,
+    BACK_WHITE,
+    BoardModel,
+    render_board,
+)
+from annotator.synthesis.board_video import write_videos
 from annotator.synthesis.rig import make_rig
-from annotator.synthesis.shading import _interpolate_rays, finish_image
+from annotator.synthesis.shading import finish_image
 
 #: The truth file written beside synthetic captures.
 TRUTH_FILE = "truth.yaml"
 #: A custom dictionary's copy beside board.yaml.
 DICTIONARY_FILE = "dictionary.yml"
 
-#: White margin around the chessboard, as a fraction of a square (OpenCV prints half).
-MARGIN_SQUARES = 0.5
-#: Thickness of the board slab, mm (its sides show at grazing angles).
-THICKNESS_MM = 4.0
-#: Texels per square of the board texture (square edges fall exactly on texel edges).
-TEXELS_PER_SQUARE = 600
-
-WHITE, BLACK, SIDE, BACKGROUND = 0.85, 0.06, 0.35, 0.22
-#: The print seen through back-lit paper: paper and ink, as seen from behind.
-BACK_WHITE, BACK_BLACK = 0.72, 0.3
-
 
 @dataclass(frozen=True)
-class CaptureConfig:
+class CaptureSettings:
     """What defines a set of synthetic calibration captures (with the seed, every byte).
 
     Attributes:
@@ -151,7 +137,7 @@ class CaptureConfig:
         return (camera in self.behind) != (shot in self.turned)
 
 
-def board_poses(rig: Rig, config: CaptureConfig, rng: np.random.Generator) -> list[np.ndarray]:
+def board_poses(rig: Rig, config: CaptureSettings, rng: np.random.Generator) -> list[np.ndarray]:
     """``config.shots`` random poses ``rig_T_board`` (see the module docstring)."""
     spec = config.board
     ref = rig.cameras[0]
@@ -233,131 +219,11 @@ def _visible_fraction(
     return float(inside.mean()) if facing else 0.0
 
 
-class BoardModel:
-    """The board's slab mesh and texture, built once per board."""
-
-    def __init__(
-        self,
-        spec: BoardSpec,
-        *,
-        inverted: bool = False,
-        printed_mirrored: bool = False,
-        paper: bool = False,
-        through_paper: tuple[float, float] = (BACK_WHITE, BACK_BLACK),
-    ) -> None:
-        self.spec = spec
-        self.paper = paper
-        w, h = spec.size_mm
-        m = MARGIN_SQUARES * spec.square_mm
-        if paper:  # a sheet of no thickness: the print lies at z = 0 from either side
-            verts = np.array([[-m, -m, 0], [w + m, -m, 0], [w + m, h + m, 0], [-m, h + m, 0]])
-            self.mesh = Mesh(verts.astype(float), np.array([[0, 1, 2], [0, 2, 3]], np.int32))
-        else:
-            slab = trimesh.creation.box([w + 2 * m, h + 2 * m, THICKNESS_MM])
-            slab.apply_translation([w / 2, h / 2, THICKNESS_MM / 2])  # face at z = 0, body behind
-            self.mesh = Mesh(np.asarray(slab.vertices), np.asarray(slab.faces, dtype=np.int32))
-        texels = (spec.squares_x * TEXELS_PER_SQUARE, spec.squares_y * TEXELS_PER_SQUARE)
-        if spec.has_markers:
-            image = spec.cv_board.generateImage(texels, marginSize=0, borderBits=1)
-        else:  # a plain chessboard, black at the board's origin
-            rows, cols = np.indices((spec.squares_y, spec.squares_x))
-            squares = np.where((rows + cols) % 2 == 0, 0, 255).astype(np.uint8)
-            image = np.kron(squares, np.ones((TEXELS_PER_SQUARE, TEXELS_PER_SQUARE), np.uint8))
-        if printed_mirrored:  # the print's column x shows the board's column W - x
-            image = np.ascontiguousarray(image[:, ::-1])
-        white, black = (BLACK, WHITE) if inverted else (WHITE, BLACK)
-        self.texture = np.where(image > 127, white, black).astype(np.float32)
-        self.margin = white
-        self.texels_per_mm = TEXELS_PER_SQUARE / spec.square_mm
-        # Through the paper, paper and ink keep their order, with less contrast between them.
-        paper_white, ink = through_paper[::-1] if inverted else through_paper
-        self.back_texture = np.where(image > 127, paper_white, ink).astype(np.float32)
-        self.back_margin = paper_white
-
-    def albedo(self, points: np.ndarray, *, back: bool = False) -> np.ndarray:
-        """Albedo at board-frame points (..., 3) on the slab: the texture on the printed face,
-        white in the margin, grey on the sides and back; for paper seen from behind
-        (``back``), the print as it shows through."""
-        x, y, z = points[..., 0], points[..., 1], points[..., 2]
-        out = np.full(x.shape, SIDE, np.float32)
-        face = np.abs(z) < 1e-3
-        texture = self.back_texture if back else self.texture
-        out[face] = self.back_margin if back else self.margin
-        th, tw = self.texture.shape
-        col = np.floor(x * self.texels_per_mm).astype(np.int64)
-        row = np.floor(y * self.texels_per_mm).astype(np.int64)
-        inside = face & (col >= 0) & (row >= 0) & (col < tw) & (row < th)
-        out[inside] = texture[row[inside], col[inside]]
-        return out
-
-
-def render_board(
-    camera: Camera,
-    cam_T_board: np.ndarray,
-    model: BoardModel,
-    *,
-    supersample: int = 4,
-    ambient: float = 0.3,
-) -> np.ndarray:
-    """Float32 intensity image in [0, 1] of the board seen by ``camera`` (no blur, no noise)."""
-    img = np.full((camera.height, camera.width), BACKGROUND, np.float32)
-    box = projected_bbox(camera, model.mesh, cam_T_board, margin=2)
-    if box is None:
-        return img
-    x0, y0, x1, y1 = clip_region(box, camera.width, camera.height)
-    scene = RayScene([PlacedMesh(model.mesh, cam_T_board)])
-    rays = camera.pixel_rays()
-    albedo, light = _sample(scene, model, cam_T_board, rays[y0:y1, x0:x1], ambient)
-    value = albedo * light
-    if supersample > 1:
-        # Supersample wherever the albedo changes within a pixel's 3x3 neighbourhood (texture
-        # and slab edges); shading alone varies too slowly across a pixel to matter.
-        kernel = np.ones((3, 3), np.uint8)
-        edge = cv2.dilate(albedo, kernel) - cv2.erode(albedo, kernel) > 1e-6
-        vs, us = np.nonzero(edge)
-        offs = (np.arange(supersample) + 0.5) / supersample - 0.5
-        acc = np.zeros(len(us), np.float64)
-        for dy in offs:
-            for dx in offs:
-                sub = _interpolate_rays(rays, us + x0 + dx, vs + y0 + dy)
-                a, lit = _sample(scene, model, cam_T_board, sub, ambient)
-                acc += a * lit
-        value[vs, us] = acc / supersample**2
-    img[y0:y1, x0:x1] = value
-    return img
-
-
-def _sample(
-    scene: RayScene, model: BoardModel, cam_T_board: np.ndarray, rays: np.ndarray, ambient: float
-) -> tuple[np.ndarray, np.ndarray]:
-    """Albedo and lighting factor along rays ``(x, y, 1)``: Lambert with a light at the camera
-    centre plus ``ambient``; the background's albedo with full light where rays miss."""
-    hits = scene.cast(rays)
-    albedo = np.full(hits.instance.shape, BACKGROUND, np.float32)
-    light = np.ones(hits.instance.shape, np.float32)
-    hit = hits.hit
-    if np.any(hit):
-        r = rays[hit].astype(np.float64)
-        p_cam = r * hits.depth[hit][:, None]  # the ray parameter is the z-depth
-        R, t = cam_T_board[:3, :3], cam_T_board[:3, 3]
-        # The camera centre on the board's +z side (the side away from the print).
-        back = model.paper and float((-t) @ R[:, 2]) > 0
-        albedo[hit] = model.albedo((p_cam - t) @ R, back=back)
-        if back:  # lit through the paper by the light behind it: evenly
-            return albedo, light
-        n_cam = model.mesh.face_normals[hits.triangle[hit]] @ R.T
-        cos = -(n_cam * r).sum(axis=-1) / np.linalg.norm(r, axis=-1)
-        if model.paper:  # a sheet's triangles may be wound either way
-            cos = np.abs(cos)
-        light[hit] = ambient + (1.0 - ambient) * np.clip(cos, 0.0, 1.0)
-    return albedo, light
-
-
 def render_shot(
     rig: Rig,
     rig_T_board: np.ndarray,
     model: BoardModel,
-    config: CaptureConfig,
+    config: CaptureSettings,
     rng: np.random.Generator,
     *,
     shot: int = -1,
@@ -379,12 +245,6 @@ def render_shot(
     ]
 
 
-def true_corners(cam: Camera, rig_T_board: np.ndarray, spec: BoardSpec) -> np.ndarray:
-    """(corner_count, 2) exact pixel positions of the chessboard corners in ``cam``."""
-    T = cam.cam_T_rig @ rig_T_board
-    return cam.project(spec.corners @ T[:3, :3].T + T[:3, 3])
-
-
 @dataclass
 class CapturePlan:
     """The rig, the board and its poses: everything but the images.
@@ -396,7 +256,7 @@ class CapturePlan:
             and its angular velocity about the centre (rad/s, rig frame).
     """
 
-    config: CaptureConfig
+    config: CaptureSettings
     rig: Rig
     poses: list[np.ndarray]
     model: BoardModel
@@ -430,7 +290,7 @@ class CapturePlan:
         return render_shot(self.rig, self.camera_poses(k), self.model, self.config, rng, shot=k)
 
 
-def plan_captures(config: CaptureConfig) -> CapturePlan:
+def plan_captures(config: CaptureSettings) -> CapturePlan:
     """The synthetic rig of ``annotator synth --seed`` (the same rig as its scenes) and the
     board poses, all from the seed."""
     rig = _with_extra_cameras(
@@ -469,9 +329,9 @@ def plan_captures(config: CaptureConfig) -> CapturePlan:
     return CapturePlan(config, rig, poses, model, offsets, motion)
 
 
-def _timing(config: CaptureConfig, n_cameras: int) -> tuple[np.ndarray | None, np.ndarray | None]:
+def _timing(config: CaptureSettings, n_cameras: int) -> tuple[np.ndarray | None, np.ndarray | None]:
     """Each camera's time offset in each shot and each shot's board motion (see
-    :class:`CaptureConfig`), from their own random stream; None when the cameras are in step."""
+    :class:`CaptureSettings`), from their own random stream; None when the cameras are in step."""
     if not (config.timing_ms > 0 or config.rolling_ms > 0) or not any(config.speed):
         return None, None
     rng = np.random.default_rng([config.seed, _TIMING_STREAM])
@@ -488,8 +348,8 @@ def _timing(config: CaptureConfig, n_cameras: int) -> tuple[np.ndarray | None, n
     return offsets, motion
 
 
-def _with_extra_cameras(rig: Rig, config: CaptureConfig) -> Rig:
-    """``rig`` with ``config.extra_cameras`` more cameras (see :class:`CaptureConfig`)."""
+def _with_extra_cameras(rig: Rig, config: CaptureSettings) -> Rig:
+    """``rig`` with ``config.extra_cameras`` more cameras (see :class:`CaptureSettings`)."""
     from annotator.synthesis.rig import look_at
 
     middle = np.array([0.0, 0.0, float(np.mean(config.distance))])
@@ -504,7 +364,7 @@ def _with_extra_cameras(rig: Rig, config: CaptureConfig) -> Rig:
     return Rig(tuple(rig.cameras) + tuple(extra), rig.depth, rig.flipped)
 
 
-def _behind(config: CaptureConfig) -> np.ndarray:
+def _behind(config: CaptureSettings) -> np.ndarray:
     """Half a turn about the vertical through the middle of the working distance on the
     reference camera's axis: a camera moved so turns to face the rig from the far side."""
     T = make_transform(axis_angle(np.array([0.0, 1.0, 0.0]), np.pi), np.zeros(3))
@@ -575,7 +435,7 @@ def write_truth(plan: CapturePlan, root: Path) -> None:
 class ShotJob:
     """Render and write one shot (a job of :func:`annotator.runner.run_batch`, picklable)."""
 
-    config: CaptureConfig
+    config: CaptureSettings
     root: str
 
     def prepare(self) -> None:
@@ -592,53 +452,18 @@ class ShotJob:
         return {}
 
 
-#: Frame rate written into the synthetic videos (and their timestamps).
-VIDEO_FPS = 10.0
-
-
-def write_videos(root: Path, cameras: list[str]) -> list[Path]:
-    """Replace each camera's shot folder under ``root`` by a lossless video
-    ``<camera>.mkv`` (FFV1, one frame per shot in shot order) and a timestamps file. Every
-    camera after the first starts one frame (a frame without the board) earlier, so that only
-    the timestamps pair the frames right."""
-    out = []
-    for k, name in enumerate(cameras):
-        folder = root / name
-        frames: list[np.ndarray] = []
-        for p in sorted(folder.glob("*.png")):
-            img = cv2.imread(str(p), cv2.IMREAD_GRAYSCALE)
-            assert img is not None, p  # a shot this module has just written
-            frames.append(img)
-        h, w = frames[0].shape
-        lead = [np.full((h, w), int(255 * BACKGROUND), np.uint8)] if k > 0 else []
-        path = root / f"{name}.mkv"
-        fourcc = cv2.VideoWriter_fourcc(*"FFV1")  # type: ignore[attr-defined]  # cv2 has it, its stubs not
-        writer = cv2.VideoWriter(str(path), fourcc, VIDEO_FPS, (w, h), isColor=False)
-        if not writer.isOpened():
-            raise UserError("OpenCV cannot write FFV1 videos here", path=path)
-        for img in lead + frames:
-            writer.write(img)
-        writer.release()
-        # A camera's clock runs a little off the first's: 3 ms, well within half a frame.
-        times = (np.arange(len(lead) + len(frames)) - len(lead)) / VIDEO_FPS + 0.003 * k
-        write_text(root / f"{name}{TIMESTAMPS_SUFFIX}", "".join(f"{t:.6f}\n" for t in times))
-        shutil.rmtree(folder)
-        out.append(path)
-    return out
-
-
 _POSE_STREAM, _NOISE_STREAM, _TIMING_STREAM = 7919, 104729, 15485863
-_PLANS: dict[CaptureConfig, CapturePlan] = {}
+_PLANS: dict[CaptureSettings, CapturePlan] = {}
 
 
-def _plan(config: CaptureConfig) -> CapturePlan:
+def _plan(config: CaptureSettings) -> CapturePlan:
     if config not in _PLANS:
         _PLANS[config] = plan_captures(config)
     return _PLANS[config]
 
 
 def write_captures(
-    config: CaptureConfig,
+    config: CaptureSettings,
     out: Path,
     *,
     workers: int = 1,

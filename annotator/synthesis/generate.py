@@ -45,7 +45,7 @@ DICTIONARY = "DICT_4X4_1000"
 
 
 @dataclass(frozen=True)
-class SynthConfig:
+class SynthSettings:
     """Everything that defines a synthetic dataset (with the seed, it fixes every byte)."""
 
     parts: tuple[str, ...] = ("bracket", "cylinder")
@@ -82,14 +82,14 @@ class SynthConfig:
 class DatasetPlan:
     """The parts with their marker layouts and instance pools, and the rig."""
 
-    config: SynthConfig
+    config: SynthSettings
     parts: list[Part]
     layouts: list[MarkerLayout]
     instances: list[list[Instance]]
     setup: RigSetup
     bin: Bin = field(default_factory=Bin)
     #: Where each instance's markers really are, per part and instance: (S, 4, 3), the
-    #: layout itself unless the markers are glued (``SynthConfig.glue``).
+    #: layout itself unless the markers are glued (``SynthSettings.glue``).
     glued: list[list[np.ndarray]] = field(default_factory=list)
 
 
@@ -101,7 +101,7 @@ class SceneTiming:
     occlusion: float = 0.0
 
 
-def plan_dataset(config: SynthConfig) -> DatasetPlan:
+def plan_dataset(config: SynthSettings) -> DatasetPlan:
     """Build the parts, their marker layouts and enough physical instances for any scene."""
     parts = [build_part(name) for name in config.parts]
     pool = config.instances[1]
@@ -129,8 +129,8 @@ def plan_dataset(config: SynthConfig) -> DatasetPlan:
     return DatasetPlan(config, parts, layouts, instances, setup, glued=glued)
 
 
-def _glued(corners: np.ndarray, config: SynthConfig, part: int, instance: int) -> np.ndarray:
-    """Instance ``instance`` of part ``part``'s real sites (see ``SynthConfig.glue``)."""
+def _glued(corners: np.ndarray, config: SynthSettings, part: int, instance: int) -> np.ndarray:
+    """Instance ``instance`` of part ``part``'s real sites (see ``SynthSettings.glue``)."""
     sigma_mm, sigma_deg = config.glue
     if sigma_mm == 0 and sigma_deg == 0:
         return corners
@@ -460,12 +460,12 @@ def simulate_depth(
 class SceneJob:
     """Make one scene of a dataset being written in ``root`` (picklable for worker processes)."""
 
-    config: SynthConfig
+    config: SynthSettings
     root: str
 
     def prepare(self) -> None:
         """Plan the dataset (parts, rig, ray tables) once, before workers are forked."""
-        plan = _plan(self.config)
+        plan = cached_plan(self.config)
         for cam in plan.setup.rig.cameras:
             cam.pixel_rays()
 
@@ -485,17 +485,19 @@ class SceneJob:
         return [f"scenes/{scene_id}/"]
 
     def __call__(self, scene_id: str) -> dict:
-        plan = _plan(self.config)
+        plan = cached_plan(self.config)
         folder = Path(self.root) / SCENES_DIR / scene_id
         folder.mkdir(parents=True, exist_ok=True)
         poses, timing = make_scene(plan, int(scene_id), folder)
         return {"instances": len(poses), **timing.__dict__}
 
 
-_PLANS: dict[SynthConfig, DatasetPlan] = {}
+_PLANS: dict[SynthSettings, DatasetPlan] = {}
 
 
-def _plan(config: SynthConfig) -> DatasetPlan:
+def cached_plan(config: SynthSettings) -> DatasetPlan:
+    """:func:`plan_dataset` of ``config``, planned once per process (the jobs of every
+    scene, and the driver writing the dataset files, share it)."""
     if config not in _PLANS:
         _PLANS[config] = plan_dataset(config)
     return _PLANS[config]

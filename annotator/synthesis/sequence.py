@@ -2,7 +2,7 @@
 
 A sequence's scene is dropped into the bin as a fixed rig's is (:mod:`.generate`); then the
 rig (its two cameras and the dot projector, mounted together like an active-stereo sensor;
-with ``SynthConfig.cameras`` 1 only the first camera's images are written, as an RGB-D
+with ``SynthSettings.cameras`` 1 only the first camera's images are written, as an RGB-D
 sensor's) is carried along a smooth hand-held path and renders every frame, with the
 sensor's blur and noise, the simulated stereo depth, and on some frames motion blur
 (FORMAT.md, sequences).
@@ -60,11 +60,11 @@ from annotator.synthesis.generate import (
     DatasetPlan,
     SceneJob,
     SceneTiming,
-    SynthConfig,
+    SynthSettings,
     _BinContents,
     _fill_bin,
-    _plan,
     _stage,
+    cached_plan,
     staged_occlusion,
     write_shot,
 )
@@ -258,7 +258,7 @@ class _ScenePath:
 
 
 @lru_cache(maxsize=8)
-def _scene_path(config: SynthConfig, index: int) -> _ScenePath:
+def _scene_path(config: SynthSettings, index: int) -> _ScenePath:
     """Scene ``index``'s path, drawn from its own stream (the same in every process)."""
     rng = np.random.default_rng([config.seed, index, _PATH_STREAM])
     n = config.frames
@@ -297,7 +297,7 @@ class BinJob(SceneJob):
         return []
 
     def __call__(self, scene_id: str) -> dict:
-        plan = _plan(self.config)
+        plan = cached_plan(self.config)
         rng = np.random.default_rng([self.config.seed, int(scene_id)])
         return _contents_to_result(_fill_bin(plan, rng))
 
@@ -318,7 +318,7 @@ class FrameJob(SceneJob):
     def __call__(self, scene_id: str) -> dict:
         scene, frame = scene_id.split("/")
         index, k = int(scene), int(frame)
-        plan = _plan(self.config)
+        plan = cached_plan(self.config)
         path = _scene_path(self.config, index)
         contents = _contents_from_result(plan, self.bins[scene])
         at = replace(plan, setup=moved_setup(plan.setup, path.world_T_rig[k]))
@@ -389,7 +389,7 @@ def frame_name(k: int) -> str:
 
 
 def write_sequences(
-    config: SynthConfig,
+    config: SynthSettings,
     root: Path,
     scene_ids: Sequence[str],
     **batch: Any,
@@ -411,7 +411,7 @@ def write_sequences(
     job = FrameJob(config, str(root), bins=dict(drops.done))
     frames = run_batch(job, frame_ids, desc=f"{desc} (frames)", **batch)
     report = BatchReport(failed=dict(drops.failed))
-    plan = _plan(config)
+    plan = cached_plan(config)
     for sid in sorted(drops.done):
         names = [frame_name(k) for k in range(config.frames)]
         errors = [
@@ -519,7 +519,7 @@ class SequenceSummary:
 
 
 def synthesize_sequences(
-    out: str | Path, config: SynthConfig, *, overwrite: bool = False, **batch: Any
+    out: str | Path, config: SynthSettings, *, overwrite: bool = False, **batch: Any
 ) -> SequenceSummary:
     """``annotator synth --frames N OUT``: a moving rig's dataset of ``config.scenes``
     sequences of ``config.frames`` frames in the new folder ``out`` (built aside, put in
@@ -538,7 +538,7 @@ def synthesize_sequences(
     check_output_folder(out, command="synth", overwrite=overwrite)
     with atomic_folder(out) as tmp:
         write_manifest(tmp, command="synth")
-        write_dataset_files(_plan(config), tmp)
+        write_dataset_files(cached_plan(config), tmp)
         ids = [f"{k:06d}" for k in range(config.scenes)]
         report, per_frame = write_sequences(config, tmp, ids, **batch)
     return SequenceSummary(out, report, config.frames, per_frame)

@@ -1,0 +1,81 @@
+"""Occlusion over a whole dataset: :func:`compute_occlusion`, what ``annotator occlusion``
+runs (the per-scene work is :class:`~annotator.occlusion.job.VisibilityJob`)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from annotator.dataset import Dataset, as_dataset
+from annotator.dataset.selection import EVERY_SCENE, matching_scenes
+from annotator.occlusion import DEPTH_TOLERANCE_MM
+from annotator.occlusion.job import VisibilityJob, is_fresh
+from annotator.runner import BatchReport, run_batch
+
+
+@dataclass
+class OcclusionSummary:
+    """What :func:`compute_occlusion` did; :meth:`to_json` is ``annotator occlusion --json``.
+
+    Attributes:
+        report: Per-scene outcomes (done, and failed: one line each).
+        skipped: Scenes whose visibility.json was up to date.
+    """
+
+    report: BatchReport
+    skipped: int
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "done": len(self.report.done),
+            "skipped": self.skipped,
+            "failed": len(self.report.failed),
+            "failures": self.report.failed,
+        }
+
+    def line(self) -> str:
+        """The one line the command prints."""
+        return (
+            f"occlusion: {len(self.report.done)} scenes done, {self.skipped} up to date, "
+            f"{len(self.report.failed)} failed"
+        )
+
+
+def compute_occlusion(
+    ds: Dataset | str | Path,
+    *,
+    poses: str = "annotation",
+    scenes: str = EVERY_SCENE,
+    depth_tolerance: float = DEPTH_TOLERANCE_MM,
+    force: bool = False,
+    workers: int = 1,
+    quiet: bool = True,
+    ray_address: str | None = None,
+    ray_wait: float | None = None,
+) -> OcclusionSummary:
+    """Write ``visibility.json`` (every instance's mask pixel counts, boxes and occlusion
+    rates per camera) into every scene of ``ds`` matching ``scenes``, from its
+    ``annotation`` or ``gt`` poses, the depth test within ``depth_tolerance`` mm.
+
+    A scene whose visibility.json was made from the same poses and tolerance after they and
+    the depth last changed is skipped, unless ``force``. The scenes run in ``workers``
+    processes or on a Ray cluster (``ray_address``); a scene that fails is reported, the
+    others go on.
+
+    Raises:
+        UserError: no scene matches ``scenes``.
+    """
+    ds = as_dataset(ds, name="ds")
+    chosen = matching_scenes(ds, scenes)
+    todo = [s.id for s in chosen if force or not is_fresh(ds, s, poses, depth_tolerance)]
+    report = run_batch(
+        VisibilityJob(str(ds.root), poses, depth_tolerance),
+        todo,
+        workers=workers,
+        desc="occlusion",
+        quiet=quiet,
+        ray_address=ray_address,
+        ray_wait=ray_wait,
+    )
+    return OcclusionSummary(report, len(chosen) - len(todo))

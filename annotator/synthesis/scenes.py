@@ -1,0 +1,99 @@
+"""A fixed rig's synthetic dataset: :func:`synthesize_scenes`, what ``annotator synth OUT``
+runs (a scene is :class:`~annotator.synthesis.generate.SceneJob`; a moving rig's sequences
+are :func:`~annotator.synthesis.sequence.synthesize_sequences`)."""
+
+from __future__ import annotations
+
+import shutil
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from annotator.dataset.model import SCENES_DIR
+from annotator.io.atomic import atomic_folder
+from annotator.io.output_folder import check_output_folder, write_manifest
+from annotator.runner import BatchReport, run_batch
+from annotator.synthesis.generate import SceneJob, SynthSettings, cached_plan, write_dataset_files
+
+#: The stages a scene's time is reported for (``seconds_per_scene``).
+STAGES = ("physics", "rendering", "depth", "occlusion")
+
+
+@dataclass
+class SynthesisSummary:
+    """What :func:`synthesize_scenes` wrote; :meth:`to_json` is ``annotator synth --json``.
+
+    Attributes:
+        out: The dataset folder.
+        report: Per-scene outcomes (done: instances and seconds per stage; failed: one line
+            each, the scene's folder removed).
+    """
+
+    out: Path
+    report: BatchReport
+
+    @property
+    def seconds_per_scene(self) -> dict[str, float]:
+        """The mean seconds of a scene's physics, rendering, depth and occlusion rates."""
+        done = self.report.done.values()
+        return {k: round(sum(r[k] for r in done) / max(len(done), 1), 3) for k in STAGES}
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "out": str(self.out),
+            "scenes": len(self.report.done),
+            "failed": len(self.report.failed),
+            "instances": sum(r["instances"] for r in self.report.done.values()),
+            "seconds_per_scene": self.seconds_per_scene,
+            "failures": dict(sorted(self.report.failed.items())),
+        }
+
+    def line(self) -> str:
+        """The one line the command prints."""
+        j, t = self.to_json(), self.seconds_per_scene
+        return (
+            f"synth: {j['scenes']} scenes ({j['instances']} instances) written to {self.out}, "
+            f"{j['failed']} failed; per scene: physics {t['physics']} s, rendering "
+            f"{t['rendering']} s, depth {t['depth']} s, occlusion rates {t['occlusion']} s"
+        )
+
+
+def synthesize_scenes(
+    out: str | Path,
+    settings: SynthSettings,
+    *,
+    overwrite: bool = False,
+    workers: int = 1,
+    quiet: bool = True,
+    ray_address: str | None = None,
+    ray_wait: float | None = None,
+) -> SynthesisSummary:
+    """A fixed rig's dataset of ``settings.scenes`` synthetic scenes with exact ground truth
+    (gt.json, occlusion rates, depth maps) in the new folder ``out``, built aside and put in
+    place whole (``overwrite`` replaces an earlier synth's). Every byte depends on
+    ``settings`` alone (its seed included), never on the workers; a scene that fails is
+    reported and left out.
+
+    Raises:
+        UserError: ``out`` may not be written, or ``settings`` cannot be planned.
+        ValueError: ``settings.frames`` asks for sequences (:func:`synthesize_sequences`).
+    """
+    if settings.frames:
+        raise ValueError("settings.frames asks for sequences: use synthesize_sequences")
+    out = Path(out)
+    check_output_folder(out, command="synth", overwrite=overwrite)
+    with atomic_folder(out) as tmp:
+        write_manifest(tmp, command="synth")
+        write_dataset_files(cached_plan(settings), tmp)
+        report = run_batch(
+            SceneJob(settings, str(tmp)),
+            [f"{k:06d}" for k in range(settings.scenes)],
+            workers=workers,
+            desc="synth",
+            quiet=quiet,
+            ray_address=ray_address,
+            ray_wait=ray_wait,
+        )
+        for sid in report.failed:
+            shutil.rmtree(tmp / SCENES_DIR / sid, ignore_errors=True)
+    return SynthesisSummary(out, report)
