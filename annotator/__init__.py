@@ -13,103 +13,41 @@ The records are dataclasses (:class:`Dataset`, :class:`SceneAnnotation`,
 :class:`GroundTruth`, :class:`EvaluationReport`...); lengths are millimetres and a pose maps
 model to camera, ``x_cam = R @ x_model + t`` (docs/FORMAT.md).
 
-The public names are the keys of ``_HOMES`` below, the one list of them: it drives the lazy
-import here and ``__all__``, and ``__init__.pyi`` (the types a checker reads, shipped with
-``py.typed``) must import the same names from the same modules (``tests/test_api.py``
-checks it).
+The public names are those ``__init__.pyi`` imports, the one list of them: the stub gives a
+type checker their types (it ships with ``py.typed``) and gives this module, which reads it
+once, where each name lives, for the lazy import here and ``__all__``. A name is made public
+by adding it to the stub.
 """
 
 from __future__ import annotations
 
+import ast
 import importlib
 import warnings
+from pathlib import Path
 from typing import Any
 
+
+def _public_names() -> dict[str, str]:
+    """Public name -> the module that defines it, as ``__init__.pyi`` imports them (``from
+    module import (name as name, ...)``)."""
+    stub = ast.parse(Path(__file__).with_suffix(".pyi").read_text(encoding="utf-8"))
+    return {
+        alias.asname or alias.name: node.module
+        for node in stub.body
+        if isinstance(node, ast.ImportFrom) and node.module
+        for alias in node.names
+    }
+
+
 #: Public name -> the module that defines it.
-_HOMES = {
-    # the dataset and its records
-    "load_dataset": "annotator.dataset",
-    "Dataset": "annotator.dataset",
-    "Scene": "annotator.dataset",
-    "ObjectModel": "annotator.dataset",
-    "Rig": "annotator.dataset",
-    "InstancePose": "annotator.dataset",
-    "SceneAnnotation": "annotator.dataset.records",
-    "InstanceAnnotation": "annotator.dataset.records",
-    "MarkerUse": "annotator.dataset.figures",
-    "Reprojection": "annotator.dataset.figures",
-    "DepthCheck": "annotator.dataset.figures",
-    "Occlusion": "annotator.dataset.figures",
-    "SceneWarning": "annotator.dataset.figures",
-    "DepthRegion": "annotator.dataset.figures",
-    "Flag": "annotator.dataset.flags",
-    "WarningKind": "annotator.dataset.flags",
-    "ReviewStatus": "annotator.dataset.review",
-    "check_dataset": "annotator.dataset.check",
-    "CheckReport": "annotator.dataset.check",
-    "Problem": "annotator.dataset",
-    # sequences: synthetic ones, and recorded ones into a moving rig's dataset
-    "SynthSettings": "annotator.synthesis.generate",
-    "synthesize_sequences": "annotator.synthesis.sequence",
-    "SequenceSummary": "annotator.synthesis.sequence",
-    "ingest_recording": "annotator.ingest.scene",
-    "IngestSummary": "annotator.ingest.scene",
-    # marker detection and auto-annotation
-    "MarkerDetector": "annotator.detection",
-    "annotate_scene": "annotator.annotation.scene",
-    "AnnotateSettings": "annotator.annotation.settings",
-    "SceneResult": "annotator.annotation.scene",
-    "annotate_dataset": "annotator.annotation.batch",
-    "AnnotateSummary": "annotator.annotation.batch",
-    # evaluation
-    "read_ground_truth": "annotator.formats",
-    "read_results": "annotator.formats",
-    "annotations_as_results": "annotator.formats.ours",
-    "GroundTruth": "annotator.formats.base",
-    "PoseResults": "annotator.formats.base",
-    "evaluate": "annotator.evaluation.evaluate",
-    "EvaluationOptions": "annotator.evaluation.evaluate",
-    "EvaluationReport": "annotator.evaluation.evaluate",
-    "evaluate_dataset": "annotator.evaluation.dataset",
-    "EvaluationSummary": "annotator.evaluation.dataset",
-    "Bop24Scores": "annotator.evaluation.bop24",
-    "CocoScores": "annotator.evaluation.coco",
-    "symmetry_to_bop": "annotator.symmetry.classes",
-    "symmetry_from_bop": "annotator.symmetry.classes",
-    "bop_symmetries": "annotator.formats.bop_images",
-    # physics: is the pile possible?
-    "physics_of_dataset": "annotator.physics.dataset",
-    "PhysicsSummary": "annotator.physics.dataset",
-    "PhysicsSettings": "annotator.physics.check",
-    "PhysicsCheck": "annotator.dataset.figures",
-    # export
-    "export_dataset": "annotator.export.dataset",
-    "ExportSummary": "annotator.export.dataset",
-    "scene_markers": "annotator.export.markers",
-    "MarkerRegion": "annotator.export.markers",
-    "fill_markers": "annotator.export.fill",
-    # the other stages, each a dataset-level function and its summary
-    "calibrate_rig": "annotator.calibration.workflow",
-    "CalibrationSummary": "annotator.calibration.workflow",
-    "measure_sites": "annotator.sites.survey",
-    "SitesSummary": "annotator.sites.survey",
-    "synthesize_scenes": "annotator.synthesis.scenes",
-    "SynthesisSummary": "annotator.synthesis.scenes",
-    "synthesize_twins": "annotator.twins.dataset",
-    "TwinSummary": "annotator.twins.dataset",
-    "compute_occlusion": "annotator.occlusion.dataset",
-    "OcclusionSummary": "annotator.occlusion.dataset",
-    "estimate_dataset": "annotator.estimation.dataset",
-    "EstimateSummary": "annotator.estimation.dataset",
-    # errors
-    "UserError": "annotator.errors",
-    "BadValue": "annotator.values",
-}
+_HOMES = _public_names()
 
 #: Names of an earlier release -> their new name (they still work, with a DeprecationWarning).
 _RENAMED = {
     "Settings": "AnnotateSettings",
-    "Options": "EvaluationOptions",
+    "Options": "EvaluationSettings",
+    "EvaluationOptions": "EvaluationSettings",
     "Report": "EvaluationReport",
     "Results": "PoseResults",
     "SynthConfig": "SynthSettings",

@@ -1,4 +1,5 @@
-"""The types of ``import annotator`` (the names of ``_HOMES`` in ``__init__.py``)."""
+"""The public names of ``import annotator``, the one list of them, and their types:
+``__init__.py`` reads this file for where each name lives. A name is made public here."""
 
 from annotator.annotation.batch import (
     AnnotateSummary as AnnotateSummary,
@@ -68,8 +69,8 @@ from annotator.evaluation.dataset import (
     evaluate_dataset as evaluate_dataset,
 )
 from annotator.evaluation.evaluate import (
-    EvaluationOptions as EvaluationOptions,
     EvaluationReport as EvaluationReport,
+    EvaluationSettings as EvaluationSettings,
     evaluate as evaluate,
 )
 from annotator.export.dataset import (

@@ -29,7 +29,7 @@ from annotator.cli import main as annotator
 from annotator.estimation.estimator import variants
 from annotator.estimation.job import EstimateJob
 from annotator.estimation.results import write_results
-from annotator.evaluation.evaluate import EvaluationOptions, evaluate
+from annotator.evaluation.evaluate import EvaluationSettings, evaluate
 from annotator.formats import ours
 from annotator.runner import available_cpus, run_batch
 
@@ -61,7 +61,7 @@ def run_part(ds: Path, workers: int, results: Path) -> tuple[list[dict], list[fl
     for k, v in enumerate(VARIANTS):
         csv = results / f"{ds.name}_{v.label.replace(' ', '_')}.csv"
         write_results(csv, [row for sid in ids for row in report.done[sid]["rows"][k]])
-        s = evaluate(gt, ours.read_results(csv, gt), EvaluationOptions(max_results=(1, 3))).overall
+        s = evaluate(gt, ours.read_results(csv, gt), EvaluationSettings(max_results=(1, 3))).overall
         scores.append({"AP": s.ap, "AP_1": s.ap_n[1], "AP_3": s.ap_n[3]})
         seconds.append(float(np.mean([report.done[sid]["seconds"][k] for sid in ids])))
     return scores, seconds

@@ -415,9 +415,9 @@ def test_a_corrupt_journal_is_one_line(sample_copy: Path, capsys) -> None:
 def test_the_api_refuses_what_the_commands_refuse(sample_copy: Path, capsys) -> None:
     cases = [
         (lambda: annotator.annotate_dataset(sample_copy, workers=-1), ["annotate", str(sample_copy), "--workers", "-1"]),
-        (lambda: annotator.EvaluationOptions(max_occlusion=-1), ["evaluate", str(sample_copy), "--max-occlusion", "-1"]),
-        (lambda: annotator.EvaluationOptions(threshold_mm=float("nan")), ["evaluate", str(sample_copy), "--threshold", "nan"]),
-        (lambda: annotator.EvaluationOptions(max_results=(0,)), ["evaluate", str(sample_copy), "-n", "0"]),
+        (lambda: annotator.EvaluationSettings(max_occlusion=-1), ["evaluate", str(sample_copy), "--max-occlusion", "-1"]),
+        (lambda: annotator.EvaluationSettings(threshold_mm=float("nan")), ["evaluate", str(sample_copy), "--threshold", "nan"]),
+        (lambda: annotator.EvaluationSettings(max_results=(0,)), ["evaluate", str(sample_copy), "-n", "0"]),
     ]  # fmt: skip
     for call, args in cases:
         with pytest.raises(UserError) as info:

@@ -128,14 +128,14 @@ def _add_report_options(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from annotator.evaluation.dataset import evaluate_dataset
-    from annotator.evaluation.evaluate import EvaluationOptions
+    from annotator.evaluation.evaluate import EvaluationSettings
     from annotator.evaluation.text import summary_text, summary_warnings
 
     _check_options(args)
     summary = evaluate_dataset(
         args.gt,
         results=args.results,
-        options=EvaluationOptions(
+        settings=EvaluationSettings(
             max_occlusion=args.max_occlusion,
             max_results=tuple(args.max_results),
             threshold_mm=args.threshold,

@@ -18,7 +18,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from annotator.errors import UserError
-from annotator.evaluation.evaluate import EvaluationOptions, EvaluationReport, evaluate
+from annotator.evaluation.evaluate import EvaluationReport, EvaluationSettings, evaluate
 from annotator.formats import detect_format
 from annotator.formats.base import GroundTruth, PoseResults
 
@@ -39,7 +39,7 @@ class EvaluationSummary:
         gt_path, format_name: The ground truth (as given) and its format (``ours``, ``bop``,
             ``sileane``).
         source: Where the results come from, in words.
-        options: The evaluation's options.
+        settings: The paper's AP's settings.
         gt, results: As read (None when only 2D detections were scored).
         report: The paper's AP (None when only 2D detections were scored).
         twin: The synthetic twin's report, scored alike.
@@ -52,7 +52,7 @@ class EvaluationSummary:
     gt_path: str
     format_name: str
     source: str
-    options: EvaluationOptions
+    settings: EvaluationSettings
     gt: GroundTruth | None = None
     results: PoseResults | None = None
     report: EvaluationReport | None = None
@@ -85,7 +85,7 @@ def evaluate_dataset(
     gt_path: str | Path,
     *,
     results: str | Path | None = None,
-    options: EvaluationOptions | None = None,
+    settings: EvaluationSettings | None = None,
     symmetry: str | None = None,
     bop19: bool = False,
     bop24: bool = False,
@@ -98,7 +98,7 @@ def evaluate_dataset(
     the auto-annotation against gt.json) against the ground truth at ``gt_path``.
 
     Args:
-        options: The paper's AP's options (default :class:`EvaluationOptions`'s).
+        settings: The paper's AP's settings (default :class:`EvaluationSettings`'s).
         symmetry: The symmetry class of a Siléane folder with only mesh.ply.
         bop19, bop24: Also BOP's scores (a BOP dataset and a result CSV).
         coco_results: Also BOP's 2D detection scores of this COCO results file (alone when
@@ -115,12 +115,12 @@ def evaluate_dataset(
     >>> round(s.report.overall.ap, 3), s.report.overall.tp
     (1.0, 35)
     """
-    options = options if options is not None else EvaluationOptions()
+    settings = settings if settings is not None else EvaluationSettings()
     given, gt_path = str(gt_path), Path(gt_path)
     fmt = detect_format(gt_path)
     if coco_results is not None and results is None:
         return EvaluationSummary(
-            given, fmt.NAME, str(coco_results), options, coco=_coco(gt_path, coco_results)
+            given, fmt.NAME, str(coco_results), settings, coco=_coco(gt_path, coco_results)
         )
     for flag, on in (("bop19", bop19), ("bop24", bop24)):
         if on and fmt.NAME != "bop":
@@ -143,8 +143,8 @@ def evaluate_dataset(
         source = "annotation.json (auto-annotation vs gt.json)"
     else:
         raise UserError("--results is required for BOP and Siléane ground truth")
-    report = evaluate(gt, found, options)
-    out = EvaluationSummary(given, fmt.NAME, source, options, gt, found, report)
+    report = evaluate(gt, found, settings)
+    out = EvaluationSummary(given, fmt.NAME, source, settings, gt, found, report)
     if bop19:
         out.bop19 = _bop19(gt_path, Path(str(results)), gt)
     if bop24:
@@ -154,7 +154,7 @@ def evaluate_dataset(
     if twin is not None and twin_results is not None:
         twin_fmt = detect_format(Path(twin))
         twin_gt = twin_fmt.read_ground_truth(Path(twin), symmetry=symmetry)
-        out.twin = evaluate(twin_gt, twin_fmt.read_results(Path(twin_results), twin_gt), options)
+        out.twin = evaluate(twin_gt, twin_fmt.read_results(Path(twin_results), twin_gt), settings)
     if results is None and fmt.NAME == "ours":
         from annotator.evaluation.evaluate import per_instance_errors
 
@@ -163,7 +163,7 @@ def evaluate_dataset(
         from annotator.dataset import load_dataset
         from annotator.physics.results import results_physics
 
-        n = max(options.max_results)
+        n = max(settings.max_results)
         out.physics = results_physics(load_dataset(gt_path), gt, found, per_object=n)
     return out
 

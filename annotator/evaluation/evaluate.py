@@ -22,7 +22,7 @@ from annotator.values import number, of_type, whole
 
 
 @dataclass(frozen=True)
-class EvaluationOptions:
+class EvaluationSettings:
     """Evaluation settings (see :mod:`annotator.evaluation.metrics`).
 
     Attributes:
@@ -77,7 +77,7 @@ class EvaluationReport:
     per_object: dict[str, Summary]
     overall: Summary
     thresholds: dict[str, float]
-    options: EvaluationOptions
+    options: EvaluationSettings
     unscored_scenes: list[str] = field(default_factory=list)
 
     def to_json(self) -> dict[str, Any]:
@@ -109,7 +109,7 @@ class EvaluationReport:
         }
 
 
-def thresholds_for(gt: GroundTruth, options: EvaluationOptions) -> dict[str, float]:
+def thresholds_for(gt: GroundTruth, options: EvaluationSettings) -> dict[str, float]:
     """The match threshold (mm) of each object."""
     out = {}
     for name, sp in gt.spaces.items():
@@ -125,7 +125,7 @@ def thresholds_for(gt: GroundTruth, options: EvaluationOptions) -> dict[str, flo
 
 
 def evaluate(
-    gt: GroundTruth, results: PoseResults, options: EvaluationOptions = EvaluationOptions()
+    gt: GroundTruth, results: PoseResults, options: EvaluationSettings = EvaluationSettings()
 ) -> EvaluationReport:
     """Score ``results`` against ``gt`` (see :mod:`annotator.evaluation.metrics`).
 
@@ -138,7 +138,7 @@ def evaluate(
     """
     of_type(gt, GroundTruth, name="gt", what="a GroundTruth (annotator.read_ground_truth)")
     of_type(results, PoseResults, name="results", what="PoseResults (annotator.read_results)")
-    of_type(options, EvaluationOptions, name="options", what="annotator.EvaluationOptions")
+    of_type(options, EvaluationSettings, name="options", what="annotator.EvaluationSettings")
     thresholds = thresholds_for(gt, options)
     scenes = [s for s in gt.scenes if s in results.scenes or not options.only_scenes_with_results]
     curves: dict[str, list[SceneCurve]] = {name: [] for name in gt.spaces}

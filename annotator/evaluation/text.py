@@ -49,7 +49,7 @@ def summary_text(s: EvaluationSummary, *, per_object: bool = False) -> str:
     lines += _coco(s.coco)
     lines += _annotation_errors(s.annotation_errors)
     if s.physics is not None:
-        lines += _physics(s.physics, max(s.options.max_results))
+        lines += _physics(s.physics, max(s.settings.max_results))
     return "\n".join(lines)
 
 
@@ -57,7 +57,7 @@ def _header(s: EvaluationSummary) -> list[str]:
     from annotator.symmetry.space import MATCH_THRESHOLD_FRACTION
 
     assert s.gt is not None and s.results is not None and s.report is not None
-    o = s.options
+    o = s.settings
     if o.threshold_mm is not None:
         thr = f"{o.threshold_mm:g} mm"
     elif o.threshold_fraction is None and s.gt.thresholds:
