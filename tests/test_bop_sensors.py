@@ -95,3 +95,47 @@ def test_bop_evaluates_its_own_sensor(tmp_path: Path, dataset: str, want: str) -
         (scene / f"scene_gt_{sensor}.json").write_text("{}")
         (scene / f"scene_gt_info_{sensor}.json").write_text("{}")
     assert evaluated_sensor(scene) == want
+
+
+def test_the_multiview_targets_list_every_sensors_image_of_a_shot(sensors: Path, sample: Path):
+    """BOP 2025's multi-view targets: one entry per shot, the image of every sensor (as in
+    BOP's IPD: ``{"scene_id": 0, "im_id": [["photoneo", 0], ["cam1", 0], ...]}``)."""
+    cameras = [c.name for c in annotator.load_dataset(sample).rig.cameras]
+    moments = json.loads((sensors / "test_targets_multiview_bop25.json").read_text())
+    images = json.loads((sensors / "test_targets_bop24.json").read_text())
+    assert len(moments) == len(images) == 4
+    for moment, image in zip(moments, images):
+        assert moment == {
+            "scene_id": image["scene_id"],
+            "im_id": [[c, image["im_id"]] for c in cameras],
+        }
+
+
+def test_a_dataset_with_only_multiview_targets_scores_the_evaluated_sensors_images(
+    sensors: Path, tmp_path: Path
+) -> None:
+    """Without test_targets_bop24.json, 6D detection is scored on the evaluated sensor's
+    images of the multi-view targets: the same images, so the same numbers."""
+    import shutil
+
+    only = tmp_path / "bop"
+    shutil.copytree(sensors, only)
+    (only / "test_targets_bop24.json").unlink()
+    (only / "test_targets_bop19.json").unlink()
+    report = tmp_path / "report.json"
+    args = [sys.executable, "-m", "annotator", "evaluate", str(only), "--bop24", "--results"]
+    run = subprocess.run(
+        [*args, str(DATA / "bop24_results.csv"), "--json", str(report)],
+        capture_output=True,
+        text=True,
+    )
+    assert run.returncode == 0, run.stderr
+    assert "test_targets_multiview_bop25.json" in run.stdout  # the targets it scored on
+    got = json.loads(report.read_text())["bop24"]
+    for key, value in BOP_TOOLKIT.items():
+        assert got[key] == pytest.approx(value, abs=1e-12), key
+    (only / "test_targets_multiview_bop25.json").write_text('[{"scene_id": 0, "im_id": 3}]')
+    run = subprocess.run([*args, str(DATA / "bop24_results.csv")], capture_output=True, text=True)
+    assert run.returncode == 2
+    err = run.stderr.strip()
+    assert len(err.splitlines()) == 1 and "entry 0" in err and "multiview" in err

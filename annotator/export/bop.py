@@ -3,6 +3,8 @@
 
 - ``models/`` and ``models_eval/`` (the same meshes: MSSD's largest distance over a triangle
   is at one of its corners, so the vertices are the points BOP's scores need);
+- with ``sensors``, ``test_targets_multiview_bop25.json`` (BOP 2025's multi-view targets: per
+  shot, the image of every sensor);
 - ``test_targets_bop19.json`` (per image and object, the instances at least 10 % visible, as
   bop_toolkit's ``enumerate_test_targets.py``) and ``test_targets_bop24.json`` (every image);
 - ``scene_gt_coco[_<cam>].json`` per scene: COCO annotations with RLE masks of the visible
@@ -48,6 +50,7 @@ from annotator.export.options import LAYOUTS, Layout
 from annotator.export.removal import remove_scene_markers
 from annotator.export.selection import Selected
 from annotator.export.undistort import pinhole_rig
+from annotator.formats.bop import MULTIVIEW_TARGETS
 from annotator.io.atomic import write_bytes, write_json
 from annotator.io.images import encode_depth, read_image, write_png
 from annotator.io.ply import write_ply
@@ -150,6 +153,9 @@ def export_bop(
     write_json(out / "test_targets_bop24.json", images)
     if sensors:
         write_json(out / SENSORS_FILE, {"sensors": list(cameras), "eval_sensor": cameras[0]})
+        # every sensor took every shot: one moment, one image id
+        moments = [{**i, "im_id": [[c, i["im_id"]] for c in cameras]} for i in images]
+        write_json(out / MULTIVIEW_TARGETS, moments)
     if layout != "scenewise":
         _imagewise(out / "test", out / "test_imagewise", cameras, multi)
         if layout == "webdataset":

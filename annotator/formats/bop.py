@@ -233,9 +233,57 @@ def evaluated_sensor(scene_dir: Path) -> str:
 
 
 #: BOP's lists of what is to be found, in the order they are looked for at the dataset's
-#: root: the localisation task's (``{scene_id, im_id, obj_id, inst_count}``) and the
-#: detection task's (``{scene_id, im_id}``: every object of the image).
+#: root: the localisation task's (``{scene_id, im_id, obj_id, inst_count}``), the
+#: detection task's (``{scene_id, im_id}``: every object of the image) and, last, the 2025
+#: multi-view one's (:data:`MULTIVIEW_TARGETS`).
 TARGET_FILES = ("test_targets_bop19.json", "test_targets_bop24.json")
+
+#: BOP 2025's multi-view targets of its multi-sensor datasets: one entry per moment,
+#: ``{"scene_id": s, "im_id": [[sensor, im_id], ...]}``, the images every sensor took then
+#: (what a multi-view method is given together; the evaluated sensor's image is scored).
+MULTIVIEW_TARGETS = "test_targets_multiview_bop25.json"
+
+
+def read_multiview_targets(path: Path) -> list[tuple[int, dict[str, int]]] | None:
+    """The entries of a dataset's :data:`MULTIVIEW_TARGETS`, each ``(scene_id, {sensor:
+    im_id})`` in the file's order; None without the file.
+
+    Raises:
+        UserError: naming the file and the entry, for an entry not of BOP's layout.
+    """
+    file = path / MULTIVIEW_TARGETS
+    if not file.is_file():
+        return None
+    doc = read_json(file)
+    if not isinstance(doc, list):
+        raise UserError(
+            'expected a list of {"scene_id", "im_id": [[sensor, im_id], ...]}', path=file
+        )
+    out = []
+    for i, entry in enumerate(doc):
+        try:
+            views = {str(sensor): int(im) for sensor, im in entry["im_id"]}
+            out.append((int(entry["scene_id"]), views))
+        except (KeyError, TypeError, ValueError):
+            raise UserError(
+                f"entry {i}: needs an integer scene_id and im_id as [[sensor, im_id], ...]",
+                path=file,
+            ) from None
+        if not views:
+            raise UserError(f"entry {i}: im_id lists no sensor's image", path=file)
+    return out
+
+
+def multiview_images(
+    targets: list[tuple[int, dict[str, int]]], sensor: str
+) -> list[tuple[int, int]]:
+    """``(scene_id, im_id)`` of the images of ``sensor`` (its file suffix without the ``_``;
+    ``""`` or a sensor an entry lacks: the entry's first) the multi-view targets list.
+
+    >>> multiview_images([(0, {"photoneo": 3, "cam1": 3}), (0, {"cam1": 4})], "photoneo")
+    [(0, 3), (0, 4)]
+    """
+    return [(s, views.get(sensor, next(iter(views.values())))) for s, views in targets]
 
 
 def read_targets(path: Path, names: dict[int, str]) -> tuple[str, set[tuple[str, str]]] | None:
@@ -263,7 +311,15 @@ def read_targets(path: Path, names: dict[int, str]) -> tuple[str, set[tuple[str,
             else:
                 raise UserError(f"entry {i}: object {oid} is not in models_info.json", path=file)
         return name, pairs
-    return None
+    multiview = read_multiview_targets(path)
+    if multiview is None:
+        return None
+    scene_dirs = sorted((path / "test").glob("*/")) if (path / "test").is_dir() else []
+    sensor = evaluated_sensor(scene_dirs[0]).lstrip("_") if scene_dirs else ""
+    pairs = {
+        (f"{s}/{im}", n) for s, im in multiview_images(multiview, sensor) for n in names.values()
+    }
+    return MULTIVIEW_TARGETS, pairs
 
 
 # ------------------------------------------------------------------------------ results

@@ -29,7 +29,13 @@ import numpy as np
 
 from annotator.errors import UserError
 from annotator.formats.base import GroundTruth, checked_poses
-from annotator.formats.bop import evaluated_sensor, read_csv_rows
+from annotator.formats.bop import (
+    MULTIVIEW_TARGETS,
+    evaluated_sensor,
+    multiview_images,
+    read_csv_rows,
+    read_multiview_targets,
+)
 from annotator.geometry.mesh import Mesh, load_mesh
 from annotator.io.documents import read_json
 from annotator.io.images import read_image
@@ -226,12 +232,20 @@ def _targets_list(file: Path, entries: str) -> tuple[Path, list[Any]] | None:
 
 
 def _detection_targets(path: Path) -> dict[tuple[int, int], dict[int, int]] | None:
-    """The images test_targets_bop24.json lists, in its order (bop_toolkit's targets_org:
+    """The images test_targets_bop24.json (else the evaluated sensor's of the multi-view
+    targets, :data:`~annotator.formats.bop.MULTIVIEW_TARGETS`) lists, in its order (bop_toolkit's targets_org:
     scenes in the order they first appear, then images), each mapped to
     :data:`EVERY_POSE`."""
     found = _targets_list(path / "test_targets_bop24.json", "{scene_id, im_id}")
     if found is None:
-        return None
+        multiview = read_multiview_targets(path)
+        if multiview is None:
+            return None
+        sensor = evaluated_sensor(next((path / "test").glob("*/"), path)).lstrip("_")
+        found = (
+            path / MULTIVIEW_TARGETS,
+            [{"scene_id": s, "im_id": im} for s, im in multiview_images(multiview, sensor)],
+        )
     file, doc = found
     by_scene: dict[int, dict[int, dict[int, int]]] = {}
     for i, e in enumerate(doc):
