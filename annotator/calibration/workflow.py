@@ -129,6 +129,15 @@ def calibrate_rig(
     False it is left for :meth:`CalibrationSummary.write`). A rig that does not hold
     together is never written (``summary.holds``; the report is).
 
+    >>> import tempfile
+    >>> from pathlib import Path
+    >>> from annotator.synthesis.board import CaptureSettings, write_captures
+    >>> captures = Path(tempfile.mkdtemp()) / "captures"  # rendered ChArUco shots, 2 cameras
+    >>> _ = write_captures(CaptureSettings(shots=8, size=(640, 480), supersample=1), captures)
+    >>> rig = calibrate_rig(captures, write=False)  # write=True: into --dataset's dataset.yaml
+    >>> [c["name"] for c in rig.to_json()["cameras"]], rig.to_json()["rms_px"] < 0.5
+    (['left', 'right'], True)
+
     Args:
         board: The board description (YAML; default ``CAPTURES/board.yaml``).
         board_fields: :class:`~annotator.calibration.board.BoardSpec` fields that override

@@ -83,6 +83,13 @@ def estimate_dataset(
     COCO results: each hypothesis's silhouette box and mask in the undistorted reference
     camera (what ``--coco-results`` scores).
 
+    >>> import tempfile
+    >>> from pathlib import Path
+    >>> out = Path(tempfile.mkdtemp()) / "ppf.csv"
+    >>> s = estimate_dataset("sample_scenes", out, scenes="000000")
+    >>> s.to_json()["done"], out.is_file(), out.with_suffix(".json").is_file()
+    (1, True, True)
+
     Args:
         settings: The estimator's variant (:class:`~annotator.estimation.PPFSettings`;
             default: plain PPF, mean shift in SE(3), no post-processing).

@@ -157,6 +157,20 @@ def ingest_recording(
     colour and depth images, :mod:`annotator.ingest.sources`) as scene ``scene_id`` of a
     moving rig's dataset.
 
+    >>> import shutil, tempfile
+    >>> from pathlib import Path
+    >>> from annotator import SynthSettings, synthesize_sequences
+    >>> ds = Path(tempfile.mkdtemp()) / "seq"  # a moving rig's dataset, one camera
+    >>> settings = SynthSettings(parts=("brick",), scenes=1, instances=(2, 2), size=(160, 128),
+    ...                          frames=3, cameras=1)
+    >>> _ = synthesize_sequences(ds, settings)
+    >>> rec = Path(tempfile.mkdtemp())  # a folder of frames, as image_saver writes them
+    >>> for k, f in enumerate(sorted((ds / "scenes" / "000000" / "frames").iterdir())):
+    ...     _ = shutil.copy(f / "left.png", rec / f"frame{k:04d}.png")
+    >>> s = ingest_recording(ds, rec, "000001", depth=False)
+    >>> s.to_json()["kind"], s.to_json()["written"]
+    ('image folder', 3)
+
     Args:
         dataset: The dataset (its dataset.yaml says ``rig.moving: true``), or the folder of
             a new one with ``rig_from_source``.

@@ -63,6 +63,14 @@ def compute_occlusion(
     processes or on a Ray cluster (``ray_address``); a scene that fails is reported, the
     others go on.
 
+    >>> import shutil, tempfile
+    >>> from pathlib import Path
+    >>> root = shutil.copytree("sample_scenes", Path(tempfile.mkdtemp()) / "ds")
+    >>> compute_occlusion(root, scenes="000000").to_json()
+    {'done': 1, 'skipped': 0, 'failed': 0, 'failures': {}}
+    >>> (root / "scenes" / "000000" / "visibility.json").is_file()
+    True
+
     Raises:
         UserError: no scene matches ``scenes``.
     """

@@ -194,6 +194,13 @@ def measure_sites(
     :meth:`SitesSummary.write` does it later, and each update's diff is in
     ``summary.survey.updates``.
 
+    >>> import shutil, tempfile
+    >>> from pathlib import Path
+    >>> root = shutil.copytree("sample_scenes", Path(tempfile.mkdtemp()) / "ds")
+    >>> survey = measure_sites(root, scenes="000000")  # write=True: into object.yaml
+    >>> [i["instance"] for i in survey.to_json()["instances"]][:3]
+    ['bracket/01', 'bracket/02', 'bracket/03']
+
     Raises:
         UserError: no scene matches, none is annotated, or a mesh is unreadable.
     """

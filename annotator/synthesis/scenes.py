@@ -74,6 +74,15 @@ def synthesize_scenes(
     ``settings`` alone (its seed included), never on the workers; a scene that fails is
     reported and left out.
 
+    >>> import tempfile
+    >>> from pathlib import Path
+    >>> from annotator import SynthSettings
+    >>> out = Path(tempfile.mkdtemp()) / "synth"
+    >>> settings = SynthSettings(parts=("brick",), scenes=1, instances=(2, 2), size=(160, 128))
+    >>> s = synthesize_scenes(out, settings)
+    >>> s.to_json()["scenes"], s.to_json()["instances"], (out / "scenes" / "000000" / "gt.json").is_file()
+    (1, 2, True)
+
     Raises:
         UserError: ``out`` may not be written, or ``settings`` cannot be planned.
         ValueError: ``settings.frames`` asks for sequences (:func:`synthesize_sequences`).

@@ -527,6 +527,14 @@ def synthesize_sequences(
 
     ``batch``: the options of :func:`annotator.runner.run_batch` (``workers``, ``quiet``,
     ``ray_address``, ``ray_wait``).
+
+    >>> import tempfile
+    >>> from pathlib import Path
+    >>> out = Path(tempfile.mkdtemp()) / "seq"
+    >>> settings = SynthSettings(parts=("brick",), scenes=1, instances=(2, 2), size=(160, 128), frames=2)
+    >>> _ = synthesize_sequences(out, settings)
+    >>> sorted(p.name for p in (out / "scenes" / "000000" / "frames").iterdir())
+    ['000000', '000001']
     """
     from annotator.io.atomic import atomic_folder
     from annotator.io.output_folder import check_output_folder, write_manifest

@@ -71,6 +71,12 @@ def synthesize_twins(
     sequence, every posed frame a reviewer did not reject) in the new folder ``out``
     (``overwrite``: an earlier synth's), built aside and put in place whole.
 
+    >>> import tempfile
+    >>> from pathlib import Path
+    >>> out = Path(tempfile.mkdtemp()) / "twin"
+    >>> synthesize_twins("sample_scenes", out, include_pending=True).to_json()["twins"]
+    4
+
     Args:
         settings: The images' blur and noise, the seed (default
             :class:`~annotator.twins.render.TwinSettings`).
