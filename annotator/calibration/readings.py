@@ -341,9 +341,10 @@ def _reading(
         )
     elif behind:
         text = (
-            f"camera {name}: sees the board from behind, through the paper, in {len(behind)} "
-            f"of its {len(mine)} shots with the board (it reads only in the flipped image; "
-            f"{why}): an ordinary camera, its corners mapped back to the images as recorded"
+            f"camera {name}: sees the board from behind, through the paper (or a board printed "
+            f"mirrored from the front), in {len(behind)} of its {len(mine)} shots with the board "
+            f"(it reads only in the flipped image; {why}): an ordinary camera, its corners "
+            "mapped back to the images as recorded"
         )
     else:
         text = ""
