@@ -142,7 +142,7 @@ def bundle(
     err = _residuals(cams, all_obs, frames0, models0)
     ids = np.array([r[2].marker_id for r in rows], dtype=int)
     limit = max(s.final_inlier_px, 4 * result.sigma_px)
-    moved = _moved(cams, seen, live, frames0, keys, all_obs, keep, limit, s)
+    moved = _moved(cams, seen, live, frames0, models0, keys, all_obs, keep, limit, s)
     depth = marker_depths(cams, all_obs, frames0, models0)
     blur = FrameBlur(
         streaks[live].max(axis=1), median_by(all_obs.frame[keep], depth[keep], len(live))
@@ -175,6 +175,7 @@ def _moved(
     seen: list[Seen],
     live: list[int],
     frames: np.ndarray,
+    models: np.ndarray,
     keys: list[tuple[str, str]],
     obs: BundleObservations,
     keep: np.ndarray,
@@ -182,8 +183,10 @@ def _moved(
     s: AnnotateSettings,
 ) -> set[int]:
     """The instances that moved: the frames that disagree with the pose (at least two, and
-    the settings' ``moved_share`` of those that see it) agree with another pose among themselves. A
-    few blurred frames disagree too, but not on one other pose."""
+    the settings' ``moved_share`` of those that see it) agree with another pose among themselves,
+    and most of their markers not with the pose. A few blurred frames disagree too, but not
+    on one other pose; a frame whose view of a part was left out for one misread marker
+    still agrees with the pose on the rest."""
     out: set[int] = set()
     for i, key in enumerate(keys):
         mine = obs.instance == i
@@ -199,7 +202,10 @@ def _moved(
         if other is None:
             continue
         explained = [
-            n for n in bad if _frame_agrees(cams, seen[live[n]].raw[key], frames[n], other, limit)
+            n
+            for n in bad
+            if _frame_agrees(cams, seen[live[n]].raw[key], frames[n], other, limit)
+            and not _frame_agrees(cams, seen[live[n]].raw[key], frames[n], models[i], limit)
         ]
         if len(explained) >= max(2, 0.8 * len(bad)):
             out.add(i)
