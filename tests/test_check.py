@@ -71,3 +71,19 @@ def test_each_problem_is_reported(sample_copy, capsys) -> None:
 def test_missing_dataset_is_one_line(tmp_path, capsys) -> None:
     code, out = _run(tmp_path / "nothing", capsys)
     assert code == 1 and "dataset folder does not exist" in out
+
+
+def test_malformed_frames_on_a_fixed_rig_are_listed_as_every_reader_refuses_them(
+    sample_copy, capsys
+) -> None:
+    """annotation.json's ``frames`` are typed records now, read (and refused when malformed)
+    whatever the rig: check lists what evaluate and export would stop on."""
+    path = sample_copy / "scenes" / "000000" / "annotation.json"
+    doc = json.loads(path.read_text())
+    doc["frames"] = "x"
+    path.write_text(json.dumps(doc))
+    code, out = _run(sample_copy, capsys)
+    assert code == 1 and f"{path}: frames must map frame ->" in out
+    assert main(["evaluate", str(sample_copy)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and str(path) in err

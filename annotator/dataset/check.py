@@ -189,7 +189,7 @@ def _check_scene(ds: Dataset, scene) -> list[Problem]:
         if path.exists():
             try:
                 poses, top = read_pose_file(path)
-                frames = frames_from_json(top.get("frames"), path) if ds.rig.moving else {}
+                frames = frames_from_json(top.get("frames"), path)  # every reader checks them
                 if ds.rig.moving:
                     scene_shots(ds, scene, frames)
             except UserError as exc:
