@@ -265,9 +265,9 @@ def records(
             and weak_deg <= s.sequence.frame_max_uncertainty_deg
         ):
             flags_f.append(FrameFlag.WEAK_GEOMETRY)
-            parts = len(set(obs.instance[mine].tolist()))
+            n_parts = len(set(obs.instance[mine].tolist()))
             reasons.append(
-                f"weak geometry: posed on {int(mine.sum())} marker observations of {parts} parts, "
+                f"weak geometry: posed on {int(mine.sum())} marker observations of {n_parts} parts, "
                 f"at the detector's {NOISE.corner_px:g} px a corner (not the sequence's "
                 f"{result.sigma_px:.2g} px) its pose is uncertain {weak_mm:.3g} mm, "
                 f"{weak_deg:.3g} degrees (1-sigma)"
