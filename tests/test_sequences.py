@@ -73,7 +73,10 @@ def test_a_rendered_sequence_is_annotated_frame_by_frame(annotated: Path) -> Non
             continue
         assert entry["reprojection_px"] < 1.5 and entry["markers_used"] > 0
         assert 0 < len(entry["instances"]) <= len(ann["instances"])
-        assert entry["uncertainty_mm"] < 2 and entry["uncertainty_deg"] < 0.3
+        if "weak_geometry" not in entry["flags"]:  # else posed on few corners, and says so
+            assert entry["uncertainty_mm"] < 2 and entry["uncertainty_deg"] < 0.3
+        else:
+            assert entry["markers_used"] < 25 and "weak geometry" in entry["reason"]
         assert (entry["uncertainty_mm"] == 0) == (name == ann["scene_frame"])
         for seen in entry["instances"].values():
             assert set(seen["occlusion"]) == {"left", "right"}

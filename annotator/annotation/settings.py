@@ -44,6 +44,11 @@ class SequenceSettings:
             ``annotator sites`` measures their markers.
         phantom_frames: A pose on one reading whose part this many other frames should see,
             and read no marker of, is a misread or stray marker.
+        weak_markers: A frame posed on fewer marker observations states its uncertainty with
+            its corners at least :attr:`~annotator.noise.NoiseModel.corner_px` off (the
+            sequence's median residual, which the sharp frames set, understates so few
+            corners: a shift traded against a turn); where that is more than
+            ``frame_max_uncertainty_mm`` (or ``_deg``) it is flagged ``weak_geometry``.
     """
 
     high_reprojection_px: float = 1.5
@@ -62,6 +67,7 @@ class SequenceSettings:
     site_sigma_mm: float = NOISE.site_mm
     glued_share: float = 0.3
     phantom_frames: int = 3
+    weak_markers: int = 25
 
 
 @dataclass(frozen=True)

@@ -72,6 +72,11 @@ class FrameFlag(StrEnum):
     INCONSISTENT = "inconsistent"
     #: Posed on the markers of one part only.
     SINGLE_PART = "single_part"
+    #: Posed on fewer than the sequence settings' ``weak_markers`` marker observations, which
+    #: at the detector's corner noise leave its pose more uncertain than a posed frame
+    #: promises (``frame_max_uncertainty_mm``, ``_deg``): few corners, a shift traded against
+    #: a turn. Its ``uncertainty_mm`` and ``uncertainty_deg`` say how much.
+    WEAK_GEOMETRY = "weak_geometry"
 
 
 class WarningKind(StrEnum):

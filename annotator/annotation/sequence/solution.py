@@ -30,6 +30,7 @@ from annotator.dataset.records import (
     InstanceAnnotation,
 )
 from annotator.geometry.mesh import SurfaceMoments
+from annotator.noise import NOISE
 from annotator.pnp.bundle import BundleObservations, BundleResult
 from annotator.pnp.uncertainty import relative_rms_uncertainty, site_covariance
 
@@ -222,10 +223,18 @@ def records(
             blur_mm = blur_deg = 0.0
         else:  # the sites it was posed on are off on their parts the same in every frame
             cov = cov + frame_site_covariance(obs, mine, result, T, sites_off)
-        unc_mm = float(np.sqrt(max(np.trace(cov[3:, 3:]), 0.0) + blur_mm**2 + scale_mm**2))
-        unc_deg = float(
-            np.sqrt(np.degrees(np.sqrt(max(np.trace(cov[:3, :3]), 0.0))) ** 2 + blur_deg**2)
-        )
+        unc_mm, unc_deg = _frame_uncertainty(cov, blur_mm, blur_deg, scale_mm)
+        # A frame posed on few corners is worth what the detector's noise says of them, not
+        # the sequence's median residual (which many sharp frames set): its shift traded
+        # against a turn is that much looser than the sequence's corners say.
+        weak = int(mine.sum()) < s.sequence.weak_markers and result.sigma_px < NOISE.corner_px
+        if weak and f != placed.reference:
+            floored = cov + result.frame_covariance[n] * (
+                (NOISE.corner_px / result.sigma_px) ** 2 - 1
+            )
+            weak_mm, weak_deg = _frame_uncertainty(floored, blur_mm, blur_deg, scale_mm)
+        else:
+            weak_mm, weak_deg = unc_mm, unc_deg
         why = None
         a = agreement[n]
         others = ", ".join("/".join(keys[i]) for i in a.disagreeing)
@@ -251,6 +260,19 @@ def records(
             continue
         rms_f = float(np.sqrt(np.mean(err[mine] ** 2)))
         reasons: list[str] = []
+        if not (
+            weak_mm <= s.sequence.frame_max_uncertainty_mm
+            and weak_deg <= s.sequence.frame_max_uncertainty_deg
+        ):
+            flags_f.append(FrameFlag.WEAK_GEOMETRY)
+            n_parts = len(set(obs.instance[mine].tolist()))
+            reasons.append(
+                f"weak geometry: posed on {int(mine.sum())} marker observations of {n_parts} parts, "
+                f"at the detector's {NOISE.corner_px:g} px a corner (not the sequence's "
+                f"{result.sigma_px:.2g} px) its pose is uncertain {weak_mm:.3g} mm, "
+                f"{weak_deg:.3g} degrees (1-sigma)"
+            )
+        unc_mm, unc_deg = weak_mm, weak_deg
         if rms_f > s.sequence.high_reprojection_px:
             flags_f.append(FrameFlag.HIGH_REPROJECTION)
         if int(mine.sum()) < s.sequence.few_markers:
@@ -308,6 +330,16 @@ def records(
                 "frame's reason says which)",
             )
         )
+
+
+def _frame_uncertainty(
+    cov: np.ndarray, blur_mm: float, blur_deg: float, scale_mm: float
+) -> tuple[float, float]:
+    """A frame's 1-sigma position (mm) and turn (degrees) from its ``(w, v)`` covariance, its
+    streak's spread and the scene's scale."""
+    mm = float(np.sqrt(max(np.trace(cov[3:, 3:]), 0.0) + blur_mm**2 + scale_mm**2))
+    deg = float(np.sqrt(np.degrees(np.sqrt(max(np.trace(cov[:3, :3]), 0.0))) ** 2 + blur_deg**2))
+    return mm, deg
 
 
 def _sites_hint(off: int, parts: int) -> str:
