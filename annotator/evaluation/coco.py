@@ -31,7 +31,7 @@ from typing import Any
 
 import numpy as np
 
-from annotator.formats.coco_results import CocoGroundTruth
+from annotator.formats.coco_results import CocoGroundTruth, paused_gc
 
 #: COCOeval's ``stats``, named as bop_toolkit's ``scores_bop22_coco_<type>.json``.
 RES_TYPES = (
@@ -77,55 +77,37 @@ class CocoScores:
 def coco_scores(gt: CocoGroundTruth, results: list[dict[str, Any]], ann_type: str) -> CocoScores:
     """COCO's AP and AR of ``results`` (checked COCO results) on ``gt``, for ``ann_type``
     ``bbox`` or ``segm``. Neither argument is changed."""
-    merged, kept = _merged(gt, results, ann_type)
-    times = _times(results)
-    counts = (len(merged["images"]), len(merged["annotations"]), len(kept))
-    if not kept:
-        nothing = {k: -1.0 for k in RES_TYPES}
-        return CocoScores(ann_type, nothing, times, *counts, ["no result to score: -1"])
-    stats = dict(zip(RES_TYPES, map(float, coco_stats(merged, kept, ann_type))))
+    with paused_gc():
+        merged, kept = _merged(gt, results, ann_type)
+        times = _times(results)
+        counts = (len(merged["images"]), len(merged["annotations"]), len(kept))
+        if not kept:
+            nothing = {k: -1.0 for k in RES_TYPES}
+            return CocoScores(ann_type, nothing, times, *counts, ["no result to score: -1"])
+        stats = dict(zip(RES_TYPES, map(float, coco_stats(merged, kept, ann_type))))
     return CocoScores(ann_type, stats, times, *counts)
 
 
 def _merged(
     gt: CocoGroundTruth, results: list[dict[str, Any]], ann_type: str
 ) -> tuple[dict[str, Any], list[dict[str, Any]]]:
-    """bop_toolkit's merge of the scenes' documents and results (copies)."""
+    """bop_toolkit's merge of the scenes' documents and of the results with a box (or a
+    mask) of their target images, their image ids shifted with their scene's (copies)."""
+    doc, offsets = gt.merged
     wanted = "bbox" if ann_type == "bbox" else "segmentation"
     by_scene: dict[int, list[dict[str, Any]]] = {}
     for r in results:
         if r.get(wanted):
             by_scene.setdefault(r["scene_id"], []).append(r)
-    merged: dict[str, Any] = {}
     kept: list[dict[str, Any]] = []
-    last_image = last_ann = -1
-    for i, (scene_id, doc) in enumerate(gt.scenes):
+    for scene_id, offset in offsets.items():
         targets = gt.images[scene_id]
-        images = [dict(im) for im in doc["images"] if im["id"] in targets]
-        anns = [dict(a) for a in doc["annotations"] if a["image_id"] in targets]
-        mine = [dict(r) for r in by_scene.get(scene_id, []) if r["image_id"] in targets]
-        if i == 0:
-            merged = {**doc, "images": images, "annotations": anns}
-            merged["categories"] = [dict(c) for c in doc["categories"]]
-        else:
-            offset = last_image + 1
-            for cat in doc["categories"]:
-                if cat not in merged["categories"]:
-                    merged["categories"].append(dict(cat))
-            first = last_ann + 1 if merged["annotations"] else 0
-            for im in images:
-                im["id"] += offset
-            for a in anns:
-                a["id"] += first
-                a["image_id"] += offset
-            merged["images"] += images
-            merged["annotations"] += anns
-            for r in mine:
-                r["image_id"] += offset
-        last_image = max([im["id"] for im in images] + [last_image])
-        last_ann = max([a["id"] for a in anns] + [last_ann])
-        kept += mine
-    return merged, kept
+        kept += [
+            {**r, "image_id": r["image_id"] + offset}
+            for r in by_scene.get(scene_id, [])
+            if r["image_id"] in targets
+        ]
+    return doc, kept
 
 
 def _times(results: list[dict[str, Any]]) -> float:
