@@ -274,3 +274,21 @@ def test_large_case_same_stats_as_cocoeval() -> None:
     assert np.array_equal(
         coco_stats(doc, masks_only, "segm"), _reference(doc, masks_only, "segm")
     )
+
+
+def test_what_arrays_do_not_model_goes_to_cocoeval() -> None:
+    """Polygon masks and repeated annotation ids are left to pycocotools' COCOeval."""
+    from annotator.evaluation.coco import coco_stats
+
+    images = [{"id": i, "width": 100, "height": 80} for i in range(3)]
+    square = [[10.0, 10.0, 40.0, 10.0, 40.0, 50.0, 10.0, 50.0]]
+    anns = [{"id": 1 + (i > 2), "image_id": i % 3, "category_id": 1, "iscrowd": 0,
+             "area": 1200.0, "bbox": [10.0, 10.0, 30.0, 40.0], "segmentation": square}
+            for i in range(5)]  # fmt: skip
+    results = [{"image_id": i, "category_id": 1, "score": 0.5 + 0.1 * i,
+                "bbox": [12.0, 9.0, 30.0, 40.0 - i]} for i in range(3)]  # fmt: skip
+    doc = {"images": images, "annotations": anns, "categories": [{"id": 1, "name": "1"}]}
+    assert np.array_equal(coco_stats(doc, results, "bbox"), _reference(doc, results, "bbox"))
+    segm = [{**r, "segmentation": square} for r in results]
+    unique = {**doc, "annotations": [{**a, "id": i} for i, a in enumerate(anns)]}
+    assert np.array_equal(coco_stats(unique, segm, "segm"), _reference(unique, segm, "segm"))

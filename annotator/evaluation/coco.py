@@ -74,17 +74,17 @@ class CocoScores:
         }
 
 
+@paused_gc()
 def coco_scores(gt: CocoGroundTruth, results: list[dict[str, Any]], ann_type: str) -> CocoScores:
     """COCO's AP and AR of ``results`` (checked COCO results) on ``gt``, for ``ann_type``
     ``bbox`` or ``segm``. Neither argument is changed."""
-    with paused_gc():
-        merged, kept = _merged(gt, results, ann_type)
-        times = _times(results)
-        counts = (len(merged["images"]), len(merged["annotations"]), len(kept))
-        if not kept:
-            nothing = {k: -1.0 for k in RES_TYPES}
-            return CocoScores(ann_type, nothing, times, *counts, ["no result to score: -1"])
-        stats = dict(zip(RES_TYPES, map(float, coco_stats(merged, kept, ann_type))))
+    merged, kept = _merged(gt, results, ann_type)
+    times = _times(results)
+    counts = (len(merged["images"]), len(merged["annotations"]), len(kept))
+    if not kept:
+        nothing = {k: -1.0 for k in RES_TYPES}
+        return CocoScores(ann_type, nothing, times, *counts, ["no result to score: -1"])
+    stats = dict(zip(RES_TYPES, map(float, coco_stats(merged, kept, ann_type))))
     return CocoScores(ann_type, stats, times, *counts)
 
 

@@ -30,6 +30,20 @@ ANN_TYPES = ("bbox", "segm")
 TARGET_FILES = ("test_targets_bop24.json", "test_targets_bop19.json")
 
 
+@contextlib.contextmanager
+def paused_gc() -> Iterator[None]:
+    """Python's cyclic garbage collector paused: the documents read and scored here hold
+    millions of objects and no cycles, and collecting while they are built costs more than
+    building them."""
+    enabled = gc.isenabled()
+    gc.disable()
+    try:
+        yield
+    finally:
+        if enabled:
+            gc.enable()
+
+
 def read_coco_results(path: Path, ann_type: str) -> list[dict[str, Any]]:
     """The results of a COCO result file, checked for ``ann_type`` (``bbox`` or ``segm``);
     the first bad entry is named. The file is parsed once while it is unchanged: a second
@@ -59,23 +73,9 @@ def read_coco_results(path: Path, ann_type: str) -> list[dict[str, Any]]:
 
 
 @functools.lru_cache(maxsize=1)
+@paused_gc()
 def _parsed(path: Path, mtime_ns: int, size: int) -> Any:
-    with paused_gc():
-        return read_json(path)
-
-
-@contextlib.contextmanager
-def paused_gc() -> Iterator[None]:
-    """Python's cyclic garbage collector paused: the documents read and scored here hold
-    millions of objects and no cycles, and collecting while they are built costs more than
-    building them."""
-    enabled = gc.isenabled()
-    gc.disable()
-    try:
-        yield
-    finally:
-        if enabled:
-            gc.enable()
+    return read_json(path)
 
 
 def _problem(r: Any, ann_type: str) -> str | None:
@@ -145,6 +145,7 @@ class CocoGroundTruth:
         return merged, offsets
 
 
+@paused_gc()
 def read_coco_ground_truth(path: Path) -> CocoGroundTruth:
     """Each target scene's ``scene_gt_coco`` document and its target images."""
     file = next((path / n for n in TARGET_FILES if (path / n).is_file()), None)
@@ -170,8 +171,7 @@ def read_coco_ground_truth(path: Path) -> CocoGroundTruth:
                 "calc_gt_coco.py; `annotator export --format bop` writes it)",
                 path=coco,
             )
-        with paused_gc():
-            gt = read_json(coco)
+        gt = read_json(coco)
         if not isinstance(gt, dict) or not {"images", "annotations", "categories"} <= set(gt):
             raise UserError("expected a COCO document {images, annotations, categories}", path=coco)
         scenes.append((scene_id, gt))
