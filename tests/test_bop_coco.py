@@ -271,9 +271,7 @@ def test_large_case_same_stats_as_cocoeval() -> None:
         want = _reference(doc, results, iou_type)
         assert np.array_equal(coco_stats(doc, results, iou_type), want), iou_type
     masks_only = [{k: v for k, v in r.items() if k != "bbox"} for r in results]  # masks' areas
-    assert np.array_equal(
-        coco_stats(doc, masks_only, "segm"), _reference(doc, masks_only, "segm")
-    )
+    assert np.array_equal(coco_stats(doc, masks_only, "segm"), _reference(doc, masks_only, "segm"))
 
 
 def test_what_arrays_do_not_model_goes_to_cocoeval() -> None:

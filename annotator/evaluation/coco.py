@@ -11,10 +11,13 @@ detection tasks).
   and are ignored as BOP's own pycocotools (a fork) ignores them: a detection that matches
   one is neither right nor wrong. pycocotools as published overwrites that flag with
   ``iscrowd``; :func:`coco_stats` keeps it.
-- AP, AP50, ... AR_large are COCOeval's ``stats``, computed here on arrays for all images at
-  once (:func:`coco_stats`: the same matching, interpolation and means; pycocotools still
-  reads the results and computes the IoUs); no result at all gives -1 everywhere, as
-  bop_toolkit.
+- AP, AP50, ... AR_large are COCOeval's ``stats``, computed here on arrays for all images and
+  categories at once (:func:`coco_stats`): the same IoUs (boxes with the arithmetic of
+  pycocotools' ``bbIou``; masks by pycocotools' own C routines, ``rleFrString`` and
+  ``rleIou``, called directly, with no mask decoded), matching, interpolation and means.
+  What the arrays do not model (polygons, repeated annotation ids, a result of an image
+  that is not in the ground truth) is left to pycocotools' COCOeval. No result at all gives
+  -1 everywhere, as bop_toolkit.
 """
 
 from __future__ import annotations
@@ -171,6 +174,8 @@ def coco_stats(doc: dict[str, Any], results: list[dict[str, Any]], iou_type: str
     interpolation and means, on arrays for all images and categories at once. Input it does
     not model (repeated annotation ids, polygons, a result of an unknown image) goes to
     pycocotools' COCOeval itself."""
+    if not results:
+        return -np.ones(len(RES_TYPES))  # bop_toolkit's outcome (loadRes fails)
     try:
         table = _table(doc, results, iou_type)
     except _Unusual:
@@ -491,10 +496,10 @@ def _rles(segs: list[Any]) -> _Rles:
     structs[listed, 3] = runs.ctypes.data + 4 * (np.cumsum(lengths) - lengths)
     out = _Rles(structs, runs, np.zeros(len(segs)))
     base = structs.ctypes.data
-    for i in text:  # rleFrString allocates the runs
+    weakref.finalize(out, _free, c.rleFree, structs, np.array(text, np.int64))
+    for i in text:  # rleFrString allocates the runs (rleFree of one not reached frees nothing)
         h, w = segs[i]["size"]
         c.rleFrString(base + 32 * i, segs[i]["counts"].encode(), h, w)
-    weakref.finalize(out, _free, c.rleFree, structs, np.array(text, np.int64))
     area = np.zeros(len(segs), np.uint32)
     c.rleArea(base, len(segs), area.ctypes.data)
     out.area = area.astype(float)
