@@ -217,6 +217,16 @@ def _index(ids: np.ndarray, known: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return at, (known[at] == ids) if len(known) else np.zeros(len(ids), bool)
 
 
+def _rows(values: list[Any], width: int, dtype: type) -> np.ndarray:
+    """Lists of ``width`` numbers as an (n, width) array (quicker than ``np.array``)."""
+    if any(len(v) != width for v in values):
+        raise _Unusual
+    flat: np.ndarray = np.fromiter(
+        itertools.chain.from_iterable(values), dtype, len(values) * width
+    )
+    return flat.reshape(len(values), width)
+
+
 def _table(doc: dict[str, Any], results: list[dict[str, Any]], iou_type: str) -> _Table:
     """COCO's prepared instances and detections (``COCO.loadRes``, ``COCOeval._prepare``)."""
     img_ids = np.unique(np.array([im["id"] for im in doc["images"]]))
@@ -249,7 +259,7 @@ def _table(doc: dict[str, Any], results: list[dict[str, Any]], iou_type: str) ->
     dts = [results[i] for i in order]
     d_rles: _Rles | None = None
     if "bbox" in results[0] and results[0]["bbox"] != []:  # loadRes: the area of the box
-        d_box = np.array([r["bbox"] for r in dts], float).reshape(-1, 4)
+        d_box = _rows([r["bbox"] for r in dts], 4, np.float64)
         d_area = d_box[:, 2] * d_box[:, 3]
     elif iou_type == "segm":
         d_rles = _rles([r["segmentation"] for r in dts])
@@ -257,7 +267,7 @@ def _table(doc: dict[str, Any], results: list[dict[str, Any]], iou_type: str) ->
     else:
         raise _Unusual
     if iou_type == "bbox":
-        g_region: np.ndarray | _Rles = np.array([a["bbox"] for a in gts], float).reshape(-1, 4)
+        g_region: np.ndarray | _Rles = _rows([a["bbox"] for a in gts], 4, np.float64)
         d_region: np.ndarray | _Rles = d_box
     else:
         g_region = _rles([a["segmentation"] for a in gts])
@@ -491,7 +501,7 @@ def _rles(segs: list[Any]) -> _Rles:
     lengths = np.array([len(x) for x in lists], np.int64)
     runs = np.fromiter(itertools.chain.from_iterable(lists), np.uint32, int(lengths.sum()))
     structs = np.zeros((len(segs), 4), np.uint64)
-    structs[:, :2] = np.array([s["size"] for s in segs], np.uint64).reshape(-1, 2)
+    structs[:, :2] = _rows([s["size"] for s in segs], 2, np.uint64)
     structs[listed, 2] = lengths
     structs[listed, 3] = runs.ctypes.data + 4 * (np.cumsum(lengths) - lengths)
     out = _Rles(structs, runs, np.zeros(len(segs)))
