@@ -489,36 +489,47 @@ class _Rles:
 
 def _rles(segs: list[Any]) -> _Rles:
     """RLE segmentations, compressed or not, as pycocotools reads them (``frPyObjects``,
-    ``rleFrString``)."""
+    ``rleFrString``), in one pass."""
+    import ctypes
+
     c = _c_routines()
-    if not all(isinstance(s, dict) and "size" in s and "counts" in s for s in segs):
-        raise _Unusual  # polygons
-    text = [i for i, s in enumerate(segs) if isinstance(s["counts"], str)]
-    listed = [i for i, s in enumerate(segs) if isinstance(s["counts"], list)]
-    if len(text) + len(listed) != len(segs):
-        raise _Unusual
-    lists = [segs[i]["counts"] for i in listed]
-    lengths = np.array([len(x) for x in lists], np.int64)
-    runs = np.fromiter(itertools.chain.from_iterable(lists), np.uint32, int(lengths.sum()))
     structs = np.zeros((len(segs), 4), np.uint64)
-    structs[:, :2] = _rows([s["size"] for s in segs], 2, np.uint64)
+    out = _Rles(structs, np.zeros(0, np.uint32), np.zeros(len(segs)))
+    owned: list[int] = []  # rleFrString allocates their runs
+    weakref.finalize(out, _free, c.rleFree, structs, owned)
+    listed: list[int] = []
+    lists: list[list[int]] = []
+    sizes: list[tuple[int, int]] = []
+    base, from_string = structs.ctypes.data, c.rleFrString
+    try:
+        for i, seg in enumerate(segs):
+            counts, (h, w) = seg["counts"], seg["size"]
+            if type(counts) is str:
+                owned.append(i)
+                from_string(base + 32 * i, counts.encode(), h, w)
+            elif type(counts) is list:
+                listed.append(i)
+                lists.append(counts)
+                sizes.append((h, w))
+            else:
+                raise _Unusual
+    except (TypeError, KeyError, ValueError, ctypes.ArgumentError):
+        raise _Unusual from None  # polygons, or no RLE
+    lengths = np.fromiter(map(len, lists), np.int64, len(lists))
+    out.runs = np.fromiter(itertools.chain.from_iterable(lists), np.uint32, int(lengths.sum()))
+    structs[listed, :2] = np.array(sizes, np.uint64).reshape(-1, 2)
     structs[listed, 2] = lengths
-    structs[listed, 3] = runs.ctypes.data + 4 * (np.cumsum(lengths) - lengths)
-    out = _Rles(structs, runs, np.zeros(len(segs)))
-    base = structs.ctypes.data
-    weakref.finalize(out, _free, c.rleFree, structs, np.array(text, np.int64))
-    for i in text:  # rleFrString allocates the runs (rleFree of one not reached frees nothing)
-        h, w = segs[i]["size"]
-        c.rleFrString(base + 32 * i, segs[i]["counts"].encode(), h, w)
+    structs[listed, 3] = out.runs.ctypes.data + 4 * (np.cumsum(lengths) - lengths)
     area = np.zeros(len(segs), np.uint32)
     c.rleArea(base, len(segs), area.ctypes.data)
     out.area = area.astype(float)
     return out
 
 
-def _free(rle_free: Any, structs: np.ndarray, owned: np.ndarray) -> None:
-    for address in (structs.ctypes.data + 32 * owned).tolist():
-        rle_free(address)
+def _free(rle_free: Any, structs: np.ndarray, owned: list[int]) -> None:
+    base = structs.ctypes.data
+    for i in owned:
+        rle_free(base + 32 * i)
 
 
 @functools.cache
