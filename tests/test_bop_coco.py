@@ -8,6 +8,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 from test_bop24 import LOW_VISIBILITY
 
@@ -120,7 +121,6 @@ def test_bad_results_file_is_one_line(export: Path, tmp_path: Path) -> None:
 def test_estimate_writes_coco_results_bop_reads(export: Path, sample: Path, tmp_path: Path) -> None:
     """``annotator estimate``'s COCO results of the true poses: the silhouettes' boxes are
     BOP's (amodal) true boxes, AP 1."""
-    import numpy as np
 
     import annotator
     from annotator.estimation.results import ResultRow, coco_path, coco_results
@@ -144,18 +144,40 @@ def test_estimate_writes_coco_results_bop_reads(export: Path, sample: Path, tmp_
     assert got["bop22_coco_bbox"]["average_time_per_image"] == 1.5
 
 
+def _reference(doc: dict, results: list, iou_type: str) -> np.ndarray:
+    """pycocotools' COCOeval made to keep ``ignore`` as BOP's fork does."""
+    import contextlib
+    import io
+
+    from pycocotools.coco import COCO
+    from pycocotools.cocoeval import COCOeval
+
+    class ForkEval(COCOeval):
+        def _prepare(self) -> None:
+            keep = {a["id"]: a.get("ignore", 0) for a in self.cocoGt.dataset["annotations"]}
+            super()._prepare()
+            for gts in self._gts.values():
+                for g in gts:
+                    g["ignore"] = keep[g["id"]]
+
+    with contextlib.redirect_stdout(io.StringIO()):
+        gt = COCO()
+        gt.dataset = json.loads(json.dumps(doc))
+        gt.createIndex()
+        ev = ForkEval(gt, gt.loadRes(json.loads(json.dumps(results))), iou_type)
+        ev.params.imgIds = sorted(gt.getImgIds())
+        ev.evaluate()
+        ev.accumulate()
+        ev.summarize()
+    return np.asarray(ev.stats)
+
+
 @pytest.mark.parametrize("seed", range(6))
 def test_same_stats_as_cocoeval(seed: int) -> None:
     """coco_stats against pycocotools' own COCOeval, made to keep ``ignore`` as BOP's fork
     does, on random boxes: several categories, every area range, tied scores, ignored and
     crowd instances, images without detections or without instances, more than 100
     detections in an image."""
-    import contextlib
-    import io
-
-    import numpy as np
-    from pycocotools.coco import COCO
-    from pycocotools.cocoeval import COCOeval
 
     from annotator.evaluation.coco import coco_stats
 
@@ -182,28 +204,89 @@ def test_same_stats_as_cocoeval(seed: int) -> None:
                             "score": round(float(rng.uniform()), 1)})  # fmt: skip
     doc = {"images": images, "annotations": anns,
            "categories": [{"id": c, "name": str(c)} for c in (1, 2, 3)]}  # fmt: skip
+    assert np.array_equal(coco_stats(doc, results, "bbox"), _reference(doc, results, "bbox"))
 
-    def load() -> tuple[COCO, COCO]:
-        with contextlib.redirect_stdout(io.StringIO()):
-            gt = COCO()
-            gt.dataset = json.loads(json.dumps(doc))
-            gt.createIndex()
-            return gt, gt.loadRes(json.loads(json.dumps(results)))
 
-    class ForkEval(COCOeval):
-        def _prepare(self) -> None:
-            keep = {a["id"]: a.get("ignore", 0) for a in self.cocoGt.dataset["annotations"]}
-            super()._prepare()
-            for gts in self._gts.values():
-                for g in gts:
-                    g["ignore"] = keep[g["id"]]
+def _uncompressed(mask: np.ndarray) -> dict:
+    """A mask's uncompressed RLE, as bop_toolkit's calc_gt_coco.py writes it."""
 
-    gt, dt = load()
-    with contextlib.redirect_stdout(io.StringIO()):
-        ev = ForkEval(gt, dt, "bbox")
-        ev.params.imgIds = sorted(gt.getImgIds())
-        ev.evaluate()
-        ev.accumulate()
-        ev.summarize()
-    gt, dt = load()
-    assert np.array_equal(coco_stats(gt, dt, "bbox"), ev.stats)
+    flat = np.asfortranarray(mask).ravel(order="F").astype(np.int8)
+    edges = np.flatnonzero(np.diff(np.r_[0, flat, 0])) if flat.any() else np.array([], int)
+    counts = np.diff(np.r_[0, edges, flat.size]).tolist()
+    return {"counts": counts, "size": list(mask.shape)}
+
+
+def test_large_case_same_stats_as_cocoeval() -> None:
+    """Hundreds of images with boxes and masks (uncompressed true masks, compressed results),
+    many instances a category and image, ignored ones, an instance of id 0, a category
+    without results and results of a category without instances: every stat of boxes and
+    masks exactly as COCOeval's."""
+    from pycocotools import mask as coco_mask
+
+    from annotator.evaluation.coco import coco_stats
+
+    rng = np.random.default_rng(7)
+    w, h = 160, 120
+    yy, xx = np.mgrid[:h, :w]
+
+    def blob(cx: float, cy: float, ax: float, ay: float) -> tuple[np.ndarray, list[float]]:
+        mask = ((xx + 0.5 - cx) / ax) ** 2 + ((yy + 0.5 - cy) / ay) ** 2 <= 1
+        if not mask.any():
+            mask[int(np.clip(cy, 0, h - 1)), int(np.clip(cx, 0, w - 1))] = True
+        ys, xs = np.nonzero(mask)
+        return mask, [
+            float(xs.min()),
+            float(ys.min()),
+            float(np.ptp(xs) + 1),
+            float(np.ptp(ys) + 1),
+        ]
+
+    images = [{"id": i, "width": w, "height": h} for i in range(300)]
+    anns: list[dict] = []
+    results: list[dict] = []
+    for img in range(300):
+        for _ in range(int(rng.integers(0, 12))):
+            cat = int(rng.integers(1, 5))
+            cx, cy, ax, ay = rng.uniform(0, w), rng.uniform(0, h), *rng.uniform(2, 60, 2)
+            mask, box = blob(cx, cy, ax, ay)
+            anns.append({"id": len(anns), "image_id": img, "category_id": cat, "iscrowd": 0,
+                         "area": int(mask.sum()), "bbox": box, "segmentation": _uncompressed(mask),
+                         "ignore": bool(rng.random() < 0.1)})  # fmt: skip
+            for _ in range(int(rng.choice([0, 1, 1, 2]))):
+                j = rng.normal(scale=0.15, size=4)
+                dmask, dbox = blob(cx + j[0] * ax, cy + j[1] * ay, ax * (1 + j[2]), ay * (1 + j[3]))
+                rle = coco_mask.encode(np.asfortranarray(dmask.astype(np.uint8)))
+                results.append({"image_id": img, "category_id": cat, "bbox": dbox,
+                                "segmentation": {"counts": rle["counts"].decode(), "size": [h, w]},
+                                "score": round(float(rng.uniform()), 2)})  # fmt: skip
+        for _ in range(int(rng.integers(0, 4))):
+            dmask, dbox = blob(rng.uniform(0, w), rng.uniform(0, h), *rng.uniform(2, 60, 2))
+            rle = coco_mask.encode(np.asfortranarray(dmask.astype(np.uint8)))
+            results.append({"image_id": img, "category_id": int(rng.integers(1, 6)), "bbox": dbox,
+                            "segmentation": {"counts": rle["counts"].decode(), "size": [h, w]},
+                            "score": round(float(rng.uniform()), 2)})  # fmt: skip
+    cats = [{"id": c, "name": str(c)} for c in (1, 2, 3, 4, 7)]
+    doc = {"images": images, "annotations": anns, "categories": cats}
+    for iou_type in ("bbox", "segm"):
+        want = _reference(doc, results, iou_type)
+        assert np.array_equal(coco_stats(doc, results, iou_type), want), iou_type
+    masks_only = [{k: v for k, v in r.items() if k != "bbox"} for r in results]  # masks' areas
+    assert np.array_equal(coco_stats(doc, masks_only, "segm"), _reference(doc, masks_only, "segm"))
+
+
+def test_what_arrays_do_not_model_goes_to_cocoeval() -> None:
+    """Polygon masks and repeated annotation ids are left to pycocotools' COCOeval."""
+    from annotator.evaluation.coco import coco_stats
+
+    images = [{"id": i, "width": 100, "height": 80} for i in range(3)]
+    square = [[10.0, 10.0, 40.0, 10.0, 40.0, 50.0, 10.0, 50.0]]
+    anns = [{"id": 1 + (i > 2), "image_id": i % 3, "category_id": 1, "iscrowd": 0,
+             "area": 1200.0, "bbox": [10.0, 10.0, 30.0, 40.0], "segmentation": square}
+            for i in range(5)]  # fmt: skip
+    results = [{"image_id": i, "category_id": 1, "score": 0.5 + 0.1 * i,
+                "bbox": [12.0, 9.0, 30.0, 40.0 - i]} for i in range(3)]  # fmt: skip
+    doc = {"images": images, "annotations": anns, "categories": [{"id": 1, "name": "1"}]}
+    assert np.array_equal(coco_stats(doc, results, "bbox"), _reference(doc, results, "bbox"))
+    segm = [{**r, "segmentation": square} for r in results]
+    unique = {**doc, "annotations": [{**a, "id": i} for i, a in enumerate(anns)]}
+    assert np.array_equal(coco_stats(unique, segm, "segm"), _reference(unique, segm, "segm"))

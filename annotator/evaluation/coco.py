@@ -11,22 +11,30 @@ detection tasks).
   and are ignored as BOP's own pycocotools (a fork) ignores them: a detection that matches
   one is neither right nor wrong. pycocotools as published overwrites that flag with
   ``iscrowd``; :func:`coco_stats` keeps it.
-- AP, AP50, ... AR_large are COCOeval's ``stats``, computed here on arrays for all images at
-  once (:func:`coco_stats`: the same matching, interpolation and means; pycocotools still
-  reads the results and computes the IoUs); no result at all gives -1 everywhere, as
-  bop_toolkit.
+- AP, AP50, ... AR_large are COCOeval's ``stats``, computed here on arrays for all images and
+  categories at once (:func:`coco_stats`): the same IoUs (boxes with the arithmetic of
+  pycocotools' ``bbIou``; masks by pycocotools' own C routines, ``rleFrString`` and
+  ``rleIou``, called directly, with no mask decoded), matching, interpolation and means.
+  What the arrays do not model (polygons, repeated annotation ids, a result of an image
+  that is not in the ground truth) is left to pycocotools' COCOeval. No result at all gives
+  -1 everywhere, as bop_toolkit.
 """
 
 from __future__ import annotations
 
 import contextlib
+import copy
+import functools
 import io
+import itertools
+import types
+import weakref
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
-from annotator.formats.coco_results import CocoGroundTruth
+from annotator.formats.coco_results import CocoGroundTruth, paused_gc
 
 #: COCOeval's ``stats``, named as bop_toolkit's ``scores_bop22_coco_<type>.json``.
 RES_TYPES = (
@@ -69,74 +77,40 @@ class CocoScores:
         }
 
 
+@paused_gc()
 def coco_scores(gt: CocoGroundTruth, results: list[dict[str, Any]], ann_type: str) -> CocoScores:
     """COCO's AP and AR of ``results`` (checked COCO results) on ``gt``, for ``ann_type``
     ``bbox`` or ``segm``. Neither argument is changed."""
-    from pycocotools import mask as coco_mask
-    from pycocotools.coco import COCO
-
     merged, kept = _merged(gt, results, ann_type)
-    quiet = io.StringIO()
-    with contextlib.redirect_stdout(quiet):
-        cocoGt = COCO()
-        cocoGt.dataset = merged
-        cocoGt.createIndex()
-    if ann_type == "segm":
-        for r in kept:  # pycocotools needs compressed RLE when no box comes with the mask
-            seg = r["segmentation"]
-            if "bbox" not in r and isinstance(seg.get("counts"), list):
-                img = cocoGt.imgs[r["image_id"]]
-                r["segmentation"] = coco_mask.frPyObjects(seg, img["height"], img["width"])
     times = _times(results)
     counts = (len(merged["images"]), len(merged["annotations"]), len(kept))
     if not kept:
         nothing = {k: -1.0 for k in RES_TYPES}
         return CocoScores(ann_type, nothing, times, *counts, ["no result to score: -1"])
-    with contextlib.redirect_stdout(quiet):
-        cocoDt = cocoGt.loadRes(kept)  # ids, areas and boxes or masks as pycocotools makes them
-    stats = dict(zip(RES_TYPES, map(float, coco_stats(cocoGt, cocoDt, ann_type))))
+    stats = dict(zip(RES_TYPES, map(float, coco_stats(merged, kept, ann_type))))
     return CocoScores(ann_type, stats, times, *counts)
 
 
 def _merged(
     gt: CocoGroundTruth, results: list[dict[str, Any]], ann_type: str
 ) -> tuple[dict[str, Any], list[dict[str, Any]]]:
-    """bop_toolkit's merge of the scenes' documents and results (copies)."""
+    """bop_toolkit's merge of the scenes' documents and of the results with a box (or a
+    mask) of their target images, their image ids shifted with their scene's (copies)."""
+    doc, offsets = gt.merged
     wanted = "bbox" if ann_type == "bbox" else "segmentation"
     by_scene: dict[int, list[dict[str, Any]]] = {}
     for r in results:
         if r.get(wanted):
             by_scene.setdefault(r["scene_id"], []).append(r)
-    merged: dict[str, Any] = {}
     kept: list[dict[str, Any]] = []
-    last_image = last_ann = -1
-    for i, (scene_id, doc) in enumerate(gt.scenes):
+    for scene_id, offset in offsets.items():
         targets = gt.images[scene_id]
-        images = [dict(im) for im in doc["images"] if im["id"] in targets]
-        anns = [dict(a) for a in doc["annotations"] if a["image_id"] in targets]
-        mine = [dict(r) for r in by_scene.get(scene_id, []) if r["image_id"] in targets]
-        if i == 0:
-            merged = {**doc, "images": images, "annotations": anns}
-            merged["categories"] = [dict(c) for c in doc["categories"]]
-        else:
-            offset = last_image + 1
-            for cat in doc["categories"]:
-                if cat not in merged["categories"]:
-                    merged["categories"].append(dict(cat))
-            first = last_ann + 1 if merged["annotations"] else 0
-            for im in images:
-                im["id"] += offset
-            for a in anns:
-                a["id"] += first
-                a["image_id"] += offset
-            merged["images"] += images
-            merged["annotations"] += anns
-            for r in mine:
-                r["image_id"] += offset
-        last_image = max([im["id"] for im in images] + [last_image])
-        last_ann = max([a["id"] for a in anns] + [last_ann])
-        kept += mine
-    return merged, kept
+        kept += [
+            {**r, "image_id": r["image_id"] + offset}
+            for r in by_scene.get(scene_id, [])
+            if r["image_id"] in targets
+        ]
+    return doc, kept
 
 
 def _times(results: list[dict[str, Any]]) -> float:
@@ -161,161 +135,308 @@ AREA_RNG = ((0**2, 1e5**2), (0**2, 32**2), (32**2, 96**2), (96**2, 1e5**2))
 AREA_LBL = ("all", "small", "medium", "large")
 
 
+#: The matching's lanes: every (area range, IoU threshold), area range major; a lane's area
+#: range and its threshold as COCOeval compares it.
+_LANE_AREA = np.repeat(np.arange(len(AREA_RNG)), len(IOU_THRS))
+_LANE_THR = np.tile(np.minimum(IOU_THRS, 1 - 1e-10), len(AREA_RNG))
+
+
 @dataclass
-class _Group:
-    """One (image, category): its true instances in the file's order and its detections in
-    decreasing score (at most the largest of :data:`MAX_DETS`), with their IoUs."""
+class _Table:
+    """The instances and detections COCOeval scores, as arrays: the true instances grouped
+    by (category, image), in the file's order within a group; the detections grouped alike,
+    in decreasing score within a group (stable), at most the largest of :data:`MAX_DETS`."""
 
-    gt_ids: np.ndarray
-    gt_area: np.ndarray
-    gt_ignore: np.ndarray  # the ``ignore`` flag, kept as BOP's pycocotools keeps it
-    gt_crowd: np.ndarray
-    dt_area: np.ndarray
-    dt_scores: np.ndarray
-    ious: np.ndarray  # (D, G)
+    n_img: int
+    n_cat: int
+    g_id: np.ndarray
+    g_key: np.ndarray  # category index * images + image index
+    g_area: np.ndarray
+    g_ignore: np.ndarray  # the ``ignore`` flag, kept as BOP's pycocotools keeps it
+    g_crowd: np.ndarray
+    g_region: np.ndarray | _Rles  # boxes (n, 4) or masks
+    d_key: np.ndarray
+    d_rank: np.ndarray  # the place in its group
+    d_score: np.ndarray
+    d_area: np.ndarray
+    d_region: np.ndarray | _Rles
 
 
-def coco_stats(cocoGt: Any, cocoDt: Any, iou_type: str) -> np.ndarray:
-    """COCOeval's 12 ``stats`` (``evaluate``, ``accumulate``, ``summarize`` with the default
-    parameters, every image and category of ``cocoGt``), with BOP's ``ignore`` flags: the
-    same matching, interpolation and means, computed on arrays, all images at once."""
-    from pycocotools import mask as coco_mask
+class _Unusual(Exception):
+    """Input the array path does not model (pycocotools' own evaluation decides)."""
 
-    img_ids = list(np.unique(sorted(cocoGt.getImgIds())))
-    cat_ids = list(np.unique(sorted(cocoGt.getCatIds())))
-    gts = cocoGt.loadAnns(cocoGt.getAnnIds(imgIds=img_ids, catIds=cat_ids))
-    dts = cocoDt.loadAnns(cocoDt.getAnnIds(imgIds=img_ids, catIds=cat_ids))
-    key = "bbox" if iou_type == "bbox" else "segmentation"
 
-    def region(ann: dict[str, Any], coco: Any) -> Any:
-        return ann["bbox"] if key == "bbox" else coco.annToRLE(ann)
-
-    by: dict[tuple[int, int], tuple[list[Any], list[Any]]] = {}
-    for g in gts:
-        by.setdefault((g["image_id"], g["category_id"]), ([], []))[0].append(g)
-    for d in dts:
-        by.setdefault((d["image_id"], d["category_id"]), ([], []))[1].append(d)
-    groups: dict[tuple[int, int], _Group] = {}
-    for (img, cat), (g, d) in by.items():
-        order = np.argsort([-x["score"] for x in d], kind="mergesort")[: MAX_DETS[-1]]
-        d = [d[i] for i in order]
-        crowd = [int(x.get("iscrowd", 0)) for x in g]
-        ious = (
-            np.asarray(
-                coco_mask.iou(
-                    [region(x, cocoDt) for x in d], [region(x, cocoGt) for x in g], crowd
-                ),
-                float,
-            ).reshape(len(d), len(g))
-            if g and d
-            else np.zeros((len(d), len(g)))
-        )
-        groups[(img, cat)] = _Group(
-            np.array([x["id"] for x in g], float),
-            np.array([x["area"] for x in g], float),
-            np.array([bool(x.get("ignore", 0)) for x in g], bool),
-            np.array(crowd, bool),
-            np.array([x["area"] for x in d], float),
-            np.array([x["score"] for x in d], float),
-            ious,
-        )
-    precision, recall = _accumulate(groups, img_ids, cat_ids)
+def coco_stats(doc: dict[str, Any], results: list[dict[str, Any]], iou_type: str) -> np.ndarray:
+    """COCOeval's 12 ``stats`` of ``results`` (as ``COCO.loadRes`` takes them) on the COCO
+    document ``doc`` (``evaluate``, ``accumulate``, ``summarize`` with the default
+    parameters, every image and category of ``doc``), with BOP's ``ignore`` flags: the same
+    IoUs (pycocotools' own RLE IoU for masks, its box IoU's arithmetic for boxes), matching,
+    interpolation and means, on arrays for all images and categories at once. Input it does
+    not model (repeated annotation ids, polygons, a result of an unknown image) goes to
+    pycocotools' COCOeval itself."""
+    if not results:
+        return -np.ones(len(RES_TYPES))  # bop_toolkit's outcome (loadRes fails)
+    try:
+        table = _table(doc, results, iou_type)
+    except _Unusual:
+        return _cocoeval_stats(doc, results, iou_type)
+    precision, recall = _accumulate(table, *_match(table, _ious(table)))
     return _summarize(precision, recall)
 
 
-def _matches(groups: list[_Group], area: tuple[float, float]) -> list[dict[str, np.ndarray]]:
-    """COCOeval's ``evaluateImg`` for every group at once: per IoU threshold, each detection
-    in decreasing score takes the free true instance of highest IoU at least the threshold
-    (the last of equal ones), one not ignored if there is any; the detections' matched ids
-    (0: none) and ignore flags, and the true instances' ignore flags, in their sorted order."""
-    T, N = len(IOU_THRS), len(groups)
-    G = max((len(g.gt_ids) for g in groups), default=0)
-    D = max((len(g.dt_scores) for g in groups), default=0)
-    ious = np.full((N, D, G), -np.inf)
-    gt_ig = np.ones((N, G), bool)
-    gt_id = np.zeros((N, G))
-    crowd = np.zeros((N, G), bool)
-    real = np.zeros((N, G), bool)
-    n_dt = np.zeros(N, int)
-    for n, g in enumerate(groups):
-        ignore = g.gt_ignore | (g.gt_area < area[0]) | (g.gt_area > area[1])
-        order = np.argsort(ignore, kind="mergesort")
-        k, d = len(order), len(g.dt_scores)
-        gt_ig[n, :k], gt_id[n, :k], crowd[n, :k] = ignore[order], g.gt_ids[order], g.gt_crowd[order]
-        real[n, :k] = True
-        ious[n, :d, :k] = g.ious[:, order]
-        n_dt[n] = d
-    thr = np.minimum(IOU_THRS, 1 - 1e-10)[None, :, None]
-    taken = np.zeros((N, T, G), bool)
-    dtm = np.zeros((N, T, D))
-    dt_ig = np.zeros((N, T, D), bool)
-    rows = np.arange(N)[:, None]
-    for r in range(D if G else 0):
-        active = n_dt > r
-        v = ious[:, r, None, :]  # (N, 1, G)
-        cand = (v >= thr) & real[:, None, :] & ~(taken & ~crowd[:, None, :])
-        plain = cand & ~gt_ig[:, None, :]
-        pick = np.where(plain.any(axis=2, keepdims=True), plain, cand)
-        vals = np.where(pick, v, -np.inf)
-        best = vals.max(axis=2, keepdims=True)
-        m = G - 1 - np.argmax((vals == best)[:, :, ::-1], axis=2)  # the last of the best
-        found = pick.any(axis=2) & active[:, None]
-        dtm[:, :, r] = np.where(found, gt_id[rows, m], 0.0)
-        dt_ig[:, :, r] = found & gt_ig[rows, m]
-        n_i, t_i = np.nonzero(found)
-        taken[n_i, t_i, m[n_i, t_i]] = True
-    out = []
-    for n, g in enumerate(groups):
-        d = n_dt[n]
-        outside = (g.dt_area < area[0]) | (g.dt_area > area[1])
-        ig = dt_ig[n, :, :d] | ((dtm[n, :, :d] == 0) & outside[None, :])
-        out.append(
-            {"dtm": dtm[n, :, :d], "dt_ig": ig, "gt_ig": gt_ig[n, : len(g.gt_ids)],
-             "scores": g.dt_scores}
-        )  # fmt: skip
-    return out
+def _cocoeval_stats(
+    doc: dict[str, Any], results: list[dict[str, Any]], iou_type: str
+) -> np.ndarray:
+    """pycocotools' COCOeval, keeping the ``ignore`` flag as BOP's fork does."""
+    from pycocotools.coco import COCO
+    from pycocotools.cocoeval import COCOeval
+
+    class ForkEval(COCOeval):
+        def _prepare(self) -> None:
+            keep = {id(a): a.get("ignore", 0) for a in self.cocoGt.dataset["annotations"]}
+            super()._prepare()
+            for gts in self._gts.values():
+                for g in gts:
+                    g["ignore"] = keep[id(g)]
+
+    with contextlib.redirect_stdout(io.StringIO()):
+        gt = COCO()
+        gt.dataset = copy.deepcopy(doc)
+        gt.createIndex()
+        ev = ForkEval(gt, gt.loadRes(copy.deepcopy(results)), iou_type)
+        ev.params.imgIds = sorted(gt.getImgIds())
+        ev.evaluate()
+        ev.accumulate()
+        ev.summarize()
+    return np.asarray(ev.stats, float)
 
 
-def _accumulate(
-    groups: dict[tuple[int, int], _Group], img_ids: list[Any], cat_ids: list[Any]
-) -> tuple[np.ndarray, np.ndarray]:
+def _index(ids: np.ndarray, known: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Where each of ``ids`` stands in the sorted ``known``, and whether it is there."""
+    at = np.minimum(np.searchsorted(known, ids), max(len(known) - 1, 0))
+    return at, (known[at] == ids) if len(known) else np.zeros(len(ids), bool)
+
+
+def _rows(values: list[Any], width: int, dtype: type) -> np.ndarray:
+    """Lists of ``width`` numbers as an (n, width) array (quicker than ``np.array``)."""
+    if any(len(v) != width for v in values):
+        raise _Unusual
+    flat: np.ndarray = np.fromiter(
+        itertools.chain.from_iterable(values), dtype, len(values) * width
+    )
+    return flat.reshape(len(values), width)
+
+
+def _table(doc: dict[str, Any], results: list[dict[str, Any]], iou_type: str) -> _Table:
+    """COCO's prepared instances and detections (``COCO.loadRes``, ``COCOeval._prepare``)."""
+    img_ids = np.unique(np.array([im["id"] for im in doc["images"]]))
+    cat_ids = np.unique(np.array([c["id"] for c in doc["categories"]]))
+    n_img, n_cat = len(img_ids), len(cat_ids)
+    anns = doc["annotations"]
+    if len({a["id"] for a in anns}) != len(anns):
+        raise _Unusual
+    g_img, in_img = _index(np.array([a["image_id"] for a in anns]), img_ids)
+    g_cat, in_cat = _index(np.array([a["category_id"] for a in anns]), cat_ids)
+    g_key = (g_cat * n_img + g_img)[in_img & in_cat]
+    g_keep = np.flatnonzero(in_img & in_cat)[np.argsort(g_key, kind="stable")]
+    gts = [anns[i] for i in g_keep]
+    d_img, d_in_img = _index(np.array([r["image_id"] for r in results]), img_ids)
+    if not d_in_img.all():
+        raise _Unusual  # pycocotools' loadRes refuses it
+    d_cat, d_in_cat = _index(np.array([r["category_id"] for r in results]), cat_ids)
+    d_key_all = d_cat * n_img + d_img
+    d_score_all = np.array([r["score"] for r in results], float)
+    order = np.lexsort((np.arange(len(results)), -d_score_all, d_key_all))
+    order = order[d_in_cat[order]]
+    d_key = d_key_all[order]
+    first = np.searchsorted(d_key, d_key)
+    d_rank = np.arange(len(d_key)) - first
+    order, d_key, d_rank = (
+        order[d_rank < MAX_DETS[-1]],
+        d_key[d_rank < MAX_DETS[-1]],
+        d_rank[d_rank < MAX_DETS[-1]],
+    )
+    dts = [results[i] for i in order]
+    d_rles: _Rles | None = None
+    if "bbox" in results[0] and results[0]["bbox"] != []:  # loadRes: the area of the box
+        d_box = _rows([r["bbox"] for r in dts], 4, np.float64)
+        d_area = d_box[:, 2] * d_box[:, 3]
+    elif iou_type == "segm":
+        d_rles = _rles([r["segmentation"] for r in dts])
+        d_area = d_rles.area
+    else:
+        raise _Unusual
+    if iou_type == "bbox":
+        g_region: np.ndarray | _Rles = _rows([a["bbox"] for a in gts], 4, np.float64)
+        d_region: np.ndarray | _Rles = d_box
+    else:
+        g_region = _rles([a["segmentation"] for a in gts])
+        d_region = d_rles if d_rles is not None else _rles([r["segmentation"] for r in dts])
+    return _Table(
+        n_img,
+        n_cat,
+        np.array([a["id"] for a in gts], float),
+        np.sort(g_key),
+        np.array([a["area"] for a in gts], float),
+        np.array([bool(a.get("ignore", 0)) for a in gts], bool),
+        np.array([int(a.get("iscrowd", 0) or 0) != 0 for a in gts], bool),
+        g_region,
+        d_key,
+        d_rank,
+        d_score_all[order],
+        d_area,
+        d_region,
+    )
+
+
+@dataclass
+class _Pairs:
+    """Every (detection, true instance) of a group, detection major, and their IoU."""
+
+    det: np.ndarray
+    gt: np.ndarray
+    iou: np.ndarray
+    g_start: np.ndarray  # per detection: where its group's true instances start
+
+
+def _ious(t: _Table) -> _Pairs:
+    """COCOeval's ``computeIoU`` for every group: boxes with pycocotools' arithmetic
+    (``bbIou``), masks with pycocotools' RLE IoU, a call a group."""
+    g_start = np.searchsorted(t.g_key, t.d_key, "left")
+    count = np.searchsorted(t.g_key, t.d_key, "right") - g_start
+    det = np.repeat(np.arange(len(t.d_key)), count)
+    gt = (
+        np.arange(len(det)) - np.repeat(np.cumsum(count) - count, count) + np.repeat(g_start, count)
+    )
+    crowd = t.g_crowd[gt]
+    if isinstance(t.d_region, np.ndarray) and isinstance(t.g_region, np.ndarray):
+        d, g = t.d_region[det], t.g_region[gt]
+        w = np.minimum(d[:, 2] + d[:, 0], g[:, 2] + g[:, 0]) - np.maximum(d[:, 0], g[:, 0])
+        h = np.minimum(d[:, 3] + d[:, 1], g[:, 3] + g[:, 1]) - np.maximum(d[:, 1], g[:, 1])
+        inter = w * h
+        union = np.where(crowd, d[:, 2] * d[:, 3], d[:, 2] * d[:, 3] + g[:, 2] * g[:, 3] - inter)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            iou = np.where((w > 0) & (h > 0), inter / union, 0.0)
+        return _Pairs(det, gt, iou, g_start)
+    assert isinstance(t.d_region, _Rles) and isinstance(t.g_region, _Rles)
+    rle_iou = _c_routines().rleIou
+    crowd = t.g_crowd.astype(np.uint8)
+    d0 = np.flatnonzero((count > 0) & np.r_[True, t.d_key[1:] != t.d_key[:-1]])
+    nd = np.searchsorted(t.d_key, t.d_key[d0], "right") - d0
+    g0, ng = g_start[d0], count[d0]
+    at = np.cumsum(ng * nd) - ng * nd
+    block = np.zeros(int((ng * nd).sum()))  # a group's (G, D), as rleIou writes it
+    calls = zip(
+        (t.d_region.structs.ctypes.data + 32 * d0).tolist(),
+        (t.g_region.structs.ctypes.data + 32 * g0).tolist(),
+        nd.tolist(),
+        ng.tolist(),
+        (crowd.ctypes.data + g0).tolist(),
+        (block.ctypes.data + 8 * at).tolist(),
+    )
+    for call in calls:
+        rle_iou(*call)
+    group = np.searchsorted(d0, det, "right") - 1
+    iou = block[at[group] + (gt - g0[group]) * nd[group] + (det - d0[group])]
+    return _Pairs(det, gt, iou, g_start)
+
+
+def _match(t: _Table, p: _Pairs) -> tuple[np.ndarray, np.ndarray]:
+    """COCOeval's ``evaluateImg`` for every group and lane at once, a detection rank at a
+    time: each detection takes the free true instance of highest IoU at least the threshold
+    (the last of equal ones in the order that puts ignored instances last), one not ignored
+    if there is any. The detections' matched ids (0: none) and ignore flags, (D, lanes)."""
+    lo, hi = np.array([a for a, _ in AREA_RNG]), np.array([b for _, b in AREA_RNG])
+    g_ig = t.g_ignore[:, None] | (t.g_area[:, None] < lo) | (t.g_area[:, None] > hi)  # (G, A)
+    n_gt, n_area, lanes = len(t.g_key), len(AREA_RNG), len(_LANE_AREA)
+    pos = np.zeros((n_gt, n_area), np.int64)  # the place in its group, ignored ones last
+    at = np.zeros((n_area, n_gt), np.int64)  # the inverse: group start + place -> instance
+    first = np.searchsorted(t.g_key, t.g_key)
+    for a in range(n_area):
+        order = np.lexsort((np.arange(n_gt), g_ig[:, a], t.g_key))
+        pos[order, a] = np.arange(n_gt) - first[order]
+        at[a, first[order] + pos[order, a]] = order
+    dtm = np.zeros((len(t.d_key), lanes))
+    dt_ig = np.zeros((len(t.d_key), lanes), bool)
+    taken = np.zeros((n_gt, lanes), bool)
+    useful = np.flatnonzero(p.iou >= _LANE_THR.min())  # others are no lane's candidates
+    by_rank = useful[np.argsort(t.d_rank[p.det[useful]], kind="stable")]
+    det, gt, iou = p.det[by_rank], p.gt[by_rank], p.iou[by_rank]
+    bounds = np.searchsorted(t.d_rank[det], np.arange(MAX_DETS[-1] + 1))
+    for r in range(MAX_DETS[-1]):
+        sl = slice(bounds[r], bounds[r + 1])
+        if bounds[r] == bounds[r + 1]:
+            continue
+        d, g, v = det[sl], gt[sl], iou[sl, None]
+        new = np.r_[True, d[1:] != d[:-1]]
+        starts, seg = np.flatnonzero(new), np.cumsum(new) - 1
+        ig = g_ig[g][:, _LANE_AREA]
+        cand = (v >= _LANE_THR) & ~(taken[g] & ~t.g_crowd[g, None])
+        plain = cand & ~ig
+        pick = np.where(np.logical_or.reduceat(plain, starts, axis=0)[seg], plain, cand)
+        val = np.where(pick, v, -np.inf)
+        best = np.maximum.reduceat(val, starts, axis=0)
+        place = np.where(pick & (val == best[seg]), pos[g][:, _LANE_AREA], -1)
+        chosen = np.maximum.reduceat(place, starts, axis=0)
+        s_i, l_i = np.nonzero(chosen >= 0)
+        m = at[_LANE_AREA[l_i], p.g_start[d[starts[s_i]]] + chosen[s_i, l_i]]
+        dd = d[starts[s_i]]
+        dtm[dd, l_i] = t.g_id[m]
+        dt_ig[dd, l_i] = g_ig[m, _LANE_AREA[l_i]]
+        taken[m, l_i] = True
+    outside = (t.d_area[:, None] < lo) | (t.d_area[:, None] > hi)
+    dt_ig |= (dtm == 0) & outside[:, _LANE_AREA]
+    return dtm, dt_ig
+
+
+def _accumulate(t: _Table, dtm: np.ndarray, dt_ig: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """COCOeval's ``accumulate``: precision (T, R, K, A, M) and recall (T, K, A, M), -1
-    where a category has nothing to find; the precision envelope and its reading at the
+    where a category has nothing to find; a category's detections of all images in
+    decreasing score (stable in image order), the precision envelope and its reading at the
     recall points on arrays."""
-    T, R, K, A, M = len(IOU_THRS), len(REC_THRS), len(cat_ids), len(AREA_RNG), len(MAX_DETS)
+    T, R, K, A, M = len(IOU_THRS), len(REC_THRS), t.n_cat, len(AREA_RNG), len(MAX_DETS)
+    lanes = len(_LANE_AREA)
     precision = -np.ones((T, R, K, A, M))
     recall = -np.ones((T, K, A, M))
-    order = [(img, cat) for cat in cat_ids for img in img_ids if (img, cat) in groups]
-    for a, area in enumerate(AREA_RNG):
-        evals = dict(zip(order, _matches([groups[key] for key in order], area)))
-        for k, cat in enumerate(cat_ids):
-            E = [evals[(img, cat)] for img in img_ids if (img, cat) in evals]
-            if not E:
-                continue
-            gt_ig = np.concatenate([e["gt_ig"] for e in E])
-            npig = np.count_nonzero(gt_ig == 0)
-            if npig == 0:
-                continue
-            for m, max_det in enumerate(MAX_DETS):
-                scores = np.concatenate([e["scores"][:max_det] for e in E])
-                inds = np.argsort(-scores, kind="mergesort")
-                dtm = np.concatenate([e["dtm"][:, :max_det] for e in E], axis=1)[:, inds]
-                dt_ig = np.concatenate([e["dt_ig"][:, :max_det] for e in E], axis=1)[:, inds]
-                tp = np.cumsum((dtm != 0) & ~dt_ig, axis=1).astype(float)
-                fp = np.cumsum((dtm == 0) & ~dt_ig, axis=1).astype(float)
-                nd = tp.shape[1]
-                rc = tp / npig
+    lo, hi = np.array([a for a, _ in AREA_RNG]), np.array([b for _, b in AREA_RNG])
+    g_ig = t.g_ignore[:, None] | (t.g_area[:, None] < lo) | (t.g_area[:, None] > hi)
+    g_cat = t.g_key // max(t.n_img, 1)
+    npig = np.stack([np.bincount(g_cat[~g_ig[:, a]], minlength=K) for a in range(A)], 1)
+    d_cat, d_img = t.d_key // max(t.n_img, 1), t.d_key % max(t.n_img, 1)
+    order = np.lexsort((t.d_rank, d_img, -t.d_score, d_cat))
+    tps = (dtm != 0) & ~dt_ig
+    fps = (dtm == 0) & ~dt_ig
+    cat_bounds = np.searchsorted(d_cat[order], np.arange(K + 1))
+    for k in range(K):
+        if not npig[k].any():
+            continue
+        mine = order[cat_bounds[k] : cat_bounds[k + 1]]
+        n_pig = npig[k][_LANE_AREA].astype(float)
+        for m, max_det in enumerate(MAX_DETS):
+            sel = mine[t.d_rank[mine] < max_det]
+            nd = len(sel)
+            rc_last = np.zeros(lanes)
+            q = np.zeros((lanes, R))
+            if nd:
+                tp = np.cumsum(tps[sel], axis=0).astype(float)
+                fp = np.cumsum(fps[sel], axis=0).astype(float)
+                with np.errstate(divide="ignore", invalid="ignore"):
+                    rc = tp / n_pig
                 pr = tp / (fp + tp + np.spacing(1))
-                recall[:, k, a, m] = rc[:, -1] if nd else 0
-                if not nd:
-                    precision[:, :, k, a, m] = 0.0
-                    continue
-                envelope = np.maximum.accumulate(pr[:, ::-1], axis=1)[:, ::-1]
-                for t in range(T):
-                    at = np.searchsorted(rc[t], REC_THRS, side="left")
-                    precision[t, :, k, a, m] = np.where(
-                        at < nd, envelope[t, np.minimum(at, nd - 1)], 0.0
-                    )
+                envelope = np.maximum.accumulate(pr[::-1], axis=0)[::-1]
+                s = np.searchsorted(REC_THRS, rc.ravel(), side="right").reshape(nd, lanes)
+                hist = np.bincount(
+                    (np.arange(lanes) * (R + 1) + s).ravel(), minlength=lanes * (R + 1)
+                )
+                inds = np.cumsum(hist.reshape(lanes, R + 1), axis=1)[:, :R]
+                q = np.where(
+                    inds < nd, envelope[np.minimum(inds, nd - 1), np.arange(lanes)[:, None]], 0.0
+                )
+                rc_last = rc[-1]
+            live = npig[k] > 0  # (A,)
+            qa = q.reshape(A, T, R).transpose(1, 2, 0)
+            precision[:, :, k, live, m] = qa[:, :, live]
+            recall[:, k, live, m] = rc_last.reshape(A, T).T[:, live]
     return precision, recall
 
 
@@ -347,3 +468,90 @@ def _summarize(precision: np.ndarray, recall: np.ndarray) -> np.ndarray:
             mean(False, area="large"),
         ]
     )
+
+
+# ------------------------------------------------------------ masks, as pycocotools' C holds them
+
+
+@dataclass
+class _Rles:
+    """Run-length masks as pycocotools' C ``RLE`` structs (h, w, runs, the address of the
+    runs): uncompressed counts in :attr:`runs`, compressed ones decoded by ``rleFrString``
+    into memory of its own, freed with the object."""
+
+    structs: np.ndarray  # (n, 4) uint64
+    runs: np.ndarray  # uint32: the uncompressed masks' runs, one after the other
+    area: np.ndarray  # pixels set (``rleArea``)
+
+    def __len__(self) -> int:
+        return len(self.structs)
+
+
+def _rles(segs: list[Any]) -> _Rles:
+    """RLE segmentations, compressed or not, as pycocotools reads them (``frPyObjects``,
+    ``rleFrString``), in one pass."""
+    import ctypes
+
+    c = _c_routines()
+    structs = np.zeros((len(segs), 4), np.uint64)
+    out = _Rles(structs, np.zeros(0, np.uint32), np.zeros(len(segs)))
+    owned: list[int] = []  # rleFrString allocates their runs
+    weakref.finalize(out, _free, c.rleFree, structs, owned)
+    listed: list[int] = []
+    lists: list[list[int]] = []
+    sizes: list[tuple[int, int]] = []
+    base, from_string = structs.ctypes.data, c.rleFrString
+    try:
+        for i, seg in enumerate(segs):
+            counts, (h, w) = seg["counts"], seg["size"]
+            if type(counts) is str:
+                owned.append(i)
+                from_string(base + 32 * i, counts.encode(), h, w)
+            elif type(counts) is list:
+                listed.append(i)
+                lists.append(counts)
+                sizes.append((h, w))
+            else:
+                raise _Unusual
+    except (TypeError, KeyError, ValueError, ctypes.ArgumentError):
+        raise _Unusual from None  # polygons, or no RLE
+    lengths = np.fromiter(map(len, lists), np.int64, len(lists))
+    out.runs = np.fromiter(itertools.chain.from_iterable(lists), np.uint32, int(lengths.sum()))
+    structs[listed, :2] = np.array(sizes, np.uint64).reshape(-1, 2)
+    structs[listed, 2] = lengths
+    structs[listed, 3] = out.runs.ctypes.data + 4 * (np.cumsum(lengths) - lengths)
+    area = np.zeros(len(segs), np.uint32)
+    c.rleArea(base, len(segs), area.ctypes.data)
+    out.area = area.astype(float)
+    return out
+
+
+def _free(rle_free: Any, structs: np.ndarray, owned: list[int]) -> None:
+    base = structs.ctypes.data
+    for i in owned:
+        rle_free(base + 32 * i)
+
+
+@functools.cache
+def _c_routines() -> Any:
+    """pycocotools' C routines on RLEs (those its ``iou``, ``area`` and ``frPyObjects``
+    call), reached directly: ``rleIou``, ``rleArea``, ``rleFrString``, ``rleFree``."""
+    import ctypes
+
+    from pycocotools import _mask
+
+    try:
+        lib = ctypes.CDLL(_mask.__file__)
+        routines = {n: getattr(lib, n) for n in ("rleIou", "rleArea", "rleFrString", "rleFree")}
+    except (OSError, AttributeError):
+        raise _Unusual from None
+    p, n = ctypes.c_void_p, ctypes.c_size_t
+    signatures = {
+        "rleIou": [p, p, n, n, p, p],
+        "rleArea": [p, n, p],
+        "rleFrString": [p, ctypes.c_char_p, n, n],
+        "rleFree": [p],
+    }
+    for name, fn in routines.items():
+        fn.argtypes, fn.restype = signatures[name], None
+    return types.SimpleNamespace(**routines)

@@ -11,6 +11,10 @@ picks), over the images of the targets file.
 
 from __future__ import annotations
 
+import contextlib
+import functools
+import gc
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -26,19 +30,52 @@ ANN_TYPES = ("bbox", "segm")
 TARGET_FILES = ("test_targets_bop24.json", "test_targets_bop19.json")
 
 
+@contextlib.contextmanager
+def paused_gc() -> Iterator[None]:
+    """Python's cyclic garbage collector paused: the documents read and scored here hold
+    millions of objects and no cycles, and collecting while they are built costs more than
+    building them."""
+    enabled = gc.isenabled()
+    gc.disable()
+    try:
+        yield
+    finally:
+        if enabled:
+            gc.enable()
+
+
 def read_coco_results(path: Path, ann_type: str) -> list[dict[str, Any]]:
     """The results of a COCO result file, checked for ``ann_type`` (``bbox`` or ``segm``);
-    the first bad entry is named."""
+    the first bad entry is named. The file is parsed once while it is unchanged: a second
+    call returns the same list (to read, not to change)."""
     if path.is_dir() or not path.exists():
         raise UserError("expected a COCO results file (JSON list)", path=path)
-    doc = read_json(path)
+    doc = _parsed(path.resolve(), path.stat().st_mtime_ns, path.stat().st_size)
     if not isinstance(doc, list) or not doc:
         raise UserError("expected a non-empty JSON list of COCO results", path=path)
-    for i, r in enumerate(doc):
-        problem = _problem(r, ann_type)
-        if problem:
-            raise UserError(f"result {i}: {problem}", path=path)
+    key = "bbox" if ann_type == "bbox" else "segmentation"
+    kind = list if ann_type == "bbox" else dict
+    for i, r in enumerate(doc):  # the common case at a glance; _problem words the rest
+        if (
+            type(r) is not dict
+            or type(r.get("scene_id")) is not int
+            or type(r.get("image_id")) is not int
+            or type(r.get("category_id")) is not int
+            or type(r.get("score")) not in (float, int)
+            or type(r.get(key)) is not kind
+            or (kind is dict and not {"counts", "size"} <= r[key].keys())
+            or type(r.get("time", 0.0)) not in (float, int)
+        ):
+            problem = _problem(r, ann_type)
+            if problem:
+                raise UserError(f"result {i}: {problem}", path=path)
     return doc
+
+
+@functools.lru_cache(maxsize=1)
+@paused_gc()
+def _parsed(path: Path, mtime_ns: int, size: int) -> Any:
+    return read_json(path)
 
 
 def _problem(r: Any, ann_type: str) -> str | None:
@@ -74,7 +111,41 @@ class CocoGroundTruth:
     images: dict[int, set[int]]
     targets_file: str
 
+    @functools.cached_property
+    def merged(self) -> tuple[dict[str, Any], dict[int, int]]:
+        """The target images of every scene and their instances in one COCO document, as
+        bop_toolkit merges them (``pycoco_utils.merge_coco_annotations``): scene after scene,
+        each scene's image ids shifted past the largest so far, and its annotation ids past
+        the largest annotation id so far; and each scene's shift of image ids. The scenes'
+        documents are not changed (the merged one shares what is not shifted)."""
+        merged: dict[str, Any] = {}
+        offsets: dict[int, int] = {}
+        last_image = last_ann = -1
+        for i, (scene_id, doc) in enumerate(self.scenes):
+            targets = self.images[scene_id]
+            images = [im for im in doc["images"] if im["id"] in targets]
+            anns = [a for a in doc["annotations"] if a["image_id"] in targets]
+            first = 0
+            if i == 0:
+                offsets[scene_id] = 0
+                merged = {**doc, "images": images, "annotations": anns}
+                merged["categories"] = list(doc["categories"])
+            else:
+                offset = offsets[scene_id] = last_image + 1
+                for cat in doc["categories"]:
+                    if cat not in merged["categories"]:
+                        merged["categories"].append(cat)
+                first = last_ann + 1 if merged["annotations"] else 0
+                merged["images"] += [{**im, "id": im["id"] + offset} for im in images]
+                merged["annotations"] += [
+                    {**a, "id": a["id"] + first, "image_id": a["image_id"] + offset} for a in anns
+                ]
+            last_image = max([im["id"] + offsets[scene_id] for im in images] + [last_image])
+            last_ann = max([a["id"] + first for a in anns] + [last_ann])
+        return merged, offsets
 
+
+@paused_gc()
 def read_coco_ground_truth(path: Path) -> CocoGroundTruth:
     """Each target scene's ``scene_gt_coco`` document and its target images."""
     file = next((path / n for n in TARGET_FILES if (path / n).is_file()), None)
