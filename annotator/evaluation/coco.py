@@ -540,12 +540,16 @@ def _c_routines() -> Any:
 
     from pycocotools import _mask
 
+    # maskApi.h's RLE is {siz h, w, m; uint *cnts} with siz an unsigned long: 32 bytes, as
+    # the arrays here lay it out, only where a long is 8 bytes (not on Windows: COCOeval then).
+    if ctypes.sizeof(ctypes.c_ulong) != 8 or ctypes.sizeof(ctypes.c_void_p) != 8:
+        raise _Unusual
     try:
         lib = ctypes.CDLL(_mask.__file__)
         routines = {n: getattr(lib, n) for n in ("rleIou", "rleArea", "rleFrString", "rleFree")}
     except (OSError, AttributeError):
         raise _Unusual from None
-    p, n = ctypes.c_void_p, ctypes.c_size_t
+    p, n = ctypes.c_void_p, ctypes.c_ulong  # siz
     signatures = {
         "rleIou": [p, p, n, n, p, p],
         "rleArea": [p, n, p],
