@@ -123,6 +123,11 @@ def evaluate_dataset(
             given, fmt.NAME, str(coco_results), settings, coco=_coco(gt_path, coco_results)
         )
     for flag, on in (("bop19", bop19), ("bop24", bop24)):
+        if on and results is None:
+            raise UserError(
+                f"--{flag} scores a BOP dataset against a result CSV (--results); export ours "
+                "first with `annotator export DATASET OUT --format bop`"
+            )
         if on and fmt.NAME != "bop":
             raise UserError(
                 f"--{flag} scores a BOP dataset; export ours first with "
@@ -145,10 +150,10 @@ def evaluate_dataset(
         raise UserError("--results is required for BOP and Siléane ground truth")
     report = evaluate(gt, found, settings)
     out = EvaluationSummary(given, fmt.NAME, source, settings, gt, found, report)
-    if bop19:
-        out.bop19 = _bop19(gt_path, Path(str(results)), gt)
-    if bop24:
-        out.bop24 = _bop24(gt_path, Path(str(results)), gt)
+    if bop19 and results is not None:
+        out.bop19 = _bop19(gt_path, Path(results), gt)
+    if bop24 and results is not None:
+        out.bop24 = _bop24(gt_path, Path(results), gt)
     if coco_results is not None:
         out.coco = _coco(gt_path, coco_results)
     if twin is not None and twin_results is not None:
