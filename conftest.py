@@ -9,7 +9,6 @@ import pytest
 #: Examples (the objects whose docstrings hold them) that take seconds.
 SLOW_EXAMPLES = {
     "annotator.calibration.workflow.calibrate_rig",
-    "annotator.estimation.dataset.estimate_dataset",
     "annotator.sites.survey.measure_sites",
     "annotator.twins.dataset.synthesize_twins",
 }

@@ -85,9 +85,12 @@ def estimate_dataset(
 
     >>> import tempfile
     >>> from pathlib import Path
-    >>> out = Path(tempfile.mkdtemp()) / "ppf.csv"
-    >>> s = estimate_dataset("sample_scenes", out, scenes="000000")
-    >>> s.to_json()["done"], out.is_file(), out.with_suffix(".json").is_file()
+    >>> from annotator import SynthSettings, synthesize_scenes
+    >>> root = Path(tempfile.mkdtemp())  # a small rendered scene of three bricks
+    >>> settings = SynthSettings(parts=("brick",), scenes=1, instances=(3, 3), size=(320, 256))
+    >>> _ = synthesize_scenes(root / "synth", settings)
+    >>> s = estimate_dataset(root / "synth", root / "ppf.csv")
+    >>> s.to_json()["done"], (root / "ppf.csv").is_file(), (root / "ppf.json").is_file()
     (1, True, True)
 
     Args:

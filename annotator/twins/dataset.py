@@ -71,11 +71,13 @@ def synthesize_twins(
     sequence, every posed frame a reviewer did not reject) in the new folder ``out``
     (``overwrite``: an earlier synth's), built aside and put in place whole.
 
-    >>> import tempfile
+    >>> import shutil, tempfile
     >>> from pathlib import Path
-    >>> out = Path(tempfile.mkdtemp()) / "twin"
-    >>> synthesize_twins("sample_scenes", out, include_pending=True).to_json()["twins"]
-    4
+    >>> root = shutil.copytree("sample_scenes", Path(tempfile.mkdtemp()) / "ds")
+    >>> for sid in ("000001", "000002", "000003"):  # one scene is enough here
+    ...     shutil.rmtree(root / "scenes" / sid)
+    >>> synthesize_twins(root, root.parent / "twin", include_pending=True).to_json()["twins"]
+    1
 
     Args:
         settings: The images' blur and noise, the seed (default
