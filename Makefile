@@ -30,10 +30,13 @@ demo: $(STAMP)
 	$(BIN)/annotator export out/demo out/demo_bop --format bop --include-pending --overwrite
 	@echo "Next: $(BIN)/annotator review out/demo   (then open the printed address)"
 
+# Every test: two workers, a test file to each at a time (its fixtures made once); then the
+# browser tests, one at a time (their timings want a quiet machine).
 test: $(STAMP)
 	$(BIN)/ruff check .
 	$(BIN)/mypy annotator viewer
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q -n 2 --dist loadfile -m "not browser"
+	$(BIN)/python -m pytest -q -m browser
 
 # The inner loop: everything but the tests marked slow (Ray, calibration, browsers, real
 # processes and servers, rendered scenes and BOP exports), on every core: under a minute.
