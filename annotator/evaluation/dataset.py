@@ -226,11 +226,10 @@ def _coco(gt_path: Path, results: str | Path) -> list[CocoScores]:
     """COCO's scores of a results file, for boxes and masks as the results have them."""
     from annotator.evaluation.coco import coco_scores
     from annotator.formats.coco_results import (
-        ANN_TYPES,
+        coco_result_kinds,
         read_coco_ground_truth,
         read_coco_results,
     )
-    from annotator.io.documents import read_json
 
     if detect_format(gt_path).NAME != "bop":
         raise UserError(
@@ -239,13 +238,7 @@ def _coco(gt_path: Path, results: str | Path) -> list[CocoScores]:
             path=gt_path,
         )
     path = Path(results)
-    doc = read_json(path) if path.is_file() else None
-    has = {"bbox": "bbox", "segm": "segmentation"}
-    types = [
-        t
-        for t in ANN_TYPES
-        if isinstance(doc, list) and doc and all(isinstance(r, dict) and has[t] in r for r in doc)
-    ]
+    types = coco_result_kinds(path)
     if not types:
         read_coco_results(path, "bbox")  # names what is wrong with the file
         raise UserError("no result has a 'bbox' or a 'segmentation' to score", path=path)

@@ -72,6 +72,20 @@ def read_coco_results(path: Path, ann_type: str) -> list[dict[str, Any]]:
     return doc
 
 
+def coco_result_kinds(path: Path) -> list[str]:
+    """What a COCO result file can be scored on (of :data:`ANN_TYPES`): ``bbox`` if every
+    result has a box, ``segm`` if every one has a segmentation; none for a file that is not
+    a non-empty list (:func:`read_coco_results` says what is wrong with it). It parses the
+    file as :func:`read_coco_results` does, once for both."""
+    if not path.is_file():
+        return []
+    doc = _parsed(path.resolve(), path.stat().st_mtime_ns, path.stat().st_size)
+    if not isinstance(doc, list) or not doc:
+        return []
+    has = {"bbox": "bbox", "segm": "segmentation"}
+    return [t for t in ANN_TYPES if all(isinstance(r, dict) and has[t] in r for r in doc)]
+
+
 @functools.lru_cache(maxsize=1)
 @paused_gc()
 def _parsed(path: Path, mtime_ns: int, size: int) -> Any:
