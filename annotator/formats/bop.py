@@ -286,6 +286,18 @@ def multiview_images(
     return [(s, views.get(sensor, next(iter(views.values())))) for s, views in targets]
 
 
+def multiview_target_images(path: Path) -> list[tuple[int, int]] | None:
+    """``(scene_id, im_id)`` of the images a BOP dataset's multi-view targets score: each
+    moment's image of the sensor evaluated (:func:`evaluated_sensor`), in the file's order;
+    None without the file."""
+    targets = read_multiview_targets(path)
+    if targets is None:
+        return None
+    scene_dirs = sorted((path / "test").glob("*/")) if (path / "test").is_dir() else []
+    sensor = evaluated_sensor(scene_dirs[0]).lstrip("_") if scene_dirs else ""
+    return multiview_images(targets, sensor)
+
+
 def read_targets(path: Path, names: dict[int, str]) -> tuple[str, set[tuple[str, str]]] | None:
     """The (scene key, object name) pairs a BOP dataset's targets file lists, with the
     file's name; None without one. Object ids it names that the models do not have are a
@@ -311,15 +323,10 @@ def read_targets(path: Path, names: dict[int, str]) -> tuple[str, set[tuple[str,
             else:
                 raise UserError(f"entry {i}: object {oid} is not in models_info.json", path=file)
         return name, pairs
-    multiview = read_multiview_targets(path)
-    if multiview is None:
+    images = multiview_target_images(path)
+    if images is None:
         return None
-    scene_dirs = sorted((path / "test").glob("*/")) if (path / "test").is_dir() else []
-    sensor = evaluated_sensor(scene_dirs[0]).lstrip("_") if scene_dirs else ""
-    pairs = {
-        (f"{s}/{im}", n) for s, im in multiview_images(multiview, sensor) for n in names.values()
-    }
-    return MULTIVIEW_TARGETS, pairs
+    return MULTIVIEW_TARGETS, {(f"{s}/{im}", n) for s, im in images for n in names.values()}
 
 
 # ------------------------------------------------------------------------------ results

@@ -32,9 +32,8 @@ from annotator.formats.base import GroundTruth, checked_poses
 from annotator.formats.bop import (
     MULTIVIEW_TARGETS,
     evaluated_sensor,
-    multiview_images,
+    multiview_target_images,
     read_csv_rows,
-    read_multiview_targets,
 )
 from annotator.geometry.mesh import Mesh, load_mesh
 from annotator.io.documents import read_json
@@ -238,14 +237,10 @@ def _detection_targets(path: Path) -> dict[tuple[int, int], dict[int, int]] | No
     :data:`EVERY_POSE`."""
     found = _targets_list(path / "test_targets_bop24.json", "{scene_id, im_id}")
     if found is None:
-        multiview = read_multiview_targets(path)
-        if multiview is None:
+        images = multiview_target_images(path)
+        if images is None:
             return None
-        sensor = evaluated_sensor(next((path / "test").glob("*/"), path)).lstrip("_")
-        found = (
-            path / MULTIVIEW_TARGETS,
-            [{"scene_id": s, "im_id": im} for s, im in multiview_images(multiview, sensor)],
-        )
+        found = path / MULTIVIEW_TARGETS, [{"scene_id": s, "im_id": im} for s, im in images]
     file, doc = found
     by_scene: dict[int, dict[int, dict[int, int]]] = {}
     for i, e in enumerate(doc):
