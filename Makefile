@@ -26,7 +26,7 @@ demo: $(STAMP)
 	rm -rf out/demo && mkdir -p out && cp -r sample_scenes out/demo && rm -f out/demo/scenes/*/annotation.json
 	$(BIN)/annotator check out/demo
 	$(BIN)/annotator annotate out/demo --workers 2
-	$(BIN)/annotator evaluate out/demo --plot out/demo_precision_recall.png
+	$(BIN)/annotator evaluate out/demo --plot out/demo_precision_recall.png --overwrite
 	$(BIN)/annotator export out/demo out/demo_bop --format bop --include-pending --overwrite
 	@echo "Next: $(BIN)/annotator review out/demo   (then open the printed address)"
 

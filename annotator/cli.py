@@ -23,6 +23,7 @@ from collections.abc import Sequence
 from typing import NoReturn
 
 from annotator.errors import Notice, Terminated, UserError
+from annotator.io.writer_lock import dataset_writer
 
 # One BLAS thread: the matrices here are small, and threads only add overhead (annotate is
 # faster with one, `benchmarks/bench_annotate.py`); batch commands get their parallelism from
@@ -140,6 +141,13 @@ def main(argv: Sequence[str] | None = None) -> int:
             sub = commands.choices[name]
             mod = importlib.import_module(module)
             mod.add_arguments(sub)
+            if getattr(mod, "WRITES", None):
+                sub.add_argument(
+                    "--wait",
+                    action="store_true",
+                    help="if another command is writing into the dataset, wait for it to "
+                    "finish (default: refuse at once, naming it)",
+                )
             break
     try:
         args = parser.parse_args(argv)
@@ -156,7 +164,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         with warnings.catch_warnings():
             warnings.simplefilter("always", Notice)
             warnings.showwarning = _show_notice
-            return int(mod.run(args) or 0)
+            return _run(mod, args)
     except BaseException as exc:
         # A SIGTERM may surface as another exception (a library turning it into an
         # ImportError, say): once asked to stop, stopping is the outcome.
@@ -173,6 +181,17 @@ def main(argv: Sequence[str] | None = None) -> int:
     finally:
         if in_main:
             signal.signal(signal.SIGTERM, previous)
+
+
+def _run(mod: object, args: argparse.Namespace) -> int:
+    """The command, holding its dataset's writer lock if it writes into one (its module's
+    ``WRITES`` names the argument that gives the dataset: :mod:`annotator.io.writer_lock`)."""
+    where = getattr(mod, "WRITES", None)
+    root = getattr(args, where, None) if where else None
+    if root is None:
+        return int(mod.run(args) or 0)  # type: ignore[attr-defined]
+    with dataset_writer(root, command=f"annotator {args.command}", wait=args.wait):
+        return int(mod.run(args) or 0)  # type: ignore[attr-defined]
 
 
 def _show_notice(

@@ -108,12 +108,17 @@ def _ros1_bag(
     tf_static: bool = True,
     compression: str | None = None,
     units_option: str = "Depth_Units",
+    times: list[tuple[float, float]] | None = None,
+    compressed_depth: bool = False,
 ) -> Path:
     """A bag as RealSense Viewer records one: colour rgb8 and depth mono16 (1 mm units)
     from two cameras, each with CameraInfo and tf/0 from the depth (reference) stream. With
     ``robot``, as a robot's realsense-ros records one: /camera/color/image_raw and
     /camera/depth/image_rect_raw, their camera_info with frame ids, and (``tf_static``) the
-    optical frames' static transforms from camera_link."""
+    optical frames' static transforms from camera_link. ``times``: each frame's colour and
+    depth stamps (s after the first second; default 30 fps, depth 3-4 ms apart); with
+    ``compressed_depth``, depth only as a ``compressedDepth`` topic (PNG, as image_transport
+    writes it)."""
     from rosbags.rosbag1 import Writer
     from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
@@ -227,16 +232,29 @@ def _ros1_bag(
         for k in range(n):
             tc = T0 + 1 + k / 30.0
             td = tc + (0.003 if k % 2 else -0.004)
+            bag_tc, bag_td = tc, td
+            if times is not None:  # the header stamps given; received as usual
+                tc, td = T0 + 1 + times[k][0], T0 + 1 + times[k][1]
             rgb = cv2.cvtColor(render(k), cv2.COLOR_BGR2RGB)
             msg = image(tc, rgb, "rgb8")
             if k == damaged:  # a message cut short: half its pixels
                 msg = image(tc, rgb, "rgb8")
                 msg.data = msg.data[: msg.data.size // 2]  # type: ignore[attr-defined]
-            put(colour_topic, "sensor_msgs/msg/Image", msg, tc)
+            put(colour_topic, "sensor_msgs/msg/Image", msg, bag_tc)
             if two_colour:
                 put("/device_0/sensor_2/Color_1/image/data", "sensor_msgs/msg/Image", msg, tc)
             raw = depth_frame(c_T_d) * (1 if robot else 10)  # robot: mm, ROS's unit
-            put(depth_topic, "sensor_msgs/msg/Image", image(td, raw, "mono16"), td)
+            if compressed_depth:
+                png = cv2.imencode(".png", raw)[1].reshape(-1)
+                cmsg = T["sensor_msgs/msg/CompressedImage"](
+                    header=header(td),
+                    format="16UC1; compressedDepth png",
+                    data=np.concatenate([np.zeros(12, np.uint8), png]),
+                )
+                ctopic = f"{depth_topic}/compressedDepth"
+                put(ctopic, "sensor_msgs/msg/CompressedImage", cmsg, bag_td)
+            else:
+                put(depth_topic, "sensor_msgs/msg/Image", image(td, raw, "mono16"), bag_td)
             ir = np.full((DH, DW), 80, np.uint8)
             put(
                 "/device_0/sensor_0/Infrared_1/image/data",

@@ -2,11 +2,12 @@
 
 After the solve, each frame read markers of some instances; for each, the solve either kept
 some of that frame's observations (the frame agrees with the instance's pose) or left them
-all out (the frame's markers place the part elsewhere). One part that disagrees is a
-misreading, a blurred marker or a part that moved; several in one frame are a frame of
-another arrangement (copied from another take, or the parts were moved): its pose rests on
-whichever few parts happen to agree with it, so it is refused when those are not the most,
-and flagged otherwise. A frame posed on one part's markers alone is flagged too: nothing in
+all out (the frame's markers place the part elsewhere: two of its markers read, neither
+agreeing). Such a frame is flagged inconsistent, and so left out of every export: the
+scene's poses are not that frame's truth, whether one part moved under it or the frame
+comes from another arrangement. Several parts that disagree are a frame of another
+arrangement (copied from another take, or the parts were moved): its pose rests on
+whichever few parts happen to agree with it, so it is refused when those are not the most. A frame posed on one part's markers alone is flagged too: nothing in
 it checks that part against the rest of the sequence (a camera looking away from the bin).
 Pure functions of the solve's index arrays.
 """
@@ -19,7 +20,8 @@ import numpy as np
 
 __all__ = ["FrameAgreement", "frame_agreement"]
 
-#: A frame in which at least this many parts disagree with the solve is inconsistent.
+#: A frame in which at least this many parts disagree with the solve may show another
+#: arrangement: refused unless more parts agree.
 MIN_DISAGREEING = 2
 
 
@@ -34,14 +36,17 @@ class FrameAgreement:
 
     @property
     def inconsistent(self) -> bool:
-        """Several parts placed differently from the rest of the sequence."""
-        return len(self.disagreeing) >= MIN_DISAGREEING
+        """A part placed differently from the rest of the sequence: the scene's poses are
+        not all this frame's truth."""
+        return len(self.disagreeing) >= 1
 
     @property
     def refused(self) -> bool:
-        """Inconsistent, and the parts that agree are not the most: which arrangement the
-        frame shows, the sequence's or another, is not known."""
-        return self.inconsistent and len(self.agreeing) <= len(self.disagreeing)
+        """Several parts placed differently, and the parts that agree are not the most: which
+        arrangement the frame shows, the sequence's or another, is not known."""
+        return len(self.disagreeing) >= MIN_DISAGREEING and len(self.agreeing) <= len(
+            self.disagreeing
+        )
 
     @property
     def single_part(self) -> bool:

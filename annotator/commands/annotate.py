@@ -10,6 +10,9 @@ from annotator.commands import add_ray_option, add_workers_option, finish_batch
 from annotator.dataset import load_dataset
 from annotator.dataset.frames import frames_line
 
+#: The argument naming the dataset this command writes into (its writer lock is held).
+WRITES = "dataset"
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("dataset", help="dataset folder (FORMAT.md)")

@@ -53,6 +53,10 @@ frame; depth maps are registered to the first camera or --depth-camera.
 """
 
 
+#: The argument naming the dataset this command writes into (its writer lock is held).
+WRITES = "dataset"
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.description = DESCRIPTION
     parser.formatter_class = argparse.RawDescriptionHelpFormatter

@@ -47,6 +47,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     add_workers_option(parser)
     add_ray_option(parser)
+    parser.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="replace OUT and its COCO file OUT.json if they exist (refused otherwise)",
+    )
     parser.add_argument("--json", action="store_true", help="print the summary as JSON on stdout")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
 
@@ -68,5 +73,6 @@ def run(args: argparse.Namespace) -> int:
         quiet=args.quiet,
         ray_address=args.ray,
         ray_wait=args.ray_wait,
+        overwrite=args.overwrite,
     )
     return finish_batch(summary.report, summary.to_json(), summary.line(), as_json=args.json)

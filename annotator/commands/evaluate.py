@@ -124,6 +124,11 @@ def _add_report_options(parser: argparse.ArgumentParser) -> None:
     )
     group.add_argument("--json", metavar="OUT", help="write the full report as JSON")
     group.add_argument("--plot", metavar="OUT.png", help="draw the mean precision/recall curves")
+    group.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="replace the --json and --plot files if they exist (refused otherwise)",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -176,6 +181,7 @@ def _check_options(args: argparse.Namespace) -> None:
         [("--json", args.json), ("--plot", args.plot)],
         inputs=[args.results, args.twin_results, args.coco_results],
         datasets=[args.gt, args.twin],
+        overwrite=args.overwrite,
     )
     if (args.twin or args.twin_results) and not (args.twin and args.twin_results and args.results):
         raise UserError("--twin needs --twin-results, and --results for GT")

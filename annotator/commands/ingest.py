@@ -10,6 +10,9 @@ from annotator.commands import number, whole
 from annotator.ingest.selection import BLUR_THRESHOLD
 from annotator.ingest.sources import PAIR_TOLERANCE_S
 
+#: The argument naming the dataset this command writes into (its writer lock is held).
+WRITES = "dataset"
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(

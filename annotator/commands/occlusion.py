@@ -14,6 +14,9 @@ from annotator.commands import add_ray_option, add_workers_option, finish_batch,
 from annotator.occlusion import DEPTH_TOLERANCE_MM
 from annotator.occlusion.dataset import compute_occlusion
 
+#: The argument naming the dataset this command writes into (its writer lock is held).
+WRITES = "dataset"
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("dataset", help="dataset folder (FORMAT.md)")

@@ -21,6 +21,10 @@ if TYPE_CHECKING:  # imported when the command runs, so that `annotator --help` 
     from annotator.sites.survey import SitesSurvey
 
 
+#: The argument naming the dataset this command writes into (its writer lock is held).
+WRITES = "dataset"
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("dataset", help="dataset folder (FORMAT.md), annotated")
     parser.add_argument(

@@ -20,6 +20,7 @@ from annotator.dataset.model import Capture, Dataset, ObjectModel
 from annotator.dataset.records import frames_from_json
 from annotator.errors import UserError
 from annotator.geometry.mesh import Mesh
+from annotator.io.atomic import is_abandoned_folder, remove_abandoned_files
 
 SITE_TOLERANCE_MM = 0.5
 BROKEN_LINK = "a symbolic link that leads nowhere (dangling or a loop): not a scene"
@@ -50,7 +51,7 @@ def check_dataset(root: str | Path, *, annotations: bool = False) -> CheckReport
     ds, problems = read_dataset(root)
     if ds is None:
         return CheckReport(problems, 0)
-    problems += _check_objects(ds) + _no_objects_yet(ds)
+    problems += _check_objects(ds) + _no_objects_yet(ds) + _leftovers(ds)
     try:
         ds.background_depth  # noqa: B018  (cached property: reads and checks the file)
     except UserError as exc:
@@ -93,7 +94,17 @@ def _check_objects(ds: Dataset) -> list[Problem]:
 
 
 def _check_mesh(path: Path, mesh: Mesh) -> list[Problem]:
-    """The mesh is closed (else a warning) and its faces turn outwards."""
+    """The mesh is a solid (else a warning), closed (else a warning) and its faces turn
+    outwards."""
+    if mesh.is_flat:
+        return [
+            Problem(
+                path,
+                "mesh has no volume (its vertices lie on a plane or a line): occlusion rates "
+                "hold, but `check --physics` and the physics of synthetic drops need a solid",
+                warning=True,
+            )
+        ]
     if not mesh.is_watertight:
         return [
             Problem(
@@ -169,7 +180,7 @@ def _check_capture(ds: Dataset, capture: Capture) -> list[Problem]:
 def _check_scene(ds: Dataset, scene) -> list[Problem]:
     from annotator.dataset.poses import InstancePose, read_pose_file
     from annotator.dataset.review import read_review
-    from annotator.dataset.validity import pose_problem
+    from annotator.dataset.validity import pose_problem, same_place
 
     out: list[Problem] = []
     if ds.rig.moving:
@@ -202,6 +213,7 @@ def _check_scene(ds: Dataset, scene) -> list[Problem]:
                 problem = pose_problem(ds, p)
                 if problem is not None:
                     out.append(Problem(path, problem))
+            out += [Problem(path, problem) for problem in same_place(ds, poses)]
     try:
         review = read_review(scene.review_path)
     except UserError as exc:
@@ -212,6 +224,40 @@ def _check_scene(ds: Dataset, scene) -> list[Problem]:
         problem = pose_problem(ds, InstancePose(obj, inst, edit.R, edit.t))
         if problem is not None:
             out.append(Problem(scene.review_path, f"poses[{key!r}]: {problem}"))
+    return out
+
+
+def _leftovers(ds: Dataset) -> list[Problem]:
+    """The partial files and folders that a command killed while writing left in the
+    dataset (hidden; each write replaces a file whole, so nothing else is damaged)."""
+    folders = [ds.root, ds.root / "scenes", ds.root / "objects"]
+    for top in folders[1:]:
+        if top.is_dir():
+            folders += [p for p in top.iterdir() if p.is_dir() and not p.is_symlink()]
+    for scene in list(folders):
+        frames = scene / "frames"
+        if frames.is_dir():
+            folders += [p for p in frames.iterdir() if p.is_dir() and not p.is_symlink()]
+    out = []
+    for folder in folders:
+        for p in remove_abandoned_files(folder, older_than_s=0, remove=False):
+            out.append(
+                Problem(
+                    p,
+                    "a partial file left by a command killed while writing it (the file it "
+                    "was to replace is intact): delete it; the next write here removes it too",
+                    warning=True,
+                )
+            )
+        if folder.name.startswith(".") and is_abandoned_folder(folder):
+            out.append(
+                Problem(
+                    folder,
+                    "a partial folder left by a command killed while building it: delete it; "
+                    "the next run of that command removes it too",
+                    warning=True,
+                )
+            )
     return out
 
 

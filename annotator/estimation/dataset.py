@@ -61,7 +61,8 @@ class EstimateSummary:
         """The one line the command prints."""
         return (
             f"estimate ({self.method}): {len(self.rows)} results for {len(self.report.done)} "
-            f"scenes written to {self.out}, {len(self.report.failed)} failed; "
+            f"scenes written to {self.out} (COCO boxes and masks: {self.coco}), "
+            f"{len(self.report.failed)} failed; "
             f"{self.seconds_per_scene} s per scene (one worker)"
         )
 
@@ -76,6 +77,7 @@ def estimate_dataset(
     quiet: bool = True,
     ray_address: str | None = None,
     ray_wait: float | None = None,
+    overwrite: bool = False,
 ) -> EstimateSummary:
     """Estimate the pose of every part in every scene of ``ds`` matching ``scenes`` from its
     depth map alone, and write the hypotheses to ``out`` as one BOP results CSV (what
@@ -97,9 +99,10 @@ def estimate_dataset(
         settings: The estimator's variant (:class:`~annotator.estimation.PPFSettings`;
             default: plain PPF, mean shift in SE(3), no post-processing).
         workers, quiet, ray_address, ray_wait: As :func:`annotator.runner.run_batch`.
+        overwrite: Replace ``out`` and ``OUT.json`` if they exist (refused otherwise).
 
     Raises:
-        UserError: ``out`` may not be written, the rig has no depth camera or is a moving
+        UserError: ``out`` may not be written (or exists, without ``overwrite``), the rig has no depth camera or is a moving
             one, no scene matches, or a mesh is unreadable.
     """
     settings = settings or PPFSettings()
@@ -111,6 +114,7 @@ def estimate_dataset(
     check_output_files(
         [("OUT", out), ("OUT's COCO", coco_path(out))],
         datasets=[ds.root if isinstance(ds, Dataset) else ds],
+        overwrite=overwrite,
     )
     ds = ds if isinstance(ds, Dataset) else load_dataset(ds)
     if ds.rig.depth is None:

@@ -226,6 +226,7 @@ def _coco(gt_path: Path, results: str | Path) -> list[CocoScores]:
     """COCO's scores of a results file, for boxes and masks as the results have them."""
     from annotator.evaluation.coco import coco_scores
     from annotator.formats.coco_results import (
+        check_against_images,
         coco_result_kinds,
         read_coco_ground_truth,
         read_coco_results,
@@ -243,4 +244,11 @@ def _coco(gt_path: Path, results: str | Path) -> list[CocoScores]:
         read_coco_results(path, "bbox")  # names what is wrong with the file
         raise UserError("no result has a 'bbox' or a 'segmentation' to score", path=path)
     gt = read_coco_ground_truth(gt_path)
-    return [coco_scores(gt, read_coco_results(path, t), t) for t in types]
+    out = []
+    for t in types:
+        rows = read_coco_results(path, t)
+        notes = check_against_images(rows, gt, path, t)
+        scores = coco_scores(gt, rows, t)
+        scores.notes[:0] = notes
+        out.append(scores)
+    return out

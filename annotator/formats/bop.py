@@ -227,6 +227,12 @@ def evaluated_sensor(scene_dir: Path) -> str:
     if chosen is None and listed.is_file():
         doc = read_json(listed)
         chosen = doc.get("eval_sensor") if isinstance(doc, dict) else None
+        if not isinstance(chosen, str) or f"_{chosen}" not in sensors:
+            have = ", ".join(s.lstrip("_") for s in sensors)
+            raise UserError(
+                f"eval_sensor must name a sensor the scenes have ({have}), got {chosen!r}",
+                path=listed,
+            )
     if isinstance(chosen, str) and f"_{chosen}" in sensors:
         return f"_{chosen}"
     return sensors[0]
@@ -254,16 +260,16 @@ def read_multiview_targets(path: Path) -> list[tuple[int, dict[str, int]]] | Non
     file = path / MULTIVIEW_TARGETS
     if not file.is_file():
         return None
-    doc = read_json(file)
-    if not isinstance(doc, list):
-        raise UserError(
-            'expected a list of {"scene_id", "im_id": [[sensor, im_id], ...]}', path=file
-        )
+    doc = non_empty(read_json(file), file, '{"scene_id", "im_id": [[sensor, im_id], ...]}')
     out = []
     for i, entry in enumerate(doc):
         try:
-            views = {str(sensor): int(im) for sensor, im in entry["im_id"]}
-            out.append((int(entry["scene_id"]), views))
+            (scene_id,) = target_ids(entry, ("scene_id",), i, file)
+            views = {
+                str(sensor): target_ids({"im_id": im}, ("im_id",), i, file)[0]
+                for sensor, im in entry["im_id"]
+            }
+            out.append((scene_id, views))
         except (KeyError, TypeError, ValueError):
             raise UserError(
                 f"entry {i}: needs an integer scene_id and im_id as [[sensor, im_id], ...]",
@@ -298,6 +304,34 @@ def multiview_target_images(path: Path) -> list[tuple[int, int]] | None:
     return multiview_images(targets, sensor)
 
 
+def target_ids(entry: Any, keys: tuple[str, ...], i: int, file: Path) -> tuple[int, ...]:
+    """The integers ``keys`` of a targets file's entry ``i``, each a whole number of 0 or
+    more (not a string, a fraction or a boolean), or a one-line UserError naming the entry.
+
+    >>> target_ids({"scene_id": 1, "im_id": 4}, ("scene_id", "im_id"), 0, Path("t.json"))
+    (1, 4)
+    """
+    values = []
+    for key in keys:
+        v = entry.get(key) if isinstance(entry, dict) else None
+        if type(v) is not int or v < 0:
+            raise UserError(
+                f"entry {i}: {key} must be a whole number of 0 or more, got {v!r}", path=file
+            )
+        values.append(v)
+    return tuple(values)
+
+
+def non_empty(doc: Any, file: Path, entries: str) -> list[Any]:
+    """A targets file's list, refused in one line when it is not a list or lists nothing
+    (an empty targets file would score nothing, and say 0)."""
+    if not isinstance(doc, list):
+        raise UserError(f"expected a list of {entries}", path=file)
+    if not doc:
+        raise UserError("lists no target: nothing would be scored", path=file)
+    return doc
+
+
 def read_targets(path: Path, names: dict[int, str]) -> tuple[str, set[tuple[str, str]]] | None:
     """The (scene key, object name) pairs a BOP dataset's targets file lists, with the
     file's name; None without one. Object ids it names that the models do not have are a
@@ -306,16 +340,14 @@ def read_targets(path: Path, names: dict[int, str]) -> tuple[str, set[tuple[str,
         file = path / name
         if not file.is_file():
             continue
-        doc = read_json(file)
-        if not isinstance(doc, list):
-            raise UserError("expected a list of {scene_id, im_id[, obj_id, inst_count]}", path=file)
+        doc = non_empty(read_json(file), file, "{scene_id, im_id[, obj_id, inst_count]}")
         pairs: set[tuple[str, str]] = set()
         for i, entry in enumerate(doc):
-            try:
-                key = f"{int(entry['scene_id'])}/{int(entry['im_id'])}"
-                oid = None if entry.get("obj_id") is None else int(entry["obj_id"])
-            except (KeyError, TypeError, ValueError):
-                raise UserError(f"entry {i}: needs integer scene_id and im_id", path=file) from None
+            scene_id, im_id = target_ids(entry, ("scene_id", "im_id"), i, file)
+            key = f"{scene_id}/{im_id}"
+            oid = (
+                None if entry.get("obj_id") is None else target_ids(entry, ("obj_id",), i, file)[0]
+            )
             if oid is None:
                 pairs |= {(key, n) for n in names.values()}
             elif oid in names:
@@ -373,7 +405,14 @@ def read_csv_results(
         if key in known:
             groups.setdefault((key, obj), []).append(i)
     table: Table = {g: PoseSet.of(R[i], t[i], rows.scores[i]) for g, i in groups.items()}
-    return PoseResults(table, unknown, notes=projected_note(projected, len(R), path.name))
+    notes = projected_note(projected, len(R), path.name)
+    negative = int((rows.scores < 0).sum())
+    if negative:
+        notes.append(
+            f"{negative} results of {path.name} have a negative score (ranked as written: "
+            "BOP sets no range, but a detector's confidence rarely goes below 0)"
+        )
+    return PoseResults(table, unknown, notes=notes)
 
 
 def read_csv_rows(
@@ -422,6 +461,15 @@ def _checked(
     bad = np.flatnonzero(~np.isfinite(rows.scores))
     if bad.size and rows.score_cells is not None:
         checked_score(rows.score_cells[bad[0]], f"line {numbers[bad[0]]}", path)
+    if rows.times is not None:
+        with np.errstate(invalid="ignore"):
+            bad = np.flatnonzero(~np.isfinite(rows.times) | ((rows.times < 0) & (rows.times != -1)))
+        if bad.size:
+            raise UserError(
+                f"line {numbers[bad[0]]}: time is {rows.times[bad[0]]:g}; it must be seconds "
+                "(or -1 when unknown, as BOP writes it)",
+                path=path,
+            )
     R, t, projected = checked_poses(rows.R, rows.t, lambda i: f"line {numbers[i]}", path)
     return objects, R, t, projected
 

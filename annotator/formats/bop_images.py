@@ -33,7 +33,9 @@ from annotator.formats.bop import (
     MULTIVIEW_TARGETS,
     evaluated_sensor,
     multiview_target_images,
+    non_empty,
     read_csv_rows,
+    target_ids,
 )
 from annotator.geometry.mesh import Mesh, load_mesh
 from annotator.io.documents import read_json
@@ -224,10 +226,7 @@ def _targets_list(file: Path, entries: str) -> tuple[Path, list[Any]] | None:
     """A targets file's list of ``entries`` (None without the file)."""
     if not file.is_file():
         return None
-    doc = read_json(file)
-    if not isinstance(doc, list):
-        raise UserError(f"expected a list of {entries}", path=file)
-    return file, doc
+    return file, non_empty(read_json(file), file, entries)
 
 
 def _detection_targets(path: Path) -> dict[tuple[int, int], dict[int, int]] | None:
@@ -244,10 +243,8 @@ def _detection_targets(path: Path) -> dict[tuple[int, int], dict[int, int]] | No
     file, doc = found
     by_scene: dict[int, dict[int, dict[int, int]]] = {}
     for i, e in enumerate(doc):
-        try:
-            by_scene.setdefault(int(e["scene_id"]), {})[int(e["im_id"])] = EVERY_POSE
-        except (KeyError, TypeError, ValueError):
-            raise UserError(f"entry {i}: needs integer scene_id and im_id", path=file) from None
+        scene_id, im_id = target_ids(e, ("scene_id", "im_id"), i, file)
+        by_scene.setdefault(scene_id, {})[im_id] = EVERY_POSE
     return {(s, im): w for s, ims in by_scene.items() for im, w in ims.items()}
 
 
@@ -307,13 +304,10 @@ def _targets(path: Path) -> dict[tuple[int, int], dict[int, int]] | None:
     file, doc = found
     out: dict[tuple[int, int], dict[int, int]] = {}
     for i, e in enumerate(doc):
-        try:
-            key = (int(e["scene_id"]), int(e["im_id"]))
-            out.setdefault(key, {})[int(e["obj_id"])] = int(e["inst_count"])
-        except (KeyError, TypeError, ValueError):
-            raise UserError(
-                f"entry {i}: needs integer scene_id, im_id, obj_id and inst_count", path=file
-            ) from None
+        scene_id, im_id, obj_id, count = target_ids(
+            e, ("scene_id", "im_id", "obj_id", "inst_count"), i, file
+        )
+        out.setdefault((scene_id, im_id), {})[obj_id] = count
     return out
 
 

@@ -19,8 +19,11 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from annotator.errors import UserError
-from annotator.formats.bop import evaluated_sensor
+from annotator.formats.bop import evaluated_sensor, non_empty, target_ids
+from annotator.formats.coco_rle import rle_problems
 from annotator.io.documents import read_json
 
 #: What COCO results are scored on: bounding boxes or segmentation masks.
@@ -69,7 +72,91 @@ def read_coco_results(path: Path, ann_type: str) -> list[dict[str, Any]]:
             problem = _problem(r, ann_type)
             if problem:
                 raise UserError(f"result {i}: {problem}", path=path)
+    _check_values(doc, ann_type, path)
     return doc
+
+
+def _check_values(doc: list[dict[str, Any]], ann_type: str, path: Path) -> None:
+    """Refuse (naming the first bad result) numbers no detector gives: NaN or infinite
+    scores and times, negative times but BOP's -1 (unknown), negative ids, boxes of
+    negative size, masks whose size or runs do not make an image (:mod:`.coco_rle`)."""
+
+    def first(bad: Any, what: str) -> None:
+        if bad.any():
+            i = int(np.flatnonzero(bad)[0])
+            raise UserError(f"result {i}: {what}", path=path)
+
+    scores = np.array([r["score"] for r in doc], np.float64)
+    first(~np.isfinite(scores), "'score' is not a finite number")
+    times = np.array([r.get("time", -1) for r in doc], np.float64)
+    first(~np.isfinite(times), "'time' is not a finite number")
+    first((times < 0) & (times != -1), "'time' is negative (seconds, or -1 when unknown)")
+    for key in ("scene_id", "image_id", "category_id"):
+        first(np.array([r[key] for r in doc], np.int64) < 0, f"'{key}' is negative")
+    if ann_type == "bbox":
+        boxes = [r["bbox"] for r in doc]
+        first(np.array([len(b) != 4 for b in boxes]), "'bbox' must be [x, y, width, height]")
+        try:
+            box = np.array(boxes, np.float64).reshape(-1, 4)
+        except (TypeError, ValueError):
+            box = np.full((len(boxes), 4), np.nan)
+        first(~np.isfinite(box).all(axis=1), "'bbox' holds something that is not a number")
+        first((box[:, 2] < 0) | (box[:, 3] < 0), "'bbox' has a negative width or height")
+        return
+    sizes = [r["segmentation"]["size"] for r in doc]
+    good = np.array(
+        [
+            type(s) is list and len(s) == 2 and all(type(v) is int and v > 0 for v in s)
+            for s in sizes
+        ]
+    )
+    first(~good, "segmentation 'size' must be [height, width], two positive integers")
+    problems = rle_problems([r["segmentation"]["counts"] for r in doc], [tuple(s) for s in sizes])
+    if problems:
+        i, why = next(iter(problems.items()))
+        more = f" ({len(problems) - 1} more results alike)" if len(problems) > 1 else ""
+        raise UserError(f"result {i}: segmentation: {why}{more}", path=path)
+
+
+def check_against_images(
+    results: list[dict[str, Any]], gt: CocoGroundTruth, path: Path, ann_type: str
+) -> list[str]:
+    """Refuse masks whose size is not their image's (one line naming the first); and say
+    (notes) how many results are of images that are not targets, or of scenes the dataset
+    does not have: bop_toolkit leaves them out unscored, silently."""
+    sizes = {
+        (scene_id, im["id"]): (im.get("height"), im.get("width"))
+        for scene_id, doc in gt.scenes
+        for im in doc["images"]
+    }
+    scenes = {scene_id for scene_id, _ in gt.scenes}
+    unknown_scene: set[int] = set()
+    untargeted = 0
+    for i, r in enumerate(results):
+        key = (r["scene_id"], r["image_id"])
+        if r["scene_id"] not in scenes:
+            unknown_scene.add(r["scene_id"])
+            continue
+        if r["image_id"] not in gt.images[r["scene_id"]] or key not in sizes:
+            untargeted += 1
+            continue
+        if ann_type == "segm":
+            h, w = r["segmentation"]["size"]
+            ih, iw = sizes[key]
+            if ih is not None and iw is not None and (h, w) != (ih, iw):
+                raise UserError(
+                    f"result {i}: its mask is {w}x{h} but image {r['image_id']} of scene "
+                    f"{r['scene_id']} is {iw}x{ih}",
+                    path=path,
+                )
+    notes = []
+    if unknown_scene:
+        listed = ", ".join(map(str, sorted(unknown_scene)[:5]))
+        n = sum(r["scene_id"] in unknown_scene for r in results)
+        notes.append(f"{n} results of scenes the targets do not list ({listed}): not scored")
+    if untargeted:
+        notes.append(f"{untargeted} results of images that are not targets: not scored")
+    return notes
 
 
 def coco_result_kinds(path: Path) -> list[str]:
@@ -165,15 +252,11 @@ def read_coco_ground_truth(path: Path) -> CocoGroundTruth:
     file = next((path / n for n in TARGET_FILES if (path / n).is_file()), None)
     if file is None:
         raise UserError(f"no {' or '.join(TARGET_FILES)} to say which images to score", path=path)
-    doc = read_json(file)
-    if not isinstance(doc, list):
-        raise UserError("expected a list of {scene_id, im_id, ...}", path=file)
+    doc = non_empty(read_json(file), file, "{scene_id, im_id, ...}")
     images: dict[int, set[int]] = {}
     for i, e in enumerate(doc):
-        try:
-            images.setdefault(int(e["scene_id"]), set()).add(int(e["im_id"]))
-        except (KeyError, TypeError, ValueError):
-            raise UserError(f"entry {i}: needs integer scene_id and im_id", path=file) from None
+        scene_id, im_id = target_ids(e, ("scene_id", "im_id"), i, file)
+        images.setdefault(scene_id, set()).add(im_id)
     split = path / "test"
     scenes = []
     for scene_id in images:

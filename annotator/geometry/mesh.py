@@ -71,6 +71,16 @@ class Mesh:
         return float(np.einsum("ij,ij->i", tri[:, 0], np.cross(tri[:, 1], tri[:, 2])).sum() / 6)
 
     @cached_property
+    def is_flat(self) -> bool:
+        """True if the vertices span no volume (they lie on a plane or a line): no solid,
+        whatever its faces."""
+        v = np.asarray(self.vertices, np.float64)
+        if len(v) < 4:
+            return True
+        spread = np.linalg.svd(v - v.mean(axis=0), compute_uv=False)
+        return bool(spread[2] <= 1e-9 * max(float(spread[0]), 1e-12))
+
+    @cached_property
     def is_watertight(self) -> bool:
         """True if every edge is shared by exactly two triangles once coincident vertices
         are merged (a closed surface)."""

@@ -73,6 +73,22 @@ def is_kinect(path: Path) -> bool:
         return False
 
 
+def has_depth_track(path: Path) -> bool:
+    """Whether a Matroska file has a 16-bit grey or ``DEPTH`` video track (an Azure Kinect
+    recording's, whatever else it lacks)."""
+    import av
+
+    try:
+        with quiet_ffmpeg():
+            container = av.open(str(path))
+    except (av.error.FFmpegError, OSError):
+        return False
+    try:
+        return _tracks(container)[1] is not None
+    finally:
+        container.close()
+
+
 def _attachment(path: Path) -> bytes | None:
     """The bytes of the file's calibration.json attachment (None if it has none)."""
     import av
@@ -185,13 +201,13 @@ class _KinectRecording(Recording):
         wanted = {cs: set(indices)}
         tracks = {cs: self.colour_track}
         formats = {cs: "bgr24"}
-        depth_wanted: dict[int, int] = {}
+        depth_wanted: dict[int, list[int]] = {}
         if depth and self.depth_track is not None:
             ds = self.depth_track.stream
             for i in indices:
                 d = self.depth_for[i]
                 if d is not None:
-                    depth_wanted[d] = i
+                    depth_wanted.setdefault(d, []).append(i)
             wanted[ds] = set(depth_wanted)
             tracks[ds] = self.depth_track
             formats[ds] = "gray16"
@@ -273,6 +289,7 @@ def open_kinect(path: Path, *, depth: bool, tolerance_s: float) -> Recording:
         streams=named,
         calibration=Calibration(colour, geometry, f"{CALIBRATION_FILE} attachment"),
         ended_early=ended,
+        depth_times=list(dtrack.times) if dtrack is not None else [],
         colour_track=ctrack,
         depth_track=dtrack,
     )

@@ -156,6 +156,7 @@ def open_record3d(path: Path, *, depth: bool) -> Recording:
         stamps = meta.get("frameTimestamps") or []
     except (KeyError, TypeError, ValueError) as exc:
         raise UserError(f"its metadata lacks the camera ({exc})", path=path) from None
+    stamps = _stamps(stamps, path)
     colour = Camera("colour", w, h, K, np.zeros(5))
     has_depth = depth and dw > 0 and dh > 0 and any(n.endswith(".depth") for n in names)
     geometry = None
@@ -166,7 +167,7 @@ def open_record3d(path: Path, *, depth: bool) -> Recording:
     times: list[float | None] = []
     for k, _ in frames:
         if k < len(stamps):
-            times.append(float(stamps[k]))
+            times.append(stamps[k])
         else:
             times.append(k / fps if fps > 0 else None)
     return _Record3D(
@@ -180,3 +181,21 @@ def open_record3d(path: Path, *, depth: bool) -> Recording:
         names=[n for _, n in frames],
         depth_size=(dw, dh),
     )
+
+
+def _stamps(stamps: object, path: Path) -> list[float]:
+    """The metadata's ``frameTimestamps``: a list of finite numbers (seconds), or a one-line
+    refusal naming what is there instead."""
+    if not isinstance(stamps, list):
+        raise UserError(
+            f"its metadata's frameTimestamps is a {type(stamps).__name__}, not a list of times",
+            path=path,
+        )
+    out: list[float] = []
+    for k, t in enumerate(stamps):
+        if isinstance(t, bool) or not isinstance(t, int | float) or not np.isfinite(t):
+            raise UserError(
+                f"its metadata's frameTimestamps[{k}] is {t!r}, not a time in seconds", path=path
+            )
+        out.append(float(t))
+    return out

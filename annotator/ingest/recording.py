@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from annotator.errors import UserError
 from annotator.geometry.camera import Camera
 
 
@@ -77,6 +78,8 @@ class Recording:
         dropped: Frames already known to be unusable: ``(label, why)``.
         ended_early: Why the file stops before its end (None if it does not).
         notes: What else the summary must say (a stream left out, and why).
+        depth_times: Each depth frame's time (s, the same clock), when the file has them:
+            how far apart the streams are when none pair.
     """
 
     path: Path
@@ -89,10 +92,74 @@ class Recording:
     dropped: list[tuple[str | int, str]] = field(default_factory=list)
     ended_early: str | None = None
     notes: list[str] = field(default_factory=list)
+    depth_times: list[float | None] = field(default_factory=list)
 
     def decode(self, indices: Sequence[int], *, depth: bool) -> Iterator[Decoded]:
         """The colour frames ``indices`` (increasing), with their depth when ``depth``."""
         raise NotImplementedError
+
+
+def check_calibration(cal: Calibration, path: Path) -> None:
+    """Refuse, in one line naming the file, a calibration no camera can have (zero, negative
+    or non-finite focal lengths or sizes, non-finite distortion): read before anything is
+    written, so that ``--rig-from-source`` never puts it in a dataset."""
+    cams = [("colour", cal.colour)] + ([("depth", cal.depth.camera)] if cal.depth else [])
+    for what, cam in cams:
+        K = np.asarray(cam.K, np.float64)
+        why = None
+        if not (cam.width > 0 and cam.height > 0):
+            why = f"a size of {cam.width}x{cam.height}"
+        elif K.shape != (3, 3) or not np.isfinite(K).all():
+            why = "intrinsics that are not finite numbers"
+        elif not (K[0, 0] > 0 and K[1, 1] > 0):
+            why = f"focal lengths fx {K[0, 0]:g}, fy {K[1, 1]:g} (they must be above 0)"
+        elif not np.isfinite(np.asarray(cam.dist, np.float64)).all():
+            why = "distortion coefficients that are not finite numbers"
+        if why:
+            raise UserError(
+                f"its {cal.origin} gives the {what} camera {why}: the file's calibration is "
+                "unusable (nothing was written)",
+                path=path,
+            )
+
+
+def damaged_rows(depth_mm: np.ndarray) -> tuple[int, int] | None:
+    """The first and last row of a depth frame that hold noise rather than a surface (bytes
+    of a damaged file decoded as depth: most of a row's pixels jump by more than 10 % from
+    both of their neighbours), or None. Real depth jumps only at edges, a few pixels a row.
+
+    >>> d = np.full((40, 50), 700.0)
+    >>> d[10:14] = np.random.default_rng(0).uniform(0, 65535, (4, 50))
+    >>> damaged_rows(d), damaged_rows(np.full((40, 50), 700.0))
+    ((10, 13), None)
+    """
+    d = np.asarray(depth_mm, np.float64)
+    if d.ndim != 2 or d.shape[1] < 3:
+        return None
+    mid, left, right = d[:, 1:-1], d[:, :-2], d[:, 2:]
+    with np.errstate(invalid="ignore"):
+        tol = 0.1 * mid
+        spike = (np.abs(mid - left) > tol) & (np.abs(mid - right) > tol)
+        valid = np.isfinite(mid) & np.isfinite(left) & np.isfinite(right) & (mid > 0)
+    counted = valid.sum(axis=1)
+    bad = np.flatnonzero((counted >= 8) & ((spike & valid).sum(axis=1) > 0.3 * counted))
+    return (int(bad[0]), int(bad[-1])) if bad.size else None
+
+
+def nearest_gaps(colour: Sequence[float | None], depth: Sequence[float | None]) -> list[float]:
+    """For each colour time, how far (s) the nearest depth time is.
+
+    >>> nearest_gaps([0.0, 1.0, None], [0.1, 0.8])
+    [0.1, 0.19999999999999996]
+    """
+    known = sorted(t for t in depth if t is not None)
+    out: list[float] = []
+    for t in colour:
+        if t is None or not known:
+            continue
+        k = bisect.bisect_left(known, t)
+        out.append(min(abs(known[j] - t) for j in (k - 1, k) if 0 <= j < len(known)))
+    return out
 
 
 def pair_by_time(
@@ -148,18 +215,18 @@ def quaternion_matrix(x: float, y: float, z: float, w: float) -> np.ndarray:
 
 def join_depth(
     events: Iterator[tuple[str, int, Decoded | np.ndarray | str]],
-    depth_wanted: dict[int, int],
+    depth_wanted: dict[int, list[int]],
 ) -> Iterator[Decoded]:
     """Colour frames joined with their depth partners, in colour order.
 
     ``events`` come in file order: ``("colour", i, Decoded)`` and ``("depth", j, depth mm
-    or why it is unusable)``; ``depth_wanted`` maps a depth index to the colour index it
-    belongs to. A colour frame waits for its depth (later frames wait behind it, so that the
+    or why it is unusable)``; ``depth_wanted`` maps a depth index to the colour indices it
+    belongs to (one depth frame may be the nearest of two colour frames). A colour frame waits for its depth (later frames wait behind it, so that the
     order holds); a frame whose depth is damaged or never comes is given as a problem.
     """
     pending: dict[int, Decoded] = {}
     depth_of: dict[int, np.ndarray | str] = {}
-    waiting_for = set(depth_wanted.values())
+    waiting_for = {i for own in depth_wanted.values() for i in own}
 
     def ready(final: bool) -> Iterator[Decoded]:
         for i in sorted(pending):
@@ -171,6 +238,9 @@ def join_depth(
                 yield d
             elif isinstance(got, str):
                 yield Decoded(i, None, None, f"its depth frame: {got}")
+            elif isinstance(got, np.ndarray) and (rows := damaged_rows(got)) is not None:
+                noise = f"rows {rows[0]}-{rows[1]} hold noise (the file is damaged there)"
+                yield Decoded(i, None, None, f"its depth frame: {noise}")
             elif isinstance(got, np.ndarray):
                 yield Decoded(i, d.colour, got)
             elif i in waiting_for:
@@ -184,6 +254,7 @@ def join_depth(
             pending[k] = Decoded(k, item.colour, item.depth_mm, item.problem)
         elif k in depth_wanted:
             assert not isinstance(item, Decoded)
-            depth_of[depth_wanted[k]] = item
+            for i in depth_wanted[k]:
+                depth_of[i] = item
         yield from ready(False)
     yield from ready(True)

@@ -24,6 +24,8 @@ def image_of(msg: Any, msgtype: str) -> tuple[np.ndarray | None, str | None]:
         if data.size == 0:
             return None, "an empty compressed image"
         fmt = str(getattr(msg, "format", "")).lower()
+        if "compresseddepth" in fmt:
+            return _compressed_depth(data, fmt)
         if ("jpeg" in fmt or data[:2].tobytes() == b"\xff\xd8") and not _jpeg_complete(data):
             return None, "a truncated JPEG (decoded partly)"
         with native_stderr_hidden():
@@ -78,3 +80,23 @@ def _jpeg_complete(data: np.ndarray) -> bool:
     """Whether a JPEG's bytes end with its end-of-image marker (trailing padding allowed)."""
     tail = data[-64:].tobytes().rstrip(b"\x00")
     return tail.endswith(b"\xff\xd9")
+
+
+def _compressed_depth(data: np.ndarray, fmt: str) -> tuple[np.ndarray | None, str | None]:
+    """image_transport's ``compressedDepth``: a 12-byte header (the format, then two floats
+    quantising 32-bit depth) and a PNG. 16UC1 is the depth as it was; 32FC1 is stored as
+    quantised inverse depth, ``depth = a / (v - b)`` metres for v > 0."""
+    if data.size <= 12:
+        return None, "a compressedDepth image without its PNG"
+    with native_stderr_hidden():
+        img = cv2.imdecode(data[12:], cv2.IMREAD_UNCHANGED)
+    if img is None or img.dtype != np.uint16 or img.ndim != 2:
+        return None, "the compressedDepth image fails to decode as a 16-bit PNG"
+    if fmt.startswith("32fc1"):
+        a, b = np.frombuffer(data[4:12].tobytes(), "<f4")
+        out = np.full(img.shape, np.nan, np.float32)
+        ok = img > 0
+        with np.errstate(divide="ignore", invalid="ignore"):
+            out[ok] = a / (img[ok].astype(np.float32) - b)
+        return out, None
+    return img, None

@@ -174,6 +174,8 @@ def _choose(path: Path, conns: list[Any], wanted: str | None, *, want_depth: boo
     if want_depth:
         cands = [c for c in images if _is_depth_name(c.topic) and c.msgtype == IMAGE]
         cands = [c for c in cands if "compresseddepth" not in c.topic.lower()]
+        # image_transport's compressedDepth (PNG of the 16-bit depth) when no raw depth is there
+        cands = cands or [c for c in images if "compresseddepth" in c.topic.lower()]
         aligned = [c for c in cands if _is_registered_name(c.topic)]
         cands = aligned or cands
         if not cands:
@@ -237,6 +239,13 @@ def _index(
             depth_times.append(t)
     if not colour_times:
         raise UserError(f"topic {colour_conn.topic} holds no message", path=path)
+    _check_colour_encoding(path, reader, conns, colour_conn)
+    if depth_conn is not None and depth_conn.topic == colour_conn.topic:
+        raise UserError(
+            f"{colour_conn.topic} is both the colour and the depth topic: name another with "
+            "--color-topic or --depth-topic",
+            path=path,
+        )
     calibration, note = _calibration(path, reader, conns, colour_conn, depth_conn)
     if depth_conn is not None and (not depth_times or note is not None):
         depth_conn = None
@@ -258,7 +267,30 @@ def _index(
         streams=streams,
         calibration=calibration,
         notes=[note] if note else [],
+        depth_times=depth_times if depth_conn is not None else [],
     )
+
+
+#: Encodings of depth (or other single-channel measurement) images, never colour.
+_DEPTH_ENCODINGS = ("16uc1", "mono16", "z16", "32fc1", "16sc1", "32sc1", "64fc1")
+
+
+def _check_colour_encoding(path: Path, reader: Any, conns: list[Any], conn: Any) -> None:
+    """Refuse (one line) a colour topic whose images are depth: written as colour they
+    would be depth maps in the dataset's intensity images."""
+    msg = _first(reader, conns, conn.topic)
+    if msg is None:
+        return
+    enc = str(getattr(msg, "encoding", "") or getattr(msg, "format", "")).lower()
+    if any(enc.startswith(e) for e in _DEPTH_ENCODINGS) or "compresseddepth" in enc:
+        images = sorted(
+            {c.topic for c in conns if c.msgtype in (IMAGE, COMPRESSED) and c.topic != conn.topic}
+        )
+        raise UserError(
+            f"{conn.topic} holds depth images ({enc}), not colour: name the colour topic with "
+            f"--color-topic (other image topics: {', '.join(images) or 'none'})",
+            path=path,
+        )
 
 
 def _first(reader: Any, conns: list[Any], topic: str) -> Any | None:
@@ -448,16 +480,16 @@ def _tf_extrinsics(
 
 class _BagRecording(Recording):
     def decode(self, indices: Sequence[int], *, depth: bool) -> Iterator[Decoded]:
-        depth_wanted: dict[int, int] = {}
+        depth_wanted: dict[int, list[int]] = {}
         if depth and "depth" in self.streams:
             for i in indices:
                 d = self.depth_for[i]
                 if d is not None:
-                    depth_wanted[d] = i
+                    depth_wanted.setdefault(d, []).append(i)
         yield from join_depth(self._events(set(indices), depth_wanted), depth_wanted)
 
     def _events(
-        self, wanted: set[int], depth_wanted: dict[int, int]
+        self, wanted: set[int], depth_wanted: dict[int, list[int]]
     ) -> Iterator[tuple[str, int, Decoded | np.ndarray | str]]:
         colour_topic = self.streams["colour"]
         topics = {colour_topic, self.streams.get("depth")} if depth_wanted else {colour_topic}

@@ -13,6 +13,7 @@ from __future__ import annotations
 import contextlib
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -22,7 +23,7 @@ from annotator.dataset import Dataset, load_dataset
 from annotator.dataset.model import SCENES_DIR
 from annotator.errors import UserError
 from annotator.geometry.camera import Camera
-from annotator.ingest.recording import Recording
+from annotator.ingest.recording import Recording, nearest_gaps
 from annotator.ingest.registration import register_depth
 from annotator.ingest.rig import (
     DEFAULT_DICTIONARY,
@@ -269,6 +270,8 @@ def _ingest(
             "lies in the scene it would be written to; move it out of the dataset first",
             path=source,
         )
+    if settings.depth and "depth" in src.streams and all(d is None for d in src.depth_for):
+        raise UserError(_unpaired(src, settings.tolerance_s), path=src.path)
     with_depth = settings.depth and any(d is not None for d in src.depth_for)
     if with_depth:
         _check_depth_camera(ds, cam)
@@ -276,6 +279,8 @@ def _ingest(
     option = _depth_option(src, settings.depth_scale)
     chosen = candidates(len(src.times), settings.every)
     dropped: list[dict[str, Any]] = [{"frame": lbl, "why": why} for lbl, why in src.dropped]
+    chosen, repeats, notes = _in_time(src, chosen)
+    dropped += repeats
     if with_depth:
         tol = f"{settings.tolerance_s * 1000:g} ms"
         lonely = [i for i in chosen if src.depth_for[i] is None]
@@ -290,7 +295,8 @@ def _ingest(
     t0 = next((t for t in src.times if t is not None), None)
     blurred = [src.labels[i] for i in selection.blurred]
     sweep_abandoned(ds.root / SCENES_DIR)
-    with atomic_folder(folder) as tmp:
+    recheck = partial(check_replaceable, overwrite=settings.overwrite)
+    with atomic_folder(folder, still_replaceable=recheck) as tmp:
         written = _write_frames(
             ds, src, kept, cam, tmp, (with_depth, scale, option), settings.quiet, dropped
         )
@@ -317,7 +323,7 @@ def _ingest(
             "blurred": blurred,
             "dropped": dropped,
             "ended_early": src.ended_early,
-            "notes": src.notes,
+            "notes": src.notes + notes,
             "frames": entries,
         }
         write_json(tmp / FRAMES_FILE, doc)
@@ -332,7 +338,7 @@ def _ingest(
         blurred=blurred,
         dropped=dropped,
         ended_early=src.ended_early,
-        notes=list(src.notes),
+        notes=list(src.notes) + notes,
         depth=with_depth,
         streams=dict(src.streams),
         intrinsics=doc["intrinsics"],
@@ -342,6 +348,55 @@ def _ingest(
         every=settings.every,
         blur_threshold=settings.blur_threshold,
     )
+
+
+def _unpaired(src: Recording, tolerance_s: float) -> str:
+    """Why no colour frame has a depth partner, with how far apart the streams are and the
+    tolerance that would pair them: a whole stream is never dropped without a word."""
+    gaps = nearest_gaps(src.times, src.depth_times)
+    tol = f"{tolerance_s * 1000:g} ms"
+    if not gaps:
+        return (
+            f"no colour frame has a depth frame within {tol} (the depth stream "
+            f"{src.streams.get('depth')} has no usable time): pass --no-depth to ingest colour only"
+        )
+    median = float(np.median(gaps)) * 1000
+    need = int(np.ceil(median * 1.1))
+    return (
+        f"no colour frame has a depth frame within {tol}: the streams are {median:.0f} ms apart "
+        f"(median nearest gap); --tolerance-ms {need} would pair them, or pass --no-depth to "
+        "ingest colour only"
+    )
+
+
+def _in_time(
+    src: Recording, chosen: list[int]
+) -> tuple[list[int], list[dict[str, Any]], list[str]]:
+    """The chosen frames less those whose time repeats the frame before's (a recorder
+    writing a frame twice), those dropped, and a note when the times go back."""
+    kept: list[int] = []
+    repeats: list[dict[str, Any]] = []
+    back: list[str] = []
+    last: tuple[int, float] | None = None
+    for i in chosen:
+        t = src.times[i]
+        if t is not None and last is not None and t == last[1]:
+            why = f"the same time as {_frame(src.labels[last[0]])} (a repeated frame)"
+            repeats.append({"frame": src.labels[i], "why": why})
+            continue
+        if t is not None and last is not None and t < last[1]:
+            back.append(f"{_frame(src.labels[i])} ({t - last[1]:+.3f} s)")
+        if t is not None:
+            last = (i, t)
+        kept.append(i)
+    notes = []
+    if back:
+        more = f" and {len(back) - 3} more" if len(back) > 3 else ""
+        notes.append(
+            f"the frames' times go back at {', '.join(back[:3])}{more}: kept in the file's "
+            "order, times as the file gives them"
+        )
+    return kept, repeats, notes
 
 
 def _new_folders(dataset: str | Path | Dataset) -> list[Path]:

@@ -38,7 +38,7 @@ from pathlib import Path
 import numpy as np
 
 from annotator.errors import UserError
-from annotator.ingest.recording import Decoded, Recording
+from annotator.ingest.recording import Decoded, Recording, check_calibration
 from annotator.io.images import read_image
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp")
@@ -167,9 +167,26 @@ def open_recording(
     Raises:
         UserError: one line naming the file, for anything that cannot be read.
     """
+    path = Path(path)
+    rec = _open(path, stream, depth, tolerance_s, fps, color_topic, depth_topic, depth_unit_mm)
+    if rec.calibration is not None:
+        check_calibration(rec.calibration, path)
+    return rec
+
+
+def _open(
+    path: Path,
+    stream: str | None,
+    depth: bool,
+    tolerance_s: float,
+    fps: float | None,
+    color_topic: str | None,
+    depth_topic: str | None,
+    depth_unit_mm: float | None,
+) -> Recording:
+    """:func:`open_recording` before its calibration is checked."""
     from annotator.ingest import kinect, record3d, rosbag, video
 
-    path = Path(path)
     if rosbag.is_bag(path):
         return rosbag.open_bag(
             path,
@@ -187,6 +204,13 @@ def open_recording(
             raise UserError(
                 f"is not a recording ({', '.join(RECORDING_SUFFIXES)}), a video "
                 f"({', '.join(VIDEO_SUFFIXES)}) nor a folder of images",
+                path=path,
+            )
+        if depth and path.suffix.lower() == ".mkv" and kinect.has_depth_track(path):
+            raise UserError(
+                f"has a DEPTH track but no {kinect.CALIBRATION_FILE} attachment (an Azure "
+                "Kinect recording carries one), so its depth cannot be placed: pass "
+                "--no-depth to ingest its colour as a plain video",
                 path=path,
             )
         return video.open_video(path)

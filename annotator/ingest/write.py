@@ -32,6 +32,9 @@ from annotator.io.images import NO_RETURN, encode_depth, write_png
 #: The file ingest writes beside a sequence's frames.
 FRAMES_FILE = "frames.json"
 WRITTEN_BY = "annotator ingest"
+#: The longest scene id (bytes): the folder's temporary sibling ``.<id>.<random>`` must fit
+#: a file name's 255 bytes too.
+MAX_SCENE_BYTES = 200
 
 
 def frame_name(k: int) -> str:
@@ -48,6 +51,12 @@ def check_scene_id(scene_id: str) -> None:
         or scene_id.strip() != scene_id
     ):
         raise UserError(f"--scene must be a plain folder name, not {scene_id!r}")
+    if len(scene_id.encode()) > MAX_SCENE_BYTES:
+        raise UserError(
+            f"--scene is {len(scene_id.encode())} bytes long; a scene id may have at most "
+            f"{MAX_SCENE_BYTES} (a folder name, and its temporary sibling's, must fit the "
+            "file system's 255)"
+        )
 
 
 def check_replaceable(folder: Path, *, overwrite: bool) -> None:

@@ -23,7 +23,7 @@ import stat
 import tempfile
 import time
 import warnings
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
@@ -106,10 +106,13 @@ def _sweep_once(folder: Path) -> None:
     remove_abandoned_files(folder)
 
 
-def remove_abandoned_files(folder: Path, *, older_than_s: float = ABANDONED_AFTER_S) -> list[Path]:
+def remove_abandoned_files(
+    folder: Path, *, older_than_s: float = ABANDONED_AFTER_S, remove: bool = True
+) -> list[Path]:
     """Delete the temporary files of :func:`write_bytes` in ``folder`` whose writer is gone
-    (no ``flock`` on them) and that are older than ``older_than_s``; return them. Any other
-    file is left alone, whatever its name."""
+    (no ``flock`` on them) and that are older than ``older_than_s``; return them (only
+    found, not deleted, with ``remove=False``). Any other file is left alone, whatever its
+    name."""
     removed: list[Path] = []
     if not hasattr(os, "O_NOFOLLOW"):
         return removed
@@ -129,7 +132,8 @@ def remove_abandoned_files(folder: Path, *, older_than_s: float = ABANDONED_AFTE
             continue
         try:
             if _flock(fd, blocking=False):
-                os.unlink(entry.path)
+                if remove:
+                    os.unlink(entry.path)
                 removed.append(Path(entry.path))
         except OSError:
             pass
@@ -391,7 +395,9 @@ def temporary_folder(parent: Path, prefix: str) -> tuple[Path, int | None]:
 
 
 @contextmanager
-def atomic_folder(out: str | Path) -> Iterator[Path]:
+def atomic_folder(
+    out: str | Path, *, still_replaceable: Callable[[Path], None] | None = None
+) -> Iterator[Path]:
     """Build a folder in a temporary sibling and put it in place of ``out`` only on success.
 
     Whatever goes wrong inside the ``with`` block (an error, Ctrl-C), ``out`` is left as it was
@@ -405,6 +411,11 @@ def atomic_folder(out: str | Path) -> Iterator[Path]:
     behind by a killed process is no longer locked and is removed by the next call for the
     same ``out`` (after putting an old ``out`` it holds back in place if ``out`` is gone),
     while one that another running process is building is left alone.
+
+    ``still_replaceable(out)``, when given, is called just before an existing ``out`` is
+    replaced, holding ``out``'s own ``flock`` (the one a review server takes to write a
+    scene's review.json): it raises to keep ``out`` as it is, when what was checked before
+    the folder was built no longer holds (a reviewer decided on the scene meanwhile).
     """
     out = Path(out)
     if out.is_symlink():
@@ -419,14 +430,21 @@ def atomic_folder(out: str | Path) -> Iterator[Path]:
     try:
         yield tmp
         if out.exists() or out.is_symlink():
-            trash, trash_lock = temporary_folder(out.parent, prefix)
+            held = _hold(out) if still_replaceable is not None else None
             try:
-                out.rename(trash / "old")
-                tmp.rename(out)
-                shutil.rmtree(trash, ignore_errors=True)
+                if still_replaceable is not None:
+                    still_replaceable(out)
+                trash, trash_lock = temporary_folder(out.parent, prefix)
+                try:
+                    out.rename(trash / "old")
+                    tmp.rename(out)
+                    shutil.rmtree(trash, ignore_errors=True)
+                finally:
+                    if trash_lock is not None:
+                        os.close(trash_lock)
             finally:
-                if trash_lock is not None:
-                    os.close(trash_lock)
+                if held is not None:
+                    os.close(held)
         else:
             tmp.rename(out)
         (out / TEMPORARY_MARK).unlink(missing_ok=True)
@@ -436,6 +454,20 @@ def atomic_folder(out: str | Path) -> Iterator[Path]:
     finally:
         if lock is not None:
             os.close(lock)
+
+
+def _hold(folder: Path) -> int | None:
+    """``folder``'s ``flock``, waited for (its other holders keep it an instant)."""
+    try:
+        import fcntl
+    except ImportError:
+        return None
+    try:
+        fd = os.open(folder, os.O_RDONLY)
+    except OSError:
+        return None
+    fcntl.flock(fd, fcntl.LOCK_EX)
+    return fd
 
 
 def _lock(folder: Path) -> int | None:
@@ -455,6 +487,28 @@ def _remove_abandoned(out: Path) -> None:
     for cand in sorted(out.parent.iterdir()):
         if cand.name.startswith(prefix) and cand.is_dir() and not cand.is_symlink():
             remove_if_abandoned(cand, restore=out)
+
+
+def is_abandoned_folder(folder: Path) -> bool:
+    """Whether ``folder`` is a temporary folder of :func:`atomic_folder` whose builder is
+    gone (marked, its ``flock`` free); nothing is changed."""
+    try:
+        import fcntl
+    except ImportError:
+        return False
+    if not (folder / TEMPORARY_MARK).is_file():
+        return False
+    try:
+        fd = os.open(folder, os.O_RDONLY)
+    except OSError:
+        return False
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        return False
+    finally:
+        os.close(fd)  # (closing drops the lock just taken)
+    return True
 
 
 def remove_if_abandoned(folder: Path, *, restore: Path | None = None) -> bool:

@@ -18,7 +18,8 @@ Files a command writes (``estimate OUT.csv``, ``evaluate --json``/``--plot``), c
   (a results folder), nor be an existing file of a dataset it reads (``dataset.yaml``, an
   image), nor lie in a dataset's ``scenes/`` or ``objects/`` (where a new file would be read
   as the dataset's own: a ``gt.json``, say);
-- two outputs of one command may not be the same file.
+- two outputs of one command may not be the same file;
+- a file that exists already is replaced only with ``--overwrite``.
 
 A new file beside a dataset's own files (``DS/ppf.csv``) is allowed.
 """
@@ -81,6 +82,7 @@ def check_output_files(
     *,
     inputs: Sequence[str | Path | None] = (),
     datasets: Sequence[str | Path | None] = (),
+    overwrite: bool = False,
 ) -> None:
     """Raise a one-line UserError (naming the file) unless every output file may be written
     without touching what the command reads (the rules in the module docstring).
@@ -90,6 +92,8 @@ def check_output_files(
             "r.json")``); a None path is not written and not checked.
         inputs: Files or folders the command reads (None: not given).
         datasets: Dataset folders the command reads (ours, BOP, Siléane; None: not given).
+        overwrite: The user's ``--overwrite``: without it an existing file is refused (a
+            results file of the user's is never replaced unasked).
 
     >>> check_output_files([("OUT", "sample_scenes/dataset.yaml")], datasets=["sample_scenes"])
     Traceback (most recent call last):
@@ -104,6 +108,8 @@ def check_output_files(
         if real in seen:
             raise UserError(f"{option} is also {seen[real]}: give each its own file", path=out)
         seen[real] = option
+        if not overwrite and (real.exists() or Path(out).is_symlink()) and not real.is_dir():
+            raise UserError(f"{option} exists already (pass --overwrite to replace it)", path=out)
         for p in inputs:
             if p is None:
                 continue

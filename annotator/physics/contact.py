@@ -6,11 +6,13 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from functools import cached_property
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 from scipy.spatial import ConvexHull
 
+from annotator.errors import UserError
 from annotator.geometry.mesh import Mesh, surface_samples
 from annotator.geometry.open3d_lib import o3d
 from annotator.geometry.transforms import invert
@@ -75,6 +77,17 @@ def _drawn(mesh: Mesh) -> tuple[np.ndarray, np.ndarray]:
 
 def _model_points(mesh: Mesh) -> np.ndarray:
     return np.concatenate([mesh.vertices, _drawn(mesh)[0]])
+
+
+def check_solid(mesh: Mesh, path: Path) -> None:
+    """Refuse, in one line naming the file, a mesh with no volume (:attr:`Mesh.is_flat`):
+    contacts and penetrations are measured between solids."""
+    if mesh.is_flat:
+        raise UserError(
+            "the mesh has no volume (its vertices lie on a plane or a line): the physics "
+            "check needs a solid part",
+            path=path,
+        )
 
 
 def hull_of(mesh: Mesh) -> Mesh:

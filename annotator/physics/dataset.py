@@ -17,6 +17,7 @@ from annotator.dataset.review import apply_edits, read_review
 from annotator.dataset.selection import matching_scenes
 from annotator.errors import UserError
 from annotator.physics.check import InstancePhysics, PhysicsSettings
+from annotator.physics.contact import check_solid
 from annotator.physics.scene import shot_physics
 
 
@@ -87,6 +88,8 @@ def physics_of_dataset(
     (['000000', '000001', '000002', '000003'], 0)
     """
     out = PhysicsSummary()
+    for obj in ds.objects.values():
+        check_solid(obj.mesh, obj.mesh_path)
     for scene in matching_scenes(ds, scenes, required=False):
         path = scene.annotation_path if poses == "annotation" else scene.gt_path
         if not path.exists():
