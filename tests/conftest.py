@@ -31,6 +31,19 @@ def bop_export(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return out
 
 
+@pytest.fixture(scope="session")
+def bop_sensors_export(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The sample exported to BOP's multi-sensor layout (``--sensors``: a sensor per rig
+    camera, sensors.json), true poses, read-only."""
+    out = tmp_path_factory.mktemp("bop_sensors") / "bop"
+    subprocess.run(
+        [sys.executable, "-m", "annotator", "export", str(SAMPLE), str(out), "--format", "bop"]
+        + ["--include-pending", "--poses", "gt", "--sensors", "--quiet"],
+        check=True,
+    )
+    return out
+
+
 @pytest.fixture()
 def sample_copy(tmp_path: Path) -> Path:
     """A private copy of sample_scenes/ (images, depth, gt.json, annotation.json)."""

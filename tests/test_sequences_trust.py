@@ -148,6 +148,27 @@ def test_a_frame_of_another_arrangement_is_refused_with_a_reason(sequence) -> No
     assert all(FrameFlag.INCONSISTENT not in f.flags for f in others)
 
 
+@pytest.mark.parametrize("frames", [1, 2])
+def test_a_frame_with_one_part_elsewhere_is_flagged_inconsistent(sequence, frames) -> None:
+    from test_sequences import _fake_readings
+
+    ds, truth, poses, readings = _readings(sequence)
+    # The last frames copied from another arrangement of the same parts: one part lies
+    # 60 mm away there, the rest as the sequence has them.
+    shifted = [replace(p, t=p.t + np.array([60.0, -20.0, 5.0])) if k == 1 else p
+               for k, p in enumerate(poses)]  # fmt: skip
+    foreign = _fake_readings(ds, truth, shifted)
+    names = [r.frame for r in readings[-frames:]]
+    readings[-frames:] = foreign[-frames:]
+    sol = solve_sequence(ds, readings)
+    for name in names:
+        frame = sol.frames[name]
+        assert frame.scene_T_rig is None or FrameFlag.INCONSISTENT in frame.flags, frame
+        assert poses[1].key in (frame.reason or "")
+    others = [f for n, f in sol.frames.items() if n not in names and f.scene_T_rig is not None]
+    assert others and all(FrameFlag.INCONSISTENT not in f.flags for f in others)
+
+
 def test_a_frame_posed_on_one_parts_markers_is_flagged(sequence) -> None:
     ds, truth, poses, readings = _readings(sequence)
     # Frame 2 looks away: it reads the markers of one part only.

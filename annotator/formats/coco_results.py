@@ -118,6 +118,30 @@ def _check_values(doc: list[dict[str, Any]], ann_type: str, path: Path) -> None:
         raise UserError(f"result {i}: segmentation: {why}{more}", path=path)
 
 
+def _check_true_masks(doc: dict[str, Any], path: Path) -> None:
+    """Refuse (naming the first) a ground-truth mask that is no mask: it would reach
+    pycocotools' C routines as the results' do."""
+    segs, sizes, where = [], [], []
+    for i, a in enumerate(doc["annotations"]):
+        seg = a.get("segmentation") if isinstance(a, dict) else None
+        if not isinstance(seg, dict):
+            continue  # polygons or none: COCOeval's own reading
+        size = seg.get("size")
+        if not (
+            type(size) is list and len(size) == 2 and all(type(v) is int and v > 0 for v in size)
+        ):
+            raise UserError(
+                f"annotation {i}: segmentation 'size' must be [height, width]", path=path
+            )
+        segs.append(seg.get("counts"))
+        sizes.append((size[0], size[1]))
+        where.append(i)
+    problems = rle_problems(segs, sizes)
+    if problems:
+        k, why = next(iter(problems.items()))
+        raise UserError(f"annotation {where[k]}: segmentation: {why}", path=path)
+
+
 def check_against_images(
     results: list[dict[str, Any]], gt: CocoGroundTruth, path: Path, ann_type: str
 ) -> list[str]:
@@ -271,5 +295,6 @@ def read_coco_ground_truth(path: Path) -> CocoGroundTruth:
         gt = read_json(coco)
         if not isinstance(gt, dict) or not {"images", "annotations", "categories"} <= set(gt):
             raise UserError("expected a COCO document {images, annotations, categories}", path=coco)
+        _check_true_masks(gt, coco)
         scenes.append((scene_id, gt))
     return CocoGroundTruth(scenes, images, file.name)

@@ -28,7 +28,13 @@ import numpy as np
 
 from annotator.errors import UserError
 from annotator.geometry.camera import Camera
-from annotator.ingest.recording import Calibration, Decoded, DepthGeometry, Recording
+from annotator.ingest.recording import (
+    Calibration,
+    Decoded,
+    DepthGeometry,
+    Recording,
+    check_calibration,
+)
 from annotator.io.images import native_stderr_hidden
 
 _FRAME = re.compile(r"^rgbd/(\d+)\.(jpg|jpeg|png)$", re.I)
@@ -158,6 +164,7 @@ def open_record3d(path: Path, *, depth: bool) -> Recording:
         raise UserError(f"its metadata lacks the camera ({exc})", path=path) from None
     stamps = _stamps(stamps, path)
     colour = Camera("colour", w, h, K, np.zeros(5))
+    check_calibration(Calibration(colour, None, "metadata K"), path)  # before it is scaled
     has_depth = depth and dw > 0 and dh > 0 and any(n.endswith(".depth") for n in names)
     geometry = None
     if has_depth:

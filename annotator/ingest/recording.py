@@ -162,6 +162,29 @@ def nearest_gaps(colour: Sequence[float | None], depth: Sequence[float | None]) 
     return out
 
 
+def isolated_spikes(depth_mm: np.ndarray) -> np.ndarray:
+    """The pixels of a depth frame unlike all four of their neighbours, which agree among
+    themselves (a damaged byte, or a sensor's speckle): more than 5 % off their median,
+    which the neighbours are within 2 % of. An edge's pixels are not: their neighbours
+    differ.
+
+    >>> d = np.full((5, 5), 700.0); d[2, 2] = 538.0; d[:, 4] = 900.0
+    >>> np.argwhere(isolated_spikes(d)).tolist()
+    [[2, 2]]
+    """
+    d = np.asarray(depth_mm, np.float64)
+    out = np.zeros(d.shape, bool)
+    if d.ndim != 2 or min(d.shape) < 3:
+        return out
+    around = np.stack([d[:-2, 1:-1], d[2:, 1:-1], d[1:-1, :-2], d[1:-1, 2:]])
+    with np.errstate(invalid="ignore"):
+        mid = np.median(around, axis=0)
+        calm = (around.max(axis=0) - around.min(axis=0)) <= 0.02 * mid
+        off = np.abs(d[1:-1, 1:-1] - mid) > 0.05 * mid
+    out[1:-1, 1:-1] = calm & off & np.isfinite(mid) & (mid > 0) & np.isfinite(d[1:-1, 1:-1])
+    return out
+
+
 def pair_by_time(
     colour: Sequence[float | None], depth: Sequence[float | None], tolerance_s: float
 ) -> list[int | None]:

@@ -23,7 +23,7 @@ from annotator.dataset import Dataset, load_dataset
 from annotator.dataset.model import SCENES_DIR
 from annotator.errors import UserError
 from annotator.geometry.camera import Camera
-from annotator.ingest.recording import Recording, nearest_gaps
+from annotator.ingest.recording import Recording, isolated_spikes, nearest_gaps
 from annotator.ingest.registration import register_depth
 from annotator.ingest.rig import (
     DEFAULT_DICTIONARY,
@@ -302,6 +302,12 @@ def _ingest(
         )
         if not written:
             raise UserError("no frame is left to write (none could be decoded)", path=src.path)
+        spikes = sum(e.get("depth_spikes_removed", 0) for _, e in written)
+        if spikes:
+            notes.append(
+                f"{spikes} depth pixels unlike all four of their neighbours made holes (damaged "
+                "bytes, or the sensor's speckle); frames.json says how many in each frame"
+            )
         entries: dict[str, dict[str, Any]] = {}
         for k, (i, entry) in enumerate(written):
             entry["sharpness"] = round(selection.of(i), 3)
@@ -550,6 +556,10 @@ def _write_frames(
             depth_mm = None
             if with_depth:
                 assert d.depth_mm is not None and ds.rig.depth is not None
+                spikes = isolated_spikes(d.depth_mm)
+                if spikes.any():  # holes rather than depth of no surface
+                    d.depth_mm[spikes] = np.nan
+                    entry["depth_spikes_removed"] = int(spikes.sum())
                 depth_mm = _on_colour_grid(src, d.depth_mm * scale, cam, d.index)
                 unit = _unit_mm(src) * scale
                 check_depth_range(depth_mm, ds.rig.depth, unit, option, _depth_where(src, d.index))
