@@ -84,3 +84,44 @@ def test_no_ink_outside_the_masks(twins) -> None:
         ink = im["plain"] != im["bare"]
         assert ink.any()
         assert not (ink & ~mask).any(), np.argwhere(ink & ~mask)[:5].tolist()
+
+
+def _opencv_finds(folder: Path, dictionary: int) -> dict[str, int]:
+    """Per exported intensity image, the markers OpenCV finds at any of its settings."""
+    found: dict[str, int] = {}
+    dets = [detector(s, dictionary) for s in SETTINGS]
+    for f in sorted(folder.glob("test/*/gray*/*.png")) + sorted(folder.glob("test/*/rgb*/*.png")):
+        img = _read(f)
+        found[str(f)] = max(len(detections(d, img)) for d in dets)
+    return found
+
+
+def test_markers_are_masked_wherever_the_poses_put_them(sample_copy: Path, tmp_path) -> None:
+    """Issue 54: an annotation whose poses are off (one part 8 mm and 6 degrees away, one
+    flagged part moved in front of another) still leaves no marker OpenCV can find, because
+    every marker a detector finds is masked whatever the poses say."""
+    import json
+
+    from annotator.cli import main
+    from annotator.geometry.lie import rotvec_to_matrix
+
+    for sid, shift in (("000000", (8.0, 0.0, 0.0)), ("000002", (0.0, 25.0, -40.0))):
+        path = sample_copy / "scenes" / sid / "annotation.json"
+        doc = json.loads(path.read_text())
+        inst = doc["instances"][-1]
+        R = np.asarray(inst["cam_R_m2c"], float).reshape(3, 3) @ rotvec_to_matrix(
+            np.radians([6.0, 0, 0])
+        )
+        inst["cam_R_m2c"] = R.reshape(-1).tolist()
+        inst["cam_t_m2c"] = (np.asarray(inst["cam_t_m2c"], float) + shift).tolist()
+        inst["flags"] = sorted({*inst.get("flags", []), "high_uncertainty"})
+        path.write_text(json.dumps(doc))
+    plain, filled = tmp_path / "plain", tmp_path / "filled"
+    export = [str(sample_copy), "--format", "bop", "--include-pending", "--quiet"]
+    assert main(["export", export[0], str(plain), *export[1:]]) == 0
+    assert main(["export", export[0], str(filled), *export[1:], "--remove-markers"]) == 0
+    dictionary = cv2.aruco.DICT_4X4_1000
+    before = _opencv_finds(plain, dictionary)
+    after = _opencv_finds(filled, dictionary)
+    assert sum(before.values()) > 50
+    assert after and all(n == 0 for n in after.values()), after

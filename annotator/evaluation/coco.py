@@ -258,7 +258,10 @@ def _table(doc: dict[str, Any], results: list[dict[str, Any]], iou_type: str) ->
     )
     dts = [results[i] for i in order]
     d_rles: _Rles | None = None
-    if "bbox" in results[0] and results[0]["bbox"] != []:  # loadRes: the area of the box
+    # loadRes: the area of the box, as the first result has one (all of them must: where
+    # some lack it, pycocotools would fail; their masks' areas serve then).
+    boxed = "bbox" in results[0] and results[0]["bbox"] != [] and all("bbox" in r for r in dts)
+    if boxed:
         d_box = _rows([r["bbox"] for r in dts], 4, np.float64)
         d_area = d_box[:, 2] * d_box[:, 3]
     elif iou_type == "segm":

@@ -163,26 +163,32 @@ def nearest_gaps(colour: Sequence[float | None], depth: Sequence[float | None]) 
 
 
 def isolated_spikes(depth_mm: np.ndarray) -> np.ndarray:
-    """The pixels of a depth frame unlike all four of their neighbours, which agree among
-    themselves (a damaged byte, or a sensor's speckle): more than 5 % off their median,
-    which the neighbours are within 2 % of. An edge's pixels are not: their neighbours
-    differ.
+    """The pixels of a depth frame unlike all of their four neighbours (two or three at the
+    frame's border), which agree among themselves (a damaged byte, or a sensor's speckle):
+    more than 5 % off their median, which the neighbours are within 2 % of. An edge's pixels
+    are not: their neighbours differ.
 
-    >>> d = np.full((5, 5), 700.0); d[2, 2] = 538.0; d[:, 4] = 900.0
+    >>> d = np.full((5, 5), 700.0); d[2, 2] = 538.0; d[0, 0] = 900.0; d[:, 4] = 900.0
     >>> np.argwhere(isolated_spikes(d)).tolist()
-    [[2, 2]]
+    [[0, 0], [2, 2]]
     """
     d = np.asarray(depth_mm, np.float64)
-    out = np.zeros(d.shape, bool)
-    if d.ndim != 2 or min(d.shape) < 3:
-        return out
-    around = np.stack([d[:-2, 1:-1], d[2:, 1:-1], d[1:-1, :-2], d[1:-1, 2:]])
+    if d.ndim != 2 or min(d.shape) < 2:
+        return np.zeros(d.shape, bool)
+    p = np.pad(np.where(d > 0, d, np.inf).astype(np.float32), 1, constant_values=np.inf)
+    a, b, c, e = p[:-2, 1:-1], p[2:, 1:-1], p[1:-1, :-2], p[1:-1, 2:]  # no depth: +inf
+    # The four neighbours sorted (a <= b <= c <= e) by a sorting network: the finite first.
+    a, b = np.minimum(a, b), np.maximum(a, b)
+    c, e = np.minimum(c, e), np.maximum(c, e)
+    a, c = np.minimum(a, c), np.maximum(a, c)
+    b, e = np.minimum(b, e), np.maximum(b, e)
+    b, c = np.minimum(b, c), np.maximum(b, c)
+    three, four = np.isfinite(c), np.isfinite(e)
     with np.errstate(invalid="ignore"):
-        mid = np.median(around, axis=0)
-        calm = (around.max(axis=0) - around.min(axis=0)) <= 0.02 * mid
-        off = np.abs(d[1:-1, 1:-1] - mid) > 0.05 * mid
-    out[1:-1, 1:-1] = calm & off & np.isfinite(mid) & (mid > 0) & np.isfinite(d[1:-1, 1:-1])
-    return out
+        mid = np.where(four, (b + c) / 2, np.where(three, b, (a + b) / 2))
+        top = np.where(four, e, np.where(three, c, b))
+        out = (top - a <= 0.02 * mid) & (np.abs(d - mid) > 0.05 * mid)
+    return out & np.isfinite(b) & np.isfinite(d) & (d > 0)
 
 
 def pair_by_time(
