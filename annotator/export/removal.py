@@ -197,7 +197,7 @@ def quads_mask(
     (True, True, False)
     """
     h, w = shape[:2]
-    mask = np.zeros((h, w), np.uint8)
+    mask: np.ndarray = np.zeros((h, w), np.uint8)
     grow = (cells + 2.0) / cells
     for q in quads:
         centre = q.mean(axis=0)
