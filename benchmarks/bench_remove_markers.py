@@ -14,11 +14,18 @@ plain one (target: at most 2x).
 
     .venv/bin/python -m benchmarks.bench_remove_markers [--scenes 4] [--frames 0] [--parts P]
         [--seed S] [--size WxH] [--instances MIN-MAX] [--repeat 3]
+        [--poses annotation [--misplace K]]
+
+``--poses annotation`` exports the poses ``annotate`` gave (the scenes annotated first) rather
+than the true ones; ``--misplace K`` then moves K of each scene's annotated instances 8 mm
+and 6 degrees away and flags them, as a wrong pose nobody repaired: their markers must be
+masked all the same.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import statistics
 import subprocess
 import sys
@@ -60,7 +67,10 @@ def main() -> None:
     )
     ap.add_argument("--frames", type=int, default=0, help="sequences of N frames per scene")
     ap.add_argument("--repeat", type=int, default=3, help="timed runs of each export")
+    ap.add_argument("--poses", choices=("gt", "annotation"), default="gt")
+    ap.add_argument("--misplace", type=int, default=0, help="wrong annotated poses per scene")
     opts = ap.parse_args()
+    EXPORT[EXPORT.index("--poses") + 1] = opts.poses
     with tempfile.TemporaryDirectory() as tmp:
         base = Path(tmp)
         n = ["--scenes", str(opts.scenes), "--parts", opts.parts, "--seed", opts.seed]
@@ -71,6 +81,9 @@ def main() -> None:
             n += ["--frames", str(opts.frames)]
         _annotator("synth", str(base / "marked"), *SYNTH, *n)
         _annotator("synth", str(base / "bare"), *SYNTH, *n, "--no-markers")
+        if opts.poses == "annotation":
+            _annotator("annotate", str(base / "marked"), "--quiet")
+            _misplace(base / "marked", opts.misplace)
         _annotator("export", str(base / "marked"), str(base / "bare_bop"), *EXPORT)
         _annotator(
             "export",
@@ -99,6 +112,21 @@ def main() -> None:
                 )
         _annotator("export", str(base / "bare"), str(base / "bare_bop"), *EXPORT, "--overwrite")
         _report(base, plain_t, removed_t)
+
+
+def _misplace(ds: Path, k: int) -> None:
+    """Move ``k`` annotated instances of each scene 8 mm and 6 degrees, and flag them."""
+    from annotator.geometry.lie import rotvec_to_matrix
+
+    turn = rotvec_to_matrix(np.radians([6.0, 0.0, 0.0]))
+    for path in sorted(ds.glob("scenes/*/annotation.json")):
+        doc = json.loads(path.read_text())
+        for inst in doc["instances"][:k]:
+            R = np.asarray(inst["cam_R_m2c"], float).reshape(3, 3) @ turn
+            inst["cam_R_m2c"] = R.reshape(-1).tolist()
+            inst["cam_t_m2c"] = (np.asarray(inst["cam_t_m2c"], float) + [8.0, 0, 0]).tolist()
+            inst["flags"] = sorted({*inst.get("flags", []), "high_uncertainty"})
+        path.write_text(json.dumps(doc))
 
 
 def _report(base: Path, plain_t: list[float], removed_t: list[float]) -> None:

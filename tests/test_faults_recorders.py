@@ -181,7 +181,7 @@ def test_a_scene_id_too_long_for_the_file_system(tmp_path: Path, capsys) -> None
 
 
 def test_the_compressed_depth_decoder_reads_32_bit_depth() -> None:
-    from annotator.ingest.ros_image import image_of
+    from annotator.ingest.readers.ros_image import image_of
 
     class Msg:
         format = "32FC1; compressedDepth png"

@@ -17,9 +17,9 @@ from annotator.dataset import load_dataset
 from annotator.dataset.model import DepthSpec, Rig
 from annotator.dataset.write import write_dataset_yaml
 from annotator.geometry.camera import Camera
+from annotator.ingest.readers.folder import open_source, read_name
 from annotator.ingest.scene import ingest_recording
 from annotator.ingest.selection import running_median, select, sharpness
-from annotator.ingest.sources import open_source, read_name
 
 W, H = 160, 120
 BLURRED = {4, 7}  # frames made blurry with cv2.GaussianBlur

@@ -19,7 +19,7 @@ from cli_calls import one_error_line, run_cli
 
 from annotator.dataset import load_dataset
 from annotator.geometry.camera import Camera
-from annotator.ingest.kinect import SensorCamera, mode_camera, parse_calibration
+from annotator.ingest.readers.kinect import SensorCamera, mode_camera, parse_calibration
 from annotator.ingest.recording import quaternion_matrix
 from annotator.ingest.registration import register_depth
 
@@ -837,7 +837,7 @@ def test_helpers() -> None:
 def test_the_topics_recorders_publish_are_told_apart(topics, colour, depth) -> None:
     from types import SimpleNamespace
 
-    from annotator.ingest.rosbag import COMPRESSED, IMAGE, _choose
+    from annotator.ingest.readers.rosbag import COMPRESSED, IMAGE, _choose
 
     conns = [
         SimpleNamespace(topic=t, msgtype=COMPRESSED if t.endswith("compressed") else IMAGE)

@@ -35,8 +35,10 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from annotator.dataset import Dataset
 from annotator.dataset.figures import DepthRegion, ImageQuality, SceneWarning
 from annotator.dataset.flags import WarningKind
+from annotator.detection.aruco import ImageReading
 
 
 @dataclass(frozen=True)
@@ -305,4 +307,16 @@ def quality_warnings(
             "of the pixels saturated): " + ", ".join(bright)
         )
         out.append(SceneWarning(WarningKind.OVER_EXPOSED, message, cameras=tuple(bright)))
+    return out
+
+
+def image_quality(
+    ds: Dataset, readings: list[ImageReading], grays: list[np.ndarray]
+) -> dict[str, ImageQuality]:
+    """Per camera, the blur the detector measured and the exposure of the image."""
+    out = {}
+    for cam, reading, gray in zip(ds.rig.cameras, readings, grays):
+        median, saturated = exposure(gray)
+        blur = None if reading.blur_px is None else round(reading.blur_px, 2)
+        out[cam.name] = ImageQuality(blur, round(median, 4), round(saturated, 4))
     return out

@@ -19,6 +19,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from annotator.geometry.robust import robust_sigma
+
 __all__ = ["DepthScale", "depth_scale", "surface_under"]
 
 #: At least this many markers with a measured depth to estimate the scale.
@@ -55,7 +57,7 @@ def depth_scale(predicted_mm: np.ndarray, measured_mm: np.ndarray) -> DepthScale
     factor = float(np.median(ratio))
     if abs(factor - 1.0) > MAX_SCALE_ERROR:
         return None
-    spread = 1.4826 * float(np.median(np.abs(ratio - factor)))
+    spread = robust_sigma(ratio, factor)
     return DepthScale(factor, spread * 1.25 / np.sqrt(ratio.size), int(ratio.size))
 
 

@@ -13,29 +13,27 @@ shows as unexplained depth.
 
 from __future__ import annotations
 
-from collections import defaultdict
 from dataclasses import dataclass
 
 import numpy as np
 
-from annotator.annotation.completeness import exposure, quality_warnings
+from annotator.annotation.completeness import image_quality, quality_warnings
 from annotator.annotation.consensus import flag_overlaps, pose_instance
+from annotator.annotation.observations import sort_markers
 from annotator.annotation.recovery import recover_markers
 from annotator.annotation.refine import refine_few_marker_poses
 from annotator.annotation.settings import AnnotateSettings
 from annotator.annotation.unexplained import unexplained_depth
 from annotator.annotation.visibility import Renders, add_visibility
 from annotator.dataset import Dataset, Scene
-from annotator.dataset.figures import ImageQuality, SceneWarning
+from annotator.dataset.figures import SceneWarning
 from annotator.dataset.flags import Flag, WarningKind
 from annotator.dataset.frames import scene_shots
 from annotator.dataset.model import UNEXPLAINED_MASK
 from annotator.dataset.records import InstanceAnnotation, SceneAnnotation
 from annotator.detection import MarkerDetector
-from annotator.detection.aruco import ImageReading
 from annotator.io.images import to_gray8
 from annotator.physics.scene import record_physics
-from annotator.pnp import Observation
 from annotator.values import of_type
 
 __all__ = ["UNEXPLAINED_MASK", "AnnotateSettings", "SceneResult", "annotate_scene"]
@@ -51,16 +49,6 @@ class SceneResult:
 
     annotation: SceneAnnotation
     unexplained: np.ndarray | None
-
-
-@dataclass
-class _Markers:
-    """What the scene's markers say: observations per instance, and the ids per camera that
-    belong to no instance or were seen twice in one image."""
-
-    per_instance: dict[tuple[str, str], list[Observation]]
-    unknown: dict[str, list[int]]
-    duplicates: dict[str, list[int]]
 
 
 def annotate_scene(
@@ -84,7 +72,7 @@ def annotate_scene(
     of_type(settings, AnnotateSettings, name="settings", what="annotator.AnnotateSettings")
     grays = [to_gray8(scene.read_image(cam)) for cam in ds.rig.cameras]
     readings = [detector.read(g) for g in grays]
-    markers = _sort_markers(ds, readings)
+    markers = sort_markers(ds, readings)
     instances = []
     for (obj, inst), obs in sorted(markers.per_instance.items()):
         r = pose_instance(ds, obj, inst, obs, settings)
@@ -111,7 +99,7 @@ def annotate_scene(
         renders = {}
         add_visibility(ds, instances, depth, settings, renders)
     record_physics(ds, scene_shots(ds, scene)[0], instances, depth)
-    quality = _image_quality(ds, readings, grays)
+    quality = image_quality(ds, readings, grays)
     warnings = quality_warnings(quality, settings.completeness)
     if not any(r.markers for r in readings):
         warnings.insert(0, SceneWarning(WarningKind.NO_MARKERS, "no marker detected in any camera"))
@@ -137,42 +125,6 @@ def annotate_scene(
         unexplained_mask=UNEXPLAINED_MASK if mask is not None and mask.any() else None,
     )
     return SceneResult(annotation, mask)
-
-
-def _sort_markers(ds: Dataset, readings: list[ImageReading]) -> _Markers:
-    """Each camera's markers sorted to the instances that carry them (by the dataset's
-    marker table), the unknown ids and those seen twice in one image."""
-    cams = ds.rig.cameras
-    out = _Markers(defaultdict(list), {}, {})
-    for j, reading in enumerate(readings):
-        counts: dict[int, int] = defaultdict(int)
-        for d in reading.markers:
-            counts[d.id] += 1
-        for d in reading.markers:
-            ref = ds.marker_table.get(d.id)
-            if ref is None:
-                if not d.soft:  # a soft reading of an unknown id is most likely a misreading
-                    out.unknown.setdefault(cams[j].name, []).append(d.id)
-                continue
-            if counts[d.id] > 1 and d.id not in out.duplicates.get(cams[j].name, []):
-                out.duplicates.setdefault(cams[j].name, []).append(d.id)
-            X = ds.objects[ref.object].site_corners(ref.instance)[ref.site]
-            out.per_instance[(ref.object, ref.instance)].append(
-                Observation(j, d.id, X, d.corners, soft=d.soft)
-            )
-    return out
-
-
-def _image_quality(
-    ds: Dataset, readings: list[ImageReading], grays: list[np.ndarray]
-) -> dict[str, ImageQuality]:
-    """Per camera, the blur the detector measured and the exposure of the image."""
-    out = {}
-    for cam, reading, gray in zip(ds.rig.cameras, readings, grays):
-        median, saturated = exposure(gray)
-        blur = None if reading.blur_px is None else round(reading.blur_px, 2)
-        out[cam.name] = ImageQuality(blur, round(median, 4), round(saturated, 4))
-    return out
 
 
 def _supported(r: InstanceAnnotation, with_depth: bool) -> bool:

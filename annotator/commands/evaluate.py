@@ -124,11 +124,7 @@ def _add_report_options(parser: argparse.ArgumentParser) -> None:
     )
     group.add_argument("--json", metavar="OUT", help="write the full report as JSON")
     group.add_argument("--plot", metavar="OUT.png", help="draw the mean precision/recall curves")
-    group.add_argument(
-        "--overwrite",
-        action="store_true",
-        help="replace the --json and --plot files if they exist (refused otherwise)",
-    )
+    group.add_argument("--overwrite", action="store_true", help="replace --json, --plot files")
 
 
 def run(args: argparse.Namespace) -> int:

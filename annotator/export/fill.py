@@ -33,6 +33,8 @@ import hashlib
 import cv2
 import numpy as np
 
+from annotator.geometry.robust import robust_sigma
+
 METHODS = ("surface", "telea")
 #: Radius (px) of OpenCV's inpainting neighbourhood.
 INPAINT_RADIUS = 5
@@ -119,7 +121,7 @@ def noise_sigma(image: np.ndarray, where: np.ndarray) -> float:
     resp = np.stack(
         [cv2.filter2D(img[..., c], -1, kernel)[sel] for c in range(img.shape[2])], axis=1
     )
-    return float(1.4826 * np.median(np.abs(resp)) / 6.0)
+    return robust_sigma(resp) / 6.0
 
 
 def _grain(image: np.ndarray, mask: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:

@@ -98,6 +98,21 @@ class Recording:
         """The colour frames ``indices`` (increasing), with their depth when ``depth``."""
         raise NotImplementedError
 
+    def depth_unit(self) -> float:
+        """Millimetres per unit of the raw depth frames: what the file's calibration says
+        (1 without one)."""
+        cal = self.calibration
+        return cal.depth.unit_mm if cal is not None and cal.depth is not None else 1.0
+
+    def depth_label(self, i: int) -> str | int | None:
+        """How frames.json names colour frame ``i``'s depth: its depth frame's index (a
+        reader of files names the file)."""
+        return self.depth_for[i]
+
+    def depth_where(self, i: int) -> Path | str:
+        """Where colour frame ``i``'s depth is, as a message names it."""
+        return f"{self.path} (depth of frame {self.labels[i]})"
+
 
 def check_calibration(cal: Calibration, path: Path) -> None:
     """Refuse, in one line naming the file, a calibration no camera can have (zero, negative

@@ -561,9 +561,9 @@ def _write_frames(
                     d.depth_mm[spikes] = np.nan
                     entry["depth_spikes_removed"] = int(spikes.sum())
                 depth_mm = _on_colour_grid(src, d.depth_mm * scale, cam, d.index)
-                unit = _unit_mm(src) * scale
-                check_depth_range(depth_mm, ds.rig.depth, unit, option, _depth_where(src, d.index))
-                entry["depth_source"] = _depth_label(src, d.index)
+                unit = src.depth_unit() * scale
+                check_depth_range(depth_mm, ds.rig.depth, unit, option, src.depth_where(d.index))
+                entry["depth_source"] = src.depth_label(d.index)
             write_frame(frames_folder(scene, len(written)), cam, d.colour, depth_mm, ds.rig.depth)
             written.append((d.index, entry))
     finally:
@@ -586,13 +586,6 @@ def _depth_option(src: Recording, depth_scale: float | None) -> str:
     return "--depth-scale 1 (the default)"
 
 
-def _unit_mm(src: Recording) -> float:
-    cal = src.calibration
-    if cal is not None and cal.depth is not None:
-        return cal.depth.unit_mm
-    return float(getattr(src, "unit_mm", 1.0))
-
-
 def _on_colour_grid(src: Recording, depth_mm: np.ndarray, cam: Camera, i: int) -> np.ndarray:
     """The frame's depth on the rig camera's grid: registered when it is another camera's."""
     cal = src.calibration
@@ -604,25 +597,6 @@ def _on_colour_grid(src: Recording, depth_mm: np.ndarray, cam: Camera, i: int) -
         raise UserError(
             f"depth is {w}x{h} but camera {cam.name} is {cam.width}x{cam.height}: record "
             "depth aligned to the colour images",
-            path=_depth_where(src, i),
+            path=src.depth_where(i),
         )
     return depth_mm
-
-
-def _depth_label(src: Recording, i: int) -> str | int | None:
-    """How frames.json names a frame's depth: its file, or its depth frame's index."""
-    partner = src.depth_for[i]
-    source = getattr(src, "source", None)
-    if source is not None and partner is not None:
-        f = source.frames[partner]
-        return f.depth.relative_to(src.path).as_posix() if f.depth is not None else None
-    return partner
-
-
-def _depth_where(src: Recording, i: int) -> Path | str:
-    source = getattr(src, "source", None)
-    if source is not None:
-        f = source.frames[i]
-        if f.depth is not None:
-            return Path(f.depth)
-    return f"{src.path} (depth of frame {src.labels[i]})"

@@ -32,6 +32,7 @@ import numpy as np
 from annotator.geometry.camera import Camera
 from annotator.geometry.least_squares import Damping, levenberg_marquardt
 from annotator.geometry.lie import perturb
+from annotator.geometry.robust import huber_cost, huber_weights, robust_sigma
 from annotator.noise import NOISE
 
 __all__ = ["BundleObservations", "BundleResult", "bundle_adjust"]
@@ -164,7 +165,7 @@ def bundle_adjust(
 
     def normal(state: State) -> _Normal:
         lin = state[2]
-        return _normal(lin, obs, _huber_weights(lin.r, huber_px), shape)
+        return _normal(lin, obs, huber_weights(lin.r, huber_px), shape)
 
     def trial(state: State, normal: _Normal, damping: float) -> tuple[State, float, Step] | None:
         step = _solve(normal, damping)
@@ -172,7 +173,7 @@ def bundle_adjust(
             return None
         f_new, m_new = _apply(state[0], state[1], *step)
         lin_new = linearise(f_new, m_new)
-        return (f_new, m_new, lin_new), _robust_cost(lin_new.r, huber_px), step
+        return (f_new, m_new, lin_new), huber_cost(lin_new.r, huber_px), step
 
     def small(cost: float, new: float, step: Step) -> bool:
         biggest = max(float(np.abs(step[0]).max(initial=0.0)), float(np.abs(step[1]).max()))
@@ -181,7 +182,7 @@ def bundle_adjust(
     lin0 = linearise(frames, models)
     found = levenberg_marquardt(
         (frames, models, lin0),
-        _robust_cost(lin0.r, huber_px),
+        huber_cost(lin0.r, huber_px),
         normal,
         trial,
         damping=_DAMPING,
@@ -193,7 +194,7 @@ def bundle_adjust(
     per_obs = np.sqrt(np.mean(np.sum(corners**2, axis=-1), axis=-1)) / scale
     # The corner noise as the inliers show it (median absolute deviation, robust to the
     # few observations the Huber weights hold back).
-    sigma = max(float(1.4826 * np.median(np.abs(corners))) if corners.size else 0.0, 0.0)
+    sigma = robust_sigma(corners)
     sigma = max(sigma, corner_sigma_px / 3)
     n_frames, n_models = shape.frames, shape.models
     if not covariance:
@@ -410,16 +411,6 @@ def _apply(
 ) -> tuple[np.ndarray, np.ndarray]:
     """The poses moved by the step (left perturbations in the scene frame)."""
     return perturb(frames, df), perturb(models, dm)
-
-
-def _huber_weights(r: np.ndarray, k: float) -> np.ndarray:
-    a = np.abs(r)
-    return np.where(a <= k, 1.0, k / np.maximum(a, 1e-12))
-
-
-def _robust_cost(r: np.ndarray, k: float) -> float:
-    a = np.abs(r)
-    return float(np.sum(np.where(a <= k, 0.5 * a**2, k * a - 0.5 * k**2)))
 
 
 def _covariance(normal: _Normal, sigma: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

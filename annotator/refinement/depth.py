@@ -36,6 +36,7 @@ from annotator.dataset.review import RepairOp, RepairStep
 from annotator.geometry.camera import Camera
 from annotator.geometry.lie import perturb
 from annotator.geometry.mesh import Mesh, surface_samples
+from annotator.geometry.robust import huber_weights
 from annotator.noise import NOISE
 from annotator.pnp.multiview import Observation, reprojection_errors, residuals_jacobian
 from annotator.rendering.raycast import PlacedMesh, cast_alone, clip_region, projected_bbox
@@ -292,11 +293,6 @@ def _solve(H: np.ndarray, g: np.ndarray) -> np.ndarray:
     return x / d
 
 
-def _huber(r: np.ndarray, k: float) -> np.ndarray:
-    a = np.abs(r)
-    return np.where(a <= k, 1.0, k / np.maximum(a, 1e-12))
-
-
 def residuals_at(
     T: np.ndarray,
     depth: DepthTerm | None,
@@ -442,7 +438,7 @@ def _normal_equations(
         if len(r):
             if n == 7:
                 J = np.concatenate([J, term.offset_derivative(J, i)[:, None]], axis=1)
-            w = _huber(r, 1.5 * settings.depth_sigma_mm) / settings.depth_sigma_mm**2
+            w = huber_weights(r, 1.5 * settings.depth_sigma_mm) / settings.depth_sigma_mm**2
             H += J.T @ (J * w[:, None])
             g += J.T @ (r * w)
             jacobians.append(J)
@@ -450,7 +446,7 @@ def _normal_equations(
         r, J = markers.residuals(T)
         if n == 7:
             J = np.concatenate([J, np.zeros((len(J), 1))], axis=1)
-        w = _huber(r, 3.0 * settings.marker_sigma_px) / settings.marker_sigma_px**2
+        w = huber_weights(r, 3.0 * settings.marker_sigma_px) / settings.marker_sigma_px**2
         H += J.T @ (J * w[:, None])
         g += J.T @ (r * w)
         jacobians.append(J)
@@ -528,7 +524,7 @@ def pose_covariance(
         rd, Jd, i = depth.residuals(T, settings.end_gate_mm)
         if len(rd):
             sd = max(float(np.sqrt(np.mean(rd**2))), noise.depth_mm)
-            w = _huber(rd, 1.5 * sd) / (sd**2 * noise.depth_correlation)
+            w = huber_weights(rd, 1.5 * sd) / (sd**2 * noise.depth_correlation)
             H += Jd.T @ (Jd * w[:, None])
             # The residuals' derivative with respect to the measured points' common offset
             # along their rays: r = n . (model point - measured point).

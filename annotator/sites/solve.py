@@ -44,6 +44,7 @@ from scipy.sparse import lil_matrix
 from scipy.spatial.transform import Rotation
 
 from annotator.geometry.camera import Camera
+from annotator.geometry.robust import robust_sigma
 from annotator.markers.glue import site_frames
 from annotator.noise import NOISE
 
@@ -210,7 +211,7 @@ def _corrections_and_std(
     std = np.full((n_sites, 3), np.nan)
     # The corners' real noise, from the residuals (robustly), rather than the assumed one:
     # the uncertainties reported are then those the data support.
-    noise = 1.4826 * float(np.median(np.abs(problem.projections(x) - problem.detected)))
+    noise = robust_sigma(problem.projections(x) - problem.detected)
     cov = _covariance(J) * (max(noise, 0.02) / problem.settings.sigma_px) ** 2
     if problem.sites:
         first = problem.first_site

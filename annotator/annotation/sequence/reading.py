@@ -9,9 +9,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from annotator.annotation.completeness import image_quality
 from annotator.annotation.consensus import pose_instance
 from annotator.annotation.frame_quality import Streak, frame_streak
-from annotator.annotation.scene import _image_quality
 from annotator.annotation.settings import AnnotateSettings
 from annotator.dataset import Dataset
 from annotator.dataset.figures import (
@@ -55,7 +55,7 @@ def read_frame(ds: Dataset, frame: Frame, detector: MarkerDetector) -> FrameRead
     image, naming the file), and the motion streak of each camera's image."""
     grays = [to_gray8(frame.read_image(cam)) for cam in ds.rig.cameras]
     readings = [detector.read(g) for g in grays]
-    quality = _image_quality(ds, readings, grays)
+    quality = image_quality(ds, readings, grays)
     streaks = []
     for cam, r, g in zip(ds.rig.cameras, readings, grays):
         streak = frame_streak(g, [(d.id, d.corners, _grid(ds.dictionary, d.id)) for d in r.markers])

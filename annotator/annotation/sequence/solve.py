@@ -8,7 +8,7 @@ from collections import defaultdict
 
 import numpy as np
 
-from annotator.annotation.scene import _sort_markers
+from annotator.annotation.observations import sort_markers
 from annotator.annotation.sequence.adjustment import bundle
 from annotator.annotation.sequence.annotation import sequence_annotation
 from annotator.annotation.sequence.placing import place
@@ -41,7 +41,7 @@ def solve_sequence(
     unknown: dict[str, set[int]] = defaultdict(set)
     duplicates: dict[str, set[int]] = defaultdict(set)
     for reading in readings:
-        markers = _sort_markers(ds, reading.readings)
+        markers = sort_markers(ds, reading.readings)
         for cam, ids in markers.unknown.items():
             unknown[cam].update(ids)
         for cam, ids in markers.duplicates.items():

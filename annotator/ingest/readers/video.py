@@ -25,6 +25,7 @@ from typing import Any
 import numpy as np
 
 from annotator.errors import UserError
+from annotator.ingest.readers import RecorderReader
 from annotator.ingest.recording import Decoded, Recording
 from annotator.io.images import native_stderr_hidden
 
@@ -297,3 +298,17 @@ def open_video(path: Path) -> Recording:
         ended_early=ended,
         track=tracks[sid],
     )
+
+
+#: The file types read as plain videos.
+VIDEO_SUFFIXES = (".mp4", ".avi", ".mkv", ".mov", ".webm")
+
+READERS = (
+    RecorderReader(
+        "video",
+        VIDEO_SUFFIXES,
+        lambda path, _: path.is_file() and path.suffix.lower() in VIDEO_SUFFIXES,
+        lambda path, _: open_video(path),
+        order=40,
+    ),
+)

@@ -30,6 +30,9 @@ import numpy as np
 from annotator.errors import UserError
 from annotator.geometry.camera import Camera
 from annotator.ingest.distortion import forward_brown_conrady
+from annotator.ingest.readers import RecorderReader
+from annotator.ingest.readers.ros_image import COMPRESSED, IMAGE, image_of
+from annotator.ingest.readers.rosbag1_salvage import SalvageReader
 from annotator.ingest.recording import (
     Calibration,
     Decoded,
@@ -40,8 +43,6 @@ from annotator.ingest.recording import (
     quaternion_matrix,
     transform,
 )
-from annotator.ingest.ros_image import COMPRESSED, IMAGE, image_of
-from annotator.ingest.rosbag1_salvage import SalvageReader
 
 CAMERA_INFO = "sensor_msgs/msg/CameraInfo"
 _REGISTERED = ("aligned", "depth_to_rgb", "depth_to_color", "depth_registered")
@@ -104,7 +105,7 @@ def _reader(path: Path) -> Any:
     from rosbags.highlevel import AnyReader
     from rosbags.typesys import Stores, get_typestore
 
-    from annotator.ingest.rosbag1_salvage import is_unindexed
+    from annotator.ingest.readers.rosbag1_salvage import is_unindexed
 
     if path.is_file() and path.suffix.lower() == ".bag" and is_unindexed(path):
         return SalvageReader(path)
@@ -538,3 +539,20 @@ def _decode_depth(reader: Any, conn: Any, raw: Any, rec: Recording) -> np.ndarra
         mm[~np.isfinite(mm) | (mm <= 0)] = np.nan
         return mm
     return f"depth encoding {getattr(msg, 'encoding', '?')!r} is not 16UC1, mono16 or 32FC1"
+
+
+READERS = (
+    RecorderReader(
+        "ROS bag",
+        (".bag", ".mcap", ".db3", "a ROS 2 bag folder"),
+        lambda path, _: is_bag(path),
+        lambda path, o: open_bag(
+            path,
+            color_topic=o.color_topic,
+            depth_topic=o.depth_topic,
+            depth=o.depth,
+            tolerance_s=o.tolerance_s,
+        ),
+        order=10,
+    ),
+)

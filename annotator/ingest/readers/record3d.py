@@ -28,6 +28,7 @@ import numpy as np
 
 from annotator.errors import UserError
 from annotator.geometry.camera import Camera
+from annotator.ingest.readers import RecorderReader
 from annotator.ingest.recording import (
     Calibration,
     Decoded,
@@ -206,3 +207,14 @@ def _stamps(stamps: object, path: Path) -> list[float]:
             )
         out.append(float(t))
     return out
+
+
+READERS = (
+    RecorderReader(
+        "Record3D export",
+        (".r3d",),
+        lambda path, _: is_record3d(path),
+        lambda path, o: open_record3d(path, depth=o.depth),
+        order=20,
+    ),
+)

@@ -34,6 +34,8 @@ import numpy as np
 
 from annotator.errors import UserError
 from annotator.geometry.camera import Camera
+from annotator.ingest.readers import OpenOptions, RecorderReader
+from annotator.ingest.readers.video import TrackIndex, decode_tracks, index_tracks, quiet_ffmpeg
 from annotator.ingest.recording import (
     Calibration,
     Decoded,
@@ -43,7 +45,6 @@ from annotator.ingest.recording import (
     pair_by_time,
     transform,
 )
-from annotator.ingest.video import TrackIndex, decode_tracks, index_tracks, quiet_ffmpeg
 
 CALIBRATION_FILE = "calibration.json"
 COLOUR_LOCATION = "CALIBRATION_CameraLocationPV0"
@@ -306,3 +307,32 @@ def _tracks(container: Any) -> tuple[Any | None, Any | None]:
     grey16 = [s for s in video if "gray16" in str(s.codec_context.pix_fmt or "")]
     colour = next((s for s in video if s not in grey16), None)
     return colour, (grey16[0] if grey16 else None)
+
+
+def _bare(path: Path, options: OpenOptions) -> Recording:
+    raise UserError(
+        f"has a DEPTH track but no {CALIBRATION_FILE} attachment (an Azure Kinect recording "
+        "carries one), so its depth cannot be placed: pass --no-depth to ingest its colour "
+        "as a plain video",
+        path=path,
+    )
+
+
+#: An Azure Kinect recording; and an .mkv with a DEPTH track but no calibration, refused
+#: when depth is asked for (read as a plain video, its depth would go without a word).
+READERS = (
+    RecorderReader(
+        "Azure Kinect recording",
+        (".mkv with calibration.json",),
+        lambda path, _: is_kinect(path),
+        lambda path, o: open_kinect(path, depth=o.depth, tolerance_s=o.tolerance_s),
+        order=30,
+    ),
+    RecorderReader(
+        "Azure Kinect recording without its calibration",
+        (".mkv",),
+        lambda path, o: o.depth and path.suffix.lower() == ".mkv" and has_depth_track(path),
+        _bare,
+        order=35,
+    ),
+)
