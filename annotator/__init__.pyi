@@ -101,6 +101,13 @@ from annotator.occlusion.dataset import (
     OcclusionSummary as OcclusionSummary,
     compute_occlusion as compute_occlusion,
 )
+from annotator.parts.workflow import (
+    DictionarySummary as DictionarySummary,
+    MarkSettings as MarkSettings,
+    MarkSummary as MarkSummary,
+    mark_part as mark_part,
+    write_custom_dictionary as write_custom_dictionary,
+)
 from annotator.physics.check import (
     PhysicsSettings as PhysicsSettings,
 )

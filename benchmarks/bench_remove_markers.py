@@ -41,6 +41,8 @@ from devkit.aruco_settings import SETTINGS, detections, detector, new_in
 
 SYNTH = ["--quiet"]
 EXPORT = ["--format", "bop", "--poses", "gt", "--include-pending", "--quiet"]
+#: The render without markers is never annotated: its export takes the true poses.
+BARE_EXPORT = ["--format", "bop", "--poses", "gt", "--include-pending", "--quiet"]
 
 
 def _annotator(*args: str) -> float:
@@ -84,7 +86,6 @@ def main() -> None:
         if opts.poses == "annotation":
             _annotator("annotate", str(base / "marked"), "--quiet")
             _misplace(base / "marked", opts.misplace)
-        _annotator("export", str(base / "marked"), str(base / "bare_bop"), *EXPORT)
         _annotator(
             "export",
             str(base / "marked"),
@@ -110,7 +111,7 @@ def main() -> None:
                         "--overwrite",
                     )
                 )
-        _annotator("export", str(base / "bare"), str(base / "bare_bop"), *EXPORT, "--overwrite")
+        _annotator("export", str(base / "bare"), str(base / "bare_bop"), *BARE_EXPORT)
         _report(base, plain_t, removed_t)
 
 

@@ -14,24 +14,14 @@ from __future__ import annotations
 
 import argparse
 import json
-from pathlib import Path
+from typing import TYPE_CHECKING
 
 from annotator.commands import number, whole
-from annotator.dataset.model import Instance, Symmetry
 from annotator.errors import UserError
-from annotator.geometry.mesh import load_mesh
-from annotator.io.output_folder import check_output_folder
-from annotator.markers.dictionary import (
-    custom_dictionary,
-    dictionary,
-    dictionary_size,
-    min_distance,
-    resolve_dictionary,
-    write_dictionary,
-)
-from annotator.markers.layout import assign_ids, place_markers
-from annotator.parts import PART_NAMES, Part, build_part
-from annotator.parts.marking import MarkedPart, write_marked_part
+from annotator.parts import PART_NAMES
+
+if TYPE_CHECKING:
+    from annotator.parts.workflow import DictionarySummary, MarkSummary
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -96,105 +86,32 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from annotator.parts.workflow import MarkSettings, mark_part, write_custom_dictionary
+
     if args.write_dictionary:
-        return _write_dictionary(args)
-    if args.part is None or args.out is None:
+        if args.part is not None:
+            raise UserError("--write-dictionary writes a dictionary only: give no PART or OUT")
+        summary: MarkSummary | DictionarySummary = write_custom_dictionary(
+            args.write_dictionary,
+            count=args.count,
+            bits=args.bits,
+            min_bits=args.min_distance,
+            seed=args.seed,
+        )
+    elif args.part is None or args.out is None:
         raise UserError("give PART and OUT (or --write-dictionary FILE)")
-    args.dictionary = resolve_dictionary(args.dictionary, Path.cwd())
-    out = Path(args.out)
-    if args.size is not None and args.size <= 0:
-        raise UserError(f"--size must be positive, got {args.size}")
-    if args.instances < 1 or args.first_id < 0 or not 50 <= args.dpi <= 2400 or args.flatness <= 0:
-        raise UserError(
-            "--instances >= 1, --first-id >= 0, --dpi in 50..2400 and --flatness > 0 are required"
-        )
-    n_dict = dictionary_size(args.dictionary)
-    part = _part(args, out)
-    marked = _mark(args, part, n_dict)
-    write_marked_part(out, marked, dpi=args.dpi)
-    _print_summary(args, marked, out)
-    return 0
-
-
-def _part(args: argparse.Namespace, out: Path) -> Part:
-    """PART: a built-in part, or a mesh file (which OUT must not hold) with --symmetry; OUT
-    checked before the part is built or read."""
-    if args.part in PART_NAMES:
-        check_output_folder(out, command="markers", overwrite=args.overwrite)
-        return build_part(args.part)
-    path = Path(args.part)
-    if path.suffix == "" and not path.exists():
-        build_part(args.part)  # a mistyped part name: UserError listing the known ones
-    check_output_folder(out, command="markers", overwrite=args.overwrite, protect=[path])
-    mesh = load_mesh(path)
-    return Part(path.stem, mesh, Symmetry(args.symmetry or "none"), marker_size=10.0)
-
-
-def _mark(args: argparse.Namespace, part: Part, n_dict: int) -> MarkedPart:
-    """The sites on the part and the instances' ids, which must fit in the dictionary."""
-    size = args.size or part.marker_size
-    layout = place_markers(
-        part.mesh, size=size, max_sites=args.max_sites, flatness_tol=args.flatness, seed=args.seed
-    )
-    if len(layout.corners) == 0:
-        raise UserError(
-            f"no flat patch of the part fits a {size:g} mm marker: try a smaller --size or a larger --flatness"
-        )
-    ids = assign_ids(len(layout.corners), args.instances, start=args.first_id)
-    if ids[-1][-1] >= n_dict:
-        raise UserError(
-            f"{args.instances} instances x {len(layout.corners)} sites need ids up to {ids[-1][-1]}, "
-            f"but {args.dictionary} has {n_dict}: use fewer instances, --max-sites or a larger dictionary"
-        )
-    instances = [Instance(f"{k + 1:02d}", tuple(i)) for k, i in enumerate(ids)]
-    return MarkedPart(part, layout, instances, size, args.dictionary)
-
-
-def _print_summary(args: argparse.Namespace, marked: MarkedPart, out: Path) -> None:
-    name, size, layout = marked.part.name, marked.size_mm, marked.layout
-    first, last = marked.instances[0].marker_ids[0], marked.instances[-1].marker_ids[-1]
-    summary = {
-        "part": name,
-        "sites": len(layout.corners),
-        "min_facing": layout.min_facing,
-        "size_mm": size,
-        "instances": args.instances,
-        "ids": [first, last],
-        "out": str(out),
-    }
-    if args.json:
-        print(json.dumps(summary))
     else:
-        print(
-            f"markers: {summary['sites']} sites of {size:g} mm on {name}; from any direction at least "
-            f"{layout.min_facing} face the viewer (within 60 degrees); {args.instances} instances, ids "
-            f"{first}..{last}; written to {out} (object.yaml, sheets/, textured/)"
+        settings = MarkSettings(
+            size_mm=args.size,
+            dictionary=args.dictionary,
+            instances=args.instances,
+            first_id=args.first_id,
+            max_sites=args.max_sites,
+            flatness_mm=args.flatness,
+            symmetry=args.symmetry,
+            dpi=args.dpi,
+            seed=args.seed,
         )
-
-
-def _write_dictionary(args: argparse.Namespace) -> int:
-    """``--write-dictionary FILE``: a custom dictionary, checked by reading it back."""
-    if args.part is not None:
-        raise UserError("--write-dictionary writes a dictionary only: give no PART or OUT")
-    path = Path(args.write_dictionary)
-    d = custom_dictionary(args.count, args.bits, min_bits=args.min_distance, seed=args.seed)
-    write_dictionary(path, d)
-    back = dictionary(str(path.resolve()))
-    reached = min_distance(back)
-    summary = {
-        "dictionary": str(path),
-        "markers": int(back.bytesList.shape[0]),
-        "bits": int(back.markerSize),
-        "min_distance": reached,
-        "max_correction_bits": int(back.maxCorrectionBits),
-    }
-    if args.json:
-        print(json.dumps(summary))
-    else:
-        print(
-            f"markers: wrote {path}: {summary['markers']} markers of {args.bits}x{args.bits} "
-            f"bits, any two at least {reached} bits apart (up to "
-            f"{summary['max_correction_bits']} wrong bits corrected); name it as the "
-            "dictionary in dataset.yaml, board.yaml or --dictionary"
-        )
+        summary = mark_part(args.part, args.out, settings, overwrite=args.overwrite)
+    print(json.dumps(summary.to_json()) if args.json else summary.line())
     return 0
