@@ -125,6 +125,7 @@ def run(args: argparse.Namespace) -> int:
             f"export: {summary.exported} scenes written to {summary.out} ({args.format})"
             + (
                 f", {summary.markers_filled} markers filled in"
+                f" ({summary.markers_found_beyond} beyond where the poses put them)"
                 if summary.markers_filled is not None
                 else ""
             )

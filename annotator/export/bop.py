@@ -95,14 +95,14 @@ def export_bop(
     layout: Layout = "scenewise",
     remove_markers: bool = False,
     fill: str = "surface",
-    markers_filled: Callable[[int], None] | None = None,
+    markers_filled: Callable[[int, int], None] | None = None,
     sensors: bool = False,
 ) -> dict[str, str]:
     """Write ``selected`` scenes into the empty folder ``out``; returns the scenes left out
     because an input was unreadable (scene id -> one-line reason). ``remove_markers``: the
     images with their markers filled in by ``fill`` (:mod:`annotator.export.fill`), and
     ``mask_markers``; ``markers_filled`` is told how many markers each scene's images had
-    filled in. ``sensors``: every camera is a BOP sensor named after it, as in BOP's
+    filled in, and how many of them were found beyond where the poses put them. ``sensors``: every camera is a BOP sensor named after it, as in BOP's
     industrial datasets, even when only one is exported (:data:`SENSORS_FILE` names the one
     the targets are for); otherwise a single camera is written in the classic layout."""
     if layout not in LAYOUTS:
@@ -209,7 +209,7 @@ class _SceneWriter:
         self.depth_scale = ds.rig.depth.scale if ds.rig.depth else 1.0
         self.remove_markers = False
         self.fill = "surface"
-        self.markers_filled: Callable[[int], None] | None = None
+        self.markers_filled: Callable[[int, int], None] | None = None
         self.multi = len(cameras) > 1
 
     def write(
@@ -280,7 +280,7 @@ class _SceneWriter:
             )
             vis, images = removed.visibility, removed.images
             if self.markers_filled:
-                self.markers_filled(removed.filled)
+                self.markers_filled(removed.filled, sum(removed.found_beyond.values()))
             im = _image_name(shot, item)
             for name, m in removed.markers.items():
                 mask = m.mask.astype(np.uint8) * 255

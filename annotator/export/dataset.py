@@ -42,6 +42,9 @@ class ExportSummary:
         failures: Scene id -> why it could not be read.
         markers_filled: With ``remove_markers``, the markers filled in over every exported
             image (a marker seen by two cameras counts twice); None without.
+        markers_found_beyond: Markers a detector found reaching beyond where the exported
+            poses put markers (a part without a pose, posed elsewhere, a marker glued off its
+            site), masked and filled whole; None without.
         frames_left_out: An exported sequence's frames not exported -> why (not posed, with
             annotate's flags; rejected by a reviewer).
     """
@@ -52,6 +55,7 @@ class ExportSummary:
     left_out: dict[str, str] = field(default_factory=dict)
     failures: dict[str, str] = field(default_factory=dict)
     markers_filled: int | None = None
+    markers_found_beyond: int | None = None
     frames_left_out: dict[str, dict[str, str]] = field(default_factory=dict)
 
     def reasons(self) -> dict[str, int]:
@@ -72,6 +76,7 @@ class ExportSummary:
             "scenes_left_out": self.left_out,
             "failures": dict(sorted(self.failures.items())),
             "markers_filled": self.markers_filled,
+            "markers_found_beyond": self.markers_found_beyond,
             "frames_left_out": self.frames_left_out,
         }
 
@@ -160,11 +165,11 @@ def export_dataset(
     if not sel.scenes:
         raise sel.nothing_error(ds, include_pending=include_pending, what="to export")
     tick = progress(len(sel.scenes)) if progress else None
-    filled: list[int] = []
+    filled: list[tuple[int, int]] = []
     markers: dict[str, Any] = {
         "remove_markers": remove_markers,
         "fill": fill,
-        "markers_filled": filled.append,
+        "markers_filled": lambda n, elsewhere: filled.append((n, elsewhere)),
     }
     with atomic_folder(out) as tmp:
         write_manifest(tmp, command="export")
@@ -190,7 +195,8 @@ def export_dataset(
             )
     summary = _summary(format, out, sel, unreadable)
     if remove_markers:
-        summary.markers_filled = sum(filled)
+        summary.markers_filled = sum(n for n, _ in filled)
+        summary.markers_found_beyond = sum(e for _, e in filled)
     return summary
 
 

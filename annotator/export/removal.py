@@ -10,14 +10,15 @@ Poses can be wrong (a pose a reviewer has not repaired, an instance flagged and 
 front of the real one): whatever the poses say, every marker a detector finds in the image
 is masked too, its square widened by its white border, and the filled image is searched
 again, until a search finds nothing more (at most :data:`SEARCHES` rounds). The detectors
-are the project's own and OpenCV's at its defaults.
+are the project's own and OpenCV's with every setting turned to find more.
 """
 
 from __future__ import annotations
 
 import functools
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from functools import partial
 from typing import Any
 
 import cv2
@@ -48,21 +49,24 @@ class SceneWithoutMarkers:
         images: Per camera, the filled image (only the pixels of its mask differ).
         markers: Per camera, where the markers are (:class:`ImageMarkers`).
         visibility: The instances' masks and occlusion, as :func:`scene_visibility` gives.
-        found_elsewhere: Per camera, markers the detectors found where the poses put none
-            (masked and filled too).
+        found_beyond: Per camera, markers the detectors found that reach beyond where the
+            poses put markers (masked and filled whole).
+        found_alone: Of those, the ones whose centre no pose's marker covers (a part
+            without a pose, or posed elsewhere).
     """
 
     images: dict[str, np.ndarray]
     markers: dict[str, ImageMarkers]
     visibility: list[InstanceVisibility]
-    found_elsewhere: dict[str, int] = field(default_factory=dict)
+    found_beyond: dict[str, int] = field(default_factory=dict)
+    found_alone: dict[str, int] = field(default_factory=dict)
 
     @property
     def filled(self) -> int:
         """Markers filled in, over the cameras (a marker seen by two counts twice): those the
-        poses place, and those found where they place none."""
+        poses place, and those found by the detectors only."""
         placed = sum(len(r.pixels) > 0 for m in self.markers.values() for r in m.regions)
-        return placed + sum(self.found_elsewhere.values())
+        return placed + sum(self.found_alone.values())
 
 
 def marked_instances(ds: Dataset, poses: Sequence[InstancePose]) -> list[MarkedInstance]:
@@ -130,59 +134,86 @@ def remove_scene_markers(
     vis, markers = scene_markers(
         rig, marked_instances(ds, poses), cameras=cameras, depth=depth, margin_px=margins
     )
-    filled, elsewhere = {}, {}
-    cells = int(dictionary(ds.dictionary).markerSize) + 2
+    filled, beyond, alone = {}, {}, {}
     for c in cameras:
-        m = markers[c]
-
-        def filled_with(mask: np.ndarray, c: str = c, m: ImageMarkers = m) -> np.ndarray:
-            return fill_markers(
-                images[c],
-                mask,
-                m.labels,
-                normals=m.normals,
-                rays=rig.camera(c).pixel_rays(),
-                blur=fill_blur(blur.get(c)),
-                method=fill,
-            )
-
-        out = images[c]
-        elsewhere[c] = 0
-        for _ in range(SEARCHES):
-            found = found_markers(out, ds.dictionary)
-            extra = quads_mask(found, m.mask.shape, cells=cells, margin_px=m.margin_px) & ~m.mask
-            if out is not images[c] and not extra.any():
-                break
-            if out is images[c]:
-                elsewhere[c] = _outside(found, m.mask)
-            m.mask |= extra
-            out = filled_with(m.mask)
-        filled[c] = out
-    return SceneWithoutMarkers(filled, markers, vis, elsewhere)
+        fills = partial(
+            fill_markers,
+            normals=markers[c].normals,
+            rays=rig.camera(c).pixel_rays(),
+            blur=fill_blur(blur.get(c)),
+            method=fill,
+        )
+        filled[c], beyond[c], alone[c] = _filled_until_clean(
+            images[c], markers[c], fills, ds.dictionary
+        )
+    return SceneWithoutMarkers(filled, markers, vis, beyond, alone)
 
 
 #: Searches of an image for markers left (the first on the image as it is).
 SEARCHES = 3
+#: A marker found is at most this share of the image's smaller side wide.
+MAX_MARKER_SHARE = 0.25
+
+
+def _filled_until_clean(
+    image: np.ndarray, m: ImageMarkers, fills: Callable[..., np.ndarray], dictionary_name: str
+) -> tuple[np.ndarray, int, int]:
+    """``image`` with the markers of ``m`` filled, and those a detector finds besides,
+    searched again after each fill; how many were found reaching beyond where the poses put
+    markers, and how many of those where the poses put none. ``m``'s mask grows by them.
+    ``fills(image, mask, labels)`` fills."""
+    cells = int(dictionary(dictionary_name).markerSize) + 2
+    labels = m.labels.copy()
+    out, beyond, alone = image, 0, 0
+    for k in range(SEARCHES):
+        found = found_markers(out, dictionary_name)
+        extra = quads_mask(found, m.mask.shape, cells=cells, margin_px=m.margin_px) & ~m.mask
+        if k and not extra.any():
+            break
+        if not k:
+            beyond, alone = _beyond(found, m.mask, cells=cells), _outside(found, m.mask)
+        # Where only a detector put a marker the poses do not describe the surface (a part
+        # without a pose, or posed elsewhere): filled from its surroundings, unlabelled. A
+        # marker the poses place in part keeps its part's surface.
+        lone = np.array([_outside(q[None], m.mask) == 1 for q in found], bool)
+        if lone.any():
+            labels[
+                quads_mask(found[lone], m.mask.shape, cells=cells, margin_px=m.margin_px) & extra
+            ] = -1
+        m.mask |= extra
+        out = fills(image, m.mask, labels)
+    return out, beyond, alone
 
 
 @functools.cache
 def _detectors(dictionary_name: str) -> tuple[MarkerDetector, cv2.aruco.ArucoDetector]:
-    full = dictionary(dictionary_name)
-    opencv = cv2.aruco.ArucoDetector(
-        full, cv2.aruco.DetectorParameters(), cv2.aruco.RefineParameters()
-    )
+    # OpenCV's with every knob turned the way that finds more (what a user trying to find
+    # markers left would turn): wide thresholding windows, small markers, 8 px a cell, most
+    # of the border's bits allowed wrong, rough polygons.
+    p = cv2.aruco.DetectorParameters()
+    p.adaptiveThreshWinSizeMin, p.adaptiveThreshWinSizeMax, p.adaptiveThreshWinSizeStep = 3, 53, 4
+    p.minMarkerPerimeterRate = 0.01
+    p.perspectiveRemovePixelPerCell = 8
+    p.maxErroneousBitsInBorderRate = 0.6
+    p.polygonalApproxAccuracyRate = 0.1
+    p.maxMarkerPerimeterRate = 4 * MAX_MARKER_SHARE
+    opencv = cv2.aruco.ArucoDetector(dictionary(dictionary_name), p, cv2.aruco.RefineParameters())
     return MarkerDetector(dictionary_name), opencv
 
 
 def found_markers(image: np.ndarray, dictionary_name: str) -> np.ndarray:
     """(K, 4, 2) the squares of every marker of the dictionary that the project's detector
-    or OpenCV's (at its defaults) finds in ``image``."""
+    or OpenCV's (at its most finding settings) finds in ``image``."""
     ours, opencv = _detectors(dictionary_name)
     quads = [d.corners for d in ours.detect(image)]
     corners, ids, _ = opencv.detectMarkers(to_gray8(image))
     if ids is not None and len(ids):
         quads += list(np.asarray(corners, np.float64).reshape(-1, 4, 2))
-    return np.array(quads, np.float64).reshape(-1, 4, 2)
+    out = np.array(quads, np.float64).reshape(-1, 4, 2)
+    # A square wider than a quarter of the image is a bin's outline read as a code, not a
+    # marker on a part: masking it would erase the scene.
+    sides = np.linalg.norm(out - np.roll(out, 1, axis=1), axis=2).max(axis=1)
+    return out[sides <= MAX_MARKER_SHARE * min(image.shape[:2])]
 
 
 def quads_mask(
@@ -207,6 +238,15 @@ def quads_mask(
         d = 2 * margin_px + 1
         mask = cv2.dilate(mask, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (d, d)))
     return mask > 0
+
+
+def _beyond(quads: np.ndarray, mask: np.ndarray, *, cells: int) -> int:
+    """How many of ``quads`` (widened by their white border) reach outside ``mask``: markers
+    the poses did not place whole."""
+    return sum(
+        bool((quads_mask(q[None], mask.shape, cells=cells, margin_px=0) & ~mask).any())
+        for q in quads
+    )
 
 
 def _outside(quads: np.ndarray, mask: np.ndarray) -> int:

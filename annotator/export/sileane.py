@@ -35,13 +35,14 @@ def export_sileane(
     progress: Callable[[], None] | None = None,
     remove_markers: bool = False,
     fill: str = "surface",
-    markers_filled: Callable[[int], None] | None = None,
+    markers_filled: Callable[[int, int], None] | None = None,
 ) -> dict[str, str]:
     """Write ``selected`` scenes into the empty folder ``out`` (the reference camera only);
     returns the scenes left out because an input was unreadable (scene id -> reason).
     ``remove_markers``: the images with their markers filled in by ``fill``
     (:mod:`annotator.export.fill`), and ``mask_markers/``; ``markers_filled`` is told how
-    many markers each scene's image had filled in."""
+    many markers each scene's image had filled in, and how many of them were found where no
+    pose put one."""
 
     rig = pinhole_rig(ds.rig)
     ref = rig.cameras[0]
@@ -61,7 +62,7 @@ def export_sileane(
                 ds, rig, item, inputs[item.scene.id], out, frames, clip, remove_markers, fill
             )
             if markers_filled and remove_markers:
-                markers_filled(filled)
+                markers_filled(*filled)
         if progress:
             progress()
     return failed
@@ -114,17 +115,18 @@ def _write_scene(
     clip: tuple[float, float],
     remove_markers: bool = False,
     fill: str = "surface",
-) -> int:
+) -> tuple[int, int]:
     """One scene in every object's folder: the image, the encoded depth, the segmentation
     of that object's instances and their poses in its canonical frame (``remove_markers``:
-    the image with its markers filled in, and their mask). Returns the markers filled in."""
+    the image with its markers filled in, and their mask). Returns the markers filled in
+    and those of them found beyond where the poses put them."""
 
     ref = rig.cameras[0]
     sid = item.scene.id
     depth = inputs.depth
     image = inputs.images[ref.name]
     marker_mask = None
-    filled = 0
+    filled = (0, 0)
     if remove_markers:
         removed = remove_scene_markers(
             ds,
@@ -137,7 +139,7 @@ def _write_scene(
             fill=fill,
         )
         vis, image = removed.visibility, removed.images[ref.name]
-        filled = removed.filled
+        filled = (removed.filled, sum(removed.found_beyond.values()))
         marker_mask = removed.markers[ref.name].mask.astype(np.uint8) * 255
     else:
         meshes = [ds.objects[p.object].mesh for p in item.poses]
