@@ -371,7 +371,15 @@ def find_session_captures(
             )
         if name not in listed:
             raise UserError(f"no frame of camera {name} is listed", path=session.timestamps)
-    rows = {n: listed[n][: _frame_count(by_name[n])] for n in names}
+    rows = {n: listed[n] for n in names}
+    for n in names:
+        count = _frame_count(by_name[n])
+        if count != len(rows[n]):
+            raise UserError(
+                f"lists {len(rows[n])} frames of camera {n} but its video has {count}: the "
+                "rows and the frames no longer match (an edited or cut file?)",
+                path=session.timestamps,
+            )
     index = {n: {sync: k for k, (sync, _) in enumerate(rows[n])} for n in names}
     common = sorted(set.intersection(*(set(index[n]) for n in names)))[::stride]
     if not common:
