@@ -46,7 +46,8 @@ def test_a_real_webcam_session_calibrates_as_recorded(
     rig = (report / "rig.yaml").read_text()
     assert all(f"{name}:" in rig or f"name: {name}" in rig for name in CAMERAS)
     # The transfer error: within the target, and no worse than each pair calibrated alone
-    # by OpenCV's stereo pipeline on the same folds (measured 0.98 px against 1.76 px: OpenCV runs off in some folds).
+    # by OpenCV's stereo pipeline on the same folds (measured 0.98 px against 1.76 px:
+    # OpenCV's pairs run off in some folds).
     held, alone = doc["held_out"], doc["pair_held_out"]
     assert held["median_px"] <= 1.3
     assert held["median_px"] <= alone["median_px"]
