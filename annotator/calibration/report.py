@@ -273,8 +273,9 @@ def _camera_entry(cal: Calibration, k: int, flipped: Sequence[str]) -> dict[str,
 
 
 def _videos_entry(captures: Captures) -> dict[str, Any]:
-    """The videos of ``report.json``: the files, the pairing, each shot's frames."""
-    return {
+    """The videos of ``report.json``: the files, the pairing, each shot's frames (and their
+    times, when the recording gives them)."""
+    out: dict[str, Any] = {
         "files": {c: str(p) for c, p in captures.videos.items()},
         "pairing": captures.pairing,
         "frames": {
@@ -283,6 +284,12 @@ def _videos_entry(captures: Captures) -> dict[str, Any]:
         },
         "unpaired": list(captures.unpaired),
     }
+    if captures.times:
+        out["times_s"] = {
+            shot: {c: captures.times[(c, shot)] for c in captures.cameras}
+            for shot in captures.shots
+        }
+    return out
 
 
 def write_report(
