@@ -72,9 +72,10 @@ def test_the_sessions_board_and_frames_read_as_caliscope_writes_them(tmp_path: P
     assert [s for s, _ in frames["cam_0"]] == list(range(436, 464))
 
 
-def _session(root: Path, frames: dict[int, list[int]]) -> Path:
+def _session(root: Path, frames: dict[int, list[int]], *, synced: bool = True) -> Path:
     """A small caliscope session: per camera id, the sync indices of its frames (grey
-    64x48 frames; no board)."""
+    64x48 frames; no board); ``synced`` False: without the sync_index column, as caliscope
+    0.11 writes it."""
     videos = root / "calibration" / "extrinsic"
     videos.mkdir(parents=True)
     rows = ["sync_index,cam_id,frame_time"]
@@ -86,6 +87,8 @@ def _session(root: Path, frames: dict[int, list[int]]) -> Path:
             out.write(np.full((48, 64, 3), 40 * cam, np.uint8))
             rows.append(f"{sync},{cam},{100 + sync / 6 + 0.001 * cam}")
         out.release()
+    if not synced:
+        rows = [row.partition(",")[2] for row in rows]
     (videos / "timestamps.csv").write_text("\n".join(rows) + "\n")
     shutil.copyfile(SESSION / "charuco.toml", root / "charuco.toml")
     return root
@@ -106,6 +109,15 @@ def test_a_sync_index_some_camera_lacks_is_no_shot(tmp_path: Path) -> None:
     # other sync index with --stride 2.
     assert find_captures(session / "calibration" / "extrinsic").shots == caps.shots
     assert find_captures(session, stride=2).shots == ("s0008", "s0011")
+
+
+def test_a_session_without_sync_indices_pairs_by_time(tmp_path: Path) -> None:
+    frames = {0: [7, 8, 9, 10, 11], 1: [7, 8, 10, 11], 2: [8, 9, 10, 11, 12]}
+    caps = find_captures(_session(tmp_path / "s", frames, synced=False))
+    assert caps.pairing == "timestamps"
+    # cam_0's frames 1, 3, 4 (sync 8, 10, 11) have a partner within half a frame in both.
+    assert caps.shots == ("f0001", "f0003", "f0004") and caps.unpaired == (0, 2)
+    assert [caps.frames[(c, "f0003")] for c in caps.cameras] == [3, 2, 2]
 
 
 def test_rows_that_do_not_match_the_video_are_one_line(tmp_path: Path, capsys) -> None:

@@ -6,12 +6,15 @@ Layout (the session folder, or its ``calibration/extrinsic`` folder given direct
       charuco.toml                      # the board: columns, rows, square size, markers, ...
       calibration/extrinsic/
         cam_0.mp4 cam_1.mp4 ...         # one video per camera, cam_<cam_id>
-        timestamps.csv                  # sync_index, cam_id, frame_time: one row per frame
+        timestamps.csv                  # [sync_index,] cam_id, frame_time: one row per frame
 
-The recorder writes one frame per camera per ``sync_index`` (the frames of one sync index
-were taken at about the same moment; the cameras are not hardware-synchronised, so each
-frame's own ``frame_time`` says when). A camera's rows, in sync-index order, are the frames
-of its video in order. Every sync index that every camera has a frame of is one shot.
+The recorder writes one row per frame: its camera and ``frame_time`` (s), and in sessions
+of caliscope before 0.11 a ``sync_index`` (the frames of one sync index were taken at about
+the same moment; the cameras are not hardware-synchronised, so each frame's own time says
+when). A camera's rows in the order of their ``frame_time`` are the frames of its video in
+order (caliscope reads them so). With sync indices, every sync index that every camera has a
+frame of is one shot; without, the frames are paired by time (as
+:mod:`annotator.calibration.captures` pairs videos with timestamps files).
 
 ``charuco.toml`` (caliscope's board): ``columns`` and ``rows`` are the squares,
 ``square_size_override_cm`` the square as printed (else the largest square that fits
@@ -24,6 +27,7 @@ from __future__ import annotations
 
 import csv
 import io
+import math
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
@@ -64,36 +68,43 @@ def find_session(root: Path) -> Session | None:
     return None
 
 
-def read_frame_times(path: Path) -> dict[str, list[tuple[int, float]]]:
+def read_frame_times(path: Path) -> dict[str, list[tuple[int | None, float]]]:
     """``timestamps.csv``: per camera (``cam_<cam_id>``), its frames' ``(sync_index,
-    frame_time)`` in sync-index order (the order of the video's frames)."""
+    frame_time)`` in the order of their times (the order of the video's frames); the sync
+    index is None in a file without that column."""
     text = read_text(path)
     reader = csv.DictReader(io.StringIO(text))
-    need = {"sync_index", "cam_id", "frame_time"}
-    if reader.fieldnames is None or not need <= set(reader.fieldnames):
+    columns = set(reader.fieldnames or [])
+    if not {"cam_id", "frame_time"} <= columns:
         raise UserError(
-            f"expected the columns sync_index, cam_id, frame_time (caliscope's), found "
-            f"{', '.join(reader.fieldnames or []) or 'none'}",
+            f"expected the columns cam_id, frame_time (and sync_index), as caliscope writes "
+            f"them, found {', '.join(reader.fieldnames or []) or 'none'}",
             path=path,
         )
-    frames: dict[str, list[tuple[int, float]]] = {}
+    synced = "sync_index" in columns
+    frames: dict[str, list[tuple[int | None, float]]] = {}
     for line, row in enumerate(reader, start=2):
         try:
-            sync, cam, time = int(row["sync_index"]), int(row["cam_id"]), float(row["frame_time"])
+            sync = int(row["sync_index"]) if synced else None
+            cam, time = int(row["cam_id"]), float(row["frame_time"])
         except (TypeError, ValueError):
             raise UserError(
                 f"line {line}: sync_index and cam_id must be whole numbers and frame_time a "
                 "number (seconds)",
                 path=path,
             ) from None
+        if not math.isfinite(time):
+            raise UserError(f"line {line}: frame_time is not a finite number", path=path)
         frames.setdefault(f"cam_{cam}", []).append((sync, time))
     if not frames:
         raise UserError("no frame listed", path=path)
     for name, rows in frames.items():
-        rows.sort()
+        rows.sort(key=lambda r: (r[1], r[0] or 0))
         syncs = [s for s, _ in rows]
-        if len(set(syncs)) != len(syncs):
+        if synced and len(set(syncs)) != len(syncs):
             raise UserError(f"camera {name} has two frames of one sync_index", path=path)
+        if len({t for _, t in rows}) != len(rows):
+            raise UserError(f"camera {name} has two frames of one frame_time", path=path)
     return frames
 
 

@@ -380,7 +380,9 @@ def find_session_captures(
                 "rows and the frames no longer match (an edited or cut file?)",
                 path=session.timestamps,
             )
-    index = {n: {sync: k for k, (sync, _) in enumerate(rows[n])} for n in names}
+    if any(sync is None for n in names for sync, _ in rows[n]):
+        return _session_paired_by_time(root, session, names, by_name, rows, stride)
+    index = {n: {int(sync or 0): k for k, (sync, _) in enumerate(rows[n])} for n in names}
     common = sorted(set.intersection(*(set(index[n]) for n in names)))[::stride]
     if not common:
         raise UserError(
@@ -409,6 +411,39 @@ def find_session_captures(
         pairing="sync index",
         unpaired=tuple(k for sync, k in index[ref].items() if sync not in every),
         times=times,
+        board_file=session.board,
+    )
+
+
+def _session_paired_by_time(
+    root: Path,
+    session: caliscope.Session,
+    names: list[str],
+    by_name: dict[str, Path],
+    rows: dict[str, list[tuple[int | None, float]]],
+    stride: int,
+) -> Captures:
+    """A caliscope session whose timestamps.csv has no sync indices (caliscope 0.11 and
+    later): every ``stride``-th frame of the first camera, paired by time."""
+    stamps: dict[str, np.ndarray | None] = {
+        n: np.array([t for _, t in rows[n]], np.float64) for n in names
+    }
+    pairing = _pair_frames(names, {n: len(rows[n]) for n in names}, stamps, stride)
+    if not pairing.shots:
+        raise UserError(
+            f"no frame of camera {names[0]} has a partner in time in every other video",
+            path=session.timestamps,
+        )
+    return Captures(
+        root,
+        tuple(names),
+        tuple(pairing.shots),
+        {},
+        videos={n: by_name[n] for n in names},
+        frames=pairing.frames,
+        pairing="timestamps",
+        unpaired=tuple(pairing.unpaired),
+        times={(n, shot): rows[n][f][1] for (n, shot), f in pairing.frames.items()},
         board_file=session.board,
     )
 
