@@ -21,7 +21,7 @@ import numpy as np
 from annotator.calibration.board import BoardSpec
 from annotator.calibration.heldout import HeldOut, PairError, held_out_error
 from annotator.calibration.records import View
-from annotator.calibration.single import opencv_flags
+from annotator.calibration.single import one_opencv_thread, opencv_flags
 from annotator.errors import UserError
 from annotator.geometry.camera import Camera
 from annotator.geometry.transforms import invert, make_transform
@@ -49,16 +49,18 @@ def stereo_pair(
         mine = [v for v in good if v.camera == c]
         if len(mine) < MIN_COMMON_SHOTS:
             raise UserError(f"camera {names[c]} has {len(mine)} views")
-        _, K, dist, _, _ = cv2.calibrateCamera(
-            [board.corners[v.ids].astype(np.float32).reshape(-1, 1, 3) for v in mine],
-            [v.corners.astype(np.float32).reshape(-1, 1, 2) for v in mine],
-            tuple(sizes[c]),
-            None,
-            None,
-            flags=flags,
-            criteria=_CRITERIA,
-        )
-        alone.append((np.asarray(K, float), np.asarray(dist, float).reshape(-1)[:5]))
+        with one_opencv_thread():  # the same figures on every run
+            _, K, dist, _, _ = cv2.calibrateCamera(
+                [board.corners[v.ids].astype(np.float32).reshape(-1, 1, 3) for v in mine],
+                [v.corners.astype(np.float32).reshape(-1, 1, 2) for v in mine],
+                tuple(sizes[c]),
+                None,
+                None,
+                flags=flags,
+                criteria=_CRITERIA,
+            )
+        n_dist = 8 if dist_coeffs == 8 else 5
+        alone.append((np.asarray(K, float), np.asarray(dist, float).reshape(-1)[:n_dist]))
     by_shot: dict[int, dict[int, View]] = {}
     for v in good:
         by_shot.setdefault(v.shot, {})[v.camera] = v
@@ -75,10 +77,11 @@ def stereo_pair(
     if len(obj) < MIN_COMMON_SHOTS:
         raise UserError(f"cameras {names[0]} and {names[1]} share {len(obj)} shots")
     (K0, d0), (K1, d1) = alone
-    out = cv2.stereoCalibrate(
-        obj, img0, img1, K0, d0, K1, d1, tuple(sizes[0]),
-        flags=cv2.CALIB_FIX_INTRINSIC, criteria=_CRITERIA,
-    )  # fmt: skip
+    with one_opencv_thread():
+        out = cv2.stereoCalibrate(
+            obj, img0, img1, K0, d0, K1, d1, tuple(sizes[0]),
+            flags=cv2.CALIB_FIX_INTRINSIC, criteria=_CRITERIA,
+        )  # fmt: skip
     R, T = out[5], out[6]
     rig_T_cam1 = invert(make_transform(np.asarray(R, float), np.ravel(T)))
     return [
