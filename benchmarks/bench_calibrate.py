@@ -12,7 +12,8 @@ pipeline fitted on the same folds: ours with OpenCV's five coefficients, ours wi
 chosen by the held-out error (``annotator calibrate``'s default), and OpenCV's pipeline
 (per-camera calibrateCamera, then stereoCalibrate with the intrinsics fixed; and joint).
 
-    .venv/bin/python -m benchmarks.bench_calibrate [--seeds 3] [--part reference|behind|webcams]
+    .venv/bin/python -m benchmarks.bench_calibrate [--seeds 3] [--part reference|behind|webcams|real]
+    .venv/bin/python -m benchmarks.bench_calibrate --part real [SESSION]
 
 Four webcams as a real session records them (``--part webcams``, issue 48): a board printed
 colour-inverted and mirrored, the fourth camera behind it, webcam noise, webcams not in step
@@ -28,6 +29,17 @@ and OpenCV's pairwise pipeline (calibrateCamera per camera, stereoCalibrate with
 intrinsics fixed against the first camera) given the right reading; and whether any camera
 was declared mirrored.
 
+A real session (``--part real [SESSION]``, issue 54): four webcams as caliscope records them
+(``charuco.toml``, ``calibration/extrinsic/cam_N.mp4``, ``timestamps.csv``; default the
+trimmed copy ``tests/data/caliscope-4cam``, or the whole session given as SESSION), read and
+calibrated as ``annotator calibrate`` does with no option. The held-out transfer error (the
+same 5 folds, one camera's board pose predicting another's corners) of ours, of OpenCV's
+pairwise pipeline (calibrateCamera per camera, stereoCalibrate against the first camera
+with the intrinsics fixed), of caliscope's own ``camera_array.toml`` (measured on our
+corners, and on corners mapped back from a flipped image its way) and of each pair
+calibrated alone (the bar ``calibrate`` holds a rig to): on every view as read, and on the
+views ours kept.
+
 Seed 0 is the captures of tests/test_calibrate.py (``annotator synth --calibration OUT
 --scenes 30 --noise 12 --blur 1``).
 """
@@ -36,18 +48,24 @@ from __future__ import annotations
 
 import argparse
 import time
+import tomllib
+from dataclasses import replace
 from functools import partial
+from pathlib import Path
 
 import numpy as np
 
-from annotator.calibration.detect import BoardDetector
+from annotator.calibration.captures import find_captures
+from annotator.calibration.detect import BoardDetector, detect_captures
 from annotator.calibration.heldout import held_out_error
 from annotator.calibration.model_choice import calibrate_and_assess
+from annotator.calibration.pairwise import pairwise_held_out
 from annotator.calibration.readings import decide_readings
 from annotator.calibration.records import CalibrationSettings, View
 from annotator.calibration.rig import solve_rig
+from annotator.calibration.workflow import resolve_board
 from annotator.geometry.camera import Camera
-from annotator.geometry.transforms import invert
+from annotator.geometry.transforms import invert, make_transform
 from annotator.synthesis.board import CaptureSettings, plan_captures
 from annotator.synthesis.board_render import BLACK, WHITE, true_corners
 
@@ -302,17 +320,117 @@ def webcams_part(n_seeds: int) -> None:
     print_rows(f"four webcams, {n_seeds} seeds, held-out transfer error (px RMS)", rows)
 
 
+#: The session ``--part real`` measures by default: the trimmed copy the tests calibrate.
+REAL_SESSION = Path(__file__).resolve().parent.parent / "tests" / "data" / "caliscope-4cam"
+
+
+def caliscope_rig(session: Path, names: list[str], sizes: list[tuple[int, int]]) -> list[Camera]:
+    """caliscope's own calibration of a session (``camera_array.toml``: per ``cam_id`` K,
+    distortion and the world-to-camera rotation and translation in metres) in our terms:
+    the first camera is the rig frame, millimetres."""
+    doc = tomllib.loads((session / "camera_array.toml").read_text())["cameras"]
+    entry = {f"cam_{k}": v for k, v in doc.items()}
+    cam_T_world = [
+        make_transform(np.array(entry[n]["rotation"]), 1000.0 * np.array(entry[n]["translation"]))
+        for n in names
+    ]
+    return [
+        Camera(
+            n,
+            *sizes[k],
+            np.array(entry[n]["matrix"], float),
+            np.array(entry[n]["distortions"], float),
+            cam_T_world[0] @ invert(cam_T_world[k]),
+        )
+        for k, n in enumerate(names)
+    ]
+
+
+def pair_medians(held) -> str:  # noqa: ANN001
+    """``a->b median`` of every pair between two cameras, the camera names' last characters."""
+    return " ".join(
+        f"{p.source[-1]}{p.target[-1]} {p.median_px:.2f}"
+        for p in held.pairs
+        if p.source != p.target
+    )
+
+
+def real_part(session: Path) -> None:
+    """A real session as caliscope records it (see the module docstring)."""
+    t0 = time.perf_counter()
+    caps = find_captures(session)
+    board = resolve_board(session, None, {}, caps.board_file)
+    found = detect_captures(caps, board)
+    names, sizes = list(caps.cameras), found.sizes
+    common = {"cameras": names, "sizes": sizes, "shots": caps.shots, "board": board}
+    cal = calibrate_and_assess(found.views, **common)
+    seconds = time.perf_counter() - t0
+    model = cal.model_choice.dist_coeffs
+    read = [v for v in cal.readings.views if not v.rejected]
+    kept = used_views(cal, read)
+
+    def ours(train):  # noqa: ANN001, ANN202
+        opts = CalibrationSettings(min_shots=3, dist_coeffs=model)
+        return solve_rig(train, **common, options=opts).rig_cameras
+
+    peer = caliscope_rig(session, names, sizes)
+    # caliscope maps a board read in the flipped image back with u -> W - u, one pixel off
+    # OpenCV's u -> W - 1 - u (detect.py): its rig measured on corners mapped its way too.
+    shifted = [replace(v, corners=v.corners + [1.0, 0.0]) if v.flipped else v for v in read]
+    shifted_kept = [replace(v, corners=v.corners + [1.0, 0.0]) if v.flipped else v for v in kept]
+    opencv = partial(opencv_rig, board=board, sizes=sizes, names=names)
+    rows = {}
+    for label, views, alt in (
+        ("every view", read, shifted),
+        ("the views ours kept", kept, shifted_kept),
+    ):
+        rows[f"ours ({model} coefficients), {label}"] = held_out_error(views, ours, board, names)
+        rows[f"OpenCV pairwise pipeline, {label}"] = held_out_error(views, opencv, board, names)
+        rows[f"caliscope's camera_array.toml, {label}"] = held_out_error(
+            views, fixed(peer), board, names
+        )
+        rows[f"caliscope's, its own flip (u -> W - u), {label}"] = held_out_error(
+            alt, fixed(peer), board, names
+        )
+        rows[f"each pair alone (OpenCV stereo), {label}"] = pairwise_held_out(
+            views, cameras=names, sizes=sizes, board=board, dist_coeffs=model, folds=5
+        )
+    print(
+        f"\nreal session {session}: {len(caps.shots)} shots, cameras used "
+        f"{sum(rep.shots > 0 for rep in cal.cameras)} of {len(names)}, refused: "
+        f"{[str(p) for p in cal.problems] or 'no'}, behind the board: "
+        f"{[r.camera for r in cal.readings.cameras if r.behind] or 'none'}; views kept "
+        f"{len(kept)} of {len(read)}; calibrate's solve {seconds:.1f} s (detection included)"
+    )
+    print(
+        "held-out transfer error between cameras, 5-fold (px): median over every corner, RMS; per pair median"
+    )
+    for label, held in rows.items():
+        print(f"  {label:62s} {held.median_px:6.3f} {held.rms_px:7.3f} | {pair_medians(held)}")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser()
     parser.add_argument("--seeds", type=int, default=3, help="sets of captures (default 3)")
     parser.add_argument(
         "--part",
-        choices=("all", "reference", "behind", "webcams"),
+        choices=("all", "reference", "behind", "webcams", "real"),
         default="all",
         help="what to measure",
     )
+    parser.add_argument(
+        "session",
+        nargs="?",
+        type=Path,
+        default=REAL_SESSION,
+        help="--part real: a caliscope session (default: the trimmed copy in tests/data)",
+    )
     args = parser.parse_args()
     n_seeds = args.seeds
+    if args.part in ("all", "real"):
+        real_part(args.session)
+    if args.part == "real":
+        return
     if args.part in ("all", "webcams"):
         webcams_part(n_seeds)
     if args.part == "webcams":

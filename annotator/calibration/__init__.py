@@ -6,6 +6,8 @@ One concept per module:
 - :mod:`.board`: the board (``board.yaml``, OpenCV's ``CharucoBoard``, its corners);
 - :mod:`.captures`: the captures folder, ``CAPTURES/<camera>/<shot>.png`` or one video per
   camera, and its checks;
+- :mod:`.caliscope`: a session as caliscope records it (``charuco.toml``, its videos and
+  ``timestamps.csv``), read as it is;
 - :mod:`.detect`: the board's chessboard corners in one image (inverted, flipped), and in
   every image of the captures;
 - :mod:`.readings`: a board that reads only flipped: a mirrored camera or a board seen from
@@ -16,6 +18,8 @@ One concept per module:
 - :mod:`.outliers`: which corners and views of the joint fit are outliers;
 - :mod:`.bundle`: the joint Levenberg-Marquardt refinement of every camera and shot;
 - :mod:`.heldout`: the held-out error, k-fold over shots, predicted across cameras;
+- :mod:`.pairwise`: each camera pair calibrated alone as an OpenCV stereo pair, the bar a
+  rig's held-out transfer error is held to;
 - :mod:`.extrapolation`: where a distortion model is extrapolated, and by how much;
 - :mod:`.model_choice`: the distortion model chosen by the held-out error;
 - :mod:`.checks`: whether the rig holds together before anything is written;

@@ -23,6 +23,12 @@ Every ``stride``-th frame of the first camera is a shot (named ``f<frame>``). Wi
 timestamps, the other cameras' frames of the same index are its partners (videos started
 together); with them, each camera's frame nearest in time, if within half that camera's
 median frame interval (else the shot is left out and reported as unpaired).
+
+A session as caliscope records it (:mod:`.caliscope`: ``charuco.toml``,
+``calibration/extrinsic/cam_N.mp4`` and ``timestamps.csv``) is read as it is: every
+``stride``-th sync index that every camera has a frame of is a shot (named ``s<sync
+index>``; the default stride there is 1, the recorder having already thinned the frames),
+and each frame keeps its own time.
 """
 
 from __future__ import annotations
@@ -33,6 +39,7 @@ from pathlib import Path
 
 import numpy as np
 
+from annotator.calibration import caliscope
 from annotator.errors import UserError
 from annotator.io.images import read_image
 
@@ -55,8 +62,13 @@ class Captures:
         files: ``(camera, shot) -> image path`` (image captures).
         videos: ``camera -> video path`` (video captures).
         frames: ``(camera, shot) -> frame index`` in its video (video captures).
-        pairing: How the videos' frames were paired (``frame index`` or ``timestamps``).
+        pairing: How the videos' frames were paired (``frame index``, ``timestamps`` or
+            ``sync index``).
         unpaired: Frames of the first camera left out: no partner in some other video.
+        times: ``(camera, shot) -> time`` (s) of its frame, when the recording says (video
+            captures with timestamps).
+        board_file: A board description the recording came with (caliscope's
+            ``charuco.toml``), or None.
     """
 
     root: Path
@@ -67,6 +79,8 @@ class Captures:
     frames: Mapping[tuple[str, str], int] = field(default_factory=dict)
     pairing: str = ""
     unpaired: tuple[int, ...] = ()
+    times: Mapping[tuple[str, str], float] = field(default_factory=dict)
+    board_file: Path | None = None
 
     def folder(self, camera: str) -> Path:
         """The folder of a camera's images (its video, for video captures)."""
@@ -78,7 +92,7 @@ def find_captures(
     *,
     cameras: Sequence[str] | None = None,
     ignore: Sequence[Path] = (),
-    stride: int = DEFAULT_STRIDE,
+    stride: int | None = None,
 ) -> Captures:
     """List and check a captures folder.
 
@@ -87,7 +101,8 @@ def find_captures(
         cameras: Camera folders to use, in rig order; default: every sub-folder, sorted.
         ignore: Sub-folders that are not cameras (a report folder inside ``root``), besides
             ``calibration_report`` and hidden folders.
-        stride: For video captures: every ``stride``-th frame is a shot.
+        stride: For video captures: every ``stride``-th frame is a shot (default 10; a
+            caliscope session's sync indices: 1).
 
     Raises:
         UserError: a missing folder, no camera folders, images outside camera folders, a
@@ -97,10 +112,13 @@ def find_captures(
     root = Path(root)
     if not root.is_dir():
         raise UserError("captures folder does not exist", path=root)
+    session = caliscope.find_session(root)
+    if session is not None:
+        return find_session_captures(root, session, cameras=cameras, stride=stride or 1)
     folders = _camera_folders(root, ignore)
     videos = _files_with(root, VIDEO_SUFFIXES)
     if videos and not folders:
-        return find_video_captures(root, videos, cameras=cameras, stride=stride)
+        return find_video_captures(root, videos, cameras=cameras, stride=stride or DEFAULT_STRIDE)
     _check_no_loose_images(root, _files_with(root, IMAGE_SUFFIXES), folders)
     names = _camera_names(root, folders, cameras)
     files = _shot_images(root, names)
@@ -113,7 +131,7 @@ def find_rig_captures(
     cameras: Sequence[str] | None,
     rig_cameras: Sequence[str],
     ignore: Sequence[Path] = (),
-    stride: int = DEFAULT_STRIDE,
+    stride: int | None = None,
     rig_source: Path | None = None,
 ) -> Captures:
     """:func:`find_captures` for a rig that exists already (``rig_cameras``, read from
@@ -272,6 +290,11 @@ def find_video_captures(
         frames=pairing.frames,
         pairing="timestamps" if timed else "frame index",
         unpaired=tuple(pairing.unpaired),
+        times={
+            (n, shot): float(t[f])
+            for (n, shot), f in pairing.frames.items()
+            if (t := stamps[n]) is not None
+        },
     )
 
 
@@ -324,6 +347,111 @@ def _pair_frames(
         pairing.shots.append(shot)
         pairing.frames.update({(name, shot): g for name, g in partner.items()})
     return pairing
+
+
+def find_session_captures(
+    root: Path,
+    session: caliscope.Session,
+    *,
+    cameras: Sequence[str] | None,
+    stride: int,
+) -> Captures:
+    """A caliscope session (:mod:`.caliscope`): every ``stride``-th sync index that every
+    camera has a frame of is a shot, each frame with its own time."""
+    if stride < 1:
+        raise UserError(f"the frame stride must be at least 1, not {stride}")
+    by_name = _videos_by_camera(_files_with(session.videos, VIDEO_SUFFIXES))
+    listed = caliscope.read_frame_times(session.timestamps)
+    names = list(cameras) if cameras is not None else sorted(by_name, key=_camera_number)
+    for name in names:
+        if name not in by_name:
+            raise UserError(
+                f"no video for camera {name!r} ({', '.join(VIDEO_SUFFIXES)})",
+                path=session.videos / name,
+            )
+        if name not in listed:
+            raise UserError(f"no frame of camera {name} is listed", path=session.timestamps)
+    rows = {n: listed[n] for n in names}
+    for n in names:
+        count = _frame_count(by_name[n])
+        if count != len(rows[n]):
+            raise UserError(
+                f"lists {len(rows[n])} frames of camera {n} but its video has {count}: the "
+                "rows and the frames no longer match (an edited or cut file?)",
+                path=session.timestamps,
+            )
+    if any(sync is None for n in names for sync, _ in rows[n]):
+        return _session_paired_by_time(root, session, names, by_name, rows, stride)
+    index = {n: {int(sync or 0): k for k, (sync, _) in enumerate(rows[n])} for n in names}
+    common = sorted(set.intersection(*(set(index[n]) for n in names)))[::stride]
+    if not common:
+        raise UserError(
+            f"no sync_index has a frame of every camera ({', '.join(names)})",
+            path=session.timestamps,
+        )
+    digits = max(4, len(str(common[-1])))
+    frames: dict[tuple[str, str], int] = {}
+    times: dict[tuple[str, str], float] = {}
+    shots = []
+    for sync in common:
+        shot = f"s{sync:0{digits}d}"
+        shots.append(shot)
+        for n in names:
+            frames[(n, shot)] = index[n][sync]
+            times[(n, shot)] = rows[n][index[n][sync]][1]
+    every = set.intersection(*(set(index[n]) for n in names))
+    ref = names[0]
+    return Captures(
+        root,
+        tuple(names),
+        tuple(shots),
+        {},
+        videos={n: by_name[n] for n in names},
+        frames=frames,
+        pairing="sync index",
+        unpaired=tuple(k for sync, k in index[ref].items() if sync not in every),
+        times=times,
+        board_file=session.board,
+    )
+
+
+def _session_paired_by_time(
+    root: Path,
+    session: caliscope.Session,
+    names: list[str],
+    by_name: dict[str, Path],
+    rows: dict[str, list[tuple[int | None, float]]],
+    stride: int,
+) -> Captures:
+    """A caliscope session whose timestamps.csv has no sync indices (caliscope 0.11 and
+    later): every ``stride``-th frame of the first camera, paired by time."""
+    stamps: dict[str, np.ndarray | None] = {
+        n: np.array([t for _, t in rows[n]], np.float64) for n in names
+    }
+    pairing = _pair_frames(names, {n: len(rows[n]) for n in names}, stamps, stride)
+    if not pairing.shots:
+        raise UserError(
+            f"no frame of camera {names[0]} has a partner in time in every other video",
+            path=session.timestamps,
+        )
+    return Captures(
+        root,
+        tuple(names),
+        tuple(pairing.shots),
+        {},
+        videos={n: by_name[n] for n in names},
+        frames=pairing.frames,
+        pairing="timestamps",
+        unpaired=tuple(pairing.unpaired),
+        times={(n, shot): rows[n][f][1] for (n, shot), f in pairing.frames.items()},
+        board_file=session.board,
+    )
+
+
+def _camera_number(name: str) -> tuple[int, str]:
+    """Sort key of caliscope's camera names: ``cam_2`` before ``cam_10``."""
+    tail = name.rpartition("_")[2]
+    return (int(tail), name) if tail.isdigit() else (1 << 30, name)
 
 
 def _frame_count(path: Path) -> int:

@@ -12,9 +12,20 @@ refused, naming the camera and the check, when
 - a camera is farther from the first than ``DISTANCE_FACTOR`` times the farthest any camera
   saw the board (two cameras that see one board are at most the sum of their distances to it
   apart);
-- a camera pair's held-out error is far above the held-out error of those cameras alone
-  (``HELD_OUT_FACTOR``, and ``HELD_OUT_MARGIN_PX`` more): each camera alone is measured
-  the same way, k-fold over its shots, the board pose fitted to each left-out view.
+- the rig's held-out transfer error between cameras (the median over every corner
+  predicted from one camera into another, along the pairs that can be calibrated alone) is
+  worse than what those pairs reach calibrated alone, each as a stereo pair by OpenCV's
+  pipeline on the same folds of the same views (:mod:`.pairwise`; ``RIG_FACTOR``, and
+  ``RIG_MARGIN_PX`` more), or one pair's (the median of each way, weighted by its corners)
+  is far worse than that pair's alone (``PAIR_FACTOR``, and ``PAIR_MARGIN_PX`` more): a
+  joint rig is held to what the simplest
+  pipeline reaches on the same data. One pair alone may beat the rig by a little (its
+  extrinsics absorb what its two cameras' board poses share, which a rig of many cameras
+  cannot for every pair at once), hence the wider bar per pair. A pair that cannot be
+  calibrated alone (too few shots together) is held instead to the held-out error of each
+  of its cameras alone (``HELD_OUT_FACTOR``, and ``HELD_OUT_MARGIN_PX`` more, on the RMS):
+  each camera alone is measured the same way, k-fold over its shots, the board pose fitted
+  to each left-out view.
 """
 
 from __future__ import annotations
@@ -22,11 +33,12 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
+from itertools import permutations
 
 import numpy as np
 
 from annotator.calibration.board import BoardSpec
-from annotator.calibration.heldout import held_out_error
+from annotator.calibration.heldout import HeldOut, held_out_error
 from annotator.calibration.records import Calibration, View
 from annotator.calibration.single import calibrate_camera, opencv_flags
 from annotator.geometry.camera import Camera
@@ -36,6 +48,8 @@ FOV_DEG = (5.0, 160.0)
 FOCAL_RATIO = 1.25
 DISTANCE_FACTOR = 4.0
 HELD_OUT_FACTOR, HELD_OUT_MARGIN_PX = 10.0, 2.0
+RIG_FACTOR, RIG_MARGIN_PX = 1.1, 0.1
+PAIR_FACTOR, PAIR_MARGIN_PX = 2.0, 1.0
 
 
 @dataclass(frozen=True)
@@ -84,8 +98,11 @@ def camera_held_out(
     return tuple(out)
 
 
-def rig_problems(cal: Calibration, camera_held: Sequence[float] = ()) -> list[Problem]:
-    """Every check of the module docstring that ``cal`` fails."""
+def rig_problems(
+    cal: Calibration, camera_held: Sequence[float] = (), pair_held: HeldOut | None = None
+) -> list[Problem]:
+    """Every check of the module docstring that ``cal`` fails (``camera_held``: each camera
+    alone; ``pair_held``: each pair alone)."""
     problems: list[Problem] = []
     names = [rep.camera.name for rep in cal.cameras]
     if not cal.converged:
@@ -99,28 +116,71 @@ def rig_problems(cal: Calibration, camera_held: Sequence[float] = ()) -> list[Pr
         )
     for rep in cal.cameras:
         problems.extend(_camera_problems(cal, rep, names))
-    if cal.held_out is not None and camera_held:
-        alone = dict(zip(names, camera_held))
-        for pair in cal.held_out.pairs:
-            if pair.source == pair.target:
-                continue
-            base = max(alone.get(pair.source, np.nan), alone.get(pair.target, np.nan))
-            if not np.isfinite(base) or not np.isfinite(pair.rms_px):
-                continue
-            limit = max(HELD_OUT_FACTOR * base, base + HELD_OUT_MARGIN_PX)
-            if pair.rms_px > limit:
-                problems.append(
-                    Problem(
-                        pair.target,
-                        "held_out",
-                        f"cameras {pair.source}->{pair.target}: held-out error "
-                        f"{pair.rms_px:.2f} px, against {base:.2f} px for each camera alone "
-                        f"(limit {limit:.2f} px): the rig does not predict one camera's "
-                        "corners from the other's",
-                    )
-                )
-                break  # one pair names the trouble; the others follow from it
+    if cal.held_out is not None:
+        problem = _transfer_problem(cal.held_out, names, camera_held, pair_held)
+        problems.extend([problem] if problem is not None else [])
     return problems
+
+
+def _transfer_problem(
+    held: HeldOut, names: Sequence[str], camera_held: Sequence[float], pair_held: HeldOut | None
+) -> Problem | None:
+    """The transfer error's failure (the module docstring), or None; one line names the
+    trouble, the others follow from it."""
+    ours, stereo = both_ways(held), both_ways(pair_held)
+    common = [k for k in ours if k in stereo]
+    if common and pair_held is not None:
+        # Medians over every corner, so that a pair OpenCV could not calibrate alone (its
+        # folds run off) does not lift the bar for the others.
+        ways = [(a, b) for k in common for a, b in permutations(sorted(k))]
+        error, bar = held.pooled_median(ways), pair_held.pooled_median(ways)
+        limit = max(RIG_FACTOR * bar, bar + RIG_MARGIN_PX)
+        worst = max(common, key=lambda k: (ours[k][0] / max(stereo[k][0], 1e-9), sorted(k)))
+        if error > limit:
+            return Problem(
+                max(worst, key=names.index),
+                "held_out",
+                f"held-out transfer error {error:.2f} px (median, over the pairs that could be "
+                f"calibrated alone), against {bar:.2f} px for each pair calibrated alone as a "
+                f"stereo pair (limit {limit:.2f} px; worst {_pair_name(worst, names)} "
+                f"{ours[worst][0]:.2f} px against {stereo[worst][0]:.2f} px): the rig predicts "
+                "one camera's corners from another's worse than the pairs alone",
+            )
+    for key in common:
+        error, bar = ours[key][0], stereo[key][0]
+        limit = max(PAIR_FACTOR * bar, bar + PAIR_MARGIN_PX)
+        if error > limit:
+            return Problem(
+                max(key, key=names.index),
+                "held_out",
+                f"cameras {_pair_name(key, names)}: held-out transfer error {error:.2f} px "
+                f"(median), against {bar:.2f} px for the two calibrated alone as a stereo pair "
+                f"(limit {limit:.2f} px): the rig predicts one camera's corners from the "
+                "other's far worse than the pair alone",
+            )
+    alone = dict(zip(names, camera_held))
+    for pair in held.pairs:
+        if pair.source == pair.target or frozenset((pair.source, pair.target)) in stereo:
+            continue
+        base = max(alone.get(pair.source, np.nan), alone.get(pair.target, np.nan))
+        if not np.isfinite(base) or not np.isfinite(pair.rms_px):
+            continue
+        limit = max(HELD_OUT_FACTOR * base, base + HELD_OUT_MARGIN_PX)
+        if pair.rms_px > limit:
+            return Problem(
+                pair.target,
+                "held_out",
+                f"cameras {pair.source}->{pair.target}: held-out error "
+                f"{pair.rms_px:.2f} px, against {base:.2f} px for each camera alone "
+                f"(limit {limit:.2f} px): the rig does not predict one camera's "
+                "corners from the other's",
+            )
+    return None
+
+
+def _pair_name(key: frozenset[str], names: Sequence[str]) -> str:
+    """``a<->b`` in rig order."""
+    return "<->".join(sorted(key, key=names.index))
 
 
 def _camera_problems(cal: Calibration, rep, names: Sequence[str]) -> list[Problem]:  # noqa: ANN001
@@ -166,6 +226,18 @@ def _camera_problems(cal: Calibration, rep, names: Sequence[str]) -> list[Proble
             )
         )
     return out
+
+
+def both_ways(held: HeldOut | None) -> dict[frozenset[str], tuple[float, int]]:
+    """Per camera pair (either order), the median transfer error of both ways weighted by
+    their corners, and those corners."""
+    sums: dict[frozenset[str], list[float]] = {}
+    for p in held.pairs if held is not None else ():
+        if p.source != p.target and np.isfinite(p.median_px) and p.corners:
+            acc = sums.setdefault(frozenset((p.source, p.target)), [0.0, 0.0])
+            acc[0] += p.median_px * p.corners
+            acc[1] += p.corners
+    return {k: (total / n, int(n)) for k, (total, n) in sums.items()}
 
 
 def what_to_try(problems: Sequence[Problem], cameras: Sequence[str]) -> str:

@@ -17,8 +17,8 @@ OpenCV's pipeline (benchmarks), so that both are measured on the same folds.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable, Sequence
-from dataclasses import dataclass
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
@@ -57,18 +57,30 @@ class HeldOut:
         pairs: One entry per ordered camera pair with predictions.
         rms_px: RMS over every predicted corner of every pair.
         corners: Corners predicted in all.
+        median_px: Median over every predicted corner of every pair (the transfer error the
+            summary states).
+        errors: ``(source, target) -> `` the error (px) of each corner predicted.
     """
 
     folds: int
     pairs: tuple[PairError, ...]
     rms_px: float
     corners: int
+    median_px: float = float("nan")
+    errors: Mapping[tuple[str, str], np.ndarray] = field(default_factory=dict)
+
+    def pooled_median(self, pairs: Iterable[tuple[str, str]]) -> float:
+        """The median error over every corner predicted along ``pairs`` (NaN: none)."""
+        found = [self.errors[p] for p in pairs if p in self.errors]
+        every = np.concatenate(found) if found else np.zeros(0)
+        return float(np.median(every)) if len(every) else float("nan")
 
     def to_dict(self) -> dict:
         """For report.json."""
         return {
             "folds": self.folds,
             "rms_px": round(self.rms_px, 4),
+            "median_px": None if not np.isfinite(self.median_px) else round(self.median_px, 4),
             "corners": self.corners,
             "pairs": [
                 {
@@ -98,11 +110,15 @@ def held_out_error(
     *,
     folds: int = FOLDS,
     min_corners: int = 8,
+    fold_shots: Iterable[int] | None = None,
 ) -> HeldOut:
     """The held-out error of ``fit`` on ``views`` (see the module docstring); a fold whose
-    fit raises is passed over (too few shots left for some camera)."""
+    fit raises is passed over (too few shots left for some camera). ``fold_shots``: the shots
+    dealt into folds (default: those of the usable views), so that two measures on
+    different views of one capture hold out the same shots."""
     usable = [v for v in views if len(v.ids) >= min_corners]
-    fold = fold_of_shots({v.shot for v in usable}, folds)
+    every_shot = {v.shot for v in usable} if fold_shots is None else set(fold_shots)
+    fold = fold_of_shots(every_shot | {v.shot for v in usable}, folds)
     errors: dict[tuple[int, int], list[np.ndarray]] = {}
     shots: dict[tuple[int, int], set[int]] = {}
     for k in range(folds):
@@ -138,6 +154,8 @@ def held_out_error(
         tuple(pairs),
         float(np.sqrt(np.mean(allerr**2))) if len(allerr) else float("nan"),
         len(allerr),
+        float(np.median(allerr)) if len(allerr) else float("nan"),
+        {(cameras[a], cameras[b]): np.concatenate(e) for (a, b), e in errors.items()},
     )
 
 

@@ -22,6 +22,7 @@ from annotator.calibration.board import BoardSpec
 from annotator.calibration.checks import camera_held_out, rig_problems
 from annotator.calibration.extrapolation import extrapolation
 from annotator.calibration.heldout import FOLDS, HeldOut, held_out_error
+from annotator.calibration.pairwise import pairwise_held_out
 from annotator.calibration.readings import decide_readings
 from annotator.calibration.records import Calibration, CalibrationSettings, View
 from annotator.calibration.rig import solve_rig
@@ -123,7 +124,8 @@ def calibrate_and_assess(
     model, measure each on held-out shots, keep the chosen one (``candidates`` of one model:
     that model, still measured), and check that the rig holds together (:mod:`.checks`).
     The result carries ``readings``, ``held_out``, ``model_choice``, the extrapolation
-    warnings, ``camera_held_out`` and ``problems`` (empty: the rig may be written)."""
+    warnings, ``camera_held_out``, ``pair_held_out`` (each camera pair calibrated alone, the
+    bar the rig is held to) and ``problems`` (empty: the rig may be written)."""
     opts = options or CalibrationSettings()
     readings = decide_readings(
         views, cameras=cameras, sizes=sizes, shots=shots, board=board, options=opts
@@ -159,7 +161,21 @@ def calibrate_and_assess(
         folds=folds,
         min_corners=opts.min_corners,
     )
-    return dataclasses.replace(cal, camera_held_out=alone, problems=tuple(rig_problems(cal, alone)))
+    pairs = pairwise_held_out(
+        [v for v in views if (v.camera, v.shot) in used],
+        cameras=cameras,
+        sizes=sizes,
+        board=board,
+        dist_coeffs=chosen,
+        folds=folds,
+        min_corners=opts.min_corners,
+    )
+    return dataclasses.replace(
+        cal,
+        camera_held_out=alone,
+        pair_held_out=pairs,
+        problems=tuple(rig_problems(cal, alone, pairs)),
+    )
 
 
 def _calibrate_and_hold_out(

@@ -156,6 +156,8 @@ class Calibration:
         readings: Per camera, mirrored or not and where it saw the board from behind
             (:mod:`.readings`), when decided.
         camera_held_out: Per camera, the held-out error of that camera alone (:mod:`.checks`).
+        pair_held_out: The held-out error of every camera pair calibrated alone by OpenCV's
+            stereo pipeline on the same folds (:mod:`.pairwise`), when measured.
         problems: Why the rig does not hold together (:mod:`.checks`); empty: it does.
     """
 
@@ -175,6 +177,7 @@ class Calibration:
     converged: bool = True
     readings: Any = None
     camera_held_out: tuple[float, ...] = ()
+    pair_held_out: Any = None
     problems: tuple[Any, ...] = ()
 
     @property

@@ -24,6 +24,7 @@ import numpy as np
 
 from annotator.calibration.board import BoardSpec
 from annotator.calibration.captures import Captures
+from annotator.calibration.checks import both_ways
 from annotator.calibration.extrapolation import Extrapolation, displacement
 from annotator.calibration.records import Calibration
 from annotator.io.atomic import write_json
@@ -221,6 +222,8 @@ def report_dict(
         }
     if cal.held_out is not None:
         out["held_out"] = cal.held_out.to_dict()
+    if cal.pair_held_out is not None:
+        out["pair_held_out"] = cal.pair_held_out.to_dict()
     if cal.model_choice is not None:
         out["distortion_model"] = {
             "coefficients": cal.model_choice.dist_coeffs,
@@ -270,8 +273,9 @@ def _camera_entry(cal: Calibration, k: int, flipped: Sequence[str]) -> dict[str,
 
 
 def _videos_entry(captures: Captures) -> dict[str, Any]:
-    """The videos of ``report.json``: the files, the pairing, each shot's frames."""
-    return {
+    """The videos of ``report.json``: the files, the pairing, each shot's frames (and their
+    times, when the recording gives them)."""
+    out: dict[str, Any] = {
         "files": {c: str(p) for c, p in captures.videos.items()},
         "pairing": captures.pairing,
         "frames": {
@@ -280,6 +284,12 @@ def _videos_entry(captures: Captures) -> dict[str, Any]:
         },
         "unpaired": list(captures.unpaired),
     }
+    if captures.times:
+        out["times_s"] = {
+            shot: {c: captures.times[(c, shot)] for c in captures.cameras}
+            for shot in captures.shots
+        }
+    return out
 
 
 def write_report(
@@ -344,6 +354,7 @@ def summary_lines(cal: Calibration) -> list[str]:
             f"held-out error: RMS {cal.held_out.rms_px:.3f} px over {cal.held_out.corners} corners "
             f"of left-out shots ({cal.held_out.folds}-fold; {pairs or 'no pair'})"
         )
+        out.extend(_transfer_lines(cal))
     if cal.camera_held_out:
         out.append(
             "held-out error of each camera alone: "
@@ -359,3 +370,32 @@ def summary_lines(cal: Calibration) -> list[str]:
     for w in cal.warnings:
         out.append(f"warning: {w}")
     return out
+
+
+def _transfer_lines(cal: Calibration) -> list[str]:
+    """The held-out transfer error between cameras (median per pair), beside what each pair
+    reaches calibrated alone as a stereo pair."""
+    held = cal.held_out
+    cross = [p for p in held.pairs if p.source != p.target]
+    if not cross:
+        return []
+    line = (
+        f"held-out transfer error between cameras: median {held.median_px:.3f} px ("
+        + ", ".join(f"{p.source}->{p.target} {p.median_px:.2f}" for p in cross)
+        + ")"
+    )
+    alone = both_ways(cal.pair_held_out)
+    if not alone:
+        return [line]
+    ours = both_ways(held)
+    names = [rep.camera.name for rep in cal.cameras]
+    order = sorted((k for k in ours if k in alone), key=lambda k: sorted(map(names.index, k)))
+    cells = [
+        f"{'<->'.join(sorted(k, key=names.index))} {ours[k][0]:.2f} ({alone[k][0]:.2f})"
+        for k in order
+    ]
+    return [
+        line,
+        "both ways, against each pair calibrated alone as a stereo pair (OpenCV, the same "
+        "folds; in brackets): " + ", ".join(cells) + " px median",
+    ]

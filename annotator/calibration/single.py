@@ -116,7 +116,7 @@ def calibrate_camera(
         obj = [board.corners[v.ids].astype(np.float32).reshape(-1, 1, 3) for v in views]
         img = [v.corners.astype(np.float32).reshape(-1, 1, 2) for v in views]
         try:
-            with _one_opencv_thread():
+            with one_opencv_thread():
                 rms, K, dist, rvecs, tvecs = cv2.calibrateCamera(
                     obj, img, tuple(size), None, None, flags=flags, criteria=criteria
                 )
@@ -154,7 +154,7 @@ def calibrate_camera(
 
 
 @contextmanager
-def _one_opencv_thread() -> Iterator[None]:
+def one_opencv_thread() -> Iterator[None]:
     """OpenCV on one thread meanwhile: with several, ``calibrateCamera`` sums in a varying
     order and its results differ from run to run in the ninth digit, enough to change the
     written dataset.yaml when nothing else changed."""

@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Any, Literal
 
 from annotator.calibration.board import BOARD_FILE, BoardSpec, read_board_yaml
+from annotator.calibration.caliscope import find_session, read_board_toml
 from annotator.calibration.captures import (
     IMAGE_SUFFIXES,
     REPORT_FOLDER,
@@ -115,7 +116,7 @@ def calibrate_rig(
     depth_scale: float | None = None,
     dist_coeffs: DistCoeffs = "auto",
     folds: int = 5,
-    stride: int = 10,
+    stride: int | None = None,
     min_shots: int = 6,
     write: bool = True,
     quiet: bool = True,
@@ -147,7 +148,8 @@ def calibrate_rig(
         depth_camera, depth_scale: The depth section (default: kept from the dataset).
         dist_coeffs: The distortion model's coefficients, or ``auto`` (4 or 5, by the
             held-out error over ``folds`` folds).
-        stride: Video captures: every ``stride``-th frame is a shot.
+        stride: Video captures: every ``stride``-th frame is a shot (default 10; a caliscope
+            session's sync indices: 1).
         min_shots: Usable shots each camera needs.
         tell: Given the lines worth saying as the work goes (the videos' pairing, inverted
             boards, how boards that read only flipped were read).
@@ -161,7 +163,10 @@ def calibrate_rig(
     report_dir = Path(report) if report else root / REPORT_FOLDER
     if report:
         _check_report_dir(report_dir, root)
-    spec = resolve_board(root, board, board_fields or {})
+    session = find_session(root) if root.is_dir() else None
+    spec = resolve_board(
+        root, board, board_fields or {}, session.board if session is not None else None
+    )
     ds_yaml, old_text, old_doc, old_rig = _target(dataset)
     caps = find_rig_captures(
         root,
@@ -287,6 +292,13 @@ def _pairing_line(captures: Captures) -> str:
             for c in captures.cameras[1:]
         ]
         text += f" (frame offsets {min(offsets)}..{max(offsets)})" if offsets else ""
+    if captures.times:
+        spread = max(
+            max(captures.times[(c, s)] for c in captures.cameras)
+            - min(captures.times[(c, s)] for c in captures.cameras)
+            for s in captures.shots
+        )
+        text += f", the cameras' frames of a shot up to {1000 * spread:.0f} ms apart"
     if captures.unpaired:
         shown = ", ".join(str(f) for f in captures.unpaired[:6])
         text += (
@@ -296,10 +308,22 @@ def _pairing_line(captures: Captures) -> str:
     return text + " (report.json lists each shot's frames)"
 
 
-def resolve_board(root: Path, file: str | Path | None, overrides: Mapping[str, Any]) -> BoardSpec:
-    """The board from ``file`` (else CAPTURES/board.yaml) and ``overrides`` (which win)."""
+def resolve_board(
+    root: Path,
+    file: str | Path | None,
+    overrides: Mapping[str, Any],
+    recorded: Path | None = None,
+) -> BoardSpec:
+    """The board from ``file`` (else CAPTURES/board.yaml, else ``recorded``: the board file
+    the recording came with, caliscope's charuco.toml) and ``overrides`` (which win)."""
     fields: dict[str, Any] = {}
     path = Path(file) if file else root / BOARD_FILE
+    if file is None and not path.is_file() and recorded is not None:
+        fields = {**read_board_toml(recorded), **overrides}
+        try:
+            return BoardSpec(**fields)
+        except UserError as exc:
+            raise UserError(exc.message, path=exc.path or recorded) from None
     if file or path.is_file():
         spec = read_board_yaml(path)
         fields = {k: getattr(spec, k) for k in BoardSpec.__dataclass_fields__}

@@ -114,7 +114,10 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(summary.to_json(), indent=1))
     else:
-        print(f"calibrate: RMS {cal.rms_px:.3f} px; report in {report}; " + _what_became(summary))
+        print(
+            f"calibrate: RMS {cal.rms_px:.3f} px{_transfer(cal)}; report in {report}; "
+            + _what_became(summary)
+        )
     return 1 if summary.declined else 0
 
 
@@ -127,7 +130,8 @@ def _refuse(args: argparse.Namespace, summary: CalibrationSummary) -> int:
     else:
         _print_summary(cal)
         print(
-            f"calibrate: RMS {cal.rms_px:.3f} px; report in {summary.report}; the rig does "
+            f"calibrate: RMS {cal.rms_px:.3f} px{_transfer(cal)}; report in {summary.report}; "
+            "the rig does "
             "not hold together: " + (f"{path} not written" if path is not None else "no rig.yaml")
         )
     where = f"{path}: not written: " if path is not None else ""
@@ -142,6 +146,14 @@ def _print_summary(cal: Calibration) -> None:
 
     for line in summary_lines(cal):
         print(line)
+
+
+def _transfer(cal: Calibration) -> str:
+    """``, held-out transfer error X px median`` for a rig of several cameras."""
+    held = cal.held_out
+    if held is None or len(cal.cameras) < 2 or held.median_px != held.median_px:
+        return ""
+    return f", held-out transfer error {held.median_px:.2f} px median"
 
 
 def _what_became(summary: CalibrationSummary) -> str:

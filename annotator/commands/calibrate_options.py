@@ -84,8 +84,9 @@ def add_model_options(parser: argparse.ArgumentParser) -> None:
     model.add_argument(
         "--stride",
         type=whole(low=1),
-        default=10,
-        help="video captures: every N-th frame is a shot (default 10)",
+        default=None,
+        help="video captures: every N-th frame is a shot (default 10; a caliscope session's "
+        "sync indices: 1)",
     )
     model.add_argument(
         "--min-shots",
