@@ -123,6 +123,11 @@ from annotator.symmetry.classes import (
     symmetry_from_bop as symmetry_from_bop,
     symmetry_to_bop as symmetry_to_bop,
 )
+from annotator.synthesis.board import CaptureSettings as CaptureSettings
+from annotator.synthesis.captures import (
+    CapturesSummary as CapturesSummary,
+    synthesize_captures as synthesize_captures,
+)
 from annotator.synthesis.generate import (
     SynthSettings as SynthSettings,
 )

@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import argparse
 import json
-from pathlib import Path
 
 from annotator.commands import number, number_pair
 from annotator.errors import UserError
@@ -105,20 +104,11 @@ def add_calibration_options(parser: argparse.ArgumentParser) -> None:
 def synth_calibration(args: argparse.Namespace, config: SynthSettings) -> int:
     """``annotator synth --calibration OUT``: a board in ``--scenes`` random poses seen by the
     synthetic rig of ``--seed`` (``--size``, ``--noise``, ``--blur`` apply), written by
-    :func:`annotator.synthesis.board.write_captures`."""
-    from annotator.calibration.board import BoardSpec
-    from annotator.io.output_folder import check_output_folder
-    from annotator.markers.dictionary import resolve_dictionary
-    from annotator.synthesis.board import write_captures
+    :func:`annotator.synthesis.captures.synthesize_captures`."""
+    from annotator.synthesis.captures import calibration_board, synthesize_captures
 
-    check_output_folder(Path(args.out), command="synth", overwrite=args.overwrite)
     if args.ray is not None:
         raise UserError("--ray does not apply to --calibration (board shots are quick)")
-    if args.board_kind == "chessboard":
-        board = BoardSpec(9, 6, 30.0, kind="chessboard")
-    else:
-        name = args.board_dictionary or BoardSpec.dictionary
-        board = BoardSpec(dictionary=resolve_dictionary(name, Path.cwd()))
     try:
         lo, _, hi = args.distance.partition("-")
         distance = (float(lo), float(hi))
@@ -126,7 +116,8 @@ def synth_calibration(args: argparse.Namespace, config: SynthSettings) -> int:
         raise UserError(f"--distance must be MIN-MAX in mm, got {args.distance!r}") from None
     if not 0 < distance[0] <= distance[1]:
         raise UserError(f"--distance must satisfy 0 < MIN <= MAX, got {args.distance!r}")
-    cfg = CaptureSettings(
+    board = calibration_board(args.board_kind, args.board_dictionary)
+    settings = CaptureSettings(
         shots=config.scenes,
         distance=distance,
         seed=config.seed,
@@ -145,20 +136,13 @@ def synth_calibration(args: argparse.Namespace, config: SynthSettings) -> int:
         rolling_ms=args.rolling_ms,
         speed=args.speed,
     )
-    out = Path(args.out)
-    plan = write_captures(cfg, out, workers=args.workers, quiet=args.quiet, video=args.video)
-    cameras = [c.name for c in plan.rig.cameras]
-    summary = {
-        "out": str(out),
-        "shots": len(plan.shot_names),
-        "cameras": cameras,
-        "board": cfg.board.to_yaml(),
-    }
-    if args.json:
-        print(json.dumps(summary, indent=1))
-    else:
-        print(
-            f"synth --calibration: {len(plan.shot_names)} shots of a {cfg.board.describe()} "
-            f"board seen by {', '.join(cameras)}, written to {out} (board.yaml, truth.yaml)"
-        )
+    summary = synthesize_captures(
+        args.out,
+        settings,
+        workers=args.workers,
+        quiet=args.quiet,
+        video=args.video,
+        overwrite=args.overwrite,
+    )
+    print(json.dumps(summary.to_json(), indent=1) if args.json else summary.line())
     return 0
