@@ -146,7 +146,7 @@ def test_targets_files_decide_what_is_scored(tmp_path, capsys, name) -> None:
         "1,1,1,0.8,1 0 0 0 1 0 0 0 1,0 300 500,-1\n"  # a false positive in image 1
     )
     out = tmp_path / "rep.json"
-    args = ["evaluate", str(root), "--results", str(csv), "--json", str(out)]
+    args = ["evaluate", str(root), "--results", str(csv), "--json", str(out), "--overwrite"]
     assert main(args) == 0
     everything = json.loads(out.read_text())["overall"]
     assert (everything["TP"], everything["FP"], everything["FN"]) == (1, 1, 1)

@@ -239,7 +239,7 @@ def test_evaluate_gives_the_share_of_impossible_estimates(pile: Path, tmp_path, 
     sunk = tmp_path / "sunk"
     key = next(p.key for p in read_poses(pile / "scenes" / SCENE / "gt.json"))
     _results_from_truth(pile, sunk, sink=key)
-    assert main([*args, str(sunk), "--physics", "--json", str(report)]) == 0
+    assert main([*args, str(sunk), "--physics", "--json", str(report), "--overwrite"]) == 0
     physics = json.loads(report.read_text())["physics"]
     obj = key.split("/")[0]
     assert physics["per_object"][obj]["penetrating"] == 1

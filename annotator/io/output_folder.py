@@ -108,8 +108,6 @@ def check_output_files(
         if real in seen:
             raise UserError(f"{option} is also {seen[real]}: give each its own file", path=out)
         seen[real] = option
-        if not overwrite and (real.exists() or Path(out).is_symlink()) and not real.is_dir():
-            raise UserError(f"{option} exists already (pass --overwrite to replace it)", path=out)
         for p in inputs:
             if p is None:
                 continue
@@ -141,6 +139,8 @@ def check_output_files(
                     "choose a file outside it",
                     path=out,
                 )
+        if not overwrite and (real.exists() or Path(out).is_symlink()) and not real.is_dir():
+            raise UserError(f"{option} exists already (pass --overwrite to replace it)", path=out)
 
 
 def check_pictures_folder(out: str | Path, *, option: str, datasets: Sequence[str | Path]) -> None:
