@@ -116,3 +116,49 @@ def test_no_import_cycle_between_the_viewers_modules() -> None:
         if a in groups and b in groups and order[groups[b]] > order[groups[a]]
     ]
     assert not upward, "a group imports one above it: " + "; ".join(upward)
+
+
+def _private_imports() -> list[str]:
+    """Every ``from annotator.x import _name`` (or viewer's) in the project's modules."""
+    found = []
+    for folder in ("annotator", "viewer"):
+        for path in sorted((ROOT / folder).rglob("*.py")):
+            for node in ast.walk(ast.parse(path.read_text())):
+                if not (isinstance(node, ast.ImportFrom) and node.module and not node.level):
+                    continue
+                if node.module.split(".")[0] not in ("annotator", "viewer"):
+                    continue
+                for a in node.names:
+                    if a.name.startswith("_") and not a.name.startswith("__"):
+                        rel = path.relative_to(ROOT)
+                        found.append(f"{rel}:{node.lineno} {node.module}.{a.name}")
+    return found
+
+
+#: What is left of issue 56's private names, to go (each a rename in a module being reworked).
+PRIVATE_LEFT = {
+    "annotator.evaluation.bop19._min_max",
+    "annotator.evaluation.bop19._project",
+    "annotator.synthesis.shading._interpolate_rays",
+    "annotator.synthesis.generate._BinContents",
+    "annotator.synthesis.generate._fill_bin",
+    "annotator.synthesis.generate._stage",
+}
+
+
+def test_no_private_name_is_imported_from_another_module() -> None:
+    """A name with a leading underscore is its module's own: a module that needs it from
+    another needs it made public (and documented) there."""
+    found = [f for f in _private_imports() if f.split(" ")[1] not in PRIVATE_LEFT]
+    assert not found, "private names imported across modules: " + "; ".join(found)
+
+
+def test_commands_only_parse_and_print() -> None:
+    """Every command module stays a thin layer over its library function: at most 200
+    lines."""
+    long = [
+        f"{p.relative_to(ROOT)} ({n} lines)"
+        for p in sorted((ROOT / "annotator" / "commands").glob("*.py"))
+        if (n := len(p.read_text().splitlines())) > 200
+    ]
+    assert not long, "command modules over 200 lines: " + ", ".join(long)
