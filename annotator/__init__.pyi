@@ -94,6 +94,7 @@ from annotator.formats.ours import (
     annotations_as_results as annotations_as_results,
 )
 from annotator.ingest.scene import (
+    IngestSettings as IngestSettings,
     IngestSummary as IngestSummary,
     ingest_recording as ingest_recording,
 )

@@ -18,7 +18,7 @@ from annotator.dataset.model import DepthSpec, Rig
 from annotator.dataset.write import write_dataset_yaml
 from annotator.geometry.camera import Camera
 from annotator.ingest.readers.folder import open_source, read_name
-from annotator.ingest.scene import ingest_recording
+from annotator.ingest.scene import IngestSettings, ingest_recording
 from annotator.ingest.selection import running_median, select, sharpness
 
 W, H = 160, 120
@@ -149,7 +149,7 @@ def test_blur_dropping_picks_the_blurred_frames_of_a_video(tmp_path: Path, sampl
     summary = ingest_recording(ds, video, "v")
     assert sorted(summary.blurred) == sorted(BLURRED)
     assert summary.written == 10
-    again = ingest_recording(ds, video, "w", blur_threshold=0.0)
+    again = ingest_recording(ds, video, "w", IngestSettings(blur_threshold=0.0))
     assert again.written == 12 and again.blurred == []
     # The measure itself: blurring lowers it a lot.
     assert sharpness(_picture(4)) < 0.3 * sharpness(_picture(2))

@@ -114,12 +114,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from annotator.ingest.scene import ingest_recording
+    from annotator.ingest.scene import IngestSettings, ingest_recording
 
-    summary = ingest_recording(
-        args.dataset,
-        args.source,
-        args.scene,
+    settings = IngestSettings(
         camera=args.camera,
         stream=args.stream,
         every=args.every,
@@ -133,8 +130,8 @@ def run(args: argparse.Namespace) -> int:
         rig_from_source=args.rig_from_source,
         dictionary=args.dictionary,
         overwrite=args.overwrite,
-        quiet=args.quiet,
     )
+    summary = ingest_recording(args.dataset, args.source, args.scene, settings, quiet=args.quiet)
     if args.json:
         print(json.dumps(summary.to_json(), indent=1))
     else:

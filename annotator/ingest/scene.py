@@ -134,49 +134,11 @@ def _frame(label: str | int) -> str:
     return f"frame {label}" if isinstance(label, int) else label
 
 
-def ingest_recording(
-    dataset: str | Path | Dataset,
-    source: str | Path,
-    scene_id: str,
-    *,
-    camera: str | None = None,
-    stream: str | None = None,
-    every: int = 1,
-    blur_threshold: float = BLUR_THRESHOLD,
-    depth: bool = True,
-    depth_scale: float | None = None,
-    tolerance_s: float = PAIR_TOLERANCE_S,
-    fps: float | None = None,
-    color_topic: str | None = None,
-    depth_topic: str | None = None,
-    rig_from_source: bool = False,
-    dictionary: str = DEFAULT_DICTIONARY,
-    overwrite: bool = False,
-    quiet: bool = True,
-) -> IngestSummary:
-    """Write the sequence recorded in ``source`` (a recorder's file, a video or a folder of
-    colour and depth images, :mod:`annotator.ingest.sources`) as scene ``scene_id`` of a
-    moving rig's dataset.
+@dataclass(frozen=True)
+class IngestSettings:
+    """How a recording is ingested (``annotator ingest``'s options of the same names).
 
-    >>> import shutil, tempfile
-    >>> from pathlib import Path
-    >>> from annotator import SynthSettings, synthesize_sequences
-    >>> ds = Path(tempfile.mkdtemp()) / "seq"  # a moving rig's dataset, one camera
-    >>> settings = SynthSettings(parts=("brick",), scenes=1, instances=(2, 2), size=(160, 128),
-    ...                          frames=3, cameras=1)
-    >>> _ = synthesize_sequences(ds, settings)
-    >>> rec = Path(tempfile.mkdtemp())  # a folder of frames, as image_saver writes them
-    >>> for k, f in enumerate(sorted((ds / "scenes" / "000000" / "frames").iterdir())):
-    ...     _ = shutil.copy(f / "left.png", rec / f"frame{k:04d}.png")
-    >>> s = ingest_recording(ds, rec, "000001", depth=False)
-    >>> s.to_json()["kind"], s.to_json()["written"]
-    ('image folder', 3)
-
-    Args:
-        dataset: The dataset (its dataset.yaml says ``rig.moving: true``), or the folder of
-            a new one with ``rig_from_source``.
-        source: The recording, video file or image folder.
-        scene_id: The scene to write (``scenes/<scene_id>/``).
+    Attributes:
         camera: The rig camera the images are of (the name of the camera of a new rig).
         stream: The colour stream to take from a folder of several (``left``...; default:
             the one named like the camera).
@@ -194,54 +156,96 @@ def ingest_recording(
             file's calibration describes.
         dictionary: The ArUco dictionary of a dataset created by ``rig_from_source``.
         overwrite: Replace the scene if ingest wrote it.
-        quiet: No progress bars.
+    """
+
+    camera: str | None = None
+    stream: str | None = None
+    every: int = 1
+    blur_threshold: float = BLUR_THRESHOLD
+    depth: bool = True
+    depth_scale: float | None = None
+    tolerance_s: float = PAIR_TOLERANCE_S
+    fps: float | None = None
+    color_topic: str | None = None
+    depth_topic: str | None = None
+    rig_from_source: bool = False
+    dictionary: str = DEFAULT_DICTIONARY
+    overwrite: bool = False
+
+    def check(self) -> None:
+        """Refuse (one line naming the option) a value no ingest can take."""
+        if self.every < 1:
+            raise UserError(f"--every must be at least 1, got {self.every}")
+        if not self.blur_threshold >= 0:
+            raise UserError(f"--blur-threshold must be at least 0, got {self.blur_threshold}")
+        if self.depth_scale is not None and not self.depth_scale > 0:
+            raise UserError(f"--depth-scale must be above 0, got {self.depth_scale}")
+
+
+def ingest_recording(
+    dataset: str | Path | Dataset,
+    source: str | Path,
+    scene_id: str,
+    settings: IngestSettings | None = None,
+    *,
+    quiet: bool = True,
+) -> IngestSummary:
+    """Write the sequence recorded in ``source`` (a recorder's file, a video or a folder of
+    colour and depth images, :mod:`annotator.ingest.sources`) as scene ``scene_id`` of a
+    moving rig's dataset (the dataset's folder, or a new one with
+    ``settings.rig_from_source``), as ``settings`` says; ``quiet``: no progress bars.
+
+    >>> import shutil, tempfile
+    >>> from pathlib import Path
+    >>> from annotator import SynthSettings, synthesize_sequences
+    >>> ds = Path(tempfile.mkdtemp()) / "seq"  # a moving rig's dataset, one camera
+    >>> settings = SynthSettings(parts=("brick",), scenes=1, instances=(2, 2), size=(160, 128),
+    ...                          frames=3, cameras=1)
+    >>> _ = synthesize_sequences(ds, settings)
+    >>> rec = Path(tempfile.mkdtemp())  # a folder of frames, as image_saver writes them
+    >>> for k, f in enumerate(sorted((ds / "scenes" / "000000" / "frames").iterdir())):
+    ...     _ = shutil.copy(f / "left.png", rec / f"frame{k:04d}.png")
+    >>> s = ingest_recording(ds, rec, "000001", IngestSettings(depth=False))
+    >>> s.to_json()["kind"], s.to_json()["written"]
+    ('image folder', 3)
 
     Raises:
         UserError: one line naming the file, for any bad input (module :mod:`.sources`,
             sizes that are not the camera's, a dataset that is not a moving rig's...).
     """
+    s = settings or IngestSettings()
     check_scene_id(scene_id)
-    if every < 1:
-        raise UserError(f"--every must be at least 1, got {every}")
-    if not blur_threshold >= 0:
-        raise UserError(f"--blur-threshold must be at least 0, got {blur_threshold}")
-    if depth_scale is not None and not depth_scale > 0:
-        raise UserError(f"--depth-scale must be above 0, got {depth_scale}")
+    s.check()
     src = open_recording(
         source,
-        stream=camera if stream is None else stream,
-        depth=depth,
-        tolerance_s=tolerance_s,
-        fps=fps,
-        color_topic=color_topic,
-        depth_topic=depth_topic,
-        depth_unit_mm=depth_scale,
+        stream=s.camera if s.stream is None else s.stream,
+        depth=s.depth,
+        tolerance_s=s.tolerance_s,
+        fps=s.fps,
+        color_topic=s.color_topic,
+        depth_topic=s.depth_topic,
+        depth_unit_mm=s.depth_scale,
     )
-    made = _new_folders(dataset) if rig_from_source else []
-    ds, rig_written = _dataset(dataset, src, camera, depth, rig_from_source, dictionary)
-    settings = _IngestSettings(
-        camera, every, blur_threshold, depth, depth_scale, tolerance_s, overwrite, quiet
-    )
+    made = _new_folders(dataset) if s.rig_from_source else []
+    ds, rig_written = _dataset(dataset, src, s.camera, s.depth, s.rig_from_source, s.dictionary)
     try:
-        return _ingest(ds, src, Path(source), scene_id, settings, rig_written)
+        return _ingest(ds, src, Path(source), scene_id, s, rig_written, quiet)
     except BaseException:
         if rig_written:  # the dataset this call made goes with the scene it failed to write
             _unmake(ds.root, made)
         raise
 
 
-@dataclass(frozen=True)
-class _IngestSettings:
-    """What :func:`ingest_recording` was asked (its arguments of the same names)."""
+@dataclass
+class _Chosen:
+    """The frames to write, and what was said of the others."""
 
-    camera: str | None
-    every: int
-    blur_threshold: float
-    depth: bool
-    depth_scale: float | None
-    tolerance_s: float
-    overwrite: bool
-    quiet: bool
+    kept: list[int]
+    sharpness: dict[int, float]
+    blurred: list[str | int]
+    dropped: list[dict[str, Any]]
+    notes: list[str]
+    with_depth: bool
 
 
 def _ingest(
@@ -249,89 +253,32 @@ def _ingest(
     src: Recording,
     source: Path,
     scene_id: str,
-    settings: _IngestSettings,
+    s: IngestSettings,
     rig_written: bool,
+    quiet: bool,
 ) -> IngestSummary:
     """The ingest once the dataset is there (:func:`ingest_recording`)."""
-    if not ds.rig.moving:
-        raise UserError(
-            "the rig is not a moving one: ingest writes sequences into a dataset whose "
-            "dataset.yaml says rig: {moving: true} (FORMAT.md, sequences)",
-            path=ds.root / "dataset.yaml",
-        )
-    cam = _camera(ds, settings.camera)
-    if src.calibration is not None and not rig_written:
-        check_rig_matches(cam, src.calibration, ds.root / "dataset.yaml", src.path)
-    folder = ds.root / SCENES_DIR / scene_id
-    check_replaceable(folder, overwrite=settings.overwrite)
-    real = Path(source).resolve()
-    if real == folder.resolve() or folder.resolve() in real.parents:
-        raise UserError(
-            "lies in the scene it would be written to; move it out of the dataset first",
-            path=source,
-        )
-    if settings.depth and "depth" in src.streams and all(d is None for d in src.depth_for):
-        raise UserError(_unpaired(src, settings.tolerance_s), path=src.path)
-    with_depth = settings.depth and any(d is not None for d in src.depth_for)
-    if with_depth:
-        _check_depth_camera(ds, cam)
-    scale = _depth_factor(src, settings.depth_scale)
-    option = _depth_option(src, settings.depth_scale)
-    chosen = candidates(len(src.times), settings.every)
-    dropped: list[dict[str, Any]] = [{"frame": lbl, "why": why} for lbl, why in src.dropped]
-    chosen, repeats, notes = _in_time(src, chosen)
-    dropped += repeats
-    if with_depth:
-        tol = f"{settings.tolerance_s * 1000:g} ms"
-        lonely = [i for i in chosen if src.depth_for[i] is None]
-        dropped += [{"frame": src.labels[i], "why": f"no depth frame within {tol}"} for i in lonely]
-        chosen = [i for i in chosen if src.depth_for[i] is not None]
-    good, values = _measure(src, chosen, cam, settings.quiet, dropped)
-    selection = select(good, values, threshold=settings.blur_threshold)
-    kept = list(selection.kept)
-    if not kept:
-        why = "all dropped as blurred" if good else "none could be decoded"
-        raise UserError(f"no frame is left to write ({why})", path=src.path)
-    t0 = next((t for t in src.times if t is not None), None)
-    blurred = [src.labels[i] for i in selection.blurred]
+    cam, folder = _target(ds, src, source, scene_id, s, rig_written)
+    chosen = _choose(ds, src, cam, s, quiet)
+    scale = _depth_factor(src, s.depth_scale)
+    option = _depth_option(src, s.depth_scale)
     sweep_abandoned(ds.root / SCENES_DIR)
-    recheck = partial(check_replaceable, overwrite=settings.overwrite)
+    recheck = partial(check_replaceable, overwrite=s.overwrite)
     with atomic_folder(folder, still_replaceable=recheck) as tmp:
         written = _write_frames(
-            ds, src, kept, cam, tmp, (with_depth, scale, option), settings.quiet, dropped
-        )
+            ds, src, chosen.kept, cam, tmp, (chosen.with_depth, scale, option), quiet,
+            chosen.dropped,
+        )  # fmt: skip
         if not written:
             raise UserError("no frame is left to write (none could be decoded)", path=src.path)
         spikes = sum(e.get("depth_spikes_removed", 0) for _, e in written)
         if spikes:
-            notes.append(
+            chosen.notes.append(
                 f"{spikes} depth pixels unlike all four of their neighbours made holes (damaged "
                 "bytes, or the sensor's speckle); frames.json says how many in each frame"
             )
-        entries: dict[str, dict[str, Any]] = {}
-        for k, (i, entry) in enumerate(written):
-            entry["sharpness"] = round(selection.of(i), 3)
-            t = src.times[i]
-            entry["time_s"] = None if t is None or t0 is None else round(t - t0, 6)
-            entries[frame_name(k)] = entry
-        doc: dict[str, Any] = {
-            "written_by": WRITTEN_BY,
-            "source": str(Path(source).resolve()),
-            "kind": src.kind,
-            "camera": cam.name,
-            "streams": src.streams,
-            "intrinsics": src.calibration.origin
-            if rig_written and src.calibration
-            else "dataset.yaml",
-            "every": settings.every,
-            "blur_threshold": settings.blur_threshold,
-            "time_origin_s": t0,
-            "blurred": blurred,
-            "dropped": dropped,
-            "ended_early": src.ended_early,
-            "notes": src.notes + notes,
-            "frames": entries,
-        }
+        intrinsics = src.calibration.origin if rig_written and src.calibration else "dataset.yaml"
+        doc = _frames_doc(src, source, cam, s, chosen, written, intrinsics)
         write_json(tmp / FRAMES_FILE, doc)
     return IngestSummary(
         scene=str(folder),
@@ -339,21 +286,109 @@ def _ingest(
         kind=src.kind,
         camera=cam.name,
         source_frames=len(src.times),
-        candidates=len(candidates(len(src.times), settings.every)),
+        candidates=len(candidates(len(src.times), s.every)),
         written=len(written),
-        blurred=blurred,
-        dropped=dropped,
+        blurred=chosen.blurred,
+        dropped=chosen.dropped,
         ended_early=src.ended_early,
-        notes=list(src.notes) + notes,
-        depth=with_depth,
+        notes=list(src.notes) + chosen.notes,
+        depth=chosen.with_depth,
         streams=dict(src.streams),
-        intrinsics=doc["intrinsics"],
+        intrinsics=intrinsics,
         file_calibration=src.calibration.origin if src.calibration else None,
-        depth_registered=with_depth and _registers(src),
+        depth_registered=chosen.with_depth and _registers(src),
         rig_written=rig_written,
-        every=settings.every,
-        blur_threshold=settings.blur_threshold,
+        every=s.every,
+        blur_threshold=s.blur_threshold,
     )
+
+
+def _target(
+    ds: Dataset, src: Recording, source: Path, scene_id: str, s: IngestSettings, rig_written: bool
+) -> tuple[Camera, Path]:
+    """The rig camera and the scene folder, checked: a moving rig's, the recording's camera,
+    a scene ingest may write, a source outside it."""
+    if not ds.rig.moving:
+        raise UserError(
+            "the rig is not a moving one: ingest writes sequences into a dataset whose "
+            "dataset.yaml says rig: {moving: true} (FORMAT.md, sequences)",
+            path=ds.root / "dataset.yaml",
+        )
+    cam = _camera(ds, s.camera)
+    if src.calibration is not None and not rig_written:
+        check_rig_matches(cam, src.calibration, ds.root / "dataset.yaml", src.path)
+    folder = ds.root / SCENES_DIR / scene_id
+    check_replaceable(folder, overwrite=s.overwrite)
+    real = Path(source).resolve()
+    if real == folder.resolve() or folder.resolve() in real.parents:
+        raise UserError(
+            "lies in the scene it would be written to; move it out of the dataset first",
+            path=source,
+        )
+    return cam, folder
+
+
+def _choose(ds: Dataset, src: Recording, cam: Camera, s: IngestSettings, quiet: bool) -> _Chosen:
+    """The frames to write: every ``every``-th, in time (repeats dropped), with a depth
+    partner when depth is written, sharp enough (pass 1 reads them)."""
+    if s.depth and "depth" in src.streams and all(d is None for d in src.depth_for):
+        raise UserError(_unpaired(src, s.tolerance_s), path=src.path)
+    with_depth = s.depth and any(d is not None for d in src.depth_for)
+    if with_depth:
+        _check_depth_camera(ds, cam)
+    dropped: list[dict[str, Any]] = [{"frame": lbl, "why": why} for lbl, why in src.dropped]
+    chosen, repeats, notes = _in_time(src, candidates(len(src.times), s.every))
+    dropped += repeats
+    if with_depth:
+        tol = f"{s.tolerance_s * 1000:g} ms"
+        lonely = [i for i in chosen if src.depth_for[i] is None]
+        dropped += [{"frame": src.labels[i], "why": f"no depth frame within {tol}"} for i in lonely]
+        chosen = [i for i in chosen if src.depth_for[i] is not None]
+    good, values = _measure(src, chosen, cam, quiet, dropped)
+    selection = select(good, values, threshold=s.blur_threshold)
+    kept = list(selection.kept)
+    if not kept:
+        why = "all dropped as blurred" if good else "none could be decoded"
+        raise UserError(f"no frame is left to write ({why})", path=src.path)
+    sharpness = {i: round(selection.of(i), 3) for i in kept}
+    blurred = [src.labels[i] for i in selection.blurred]
+    return _Chosen(kept, sharpness, blurred, dropped, notes, with_depth)
+
+
+def _frames_doc(
+    src: Recording,
+    source: Path,
+    cam: Camera,
+    s: IngestSettings,
+    chosen: _Chosen,
+    written: list[tuple[int, dict[str, Any]]],
+    intrinsics: str,
+) -> dict[str, Any]:
+    """frames.json (FORMAT.md, sequences): where each frame came from, its time and
+    sharpness, and what was left out."""
+    t0 = next((t for t in src.times if t is not None), None)
+    entries: dict[str, dict[str, Any]] = {}
+    for k, (i, entry) in enumerate(written):
+        entry["sharpness"] = chosen.sharpness[i]
+        t = src.times[i]
+        entry["time_s"] = None if t is None or t0 is None else round(t - t0, 6)
+        entries[frame_name(k)] = entry
+    return {
+        "written_by": WRITTEN_BY,
+        "source": str(Path(source).resolve()),
+        "kind": src.kind,
+        "camera": cam.name,
+        "streams": src.streams,
+        "intrinsics": intrinsics,
+        "every": s.every,
+        "blur_threshold": s.blur_threshold,
+        "time_origin_s": t0,
+        "blurred": chosen.blurred,
+        "dropped": chosen.dropped,
+        "ended_early": src.ended_early,
+        "notes": src.notes + chosen.notes,
+        "frames": entries,
+    }
 
 
 def _unpaired(src: Recording, tolerance_s: float) -> str:
