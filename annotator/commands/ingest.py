@@ -57,7 +57,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="drop a frame whose sharpness (variance of the Laplacian) is below F times the "
         f"running median of its neighbours' (default {BLUR_THRESHOLD:g}; 0 keeps every frame)",
     )
+    _add_depth_options(parser)
+    _add_recorder_options(parser)
     parser.add_argument(
+        "--overwrite", action="store_true", help="replace the scene if ingest wrote it"
+    )
+    parser.add_argument("--json", action="store_true", help="print the summary as JSON")
+    parser.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
+def _add_depth_options(parser: argparse.ArgumentParser) -> None:
+    group = parser.add_argument_group("depth", "the depth frames and how they pair with colour")
+    group.add_argument("--no-depth", action="store_true", help="leave the depth images out")
+    group.add_argument(
         "--depth-scale",
         type=number(low=0, above=True),
         default=None,
@@ -66,7 +78,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "file says; 1 for an image folder, as RealSense writes them); depth.png is written at "
         "the rig's rig.depth.scale",
     )
-    parser.add_argument(
+    group.add_argument(
         "--tolerance-ms",
         type=number(low=0),
         default=PAIR_TOLERANCE_S * 1000,
@@ -75,42 +87,40 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         f"images whose names do not share a number, a recording's frames; default "
         f"{PAIR_TOLERANCE_S * 1000:g})",
     )
-    parser.add_argument(
+    group.add_argument(
         "--fps",
         type=number(low=0, above=True),
         help="the frame rate of a folder whose names are frame indices (frame0000.jpg): "
         "gives the frames their times",
     )
-    parser.add_argument(
+
+
+def _add_recorder_options(parser: argparse.ArgumentParser) -> None:
+    group = parser.add_argument_group("recorders' files", "bags, and a rig from the file")
+    group.add_argument(
         "--color-topic",
         metavar="TOPIC",
         help="a bag's colour image topic (Image or CompressedImage), when several could be",
     )
-    parser.add_argument(
+    group.add_argument(
         "--depth-topic",
         metavar="TOPIC",
         help="a bag's depth image topic (16UC1, mono16 or 32FC1), when several could be",
     )
-    parser.add_argument(
+    group.add_argument(
         "--rig-from-source",
         action="store_true",
         help="when DATASET does not exist, create it with dataset.yaml holding a moving rig "
         "of the file's colour camera (K, distortion, size) and depth, the --dictionary and no "
         "objects yet; an existing rig is checked against the file's intrinsics (1 %%) anyway",
     )
-    parser.add_argument(
+    group.add_argument(
         "--dictionary",
         default="DICT_4X4_1000",
         metavar="NAME",
         help="the ArUco dictionary of a dataset created by --rig-from-source (default "
         "DICT_4X4_1000)",
     )
-    parser.add_argument("--no-depth", action="store_true", help="leave the depth images out")
-    parser.add_argument(
-        "--overwrite", action="store_true", help="replace the scene if ingest wrote it"
-    )
-    parser.add_argument("--json", action="store_true", help="print the summary as JSON")
-    parser.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
 def run(args: argparse.Namespace) -> int:
