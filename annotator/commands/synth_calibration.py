@@ -35,6 +35,11 @@ def add_calibration_options(parser: argparse.ArgumentParser) -> None:
         help="the ChArUco board's dictionary: a predefined name or a dictionary file, copied "
         "beside board.yaml (default DICT_4X4_50)",
     )
+    _add_realism_options(calib)
+
+
+def _add_realism_options(calib: argparse._ArgumentGroup) -> None:
+    """How the board shots differ from ideal ones: the print, the cameras, the timing."""
     calib.add_argument("--inverted", action="store_true", help="the board printed colour-inverted")
     calib.add_argument(
         "--mirror",
