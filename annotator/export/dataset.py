@@ -100,7 +100,7 @@ def export_dataset(
     """Export the accepted scenes of ``ds`` into the new folder ``out`` (or, with
     ``overwrite``, one an earlier export wrote).
 
-        >>> import tempfile
+    >>> import tempfile
     >>> out = Path(tempfile.mkdtemp()) / "bop"
     >>> s = export_dataset("sample_scenes", out, format="bop", include_pending=True, poses="gt")
     >>> s.exported, (out / "test_targets_bop19.json").is_file()
