@@ -108,18 +108,21 @@ class Bop19Scores:
 
 
 def symmetric_points(obj: BopObject) -> np.ndarray:
-    """(S, N, 3): the model points moved by each symmetry, computed once per object."""
-    cached = _SYMMETRIC.get(id(obj))
-    if cached is None or cached[0] is not obj:
+    """(S, N, 3): the model points moved by each symmetry, computed once per process for
+    the same points (one array per mesh file, :func:`annotator.geometry.mesh.load_mesh`) and
+    symmetries, as BOP 2019's and 2024's scores of one run read them."""
+    key = (id(obj.points), obj.sym_R.tobytes() + obj.sym_t.tobytes())
+    cached = _SYMMETRIC.get(key)
+    if cached is None or cached[0] is not obj.points:
         pts = obj.sym_R @ obj.points.T  # (S, 3, N)
-        cached = (obj, np.ascontiguousarray(np.swapaxes(pts, 1, 2) + obj.sym_t[:, None, :]))
-        if len(_SYMMETRIC) > 256:
+        copies = np.ascontiguousarray(np.swapaxes(pts, 1, 2) + obj.sym_t[:, None, :])
+        if len(_SYMMETRIC) > 64:
             _SYMMETRIC.clear()
-        _SYMMETRIC[id(obj)] = cached
+        cached = _SYMMETRIC[key] = (obj.points, copies)
     return cached[1]
 
 
-_SYMMETRIC: dict[int, tuple[BopObject, np.ndarray]] = {}
+_SYMMETRIC: dict[tuple[int, bytes], tuple[np.ndarray, np.ndarray]] = {}
 
 
 def mssd(
@@ -295,51 +298,82 @@ def _error_tables(
     uv_e = _project(image.K, pts_e)
     near = np.linalg.norm(est.t[mine][:, None] - image.t[gts][None], axis=2) < obj.diameter
     for j, g in enumerate(gts):
-        moved = np.einsum("snk,jk->snj", sym, image.R[g]) + image.t[g]
-        uv_g = _project(image.K, moved)
+        copies = _Copies(sym, image.R[g], image.t[g], image.K)
         if near[:, j].any():
-            got = _min_max_many(moved, pts_e[near[:, j]], mm_cut**2)
+            got = _min_max_many(copies.points, len(sym), pts_e[near[:, j]], mm_cut**2)
             mm[near[:, j], j] = np.sqrt(got)
-        px[:, j] = np.sqrt(_min_max_many(uv_g, uv_e, px_cut**2))
+        px[:, j] = np.sqrt(_min_max_many(copies.pixels, len(sym), uv_e, px_cut**2))
     return mm, px
 
 
+#: The rows and points of the symmetric copies asked for: (S', N', k).
+Copies = Callable[[np.ndarray | slice, np.ndarray | slice], np.ndarray]
+
+
+class _Copies:
+    """A true pose's symmetric copies of the model points, moved (mm) or projected (px),
+    computed where they are asked for: an object with a continuous symmetry has hundreds of
+    copies, of which the bounds of :func:`_min_max` look at a few points and exactly at a
+    few copies only. Small sets are computed whole once."""
+
+    def __init__(self, sym: np.ndarray, R: np.ndarray, t: np.ndarray, K: np.ndarray) -> None:
+        self.sym, self.R, self.t, self.K = sym, R, t, K
+        self._whole: dict[str, np.ndarray] = {}
+
+    def points(self, rows: np.ndarray | slice, cols: np.ndarray | slice) -> np.ndarray:
+        if len(self.sym) <= _WHOLE_COPIES:
+            if "mm" not in self._whole:
+                self._whole["mm"] = np.einsum("snk,jk->snj", self.sym, self.R) + self.t
+            return self._whole["mm"][rows][:, cols]
+        return np.einsum("snk,jk->snj", self.sym[rows][:, cols], self.R) + self.t
+
+    def pixels(self, rows: np.ndarray | slice, cols: np.ndarray | slice) -> np.ndarray:
+        if len(self.sym) <= _WHOLE_COPIES:
+            if "px" not in self._whole:
+                self._whole["px"] = _project(self.K, self.points(slice(None), slice(None)))
+            return self._whole["px"][rows][:, cols]
+        return _project(self.K, self.points(rows, cols))
+
+
+#: Symmetric copies up to this many are moved and projected whole (every point is needed).
+_WHOLE_COPIES = 4
 #: Points of the first, cheapest lower bound of :func:`_min_max_many`.
 _COARSE_POINTS = 6
 
 
-def _min_max_many(moved: np.ndarray, ests: np.ndarray, cutoff: float) -> np.ndarray:
-    """For each estimate's points ``ests`` (E, N, k): min over the symmetric copies
-    ``moved`` (S, N, k) of the largest squared distance over the points, as :func:`_min_max`
-    computes it; infinite where a lower bound is ``cutoff`` or more. The bounds of all
-    estimates at once, then each one's exact value where it is needed."""
-    S, N = moved.shape[:2]
+def _min_max_many(copies: Copies, S: int, ests: np.ndarray, cutoff: float) -> np.ndarray:
+    """For each estimate's points ``ests`` (E, N, k): min over the ``S`` symmetric copies
+    (``copies(rows, points)``) of the largest squared distance over the points, as
+    :func:`_min_max` computes it; infinite where a lower bound is ``cutoff`` or more. The
+    bounds of all estimates at once, then each one's exact value where it is needed."""
+    N = ests.shape[1]
+    every = slice(None)
 
     def largest(points: np.ndarray | slice, which: np.ndarray | slice) -> np.ndarray:
-        d = moved[None, :, points] - ests[which][:, None, points]
+        d = copies(every, points)[None] - ests[which][:, None, points]
         return np.einsum("esnk,esnk->esn", d, d).max(axis=2)  # (E, S)
 
     if S <= 4 or N <= 128:
-        return largest(slice(None), slice(None)).min(axis=1)
+        return largest(every, every).min(axis=1)
     out = np.full(len(ests), np.inf)
-    coarse = largest(np.linspace(0, N - 1, _COARSE_POINTS).astype(int), slice(None))
+    coarse = largest(np.linspace(0, N - 1, _COARSE_POINTS).astype(int), every)
     alive = np.flatnonzero(coarse.min(axis=1) < cutoff)
     if not len(alive):
         return out
     bounds = largest(sample_points(N), alive)
     for i, bound in zip(alive, bounds):
-        out[i] = _min_max(_distances(moved, ests[i]), S, N, cutoff, bound)
+        out[i] = _min_max(_distances(copies, ests[i]), S, N, cutoff, bound)
     return out
 
 
 def _distances(
-    moved: np.ndarray, est: np.ndarray
+    copies: Copies, est: np.ndarray
 ) -> Callable[[np.ndarray, slice | np.ndarray], np.ndarray]:
-    """Squared distances between the symmetric copies ``moved`` (S, N, k) and the
-    estimate's ``est`` (N, k), over the rows and points asked for."""
+    """Squared distances between the symmetric copies and the estimate's points ``est``
+    (N, k), over the rows and points asked for."""
 
     def squared(rows: np.ndarray, cols: slice | np.ndarray) -> np.ndarray:
-        d = moved[:, cols][rows] - est[cols]
+        d = copies(rows, cols) - est[cols]
         return np.einsum("snk,snk->sn", d, d)
 
     return squared
