@@ -56,6 +56,7 @@ def test_plain_check_imports_no_heavy_module() -> None:
     [
         ("--help",),
         ("check", "--help"),
+        ("annotate", "--help"),
         ("evaluate", "--help"),
         ("export", "--help"),
         ("review", "--help"),
