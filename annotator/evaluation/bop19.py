@@ -457,7 +457,7 @@ def greedy_match(errors: np.ndarray, valid: np.ndarray, threshold: float) -> np.
     strictly below ``threshold`` (on equal errors the first). Returns (E,) the true pose each
     took, -1 for none.
 
-    >>> greedy_match(np.array([[0.1, 0.2], [0.1, 0.3]]), np.ones(2, bool), 0.25)
+    >>> greedy_match(np.array([[0.1, 0.2], [0.1, 0.2]]), np.ones(2, bool), 0.25)
     array([0, 1])
     """
     return greedy_matches(errors, valid, np.array([threshold], float))[0]
