@@ -106,3 +106,28 @@ def test_load_mesh_errors_name_the_file(tmp_path) -> None:
     good = tmp_path / "box.ply"
     trimesh.creation.box((1, 2, 3)).export(good)
     assert load_mesh(good).faces.shape == (12, 3)
+
+
+def _binary_ply(vertices: np.ndarray, polygons: list[list[int]]) -> bytes:
+    header = (
+        "ply\nformat binary_little_endian 1.0\n"
+        f"element vertex {len(vertices)}\nproperty float x\nproperty float y\nproperty float z\n"
+        f"element face {len(polygons)}\nproperty list uchar int vertex_indices\nend_header\n"
+    )
+    faces = b"".join(np.uint8(len(q)).tobytes() + np.asarray(q, "<i4").tobytes() for q in polygons)
+    return header.encode() + np.asarray(vertices, "<f4").tobytes() + faces
+
+
+def test_load_mesh_reads_a_file_once_until_it_changes(tmp_path) -> None:
+    square = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [0, 0, 1]], float)
+    path = tmp_path / "part.ply"
+    path.write_bytes(_binary_ply(square, [[0, 1, 2], [0, 2, 3], [0, 1, 4]]))
+    first = load_mesh(path)
+    assert first.faces.tolist() == [[0, 1, 2], [0, 2, 3], [0, 1, 4]]
+    assert load_mesh(path) is first
+    # Polygons other than triangles: plyfile's general reader, split into fans.
+    path.write_bytes(_binary_ply(square, [[0, 1, 2, 3], [0, 1, 4]]))
+    again = load_mesh(path)
+    assert again is not first
+    assert again.faces.tolist() == [[0, 1, 2], [0, 2, 3], [0, 1, 4]]
+    np.testing.assert_array_equal(again.vertices, square)

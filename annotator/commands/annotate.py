@@ -5,7 +5,6 @@ from __future__ import annotations
 import argparse
 import sys
 
-from annotator.annotation.batch import annotate_dataset
 from annotator.commands import add_ray_option, add_workers_option, finish_batch
 from annotator.dataset import load_dataset
 from annotator.dataset.frames import frames_line
@@ -29,6 +28,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    # The annotation imports open3d and scipy.spatial (a second): not for `annotate --help`.
+    from annotator.annotation.batch import annotate_dataset
+
     summary = annotate_dataset(
         load_dataset(args.dataset),
         scenes=args.scenes,

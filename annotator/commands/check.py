@@ -7,7 +7,6 @@ import json
 
 from annotator.dataset import load_dataset
 from annotator.dataset.check import check_dataset
-from annotator.physics.dataset import physics_json, physics_of_dataset, physics_problems
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -45,6 +44,10 @@ def run(args: argparse.Namespace) -> int:
     problems, scenes = report.problems, report.scenes
     physics = None
     if (args.physics or args.stability) and not report.errors:
+        # Physics needs open3d, scipy.spatial and mujoco (about a second to import): only
+        # when asked for, so that a plain check starts at once.
+        from annotator.physics.dataset import physics_json, physics_of_dataset, physics_problems
+
         ds = load_dataset(args.dataset)
         physics = physics_of_dataset(ds, poses=args.poses, stability=args.stability)
         problems = problems + physics_problems(ds, physics, args.poses)

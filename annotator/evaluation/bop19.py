@@ -47,6 +47,9 @@ from annotator.geometry.mesh import Mesh
 #: Thresholds of correctness of VSD and MSSD (a fraction), as ``np.arange(0.05, 0.51, 0.05)``
 #: in bop_toolkit: the same floats, so that ties fall the same way.
 CORRECT_TH = np.arange(0.05, 0.51, 0.05)
+#: MSSD's thresholds in mm of BOP 2025's ``bop25_mAP_mm`` (``range(2, 21, 2)`` in
+#: bop_toolkit): :mod:`.bop24` scores them, :func:`error_tables` needs the largest.
+MSSD_MM_TH = np.arange(2, 21, 2).astype(float)
 #: Thresholds of MSPD, in pixels of an image 640 pixels wide.
 MSPD_TH_PX = np.arange(5, 51, 5)
 #: VSD's misalignment tolerances (a fraction of the diameter).
@@ -105,18 +108,21 @@ class Bop19Scores:
 
 
 def symmetric_points(obj: BopObject) -> np.ndarray:
-    """(S, N, 3): the model points moved by each symmetry, computed once per object."""
-    cached = _SYMMETRIC.get(id(obj))
-    if cached is None or cached[0] is not obj:
+    """(S, N, 3): the model points moved by each symmetry, computed once per process for
+    the same points (one array per mesh file, :func:`annotator.geometry.mesh.load_mesh`) and
+    symmetries, as BOP 2019's and 2024's scores of one run read them."""
+    key = (id(obj.points), obj.sym_R.tobytes() + obj.sym_t.tobytes())
+    cached = _SYMMETRIC.get(key)
+    if cached is None or cached[0] is not obj.points:
         pts = obj.sym_R @ obj.points.T  # (S, 3, N)
-        cached = (obj, np.ascontiguousarray(np.swapaxes(pts, 1, 2) + obj.sym_t[:, None, :]))
-        if len(_SYMMETRIC) > 256:
+        copies = np.ascontiguousarray(np.swapaxes(pts, 1, 2) + obj.sym_t[:, None, :])
+        if len(_SYMMETRIC) > 64:
             _SYMMETRIC.clear()
-        _SYMMETRIC[id(obj)] = cached
+        cached = _SYMMETRIC[key] = (obj.points, copies)
     return cached[1]
 
 
-_SYMMETRIC: dict[int, tuple[BopObject, np.ndarray]] = {}
+_SYMMETRIC: dict[tuple[int, bytes], tuple[np.ndarray, np.ndarray]] = {}
 
 
 def mssd(
@@ -176,6 +182,8 @@ def mspd(
     return math.sqrt(_min_max(squared, len(sym), len(uv_e), cutoff * cutoff))
 
 
+#: Errors past every threshold by this factor are not computed exactly (they match nothing).
+_MARGIN = 1.01
 #: Points the first pass of :func:`_min_max` looks at.
 _SAMPLE_POINTS = 64
 
@@ -213,6 +221,162 @@ def _min_max(
             break
         best = min(best, float(squared(rows, slice(None)).max(axis=1).min()))
     return best
+
+
+def error_tables(
+    image: BopImage, est: BopEstimates, mine: np.ndarray, gts: np.ndarray, obj: BopObject
+) -> tuple[np.ndarray, np.ndarray]:
+    """(E, G) MSSD in mm and MSPD in pixels (not rescaled) of the estimates ``mine`` against
+    the true poses ``gts`` of one object in one image, as :func:`mssd` and :func:`mspd`
+    (MSSD infinite when the centres are a diameter or more apart). Errors past every
+    threshold of BOP's scores (VSD's and MSSD's fractions, MSSD's millimetres, MSPD's
+    pixels) by :data:`_MARGIN` may be infinite: no threshold can tell them apart.
+
+    Each pair is computed once per process: BOP 2019's and 2024's scores of one result
+    file pair mostly the same estimates with the same true poses, and the second takes the
+    first's errors (the same numbers, by the pair's poses, camera and object)."""
+    E, G = len(mine), len(gts)
+    mm = np.full((E, G), np.inf)
+    px = np.full((E, G), np.inf)
+    if not E or not G:
+        return mm, px
+    memo = _pair_memo(obj)
+    camera = image.K.tobytes() + str(image.width).encode()
+    keys_e = [est.R[e].tobytes() + est.t[e].tobytes() for e in mine]
+    keys_g = [camera + image.R[g].tobytes() + image.t[g].tobytes() for g in gts]
+    todo = []
+    for i, ke in enumerate(keys_e):
+        for j, kg in enumerate(keys_g):
+            got = memo.get(ke + kg)
+            if got is None:
+                todo.append(i)
+                break
+            mm[i, j], px[i, j] = got
+    if todo:
+        scale = MSPD_REFERENCE_WIDTH_PX / image.width
+        mm_cut = _MARGIN * max(float(CORRECT_TH[-1]) * obj.diameter, float(MSSD_MM_TH[-1]))
+        px_cut = _MARGIN * float(MSPD_TH_PX[-1]) / scale
+        rows = np.asarray(todo)
+        mm[rows], px[rows] = _error_tables(image, est, mine[rows], gts, obj, mm_cut, px_cut)
+        if len(memo) > 1_000_000:
+            memo.clear()
+        for i in todo:
+            for j, kg in enumerate(keys_g):
+                memo[keys_e[i] + kg] = (float(mm[i, j]), float(px[i, j]))
+    return mm, px
+
+
+def _pair_memo(obj: BopObject) -> dict[bytes, tuple[float, float]]:
+    """The pairs' errors computed so far for an object: by its points (one array per mesh
+    file and process, :func:`annotator.geometry.mesh.load_mesh`), symmetries and diameter."""
+    key = (id(obj.points), obj.sym_R.tobytes() + obj.sym_t.tobytes(), obj.diameter)
+    got = _PAIRS.get(key)
+    if got is None or got[0] is not obj.points:
+        if len(_PAIRS) > 256:
+            _PAIRS.clear()
+        got = _PAIRS[key] = (obj.points, {})
+    return got[1]
+
+
+_PAIRS: dict[tuple[int, bytes, float], tuple[np.ndarray, dict[bytes, tuple[float, float]]]] = {}
+
+
+def _error_tables(
+    image: BopImage,
+    est: BopEstimates,
+    mine: np.ndarray,
+    gts: np.ndarray,
+    obj: BopObject,
+    mm_cut: float,
+    px_cut: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    E, G = len(mine), len(gts)
+    mm = np.full((E, G), np.inf)
+    px = np.full((E, G), np.inf)
+    sym = symmetric_points(obj)
+    pts_e = np.stack([obj.points @ est.R[e].T + est.t[e] for e in mine])
+    uv_e = _project(image.K, pts_e)
+    near = np.linalg.norm(est.t[mine][:, None] - image.t[gts][None], axis=2) < obj.diameter
+    for j, g in enumerate(gts):
+        copies = _Copies(sym, image.R[g], image.t[g], image.K)
+        if near[:, j].any():
+            got = _min_max_many(copies.points, len(sym), pts_e[near[:, j]], mm_cut**2)
+            mm[near[:, j], j] = np.sqrt(got)
+        px[:, j] = np.sqrt(_min_max_many(copies.pixels, len(sym), uv_e, px_cut**2))
+    return mm, px
+
+
+#: The rows and points of the symmetric copies asked for: (S', N', k).
+Copies = Callable[[np.ndarray | slice, np.ndarray | slice], np.ndarray]
+
+
+class _Copies:
+    """A true pose's symmetric copies of the model points, moved (mm) or projected (px),
+    computed where they are asked for: an object with a continuous symmetry has hundreds of
+    copies, of which the bounds of :func:`_min_max` look at a few points and exactly at a
+    few copies only. Small sets are computed whole once."""
+
+    def __init__(self, sym: np.ndarray, R: np.ndarray, t: np.ndarray, K: np.ndarray) -> None:
+        self.sym, self.R, self.t, self.K = sym, R, t, K
+        self._whole: dict[str, np.ndarray] = {}
+
+    def points(self, rows: np.ndarray | slice, cols: np.ndarray | slice) -> np.ndarray:
+        if len(self.sym) <= _WHOLE_COPIES:
+            if "mm" not in self._whole:
+                self._whole["mm"] = np.einsum("snk,jk->snj", self.sym, self.R) + self.t
+            return self._whole["mm"][rows][:, cols]
+        return np.einsum("snk,jk->snj", self.sym[rows][:, cols], self.R) + self.t
+
+    def pixels(self, rows: np.ndarray | slice, cols: np.ndarray | slice) -> np.ndarray:
+        if len(self.sym) <= _WHOLE_COPIES:
+            if "px" not in self._whole:
+                self._whole["px"] = _project(self.K, self.points(slice(None), slice(None)))
+            return self._whole["px"][rows][:, cols]
+        return _project(self.K, self.points(rows, cols))
+
+
+#: Symmetric copies up to this many are moved and projected whole (every point is needed).
+_WHOLE_COPIES = 4
+#: Points of the first, cheapest lower bound of :func:`_min_max_many`.
+_COARSE_POINTS = 6
+
+
+def _min_max_many(copies: Copies, S: int, ests: np.ndarray, cutoff: float) -> np.ndarray:
+    """For each estimate's points ``ests`` (E, N, k): min over the ``S`` symmetric copies
+    (``copies(rows, points)``) of the largest squared distance over the points, as
+    :func:`_min_max` computes it; infinite where a lower bound is ``cutoff`` or more. The
+    bounds of all estimates at once, then each one's exact value where it is needed."""
+    N = ests.shape[1]
+    every = slice(None)
+
+    def largest(points: np.ndarray | slice, which: np.ndarray | slice) -> np.ndarray:
+        d = copies(every, points)[None] - ests[which][:, None, points]
+        return np.einsum("esnk,esnk->esn", d, d).max(axis=2)  # (E, S)
+
+    if S <= 4 or N <= 128:
+        return largest(every, every).min(axis=1)
+    out = np.full(len(ests), np.inf)
+    coarse = largest(np.linspace(0, N - 1, _COARSE_POINTS).astype(int), every)
+    alive = np.flatnonzero(coarse.min(axis=1) < cutoff)
+    if not len(alive):
+        return out
+    bounds = largest(sample_points(N), alive)
+    for i, bound in zip(alive, bounds):
+        out[i] = _min_max(_distances(copies, ests[i]), S, N, cutoff, bound)
+    return out
+
+
+def _distances(
+    copies: Copies, est: np.ndarray
+) -> Callable[[np.ndarray, slice | np.ndarray], np.ndarray]:
+    """Squared distances between the symmetric copies and the estimate's points ``est``
+    (N, k), over the rows and points asked for."""
+
+    def squared(rows: np.ndarray, cols: slice | np.ndarray) -> np.ndarray:
+        d = copies(rows, cols) - est[cols]
+        return np.einsum("snk,snk->sn", d, d)
+
+    return squared
 
 
 def spheres_projections_overlap(radius: float, p1: np.ndarray, p2: np.ndarray) -> bool:
@@ -291,15 +455,32 @@ def greedy_match(errors: np.ndarray, valid: np.ndarray, threshold: float) -> np.
     """bop_toolkit's greedy matching (``pose_matching.match_poses``): ``errors`` (E, G) with
     estimates already in decreasing score; each takes the valid free true pose of least error
     strictly below ``threshold`` (on equal errors the first). Returns (E,) the true pose each
-    took, -1 for none."""
-    taken = ~valid.copy()
-    out = np.full(len(errors), -1)
-    for i, row in enumerate(errors):
-        ok = (row < threshold) & ~taken
-        if ok.any():
-            g = int(np.flatnonzero(ok)[np.argmin(row[ok])])
-            taken[g] = True
-            out[i] = g
+    took, -1 for none.
+
+    >>> greedy_match(np.array([[0.1, 0.2], [0.1, 0.2]]), np.ones(2, bool), 0.25)
+    array([0, 1])
+    """
+    return greedy_matches(errors, valid, np.array([threshold], float))[0]
+
+
+def greedy_matches(errors: np.ndarray, valid: np.ndarray, thresholds: np.ndarray) -> np.ndarray:
+    """:func:`greedy_match` at every threshold at once: ``errors`` (E, G), or (T, E, G) with
+    one table per threshold, and ``thresholds`` (T,). Returns (T, E). The estimates take
+    their turns in order, each turn settled for every threshold in one step."""
+    thresholds = np.asarray(thresholds, float)
+    T, (E, G) = len(thresholds), errors.shape[-2:]
+    tables = np.broadcast_to(errors, (T, E, G))
+    taken = np.repeat(~np.asarray(valid, bool)[None], T, axis=0)
+    out = np.full((T, E), -1)
+    settings = np.arange(T)
+    for i in range(E):
+        row = tables[:, i]
+        ok = (row < thresholds[:, None]) & ~taken
+        # the first of the least errors among those it may take, as bop_toolkit's loop
+        g = np.where(ok, row, np.inf).argmin(axis=1)
+        hit = ok[settings, g]
+        taken[settings[hit], g[hit]] = True
+        out[hit, i] = g[hit]
     return out
 
 
@@ -350,15 +531,16 @@ def _image_groups(
         if depth is not None:
             errs["vsd"] = np.ones((E, G, len(VSD_TAUS)))
         scale = MSPD_REFERENCE_WIDTH_PX / image.width
+        if E and G:
+            mm, px = error_tables(image, estimates, ests, gts, obj)  # type: ignore[arg-type]
+            errs["mssd"], errs["mspd"] = mm / obj.diameter, scale * px
+        if depth is None or render is None or obj.mesh is None:
+            groups.append(_Group(oid, valid, errs))
+            continue
         for i, e in enumerate(ests):
             R_e, t_e = estimates.R[e], estimates.t[e]  # type: ignore[union-attr]
             for j, g in enumerate(gts):
                 R_g, t_g = image.R[g], image.t[g]
-                if np.linalg.norm(t_e - t_g) < obj.diameter:
-                    errs["mssd"][i, j] = mssd(R_e, t_e, R_g, t_g, obj) / obj.diameter
-                errs["mspd"][i, j] = scale * mspd(R_e, t_e, R_g, t_g, image.K, obj)
-                if depth is None or render is None or obj.mesh is None:
-                    continue
                 if not spheres_projections_overlap(0.5 * obj.diameter, t_e, t_g):
                     continue
                 ren_e = _rendered(rendered, ("e", e), render, obj.mesh, R_e, t_e, image)
@@ -445,14 +627,11 @@ def _matches(
     if errors.shape[0] == 0 or not valid.any():
         return np.zeros(len(thresholds) * (errors.shape[2] if vsd else 1), np.int64)
     if vsd:
-        return np.array(
-            [
-                matched_count(errors[:, :, k], valid, float(th))
-                for k in range(errors.shape[2])
-                for th in thresholds
-            ]
-        )
-    return np.array([matched_count(errors, valid, float(th)) for th in thresholds])
+        # settings in bop_toolkit's order: tau outer, threshold inner
+        n_taus = errors.shape[2]
+        tables = np.repeat(np.moveaxis(errors, 2, 0), len(thresholds), axis=0)
+        return (greedy_matches(tables, valid, np.tile(thresholds, n_taus)) >= 0).sum(axis=1)
+    return (greedy_matches(errors, valid, thresholds) >= 0).sum(axis=1)
 
 
 def _summary(

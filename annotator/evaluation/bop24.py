@@ -36,16 +36,12 @@ from annotator.evaluation.bop19 import (
     CORRECT_TH,
     MSPD_REFERENCE_WIDTH_PX,
     MSPD_TH_PX,
-    _min_max,
-    _project,
-    greedy_match,
-    sample_points,
-    symmetric_points,
+    MSSD_MM_TH,
+    error_tables,
+    greedy_matches,
 )
 from annotator.formats.bop_images import BopEstimates, BopImage, BopObject
 
-#: MSSD's thresholds in mm for ``bop25_mAP_mm`` (``range(2, 21, 2)`` in bop_toolkit).
-MSSD_MM_TH = np.arange(2, 21, 2).astype(float)
 #: True poses less visible than this are not to be found (bop_toolkit's ``visib_gt_min``).
 VISIB_GT_MIN = 0.1
 #: Estimates kept per image (bop_toolkit's ``max_num_estimates_per_image``) ...
@@ -57,8 +53,6 @@ RECALL_POINTS = np.linspace(0.0, 1.00, 101, endpoint=True)
 
 #: Metric -> thresholds, in bop_toolkit's order of ``errors``.
 THRESHOLDS = {"mssd": CORRECT_TH, "mssd_mm": MSSD_MM_TH, "mspd": MSPD_TH_PX.astype(float)}
-#: Errors past every threshold by this factor are not computed exactly (they match nothing).
-_MARGIN = 1.01
 
 
 @dataclass
@@ -187,12 +181,9 @@ def bop24_scores(
             errors = _errors(image, est, mine, gts, objects[oid])  # type: ignore[arg-type]
             det.scores.append(est.scores[mine])  # type: ignore[union-attr]
             for metric, ths in THRESHOLDS.items():
-                status = np.zeros((len(mine), len(ths)), np.int8)
-                for k, th in enumerate(ths):
-                    taken = greedy_match(errors[metric], np.ones(len(gts), bool), float(th))
-                    hit = taken >= 0
-                    status[hit, k] = np.where(visible[taken[hit]], 1, -1)
-                det.status.setdefault(metric, []).append(status)
+                taken = greedy_matches(errors[metric], np.ones(len(gts), bool), ths).T
+                status = np.where(taken >= 0, np.where(visible[taken], 1, -1), 0)
+                det.status.setdefault(metric, []).append(status.astype(np.int8))
             scored += len(mine)
             ignored += int(np.sum(det.status["mssd"][-1][:, 0] < 0))
         if progress:
@@ -203,70 +194,12 @@ def bop24_scores(
 def _errors(
     image: BopImage, est: BopEstimates, mine: np.ndarray, gts: np.ndarray, obj: BopObject
 ) -> dict[str, np.ndarray]:
-    """metric -> (E, G) errors of the estimates ``mine`` against the true poses ``gts``: as
-    :func:`annotator.evaluation.bop19.mssd` and ``mspd``, each true pose's symmetric points
-    moved and projected once for all the estimates; errors past every threshold are
+    """metric -> (E, G) errors of the estimates ``mine`` against the true poses ``gts``
+    (:func:`annotator.evaluation.bop19.error_tables`); errors past every threshold are
     infinite."""
-    E, G = len(mine), len(gts)
-    mm = np.full((E, G), np.inf)
-    px = np.empty((E, G))
+    mm, px = error_tables(image, est, mine, gts, obj)
     scale = MSPD_REFERENCE_WIDTH_PX / image.width
-    mm_cut = _MARGIN * max(float(CORRECT_TH[-1]) * obj.diameter, float(MSSD_MM_TH[-1]))
-    px_cut = _MARGIN * float(MSPD_TH_PX[-1]) / scale
-    sym = symmetric_points(obj)
-    pts_e = np.stack([obj.points @ est.R[e].T + est.t[e] for e in mine])
-    uv_e = _project(image.K, pts_e)
-    near = np.linalg.norm(est.t[mine][:, None] - image.t[gts][None], axis=2) < obj.diameter
-    for j, g in enumerate(gts):
-        moved = np.einsum("snk,jk->snj", sym, image.R[g]) + image.t[g]
-        uv_g = _project(image.K, moved)
-        if near[:, j].any():
-            got = _min_max_many(moved, pts_e[near[:, j]], mm_cut**2)
-            mm[near[:, j], j] = np.sqrt(got)
-        px[:, j] = scale * np.sqrt(_min_max_many(uv_g, uv_e, px_cut**2))
-    return {"mssd": mm / obj.diameter, "mssd_mm": mm, "mspd": px}
-
-
-#: Points of the first, cheapest lower bound of :func:`_min_max_many`.
-_COARSE_POINTS = 6
-
-
-def _min_max_many(moved: np.ndarray, ests: np.ndarray, cutoff: float) -> np.ndarray:
-    """For each estimate's points ``ests`` (E, N, k): min over the symmetric copies
-    ``moved`` (S, N, k) of the largest squared distance over the points, as
-    :func:`annotator.evaluation.bop19._min_max` computes it; infinite where a lower bound
-    is ``cutoff`` or more. The bounds of all estimates at once, then each one's exact value
-    where it is needed."""
-    S, N = moved.shape[:2]
-
-    def largest(points: np.ndarray | slice, which: np.ndarray | slice) -> np.ndarray:
-        d = moved[None, :, points] - ests[which][:, None, points]
-        return np.einsum("esnk,esnk->esn", d, d).max(axis=2)  # (E, S)
-
-    if S <= 4 or N <= 128:
-        return largest(slice(None), slice(None)).min(axis=1)
-    out = np.full(len(ests), np.inf)
-    coarse = largest(np.linspace(0, N - 1, _COARSE_POINTS).astype(int), slice(None))
-    alive = np.flatnonzero(coarse.min(axis=1) < cutoff)
-    if not len(alive):
-        return out
-    bounds = largest(sample_points(N), alive)
-    for i, bound in zip(alive, bounds):
-        out[i] = _min_max(_distances(moved, ests[i]), S, N, cutoff, bound)
-    return out
-
-
-def _distances(
-    moved: np.ndarray, est: np.ndarray
-) -> Callable[[np.ndarray, slice | np.ndarray], np.ndarray]:
-    """Squared distances between the symmetric copies ``moved`` (S, N, k) and the
-    estimate's ``est`` (N, k), over the rows and points asked for."""
-
-    def squared(rows: np.ndarray, cols: slice | np.ndarray) -> np.ndarray:
-        d = moved[:, cols][rows] - est[cols]
-        return np.einsum("snk,snk->sn", d, d)
-
-    return squared
+    return {"mssd": mm / obj.diameter, "mssd_mm": mm, "mspd": scale * px}
 
 
 def _summary(

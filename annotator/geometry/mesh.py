@@ -37,6 +37,11 @@ class Mesh:
         return self.vertices[self.faces]
 
     @cached_property
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """The axis-aligned bounding box's corners (lowest, highest), mm, model frame."""
+        return self.vertices.min(axis=0), self.vertices.max(axis=0)
+
+    @cached_property
     def face_areas(self) -> np.ndarray:
         """(M,) triangle areas, mm^2."""
         tri = self.triangles
@@ -181,6 +186,11 @@ MESH_SUFFIXES = (".ply", ".obj", ".stl", ".off", ".glb")
 def load_mesh(path: str | Path) -> Mesh:
     """Load a triangle mesh (PLY, OBJ, STL, OFF, GLB) in millimetres.
 
+    A file is read once per process: a second load of the same file, unchanged (same size
+    and modification time), returns the same :class:`Mesh`. Its arrays are shared, so no
+    caller may change them in place (none does; they stay writeable because open3d
+    refuses read-only arrays).
+
     Raises:
         UserError: naming the file, if it is missing, unreadable or has no triangles.
     """
@@ -191,6 +201,23 @@ def load_mesh(path: str | Path) -> Mesh:
         raise UserError(
             f"not a mesh file type this tool reads ({', '.join(MESH_SUFFIXES)})", path=path
         )
+    stat = path.stat()
+    key = (str(path.resolve()), stat.st_mtime_ns, stat.st_size)
+    mesh = _LOADED.get(key)
+    if mesh is None:
+        mesh = _read_mesh(path)
+        if len(_LOADED) >= _LOADED_MAX:
+            del _LOADED[next(iter(_LOADED))]
+        _LOADED[key] = mesh
+    return mesh
+
+
+#: Meshes read in this process, by (resolved path, mtime_ns, size), oldest first.
+_LOADED: dict[tuple[str, int, int], Mesh] = {}
+_LOADED_MAX = 256
+
+
+def _read_mesh(path: Path) -> Mesh:
     try:
         if path.suffix.lower() == ".ply":
             vertices, faces = _read_ply(path)
@@ -265,16 +292,27 @@ def _read_ply(path: Path) -> tuple[np.ndarray, np.ndarray]:
     """Vertices and triangles of a PLY file (ASCII or binary) as written, polygons split
     into fans as trimesh splits them. plyfile reads it: a PLY needs no more, and trimesh
     costs a second of start-up."""
-    from plyfile import PlyData
+    from plyfile import PlyData, PlyElementParseError
 
-    ply = PlyData.read(str(path))
+    try:
+        # A binary file of triangles only is memory-mapped as one array: plyfile reads
+        # variable-length lists one face at a time in Python, 0.3 s for a mesh of LM's size.
+        ply = PlyData.read(str(path), known_list_len={"face": _TRIANGLE_LISTS})
+    except PlyElementParseError:  # faces that are not all triangles
+        ply = PlyData.read(str(path))
     v = ply["vertex"]
     vertices = np.column_stack([v["x"], v["y"], v["z"]]).astype(np.float64)
     if "face" not in ply or not len(ply["face"].properties):
         return vertices, np.zeros((0, 3), np.int32)
     face = ply["face"]
     polygons = face[face.properties[0].name]
+    if isinstance(polygons, np.ndarray) and polygons.ndim == 2:  # memory-mapped triangles
+        return vertices, np.array(polygons, np.int32)
     if len(polygons) and all(len(q) == 3 for q in polygons):
         return vertices, np.asarray(np.stack(polygons), np.int32)
     fans = [[q[0], q[k], q[k + 1]] for q in polygons for k in range(1, len(q) - 1)]
     return vertices, np.asarray(fans, np.int32).reshape(-1, 3)
+
+
+#: The names a PLY's face list goes by, each of fixed length 3 for plyfile's fast path.
+_TRIANGLE_LISTS = {"vertex_indices": 3, "vertex_index": 3}

@@ -18,7 +18,6 @@ from annotator.geometry.camera import Camera
 from annotator.geometry.transforms import invert
 from annotator.physics.check import InstancePhysics, PhysicsSettings, check_bodies
 from annotator.physics.contact import Body, signed_distance
-from annotator.physics.stability import falls
 from annotator.physics.support import (
     Support,
     SupportPlane,
@@ -132,6 +131,10 @@ def shot_physics(
     support = shot_support(ds, shot, bodies, depth)
     out = check_bodies(bodies, support, uncertainty=uncertainty, settings=settings)
     if stability and support is not None and bodies:
+        # MuJoCo only for --stability: annotate's and check's physics check runs without it,
+        # and every worker process would pay its import.
+        from annotator.physics.stability import falls
+
         u = uncertainty or {}
         for rec, fall in zip(out, falls(bodies, support)):
             rec.check.fall_mm = fall

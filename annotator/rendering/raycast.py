@@ -338,7 +338,7 @@ def projected_bbox(
 ) -> tuple[int, int, int, int] | None:
     """Pixel rectangle ``(x0, y0, x1, y1)`` covering the projection of a placed mesh's bounding
     box (distortion included), clipped to the image; None if entirely behind or outside."""
-    lo, hi = mesh.vertices.min(axis=0), mesh.vertices.max(axis=0)
+    lo, hi = mesh.bounds
     # Distortion bends straight edges: project a grid through the box, not just its corners.
     s = np.linspace(0.0, 1.0, 7)
     grid = np.stack(np.meshgrid(s, s, s, indexing="ij"), axis=-1).reshape(-1, 3)
@@ -355,6 +355,25 @@ def projected_bbox(
     return None if box[0] >= box[2] or box[1] >= box[3] else box
 
 
+def _vertices_bbox(
+    camera: Camera, mesh: Mesh, cam_T_model: np.ndarray, *, margin: int = 1
+) -> tuple[int, int, int, int] | None:
+    """:func:`projected_bbox` for a camera without distortion, from the vertices themselves:
+    a pixel centre that sees a triangle lies within its vertices' projections, so the box of
+    every vertex's projection holds every pixel a cast can hit, and is much tighter than the
+    bounding box's for a turned part (fewer rays, the same hits)."""
+    cam = mesh.vertices @ cam_T_model[:3, :3].T + cam_T_model[:3, 3]
+    if np.any(cam[:, 2] <= 0):
+        return projected_bbox(camera, mesh, cam_T_model)
+    x, y = cam[:, 0] / cam[:, 2], cam[:, 1] / cam[:, 2]
+    K = camera.K
+    u, v = K[0, 0] * x + K[0, 1] * y + K[0, 2], K[1, 1] * y + K[1, 2]
+    x0, y0 = int(np.floor(u.min())) - margin, int(np.floor(v.min())) - margin
+    x1, y1 = int(np.ceil(u.max())) + margin + 1, int(np.ceil(v.max())) + margin + 1
+    box = clip_region((x0, y0, x1, y1), camera.width, camera.height)
+    return None if box[0] >= box[2] or box[1] >= box[3] else box
+
+
 def render_depth(
     mesh: Mesh, cam_T_model: np.ndarray, K: np.ndarray, width: int, height: int
 ) -> tuple[Rect, np.ndarray] | None:
@@ -362,7 +381,7 @@ def render_depth(
     distortion, over the rectangle it projects into: ``(rect, depth)``, or None when it is out
     of view. BOP's evaluation renders models this way (its depth images have no distortion)."""
     camera = Camera("pinhole", int(width), int(height), np.asarray(K, float), np.zeros(5))
-    box = projected_bbox(camera, mesh, cam_T_model)
+    box = _vertices_bbox(camera, mesh, cam_T_model)
     if box is None:
         return None
     x0, y0, x1, y1 = box
