@@ -135,21 +135,10 @@ def _private_imports() -> list[str]:
     return found
 
 
-#: What is left of issue 56's private names, to go (each a rename in a module being reworked).
-PRIVATE_LEFT = {
-    "annotator.evaluation.bop19._min_max",
-    "annotator.evaluation.bop19._project",
-    "annotator.synthesis.shading._interpolate_rays",
-    "annotator.synthesis.generate._BinContents",
-    "annotator.synthesis.generate._fill_bin",
-    "annotator.synthesis.generate._stage",
-}
-
-
 def test_no_private_name_is_imported_from_another_module() -> None:
     """A name with a leading underscore is its module's own: a module that needs it from
     another needs it made public (and documented) there."""
-    found = [f for f in _private_imports() if f.split(" ")[1] not in PRIVATE_LEFT]
+    found = _private_imports()
     assert not found, "private names imported across modules: " + "; ".join(found)
 
 

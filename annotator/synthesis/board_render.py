@@ -21,7 +21,7 @@ from annotator.calibration.board import BoardSpec
 from annotator.geometry.camera import Camera
 from annotator.geometry.mesh import Mesh
 from annotator.rendering.raycast import PlacedMesh, RayScene, clip_region, projected_bbox
-from annotator.synthesis.shading import _interpolate_rays
+from annotator.synthesis.shading import interpolate_rays
 
 #: White margin around the chessboard, as a fraction of a square (OpenCV prints half).
 MARGIN_SQUARES = 0.5
@@ -121,7 +121,7 @@ def render_board(
         acc = np.zeros(len(us), np.float64)
         for dy in offs:
             for dx in offs:
-                sub = _interpolate_rays(rays, us + x0 + dx, vs + y0 + dy)
+                sub = interpolate_rays(rays, us + x0 + dx, vs + y0 + dy)
                 a, lit = _sample(scene, model, cam_T_board, sub, ambient)
                 acc += a * lit
         value[vs, us] = acc / supersample**2

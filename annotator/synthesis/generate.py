@@ -225,7 +225,7 @@ def _setting(plan: DatasetPlan) -> list[Surface]:
 
 
 @dataclass(frozen=True)
-class _BinContents:
+class BinContents:
     """What lies in a scene's bin: the instances (part index, copy index) and the clutter's
     parts, the meshes dropped in that order, and each one's pose (None: fell out)."""
 
@@ -244,9 +244,9 @@ def make_scene(
     rng = np.random.default_rng([plan.config.seed, index])
     timing = SceneTiming()
     t0 = time.perf_counter()
-    contents = _fill_bin(plan, rng)
+    contents = fill_bin(plan, rng)
     timing.physics = time.perf_counter() - t0
-    staged = _stage(plan, contents)
+    staged = stage_bin(plan, contents)
     views = write_shot(plan, staged, folder, rng, timing)
     staged_occlusion(plan, staged, views, timing)
     write_poses(folder / "gt.json", staged.poses, format=FORMAT_VERSION)
@@ -294,7 +294,7 @@ def staged_occlusion(
     timing.occlusion = time.perf_counter() - t0
 
 
-def _fill_bin(plan: DatasetPlan, rng: np.random.Generator) -> _BinContents:
+def fill_bin(plan: DatasetPlan, rng: np.random.Generator) -> BinContents:
     """Which physical instances are in the bin (a random part per instance, distinct
     copies) and the clutter, dropped into it."""
     cfg = plan.config
@@ -307,7 +307,7 @@ def _fill_bin(plan: DatasetPlan, rng: np.random.Generator) -> _BinContents:
     clutter = [int(p) for p in rng.integers(0, len(plan.parts), size=cfg.clutter)]
     meshes = [plan.parts[p].mesh for p, _ in chosen] + [plan.parts[p].mesh for p in clutter]
     world_T = drop_parts(meshes, bin=plan.bin, rng=rng)
-    return _BinContents(chosen, meshes, world_T, tuple(clutter))
+    return BinContents(chosen, meshes, world_T, tuple(clutter))
 
 
 @dataclass(frozen=True)
@@ -321,7 +321,7 @@ class _Staged:
     poses: list[InstancePose]
 
 
-def _stage(plan: DatasetPlan, contents: _BinContents) -> _Staged:
+def stage_bin(plan: DatasetPlan, contents: BinContents) -> _Staged:
     """The surfaces of the setting and of everything that stayed in the bin."""
     surfaces = _setting(plan)
     fixed = len(surfaces)

@@ -57,14 +57,14 @@ from annotator.geometry.camera import Camera
 from annotator.geometry.transforms import invert
 from annotator.runner import BatchReport, run_batch
 from annotator.synthesis.generate import (
+    BinContents,
     DatasetPlan,
     SceneJob,
     SceneTiming,
     SynthSettings,
-    _BinContents,
-    _fill_bin,
-    _stage,
     cached_plan,
+    fill_bin,
+    stage_bin,
     staged_occlusion,
     write_shot,
 )
@@ -271,7 +271,7 @@ def _scene_path(config: SynthSettings, index: int) -> _ScenePath:
     return _ScenePath(knots, times, rig_path(knots, times), dict(zip(blurred, streaks.tolist())))
 
 
-def _contents_to_result(contents: _BinContents) -> dict[str, Any]:
+def _contents_to_result(contents: BinContents) -> dict[str, Any]:
     return {
         "chosen": [list(c) for c in contents.chosen],
         "clutter": list(contents.clutter),
@@ -279,12 +279,12 @@ def _contents_to_result(contents: _BinContents) -> dict[str, Any]:
     }
 
 
-def _contents_from_result(plan: DatasetPlan, doc: Mapping[str, Any]) -> _BinContents:
+def _contents_from_result(plan: DatasetPlan, doc: Mapping[str, Any]) -> BinContents:
     chosen = [(int(p), int(c)) for p, c in doc["chosen"]]
     clutter = tuple(int(p) for p in doc["clutter"])
     meshes = [plan.parts[p].mesh for p, _ in chosen] + [plan.parts[p].mesh for p in clutter]
     world_T = [None if T is None else np.asarray(T, float) for T in doc["world_T"]]
-    return _BinContents(chosen, meshes, world_T, clutter)
+    return BinContents(chosen, meshes, world_T, clutter)
 
 
 @dataclass(frozen=True)
@@ -299,7 +299,7 @@ class BinJob(SceneJob):
     def __call__(self, scene_id: str) -> dict:
         plan = cached_plan(self.config)
         rng = np.random.default_rng([self.config.seed, int(scene_id)])
-        return _contents_to_result(_fill_bin(plan, rng))
+        return _contents_to_result(fill_bin(plan, rng))
 
 
 @dataclass(frozen=True)
@@ -322,7 +322,7 @@ class FrameJob(SceneJob):
         path = _scene_path(self.config, index)
         contents = _contents_from_result(plan, self.bins[scene])
         at = replace(plan, setup=moved_setup(plan.setup, path.world_T_rig[k]))
-        staged = _stage(at, contents)
+        staged = stage_bin(at, contents)
         folder = Path(self.root) / SCENES_DIR / scene / FRAMES_DIR / frame
         folder.mkdir(parents=True, exist_ok=True)
         rng = np.random.default_rng([self.config.seed, index, _FRAME_STREAM, k])
@@ -449,7 +449,7 @@ def _scene_gt(
     per camera (as annotation.json's frames do)."""
     path = _scene_path(plan.config, int(sid))
     first = replace(plan, setup=moved_setup(plan.setup, path.world_T_rig[0]))
-    poses = _stage(first, _contents_from_result(plan, drop)).poses
+    poses = stage_bin(first, _contents_from_result(plan, drop)).poses
     scene_T_world = invert(path.world_T_rig[0])
     frames: dict[str, FramePose] = {}
     for k, (name, res) in enumerate(zip(names, results)):

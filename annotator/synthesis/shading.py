@@ -342,7 +342,7 @@ def render_intensity(
                         ambient,
                     )
                     continue
-                sub_rays = _interpolate_rays(rays, us + dx, vs + dy)
+                sub_rays = interpolate_rays(rays, us + dx, vs + dy)
                 h = scene.cast(sub_rays)
                 a, _ = _albedo(surfaces, placed, h)
                 acc += _shade(a, h.normals(placed), sub_rays, h.hit, ambient)
@@ -350,7 +350,7 @@ def render_intensity(
     return img, view
 
 
-def _interpolate_rays(rays: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+def interpolate_rays(rays: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
     """Rays through sub-pixel positions, interpolated bilinearly between pixel-centre rays.
 
     Rays vary smoothly with the pixel position, so for offsets under a pixel the error of the
