@@ -22,6 +22,7 @@ import cv2
 import numpy as np
 
 from annotator.calibration.board import BoardSpec
+from annotator.calibration.pairwise import shared_corners
 from annotator.calibration.records import View
 from annotator.geometry.camera import Camera
 from annotator.geometry.transforms import invert, make_transform
@@ -68,19 +69,7 @@ def opencv_stereo(
     good = [v for v in views if len(v.ids) >= min_corners and v.camera in (0, 1)]
     alone = [_calibrate_alone(board, [v for v in good if v.camera == c], sizes[c]) for c in (0, 1)]
     Ks, dists = [K for K, _ in alone], [d for _, d in alone]
-    by_shot: dict[int, dict[int, View]] = {}
-    for v in good:
-        by_shot.setdefault(v.shot, {})[v.camera] = v
-    obj, img0, img1 = [], [], []
-    for pair in by_shot.values():
-        if len(pair) < 2:
-            continue
-        common, i0, i1 = np.intersect1d(pair[0].ids, pair[1].ids, return_indices=True)
-        if len(common) < min_corners:
-            continue
-        obj.append(board.corners[common].astype(np.float32).reshape(-1, 1, 3))
-        img0.append(pair[0].corners[i0].astype(np.float32).reshape(-1, 1, 2))
-        img1.append(pair[1].corners[i1].astype(np.float32).reshape(-1, 1, 2))
+    obj, img0, img1 = shared_corners(good, board, min_corners=min_corners)
     flags = cv2.CALIB_USE_INTRINSIC_GUESS if joint else cv2.CALIB_FIX_INTRINSIC
     rms, K0, d0, K1, d1, R, T, _, _ = cv2.stereoCalibrate(
         obj,

@@ -31,6 +31,28 @@ _CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-12)
 MIN_COMMON_SHOTS = 3
 
 
+def shared_corners(
+    views: Sequence[View], board: BoardSpec, *, min_corners: int = 8
+) -> tuple[list[np.ndarray], list[np.ndarray], list[np.ndarray]]:
+    """Per shot that cameras 0 and 1 both saw, the board corners both found (at least
+    ``min_corners``): their board points and each camera's pixels, as OpenCV's
+    ``stereoCalibrate`` takes them (float32, (N, 1, 3) and (N, 1, 2))."""
+    by_shot: dict[int, dict[int, View]] = {}
+    for v in views:
+        by_shot.setdefault(v.shot, {})[v.camera] = v
+    obj, img0, img1 = [], [], []
+    for pair in by_shot.values():
+        if 0 not in pair or 1 not in pair:
+            continue
+        common, i0, i1 = np.intersect1d(pair[0].ids, pair[1].ids, return_indices=True)
+        if len(common) < min_corners:
+            continue
+        obj.append(board.corners[common].astype(np.float32).reshape(-1, 1, 3))
+        img0.append(pair[0].corners[i0].astype(np.float32).reshape(-1, 1, 2))
+        img1.append(pair[1].corners[i1].astype(np.float32).reshape(-1, 1, 2))
+    return obj, img0, img1
+
+
 def stereo_pair(
     views: Sequence[View],
     board: BoardSpec,
@@ -61,19 +83,7 @@ def stereo_pair(
             )
         n_dist = 8 if dist_coeffs == 8 else 5
         alone.append((np.asarray(K, float), np.asarray(dist, float).reshape(-1)[:n_dist]))
-    by_shot: dict[int, dict[int, View]] = {}
-    for v in good:
-        by_shot.setdefault(v.shot, {})[v.camera] = v
-    obj, img0, img1 = [], [], []
-    for pair in by_shot.values():
-        if len(pair) < 2:
-            continue
-        common, i0, i1 = np.intersect1d(pair[0].ids, pair[1].ids, return_indices=True)
-        if len(common) < min_corners:
-            continue
-        obj.append(board.corners[common].astype(np.float32).reshape(-1, 1, 3))
-        img0.append(pair[0].corners[i0].astype(np.float32).reshape(-1, 1, 2))
-        img1.append(pair[1].corners[i1].astype(np.float32).reshape(-1, 1, 2))
+    obj, img0, img1 = shared_corners(good, board, min_corners=min_corners)
     if len(obj) < MIN_COMMON_SHOTS:
         raise UserError(f"cameras {names[0]} and {names[1]} share {len(obj)} shots")
     (K0, d0), (K1, d1) = alone

@@ -489,25 +489,35 @@ def _remove_abandoned(out: Path) -> None:
             remove_if_abandoned(cand, restore=out)
 
 
-def is_abandoned_folder(folder: Path) -> bool:
-    """Whether ``folder`` is a temporary folder of :func:`atomic_folder` whose builder is
-    gone (marked, its ``flock`` free); nothing is changed."""
+def _abandoned_lock(folder: Path) -> int | None:
+    """A descriptor holding ``folder``'s ``flock`` if it is one of the project's temporary
+    folders (it carries :data:`TEMPORARY_MARK`) whose builder is gone (the lock was free);
+    None otherwise (not ours, alive, or no ``flock`` here: nobody can tell)."""
     try:
         import fcntl
     except ImportError:
-        return False
+        return None
     if not (folder / TEMPORARY_MARK).is_file():
-        return False
+        return None
     try:
         fd = os.open(folder, os.O_RDONLY)
     except OSError:
-        return False
+        return None
     try:
         fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
     except OSError:
+        os.close(fd)
+        return None  # its owner is alive
+    return fd
+
+
+def is_abandoned_folder(folder: Path) -> bool:
+    """Whether ``folder`` is a temporary folder of :func:`atomic_folder` whose builder is
+    gone (marked, its ``flock`` free); nothing is changed."""
+    fd = _abandoned_lock(folder)
+    if fd is None:
         return False
-    finally:
-        os.close(fd)  # (closing drops the lock just taken)
+    os.close(fd)  # (closing drops the lock just taken)
     return True
 
 
@@ -520,21 +530,10 @@ def remove_if_abandoned(folder: Path, *, restore: Path | None = None) -> bool:
     :func:`atomic_folder` before the new one took its name) gives it back first, if
     ``restore`` is gone.
     """
-    try:
-        import fcntl
-    except ImportError:  # not POSIX: nobody can tell; keep it
-        return False
-    if not (folder / TEMPORARY_MARK).is_file():
-        return False  # not ours
-    try:
-        fd = os.open(folder, os.O_RDONLY)
-    except OSError:
+    fd = _abandoned_lock(folder)
+    if fd is None:
         return False
     try:
-        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-    except OSError:
-        return False  # its owner is alive
-    else:
         old = folder / "old"
         if restore is not None and old.is_dir() and not (restore.exists() or restore.is_symlink()):
             with contextlib.suppress(OSError):

@@ -24,6 +24,7 @@ centred pixels. Colour and depth frames of one capture share their timestamp.
 
 from __future__ import annotations
 
+import contextlib
 import json
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
@@ -74,32 +75,35 @@ def is_kinect(path: Path) -> bool:
         return False
 
 
-def has_depth_track(path: Path) -> bool:
-    """Whether a Matroska file has a 16-bit grey or ``DEPTH`` video track (an Azure Kinect
-    recording's, whatever else it lacks)."""
+@contextlib.contextmanager
+def _container(path: Path) -> Iterator[Any]:
+    """The file opened by PyAV (None where FFmpeg cannot open it), closed afterwards."""
     import av
 
     try:
         with quiet_ffmpeg():
             container = av.open(str(path))
     except (av.error.FFmpegError, OSError):
-        return False
+        yield None
+        return
     try:
-        return _tracks(container)[1] is not None
+        yield container
     finally:
         container.close()
 
 
+def has_depth_track(path: Path) -> bool:
+    """Whether a Matroska file has a 16-bit grey or ``DEPTH`` video track (an Azure Kinect
+    recording's, whatever else it lacks)."""
+    with _container(path) as container:
+        return container is not None and _tracks(container)[1] is not None
+
+
 def _attachment(path: Path) -> bytes | None:
     """The bytes of the file's calibration.json attachment (None if it has none)."""
-    import av
-
-    try:
-        with quiet_ffmpeg():
-            container = av.open(str(path))
-    except (av.error.FFmpegError, OSError):
-        return None
-    try:
+    with _container(path) as container:
+        if container is None:
+            return None
         stream: Any
         for stream in container.streams:
             if stream.type != "attachment":
@@ -111,8 +115,6 @@ def _attachment(path: Path) -> bytes | None:
                 if data is None:
                     data = stream.codec_context.extradata
                 return bytes(data) if data is not None else None
-    finally:
-        container.close()
     return None
 
 
