@@ -9,7 +9,8 @@ measured in each camera (annotation.json's ``image_quality``), or an assumed one
 Poses can be wrong (a pose a reviewer has not repaired, an instance flagged and misplaced in
 front of the real one): whatever the poses say, every marker a detector finds in the image
 is masked too, its square widened by its white border, and the filled image is searched
-again, until a search finds nothing more (at most :data:`SEARCHES` rounds). The detectors
+again, until a search finds nothing more (at most :data:`SEARCHES` rounds; when the poses
+cover every marker the first search finds, their fill is not searched again). The detectors
 are the project's own and OpenCV's with every setting turned to find more.
 """
 
@@ -169,6 +170,9 @@ def _filled_until_clean(
         found = found_markers(out, dictionary_name)
         extra = quads_mask(found, m.mask.shape, cells=cells, margin_px=m.margin_px) & ~m.mask
         if k and not extra.any():
+            break
+        if not k and not extra.any():  # the poses cover every marker found: no search after
+            out = fills(image, m.mask, labels)
             break
         if not k:
             beyond, alone = _beyond(found, m.mask, cells=cells), _outside(found, m.mask)
