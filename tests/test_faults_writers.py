@@ -212,3 +212,9 @@ def test_every_writer_documents_wait(command: str, capsys) -> None:
     with pytest.raises(SystemExit):
         main([command, "--help"])
     assert "--wait" in capsys.readouterr().out
+
+
+def test_a_file_given_as_the_dataset_is_one_line(sample_copy: Path, capsys) -> None:
+    target = sample_copy / "dataset.yaml"
+    line = one_error_line(["annotate", str(target), "--quiet"], capsys)
+    assert line == f"annotator: error: {target}: is a file, not a dataset folder"

@@ -100,6 +100,8 @@ def _missing(real: Path) -> list[Path]:
 
 
 def _acquire(root: Path, real: Path, command: str, wait: bool) -> int | None:
+    if root.exists() and not root.is_dir():
+        raise UserError("is a file, not a dataset folder", path=root)
     while True:
         try:
             root.mkdir(parents=True, exist_ok=True)
