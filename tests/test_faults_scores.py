@@ -145,6 +145,16 @@ def test_a_negative_bop_score_is_said_and_unknown_time_is_fine(bop_export, tmp_p
     assert "1 results of results.csv have a negative score" in out
 
 
+def _refused(export: Path, name: str, content: str, tmp_path: Path, capsys) -> str:
+    """``evaluate --bop24`` of a copy of ``export`` whose file ``name`` holds ``content``:
+    its one error line."""
+    data = tmp_path / "bop"
+    shutil.copytree(export, data)
+    (data / name).write_text(content)
+    args = ["evaluate", str(data), "--results", str(DATA / "bop24_results.csv"), "--bop24"]
+    return one_error_line(args, capsys)
+
+
 @pytest.mark.parametrize(
     ("content", "says"),
     [
@@ -157,11 +167,7 @@ def test_a_negative_bop_score_is_said_and_unknown_time_is_fine(bop_export, tmp_p
 def test_empty_or_malformed_targets_are_refused(
     bop_export: Path, tmp_path: Path, capsys, content, says
 ) -> None:
-    data = tmp_path / "bop"
-    shutil.copytree(bop_export, data)
-    (data / "test_targets_bop24.json").write_text(content)
-    args = ["evaluate", str(data), "--results", str(DATA / "bop24_results.csv"), "--bop24"]
-    line = one_error_line(args, capsys)
+    line = _refused(bop_export, "test_targets_bop24.json", content, tmp_path, capsys)
     assert "test_targets_bop24.json: " in line and says in line
 
 
@@ -176,9 +182,5 @@ def test_empty_or_malformed_targets_are_refused(
 def test_a_sensors_json_naming_no_sensor_is_refused(
     bop_sensors_export: Path, tmp_path: Path, capsys, content, says
 ) -> None:
-    data = tmp_path / "bop"
-    shutil.copytree(bop_sensors_export, data)
-    (data / "sensors.json").write_text(content)
-    args = ["evaluate", str(data), "--results", str(DATA / "bop24_results.csv"), "--bop24"]
-    line = one_error_line(args, capsys)
+    line = _refused(bop_sensors_export, "sensors.json", content, tmp_path, capsys)
     assert "sensors.json: " in line and says in line
