@@ -244,11 +244,13 @@ def _coco(gt_path: Path, results: str | Path) -> list[CocoScores]:
         read_coco_results(path, "bbox")  # names what is wrong with the file
         raise UserError("no result has a 'bbox' or a 'segmentation' to score", path=path)
     gt = read_coco_ground_truth(gt_path)
-    out = []
+    out: list[CocoScores] = []
     for t in types:
         rows = read_coco_results(path, t)
         notes = check_against_images(rows, gt, path, t)
         scores = coco_scores(gt, rows, t)
-        scores.notes[:0] = notes
+        # What is said of the results' scenes and images holds for both kinds: said once.
+        said = {n for c in out for n in c.notes}
+        scores.notes[:0] = [n for n in notes if n not in said]
         out.append(scores)
     return out
