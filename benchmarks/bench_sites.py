@@ -7,7 +7,7 @@ cylinder, with depth), made by ``annotator synth``: one whose markers are glued 
 and turned by N(0, 2 degrees)), one with markers exactly on their sites. On each:
 annotate, then ``annotator sites --yes``, then annotate again; everything as whole processes.
 
-    .venv/bin/python -m benchmarks.bench_sites [--scenes 15] [--rounds 1] [--seed 5]
+    .venv/bin/python -m benchmarks.bench_sites [--scenes 15] [--rounds 1] [--seed 5] [--keep DIR]
 
 Targets: after sites and a re-annotation of the glued scenes, median pose error <= 0.2% of D,
 p95 <= 1% of D, flagged poses <= 30%, no gross error (> 5% of D) without a flag, posed >= 95%
@@ -175,8 +175,12 @@ def main() -> int:
     ap.add_argument(
         "--seed", type=int, default=5, help="synth's seed (another one: scenes not tuned on)"
     )
+    ap.add_argument(
+        "--keep", type=Path, default=None, help="make the datasets here and leave them (to look)"
+    )
     args = ap.parse_args()
-    with tempfile.TemporaryDirectory() as tmp:
+    with tempfile.TemporaryDirectory() as scratch:
+        tmp = args.keep or Path(scratch)
         glued = one(Path(tmp) / "glued", "0.7,2", args.scenes, args.rounds, args.seed)
         show("glued by hand (0.7 mm, 2 deg)", glued)
         b, a, n = site_errors(Path(tmp) / "glued", glued["rounds"][-1]["report"])

@@ -325,6 +325,41 @@ class _SceneWriter:
         )
         if has_depth:
             write_png(d / f"depth{sfx}" / f"{im}.png", encode_depth(depth, self.depth_scale))
+        gts, infos, coco, pick = self._instance_records(
+            ci, cam, im, sfx, poses, vis, picks, depth if has_depth else None
+        )
+        files.camera[str(im_id)] = self._camera_record(cam, shot, has_depth)
+        files.gt[str(im_id)] = gts
+        files.gt_info[str(im_id)] = infos
+        files.pick[str(im_id)] = pick
+        files.add_coco(
+            coco_scene(
+                coco,
+                f"{kind}{sfx}/{im}.png",
+                cam.width,
+                cam.height,
+                self.obj_ids,
+                markers=markers,
+                marker_objects=[self.obj_ids[p.object] for p in poses],
+                image_id=im_id,
+            )
+        )
+        return [c[3] for c in coco]
+
+    def _instance_records(
+        self,
+        ci: int,
+        cam: Any,
+        im: str,
+        sfx: str,
+        poses: list[Any],
+        vis: Any,
+        picks: list[PickLabel],
+        depth: np.ndarray | None,
+    ) -> tuple[list[dict], list[dict], list[tuple], list[dict]]:
+        """One image's ``scene_gt``, ``scene_gt_info``, COCO and pick records, an entry per
+        instance; writes the instances' masks."""
+        d = self.folder
         gts, infos, coco, pick = [], [], [], []
         for k, (p, v, label) in enumerate(zip(poses, vis, picks)):
             cv = v.cameras[ci]
@@ -344,7 +379,9 @@ class _SceneWriter:
                     "bbox_visib": list(cv.bbox_visib) if cv.bbox_visib else [-1, -1, -1, -1],
                     "px_count_all": cv.px_all,
                     "px_count_valid": (
-                        int(np.sum(cv.mask_all & np.isfinite(depth))) if has_depth else cv.px_all
+                        int(np.sum(cv.mask_all & np.isfinite(depth)))
+                        if depth is not None
+                        else cv.px_all
                     ),
                     "px_count_visib": visib_px,
                     "visib_fract": fract,
@@ -357,32 +394,20 @@ class _SceneWriter:
             )
             coco.append((self.obj_ids[p.object], cv.mask_all, cv.mask_visib, fract))
             pick.append({"obj_id": self.obj_ids[p.object], **label.to_json(), "visib_fract": fract})
+        return gts, infos, coco, pick
+
+    def _camera_record(self, cam: Any, shot: Shot, has_depth: bool) -> dict[str, Any]:
+        """One image's ``scene_camera`` record."""
         # The world of a sequence is its scene frame; a fixed rig's is its reference camera.
         w2c = cam.cam_T_rig if shot.frame is None else cam.cam_T_rig @ shot.rig_T_scene
-        cam_rec: dict[str, Any] = {
+        rec: dict[str, Any] = {
             "cam_K": cam.K.ravel().tolist(),
             "cam_R_w2c": w2c[:3, :3].ravel().tolist(),
             "cam_t_w2c": w2c[:3, 3].tolist(),
         }
         if has_depth:
-            cam_rec["depth_scale"] = self.depth_scale
-        files.camera[str(im_id)] = cam_rec
-        files.gt[str(im_id)] = gts
-        files.gt_info[str(im_id)] = infos
-        files.pick[str(im_id)] = pick
-        files.add_coco(
-            coco_scene(
-                coco,
-                f"{kind}{sfx}/{im}.png",
-                cam.width,
-                cam.height,
-                self.obj_ids,
-                markers=markers,
-                marker_objects=[self.obj_ids[p.object] for p in poses],
-                image_id=im_id,
-            )
-        )
-        return [c[3] for c in coco]
+            rec["depth_scale"] = self.depth_scale
+        return rec
 
 
 @dataclass

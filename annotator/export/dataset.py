@@ -131,6 +131,57 @@ def export_dataset(
     # What `annotator export` refuses, refused here in the same words.
     ds = as_dataset(ds, name="ds")
     of_type(out, (str, Path), name="out", what="a folder (str or Path)")
+    chosen = _check_options(
+        ds, format=format, poses=poses, layout=layout, sensors=sensors, fill=fill, cameras=cameras
+    )
+    out = Path(out)
+    _check_writable(out, ds, overwrite)
+    sel = select_scenes(
+        ds,
+        include_pending=include_pending,
+        drop_rejected_instances=drop_rejected_instances,
+        poses_from=poses,
+    )
+    if not sel.scenes:
+        raise sel.nothing_error(ds, include_pending=include_pending, what="to export")
+    tick = progress(len(sel.scenes)) if progress else None
+    filled: list[tuple[int, int]] = []
+    markers: dict[str, Any] = {
+        "remove_markers": remove_markers,
+        "fill": fill,
+        "markers_filled": lambda n, elsewhere: filled.append((n, elsewhere)),
+    }
+    with atomic_folder(out) as tmp:
+        write_manifest(tmp, command="export")
+        unreadable = _write(
+            format,
+            ds,
+            sel,
+            tmp,
+            cameras=chosen,
+            progress=tick,
+            layout=layout,
+            sensors=sensors,
+            markers=markers,
+        )
+    summary = _summary(format, out, sel, unreadable)
+    if remove_markers:
+        summary.markers_filled = sum(n for n, _ in filled)
+        summary.markers_found_beyond = sum(e for _, e in filled)
+    return summary
+
+
+def _check_options(
+    ds: Dataset,
+    *,
+    format: str,
+    poses: str,
+    layout: str,
+    sensors: bool,
+    fill: str,
+    cameras: Sequence[str] | None,
+) -> list[str]:
+    """The cameras to export, once every option is known to fit ``ds`` and each other."""
     if format not in EXPORTS:
         raise UserError(f"unknown format {format!r} (expected one of {', '.join(EXPORTS)})")
     if poses not in POSES_FROM:
@@ -154,50 +205,40 @@ def export_dataset(
     unknown = [c for c in chosen if c not in names]
     if unknown:
         raise UserError(f"unknown camera(s) {', '.join(unknown)} (the rig has {', '.join(names)})")
-    out = Path(out)
-    _check_writable(out, ds, overwrite)
-    sel = select_scenes(
-        ds,
-        include_pending=include_pending,
-        drop_rejected_instances=drop_rejected_instances,
-        poses_from=poses,
-    )
-    if not sel.scenes:
-        raise sel.nothing_error(ds, include_pending=include_pending, what="to export")
-    tick = progress(len(sel.scenes)) if progress else None
-    filled: list[tuple[int, int]] = []
-    markers: dict[str, Any] = {
-        "remove_markers": remove_markers,
-        "fill": fill,
-        "markers_filled": lambda n, elsewhere: filled.append((n, elsewhere)),
-    }
-    with atomic_folder(out) as tmp:
-        write_manifest(tmp, command="export")
-        # Imported here: the writers load the renderer, which listing the formats need not.
-        if format == "bop":
-            from annotator.export.bop import export_bop
+    return chosen
 
-            unreadable = export_bop(
-                ds,
-                sel.scenes,
-                tmp,
-                cameras=chosen,
-                progress=tick,
-                layout=layout,
-                sensors=sensors,
-                **markers,
-            )
-        else:
-            from annotator.export.sileane import export_sileane
 
-            unreadable = export_sileane(
-                ds, sel.scenes, tmp, cameras=chosen, progress=tick, **markers
-            )
-    summary = _summary(format, out, sel, unreadable)
-    if remove_markers:
-        summary.markers_filled = sum(n for n, _ in filled)
-        summary.markers_found_beyond = sum(e for _, e in filled)
-    return summary
+def _write(
+    format: str,
+    ds: Dataset,
+    sel: Selection,
+    tmp: Path,
+    *,
+    cameras: list[str],
+    progress: Callable[[], None] | None,
+    layout: Layout,
+    sensors: bool,
+    markers: dict[str, Any],
+) -> dict[str, str]:
+    """Write the selected scenes into ``tmp`` with the format's writer; the scenes whose
+    inputs could not be read, with why."""
+    # Imported here: the writers load the renderer, which listing the formats need not.
+    if format == "bop":
+        from annotator.export.bop import export_bop
+
+        return export_bop(
+            ds,
+            sel.scenes,
+            tmp,
+            cameras=cameras,
+            progress=progress,
+            layout=layout,
+            sensors=sensors,
+            **markers,
+        )
+    from annotator.export.sileane import export_sileane
+
+    return export_sileane(ds, sel.scenes, tmp, cameras=cameras, progress=progress, **markers)
 
 
 def _check_writable(out: Path, ds: Dataset, overwrite: bool) -> None:
