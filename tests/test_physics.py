@@ -25,7 +25,8 @@ from annotator.physics import Body, PhysicsSettings, Support, SupportPlane, chec
 from annotator.physics.contact import hull_distance, penetration
 from annotator.physics.dataset import physics_of_dataset
 from annotator.physics.labels import pick_labels
-from annotator.physics.scene import bodies_of
+from annotator.physics.scene import bodies_of, floor_of_pile
+from annotator.physics.support import fit_support_plane
 from annotator.review import SceneInfo
 from viewer.page.panel_text import instance_table
 
@@ -308,3 +309,21 @@ def test_a_sequence_is_checked_in_its_scene_frame(sequence: Path, capsys) -> Non
     doc = json.loads(capsys.readouterr().out)["physics"]
     found = doc["scenes"][SCENE]
     assert found["support"] is not None and doc["flagged"] == 0, found
+
+
+def test_the_floor_of_a_pile_seen_close_by_is_not_the_bins_rim() -> None:
+    # A full bin seen from close by: its rim (500 mm away) holds most of the depth, the
+    # floor (620 mm) shows only between the parts resting on it. The dominant plane is the
+    # rim; the pile's floor is the one the parts rest on.
+    rng = np.random.default_rng(3)
+    rim = rng.uniform(-150, 150, (6000, 2))
+    rim = rim[np.abs(rim).max(axis=1) > 120]
+    floor = rng.uniform(-100, 100, (1500, 2))
+    points = np.concatenate([np.c_[rim, np.full(len(rim), 500.0)],
+                             np.c_[floor, np.full(len(floor), 620.0)]])  # fmt: skip
+    parts = [Body(f"cube/{k}", _cube(), _shift(np.array([x, y, 610.0])))
+             for k, (x, y) in enumerate([(-60, 0), (0, 40), (50, -30)])]  # fmt: skip
+    assert fit_support_plane(points).d == pytest.approx(500.0, abs=0.5)
+    plane = floor_of_pile(points, parts)
+    assert plane is not None and plane.d == pytest.approx(620.0, abs=0.5)
+    assert plane.n == pytest.approx([0.0, 0.0, -1.0], abs=1e-3)

@@ -19,6 +19,7 @@ from annotator.geometry.transforms import invert
 from annotator.physics.check import InstancePhysics, PhysicsSettings, check_bodies
 from annotator.physics.contact import Body, signed_distance
 from annotator.physics.support import (
+    INLIER_MM,
     Support,
     SupportPlane,
     depth_grid,
@@ -33,6 +34,11 @@ PART_MARGIN_MM = 2.0
 FLOOR_BIAS_MM = 3.0
 #: How many parts must rest on the floor for it to be moved to them.
 RESTING_PARTS = 3
+#: Planes of a scene's depth weighed as the floor of its pile, and the share of the points
+#: the ones before left that each after the first must hold (the floor seen between the
+#: parts of a full bin is a small part of the view).
+CANDIDATE_PLANES = 4
+NEXT_PLANE_SHARE = 0.1
 
 # The empty bin's support, by dataset, background file and depth camera.
 _EMPTY_BIN: dict[tuple[str, str, object], Support | None] = {}
@@ -98,8 +104,37 @@ def _measured_support(
                 d = signed_distance(b.mesh, b.to_model(pts[idx].T))
                 pts[idx[d < PART_MARGIN_MM]] = np.nan
         grid = pts.reshape(grid.shape)
-    plane = fit_support_plane(grid.reshape(-1, 3))
+    flat = grid.reshape(-1, 3)
+    plane = floor_of_pile(flat, bodies) if bodies else fit_support_plane(flat)
     return None if plane is None else Support(plane, grid_surface(grid))
+
+
+def floor_of_pile(points: np.ndarray, bodies: Sequence[Body]) -> SupportPlane | None:
+    """The plane of ``points`` (N, 3; NaN: none) that the ``bodies`` rest on.
+
+    The dominant plane is the floor when the bin is seen from above and the parts leave
+    some of it bare; close by, or at a slant, a wall or the bin's rim may hold more points.
+    So up to :data:`CANDIDATE_PLANES` planes are found in turn, each among the points the
+    ones before did not hold, and the one with the most parts resting on it and the
+    fewest through it is kept (the first, on a tie).
+    """
+    pts = points.copy()
+    best: tuple[int, SupportPlane] | None = None
+    for k in range(CANDIDATE_PLANES):
+        plane = fit_support_plane(pts, min_share=0.25 if k == 0 else NEXT_PLANE_SHARE)
+        if plane is None:
+            break
+        lowest = np.array([float(plane.height(b.points).min()) for b in bodies])
+        resting = int(np.sum(np.abs(lowest) < FLOOR_BIAS_MM))
+        through = int(np.sum(lowest < -FLOOR_BIAS_MM))
+        score = resting - 2 * through
+        if best is None or score > best[0]:
+            best = (score, plane)
+        if through == 0 and resting >= min(RESTING_PARTS, len(bodies)):
+            break  # a floor, surely: nothing need be looked at beyond it
+        with np.errstate(invalid="ignore"):
+            pts[np.abs(plane.height(pts.T)) < 2 * INLIER_MM] = np.nan
+    return None if best is None else best[1]
 
 
 def floor_offset(plane: SupportPlane, bodies: Sequence[Body]) -> float:

@@ -40,11 +40,11 @@ class SupportPlane:
 
 
 def fit_support_plane(
-    points: np.ndarray, *, seed: int = 0, iterations: int = 300
+    points: np.ndarray, *, seed: int = 0, iterations: int = 300, min_share: float = 0.25
 ) -> SupportPlane | None:
     """The dominant plane of ``points`` (N, 3, camera frame, mm), its normal turned towards
-    the camera (the origin); None with fewer than 100 points or no plane holding a quarter
-    of them. RANSAC on three points, then least squares on the inliers.
+    the camera (the origin); None with fewer than 100 points or no plane holding
+    ``min_share`` of them. RANSAC on three points, then least squares on the inliers.
 
     >>> rng = np.random.default_rng(1)
     >>> xy = rng.uniform(-100, 100, (500, 2))
@@ -69,7 +69,7 @@ def fit_support_plane(
         count = int((np.abs(pts @ n - n @ a) < INLIER_MM).sum())
         if count > best_count:
             best, best_count = (n, float(-n @ a)), count
-    if best is None or best_count < len(pts) / 4:
+    if best is None or best_count < len(pts) * min_share:
         return None
     n, d = best
     inliers = pts[np.abs(pts @ n + d) < INLIER_MM]
