@@ -60,6 +60,7 @@ def pose_figures(root: Path) -> dict[str, float]:
         "p95": float(np.percentile(rel, 95)),
         "flagged": float(flagged.mean()),
         "gross_unflagged": int(((rel > 5) & ~flagged).sum()),
+        "over_1pct_unflagged": int(((rel > 1) & ~flagged).sum()),
         "posed": posed / max(visible, 1),
         "poses": len(rel),
     }
@@ -155,6 +156,7 @@ def show(name: str, r: dict) -> None:
         return (
             f"  {label:<16} median {f['median']:.3f}% D  p95 {f['p95']:.3f}% D  "
             f"flagged {100 * f['flagged']:.0f}%  gross unflagged {f['gross_unflagged']}  "
+            f"> 1% D unflagged {f['over_1pct_unflagged']}  "
             f"posed {100 * f['posed']:.1f}% ({f['poses']} poses)"
         )
 

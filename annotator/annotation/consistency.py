@@ -14,6 +14,7 @@ Pure functions of the solve's index arrays.
 
 from __future__ import annotations
 
+from collections.abc import Collection
 from dataclasses import dataclass
 
 import numpy as np
@@ -55,20 +56,31 @@ class FrameAgreement:
 
 
 def frame_agreement(
-    frame: np.ndarray, instance: np.ndarray, marker: np.ndarray, agrees: np.ndarray, n_frames: int
+    frame: np.ndarray,
+    instance: np.ndarray,
+    marker: np.ndarray,
+    agrees: np.ndarray,
+    n_frames: int,
+    *,
+    posed: Collection[int] | None = None,
 ) -> list[FrameAgreement]:
     """Per frame (``0 .. n_frames - 1``), its :class:`FrameAgreement`, from every
     observation's ``frame``, ``instance`` and ``marker`` id and whether it ``agrees`` with
     the solve. A part disagrees when the frame read two of its markers or more and none of
-    them agrees (one marker alone is as likely misread or half hidden).
+    them agrees (one marker alone is as likely misread or half hidden), and the solve poses
+    it: it is in ``posed`` (default: every instance with an observation that agrees). A
+    part the solve leaves out (markers misread as another copy's, in a frame or two)
+    disagrees with nothing.
 
     >>> f = np.array([0, 0, 0, 1, 1, 1, 1, 1]); i = np.array([0, 1, 2, 0, 1, 1, 2, 2])
     >>> m = np.array([1, 2, 4, 1, 2, 3, 4, 5]); k = np.array([1, 1, 1, 1, 0, 0, 0, 0], bool)
     >>> a = frame_agreement(f, i, m, k, 2)
     >>> a[1].agreeing, a[1].disagreeing, a[1].refused
     ((0,), (1, 2), True)
+    >>> frame_agreement(f, i, m, k, 2, posed={0, 1})[1].disagreeing  # part 2 is not posed
+    (1,)
     """
-    posed = set(instance[agrees].tolist())
+    posed = set(instance[agrees].tolist()) if posed is None else set(posed)
     out = []
     for f in range(n_frames):
         mine = frame == f

@@ -39,6 +39,9 @@ RESTING_PARTS = 3
 #: parts of a full bin is a small part of the view).
 CANDIDATE_PLANES = 4
 NEXT_PLANE_SHARE = 0.1
+#: A floor's normal lies within this angle (degrees) of the line of sight of a camera
+#: looking into the bin; a wall's is further off.
+FLOOR_VIEW_DEG = 60.0
 
 # The empty bin's support, by dataset, background file and depth camera.
 _EMPTY_BIN: dict[tuple[str, str, object], Support | None] = {}
@@ -105,21 +108,35 @@ def _measured_support(
                 pts[idx[d < PART_MARGIN_MM]] = np.nan
         grid = pts.reshape(grid.shape)
     flat = grid.reshape(-1, 3)
-    plane = floor_of_pile(flat, bodies) if bodies else fit_support_plane(flat)
+    view = scene_T_cam[:3, 2]
+    plane = floor_of_pile(flat, bodies, view=view) if bodies else fit_support_plane(flat)
     return None if plane is None else Support(plane, grid_surface(grid))
 
 
-def floor_of_pile(points: np.ndarray, bodies: Sequence[Body]) -> SupportPlane | None:
-    """The plane of ``points`` (N, 3; NaN: none) that the ``bodies`` rest on.
+def floor_of_pile(
+    points: np.ndarray, bodies: Sequence[Body], *, view: np.ndarray | None = None
+) -> SupportPlane | None:
+    """The plane of ``points`` (N, 3; NaN: none) that the ``bodies`` rest on; ``view``: the
+    direction the camera that measured them looks along (default +z, the points' frame
+    being the camera's).
 
     The dominant plane is the floor when the bin is seen from above and the parts leave
     some of it bare; close by, or at a slant, a wall or the bin's rim may hold more points.
     So up to :data:`CANDIDATE_PLANES` planes are found in turn, each among the points the
-    ones before did not hold, and the one with the most parts resting on it and the
-    fewest through it is kept (the first, on a tie).
+    ones before did not hold. The one kept faces the camera (a floor is seen from above,
+    a wall edge-on: its normal within :data:`FLOOR_VIEW_DEG` of the line of sight, when
+    any does) and has the most parts resting on it and the fewest through it (the first,
+    on a tie).
+
+    >>> rng = np.random.default_rng(0)
+    >>> rim = np.c_[rng.uniform(-150, 150, (3000, 2)), np.full(3000, 500.0)]
+    >>> floor = np.c_[rng.uniform(-100, 100, (800, 2)), np.full(800, 620.0)]
+    >>> round(fit_support_plane(np.r_[rim, floor]).d, 1)  # the rim, 500 mm away, holds most
+    500.0
     """
+    look = np.array([0.0, 0.0, 1.0]) if view is None else np.asarray(view, float)
     pts = points.copy()
-    best: tuple[int, SupportPlane] | None = None
+    best: tuple[tuple[bool, int], SupportPlane] | None = None
     for k in range(CANDIDATE_PLANES):
         plane = fit_support_plane(pts, min_share=0.25 if k == 0 else NEXT_PLANE_SHARE)
         if plane is None:
@@ -127,10 +144,11 @@ def floor_of_pile(points: np.ndarray, bodies: Sequence[Body]) -> SupportPlane | 
         lowest = np.array([float(plane.height(b.points).min()) for b in bodies])
         resting = int(np.sum(np.abs(lowest) < FLOOR_BIAS_MM))
         through = int(np.sum(lowest < -FLOOR_BIAS_MM))
-        score = resting - 2 * through
+        facing = abs(float(plane.n @ look)) >= np.cos(np.radians(FLOOR_VIEW_DEG))
+        score = (facing, resting - 2 * through)
         if best is None or score > best[0]:
             best = (score, plane)
-        if through == 0 and resting >= min(RESTING_PARTS, len(bodies)):
+        if facing and through == 0 and resting >= min(RESTING_PARTS, len(bodies)):
             break  # a floor, surely: nothing need be looked at beyond it
         with np.errstate(invalid="ignore"):
             pts[np.abs(plane.height(pts.T)) < 2 * INLIER_MM] = np.nan

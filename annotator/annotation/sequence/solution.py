@@ -193,7 +193,14 @@ def records(
         )
     by_live = {f: n for n, f in enumerate(live)}
     sites_off = np.maximum(np.maximum(site_mm, s.sequence.site_sigma_mm), glued)
-    agreement = frame_agreement(obs.frame, obs.instance, ids, err < agree_px, len(live))
+    agreement = frame_agreement(
+        obs.frame,
+        obs.instance,
+        ids,
+        err < agree_px,
+        len(live),
+        posed=set(obs.instance[keep].tolist()),
+    )
     for f, name in enumerate(names):
         if f not in by_live:
             reason = placed.reasons[f]
