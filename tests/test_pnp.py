@@ -227,3 +227,31 @@ def test_analytic_jacobian_matches_finite_differences() -> None:
         ]
     )
     assert np.abs(J - numeric).max() < 1e-3 * np.abs(numeric).max()
+
+
+def test_a_marker_misread_as_another_of_the_parts_ids_is_forgiven() -> None:
+    # Marker 3, read in the left image as id 2 (a few bits off): the consensus leaves the
+    # reading out, and since it lies exactly where marker 3 is kept in the right image, it
+    # says nothing about the pose: no rejected_markers. A sticker of id 2 on another copy
+    # (read where no kept marker is) keeps its flag.
+    from annotator.annotation.consensus import pose_instance
+    from annotator.annotation.misreads import forgive_misreadings
+    from annotator.annotation.settings import AnnotateSettings
+
+    rng = np.random.default_rng(11)
+    cams = _rig()
+    T = _true_pose(rng)
+    sites = _sites(5, rng)
+    obs = _observe(cams, sites, T, rng, noise=0.2)
+    three = next(o for o in obs if (o.camera, o.marker_id) == (0, 3))
+    misread = [o for o in obs if o.camera != 0 or o.marker_id not in (2, 3)]
+    misread.append(Observation(0, 2, sites[2], three.image_corners))
+    other = make_transform(T[:3, :3], T[:3, 3] + [40.0, 10.0, 0.0])
+    uv = cams[0].project(sites[2] @ other[:3, :3].T + other[:3, 3])
+    elsewhere = [o for o in obs if (o.camera, o.marker_id) != (0, 2)]
+    elsewhere.append(Observation(0, 2, sites[2], uv))
+    for case, forgiven in ((misread, True), (elsewhere, False)):
+        r = pose_instance(_fake_dataset(cams), "box", "01", case, AnnotateSettings())
+        assert r.markers["left"].rejected == [2] and "rejected_markers" in r.flags
+        forgive_misreadings(cams, [r], {("box", "01"): case})
+        assert ("rejected_markers" not in r.flags) == forgiven

@@ -19,6 +19,7 @@ import numpy as np
 
 from annotator.annotation.completeness import image_quality, quality_warnings
 from annotator.annotation.consensus import flag_overlaps, pose_instance
+from annotator.annotation.misreads import forgive_misreadings
 from annotator.annotation.observations import sort_markers
 from annotator.annotation.recovery import recover_markers
 from annotator.annotation.refine import refine_few_marker_poses
@@ -83,6 +84,7 @@ def annotate_scene(
         if r is not None:
             instances.append(r)
     flag_overlaps(ds, instances)
+    forgive_misreadings(ds.rig.cameras, instances, markers.per_instance)
     depth = scene.read_depth(ds.rig)
     renders: Renders = {}
     add_visibility(ds, instances, depth, settings, renders)

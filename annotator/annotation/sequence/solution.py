@@ -5,11 +5,13 @@ with its figures and flags, every instance's pose with its uncertainty and flags
 from __future__ import annotations
 
 from collections import defaultdict
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from annotator.annotation.consistency import frame_agreement
+from annotator.annotation.misreads import rays_meet, worth_a_look
 from annotator.annotation.sequence.noise import (
     MOTION_BLUR_PX,
     FrameBlur,
@@ -30,6 +32,7 @@ from annotator.dataset.records import (
     InstanceAnnotation,
 )
 from annotator.geometry.mesh import SurfaceMoments
+from annotator.geometry.transforms import invert
 from annotator.noise import NOISE
 from annotator.pnp.bundle import BundleObservations, BundleResult
 from annotator.pnp.uncertainty import relative_rms_uncertainty, site_covariance
@@ -81,16 +84,42 @@ def _uncertainty(
     return float(np.median(values)) if values else float("inf")
 
 
+def _kept_sites(
+    obs: BundleObservations, ids: np.ndarray, keep: np.ndarray, result: BundleResult
+) -> np.ndarray:
+    """(M, 4, 3) every site whose marker the solve kept, of every instance, in the scene
+    frame."""
+    pairs = np.unique(np.c_[obs.instance[keep], ids[keep]], axis=0, return_index=True)[1]
+    rows = np.flatnonzero(keep)[pairs]
+    T = result.scene_T_model[obs.instance[rows]]  # (M, 4, 4)
+    return np.einsum("mij,mkj->mki", T[:, :3, :3], obs.model_corners[rows]) + T[:, None, :3, 3]
+
+
 def _rejected_markers(
-    obs: BundleObservations, ids: np.ndarray, mine: np.ndarray, keep: np.ndarray
+    obs: BundleObservations,
+    ids: np.ndarray,
+    mine: np.ndarray,
+    keep: np.ndarray,
+    on_part: Callable[[int], bool],
+    ray: Callable[[int], tuple[np.ndarray, np.ndarray]],
 ) -> bool:
-    """True if a marker of the instance was read in two frames or more and never kept."""
+    """True if a marker of the instance was never kept, and read in two frames or more
+    where it may be a sticker: each reading ``on_part`` (of the observation's index:
+    :func:`~annotator.annotation.misreads.worth_a_look`), and the lines of sight (``ray``,
+    origin and direction in the scene frame) of two of them meet
+    (:func:`~annotator.annotation.misreads.rays_meet`)."""
     used = set(ids[mine & keep].tolist())
-    frames: dict[int, set[int]] = defaultdict(set)
+    readings: dict[int, dict[int, int]] = defaultdict(dict)  # id -> frame -> observation
     for k in np.flatnonzero(mine & ~keep):
-        if int(ids[k]) not in used:
-            frames[int(ids[k])].add(int(obs.frame[k]))
-    return any(len(f) >= 2 for f in frames.values())
+        if int(ids[k]) not in used and on_part(int(k)):
+            readings[int(ids[k])].setdefault(int(obs.frame[k]), int(k))
+    for per_frame in readings.values():
+        if len(per_frame) < 2:
+            continue
+        origins, directions = zip(*(ray(k) for k in per_frame.values()))
+        if rays_meet(np.array(origins), np.array(directions)):
+            return True
+    return False
 
 
 def records(
@@ -120,6 +149,7 @@ def records(
     agree = np.zeros_like(seen)
     agree[obs.frame[keep], obs.instance[keep]] = True
     glued = np.array([glue_spread(ds.objects[o], inst) for o, inst in keys])
+    kept_sites = _kept_sites(obs, ids, keep, result)
     for i, (obj, inst) in enumerate(keys):
         mine = obs.instance == i
         used = mine & keep
@@ -156,9 +186,21 @@ def records(
             flags.append(Flag.MOVED)
         if rms > s.high_residual_px:
             flags.append(Flag.HIGH_RESIDUAL)
+
         # A marker left out in a blurred frame is noise; one that two frames or more read
         # and none agrees with is not (glued elsewhere, or another copy's).
-        if _rejected_markers(obs, ids, mine, keep):
+        def on_part(k: int) -> bool:
+            cam = cams[int(obs.camera[k])]
+            cam_T_scene = cam.cam_T_rig @ invert(result.scene_T_rig[int(obs.frame[k])])
+            return worth_a_look(cam, cam_T_scene, kept_sites, obs.image_corners[k])
+
+        def ray(k: int) -> tuple[np.ndarray, np.ndarray]:
+            cam = cams[int(obs.camera[k])]
+            scene_T_cam = result.scene_T_rig[int(obs.frame[k])] @ cam.rig_T_cam
+            xy = cam.undistort_pixels(obs.image_corners[k].mean(axis=0))
+            return scene_T_cam[:3, 3], scene_T_cam[:3, :3] @ np.array([xy[0], xy[1], 1.0])
+
+        if _rejected_markers(obs, ids, mine, keep, on_part, ray):
             flags.append(Flag.REJECTED_MARKERS)
         if not unc < s.high_uncertainty_fraction * model.mesh.moments.diameter:
             flags.append(Flag.HIGH_UNCERTAINTY)
