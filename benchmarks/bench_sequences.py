@@ -15,8 +15,8 @@ sequence of 15 parts annotated in <= 20 s on 2 cores, whole process
 
 The solve was tuned on seeds 3, 5 and 21 (the motion streak and frame flags on 201 and 202);
 the held-out seeds are 101-103 (two-camera rig, 40 frames, a quarter motion-blurred), 111 and
-112 (one camera, hand-held: blurred frames, glued markers) and 71 (one camera, the long
-sequence).
+112 (one camera, hand-held: blurred frames, glued markers), 115 and 116 (one camera,
+hand-held, every frame sharp) and 71 (one camera, the long sequence).
 """
 
 from __future__ import annotations
@@ -36,9 +36,12 @@ LONG_SEED = 71
 #: Hand-held, one camera and depth, 60 frames (issue 42): a tenth of the frames
 #: motion-blurred; markers glued by hand (0.7 mm, 2 degrees, a twentieth of the frames
 #: blurred), before ``sites``.
+#: Sharp (issue 54): every frame a short exposure, two seeds.
 HAND_HELD = {
     "blurred": (111, ("--motion-blur", "0.1")),
     "glued": (112, ("--glue", "0.7,2", "--motion-blur", "0.05")),
+    "sharp": (115, ("--motion-blur", "0")),
+    "sharp2": (116, ("--motion-blur", "0")),
 }
 
 

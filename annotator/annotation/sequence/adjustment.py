@@ -22,7 +22,7 @@ from annotator.annotation.sequence.noise import (
 )
 from annotator.annotation.sequence.placing import Placed, instance_start
 from annotator.annotation.sequence.reading import FrameReading, Seen
-from annotator.annotation.sequence.solution import SequenceSolution, records
+from annotator.annotation.sequence.solution import SequenceSolution, SolvedSequence, records
 from annotator.annotation.settings import AnnotateSettings
 from annotator.dataset import Dataset
 from annotator.geometry.camera import Camera
@@ -149,25 +149,23 @@ def bundle(
     )
     site_mm = site_sigma(all_obs, err, keep, depth, float(cams[0].K[0, 0]), len(keys))
     agree_px = limit * sigma / NOISE.corner_px
-    records(
-        ds,
-        keys,
-        live,
-        all_obs,
-        ids,
-        keep,
-        result,
-        err,
-        placed,
-        s,
-        out,
-        names,
-        moved,
-        blur,
-        agree_px,
-        site_mm,
-        (depth, scale_sigma),
+    solved = SolvedSequence(
+        keys=keys,
+        names=names,
+        live=live,
+        obs=all_obs,
+        ids=ids,
+        keep=keep,
+        result=result,
+        err=err,
+        placed=placed,
+        moved=moved,
+        blur=blur,
+        agree_px=agree_px,
+        site_mm=site_mm,
+        scale=(depth, scale_sigma),
     )
+    records(ds, solved, s, out)
 
 
 def _moved(
