@@ -25,9 +25,9 @@ from typing import Any
 import cv2
 import numpy as np
 
+from annotator.dataset.materials import PAPER, Material
 from annotator.errors import UserError
 from annotator.geometry.mesh import Mesh
-from annotator.synthesis.pbr.materials import PAPER, Material
 
 #: The environment variable naming the Python that has ``bpy``.
 BPY_PYTHON_ENV = "ANNOTATOR_BPY_PYTHON"
@@ -227,7 +227,7 @@ def write_job(
         ],
     }
     path = folder / "job.json"
-    np.savez(folder / "job.npz", **arrays)
+    np.savez(folder / "job.npz", **arrays)  # type: ignore[arg-type]
     path.write_text(json.dumps(job))
     return path
 
@@ -255,8 +255,11 @@ def bpy_python() -> str:
 def _imports_bpy(python: str) -> bool:
     try:
         done = subprocess.run(
-            [python, "-c", "import importlib.util, sys; "
-             "sys.exit(importlib.util.find_spec('bpy') is None)"],
+            [
+                python,
+                "-c",
+                "import importlib.util, sys; sys.exit(importlib.util.find_spec('bpy') is None)",
+            ],
             capture_output=True,
             timeout=60,
         )

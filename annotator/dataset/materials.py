@@ -88,9 +88,7 @@ def material_named(name: str, *, where: str = "") -> Material:
     """
     if name not in PRESETS:
         at = f"{where}: " if where else ""
-        raise UserError(
-            f"{at}unknown material {name!r} (valid: {', '.join(sorted(PRESETS))})"
-        )
+        raise UserError(f"{at}unknown material {name!r} (valid: {', '.join(sorted(PRESETS))})")
     return PRESETS[name]
 
 
