@@ -477,6 +477,7 @@ def _write_pbr_images(
             seed=(cfg.seed * 100003 + index) % (1 << 31),
             rng=rng,
             progress=step,
+            markers=cfg.markers,
         )
     finally:
         if bar is not None:

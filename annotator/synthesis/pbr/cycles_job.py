@@ -232,14 +232,18 @@ def write_job(
     return path
 
 
-@cache
 def bpy_python() -> str:
     """The interpreter that runs the worker (see the module docstring).
 
     Raises:
         UserError: none can import ``bpy`` (:data:`INSTALL_HINT`).
     """
-    named = os.environ.get(BPY_PYTHON_ENV)
+    return _bpy_python(os.environ.get(BPY_PYTHON_ENV) or None)
+
+
+@cache
+def _bpy_python(named: str | None) -> str:
+    """:func:`bpy_python` for the interpreter the environment names (looked for once)."""
     if named:
         if not _imports_bpy(named):
             raise UserError(f"{BPY_PYTHON_ENV}={named} cannot import bpy. {INSTALL_HINT}")
@@ -330,13 +334,10 @@ def _run(python: str, job: Path, progress: Progress | None) -> str:
 
 
 def _progress(line: str, progress: Progress) -> None:
-    """Cycles' ``... | Rendered 12/80 Tiles`` or ``Sample 5/16`` lines as a fraction."""
-    for word in ("Sample", "Rendered"):
-        if word in line:
-            try:
-                frac = line.split(word, 1)[1].split()[0]
-                done, total = (int(x) for x in frac.split("/"))
-                progress(line.split()[0] if line.startswith("DONE") else "", done / total)
-            except (ValueError, IndexError):
-                pass
-            return
+    """The worker's ``PROGRESS <camera> <sample> <samples>`` lines as a fraction."""
+    words = line.split()
+    if len(words) == 4 and words[0] == "PROGRESS":
+        try:
+            progress(words[1], int(words[2]) / max(int(words[3]), 1))
+        except ValueError:
+            pass

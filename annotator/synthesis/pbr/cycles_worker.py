@@ -181,7 +181,19 @@ def render_camera(bpy: Any, np: Any, scene: Any, cam: dict[str, Any], out_dir: P
     scene.render.image_settings.color_depth = "32"
     exr = out_dir / f".{cam['name']}.exr"
     scene.render.filepath = str(exr)
-    bpy.ops.render.render(write_still=True)
+
+    def stats(text: Any, *_: Any) -> None:
+        # Cycles' status line ends "... | Sample 5/16" while it samples.
+        tail = str(text).rsplit("Sample ", 1)
+        if len(tail) == 2 and "/" in tail[1]:
+            done, _sep, total = tail[1].split()[0].partition("/")
+            print(f"PROGRESS {cam['name']} {done} {total}", flush=True)
+
+    bpy.app.handlers.render_stats.append(stats)
+    try:
+        bpy.ops.render.render(write_still=True)
+    finally:
+        bpy.app.handlers.render_stats.remove(stats)
     img = bpy.data.images.load(str(exr))
     px = np.empty(img.size[0] * img.size[1] * img.channels, np.float32)
     img.pixels.foreach_get(px)

@@ -200,9 +200,11 @@ def render_images(
     seed: int,
     rng: np.random.Generator,
     progress: Progress | None = None,
+    markers: bool = True,
 ) -> dict[str, np.ndarray]:
-    """Each of ``cameras`` (the rig's first ones, in order) as the sensor reads it (uint8)."""
-    scene = cycles_scene(surfaces, materials, setup, settings)
+    """Each of ``cameras`` (the rig's first ones, in order) as the sensor reads it (uint8);
+    ``markers`` False: the parts bare."""
+    scene = cycles_scene(surfaces, materials, setup, settings, markers=markers)
     wides = [wide_pinhole(cam) for cam in cameras]
     dof = settings.dof
     jobs = [
