@@ -311,22 +311,22 @@ def _run(python: str, job: Path, progress: Progress | None) -> str:
     """Run the worker on ``job``, passing its progress on; the last lines it printed."""
     env = {**os.environ, "PYTHONNOUSERSITE": "1"}
     env.pop("PYTHONPATH", None)  # the project's own path holds nothing the worker needs
-    proc = subprocess.Popen(
+    last: list[str] = []
+    with subprocess.Popen(
         [python, str(WORKER), str(job)],
         stdout=subprocess.PIPE,
         stderr=subprocess.STDOUT,
         text=True,
         env=env,
         cwd=job.parent,
-    )
-    last: list[str] = []
-    assert proc.stdout is not None
-    for line in proc.stdout:
-        line = line.rstrip()
-        last = (last + [line])[-5:]
-        if progress is not None:
-            _progress(line, progress)
-    code = proc.wait()
+    ) as proc:
+        assert proc.stdout is not None
+        for line in proc.stdout:
+            line = line.rstrip()
+            last = (last + [line])[-5:]
+            if progress is not None:
+                _progress(line, progress)
+        code = proc.wait()
     tail = " | ".join(x for x in last if x)
     if code != 0:
         raise CyclesError(f"Cycles exited with status {code}: {tail[-400:]}")
