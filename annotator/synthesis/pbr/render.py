@@ -94,6 +94,8 @@ class PbrSettings:
             raise UserError(
                 f"unknown depth model {self.depth_model!r} (valid: {', '.join(DEPTH_MODELS)})"
             )
+        if self.dof is not None and min(self.dof) <= 0:
+            raise UserError(f"--dof needs a focus distance and an f-number above 0, not {self.dof}")
         if self.device not in ("auto", "cpu", "gpu"):
             raise UserError(f"unknown device {self.device!r} (valid: auto, cpu, gpu)")
 
