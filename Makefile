@@ -3,8 +3,13 @@ PYTHON ?= python3
 VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
+# `synth --render pbr`'s Blender (bpy: Python 3.11, numpy < 2) in an environment of its own,
+# found by the library as .venv-pbr (or wherever ANNOTATOR_BPY_PYTHON points).
+PYTHON311 ?= python3.11
+PBR_VENV  := .venv-pbr
+PBR_STAMP := $(PBR_VENV)/.installed
 
-.PHONY: demo test test-fast lint format bench system-deps clean
+.PHONY: demo test test-fast lint format bench system-deps clean pbr-env
 
 # System libraries: open3d needs libusb at import time; the browser tests need Chromium.
 system-deps:
@@ -21,6 +26,14 @@ $(STAMP): pyproject.toml
 	$(BIN)/pip install -q -e '.[dev,ray]'
 	touch $(STAMP)
 
+$(PBR_STAMP):
+	$(PYTHON311) -m venv $(PBR_VENV)
+	$(PBR_VENV)/bin/pip install -q --upgrade pip
+	$(PBR_VENV)/bin/pip install -q bpy==5.0.1
+	touch $(PBR_STAMP)
+
+pbr-env: $(PBR_STAMP)
+
 # The main job on a copy of sample_scenes/ (the committed files stay untouched).
 demo: $(STAMP)
 	rm -rf out/demo && mkdir -p out && cp -r sample_scenes out/demo && rm -f out/demo/scenes/*/annotation.json
@@ -31,8 +44,9 @@ demo: $(STAMP)
 	@echo "Next: $(BIN)/annotator review out/demo   (then open the printed address)"
 
 # Every test: two workers, a test file to each at a time (its fixtures made once); then the
-# browser tests, one at a time (their timings want a quiet machine).
-test: $(STAMP)
+# browser tests, one at a time (their timings want a quiet machine). The pbr tests render
+# with Cycles in .venv-pbr.
+test: $(STAMP) $(PBR_STAMP)
 	$(BIN)/ruff check .
 	$(BIN)/mypy annotator viewer
 	$(BIN)/python -m pytest -q -n 2 --dist loadfile -m "not browser"
@@ -54,4 +68,4 @@ bench: $(STAMP)
 	for b in benchmarks/bench_*.py; do $(BIN)/python -m benchmarks.$$(basename $$b .py) || exit 1; done
 
 clean:
-	rm -rf $(VENV) build *.egg-info
+	rm -rf $(VENV) $(PBR_VENV) build *.egg-info

@@ -22,10 +22,16 @@ unreadable.
 
 **Image quality**, per camera: ``edge_blur_px``, the blur (Gaussian sigma, px) that best
 explains the candidate marker squares under a blur model
-(:func:`annotator.detection.deblur.estimate_blur`), and ``median``/``saturated``, the median
-grey level (8-bit) and the fraction of saturated pixels. Warnings: ``blurred`` when the edge blur exceeds
-``blur_warn_px`` (2.5 px: cells of 20 px markers then merge), ``under_exposed`` when the
-median is below 25, ``over_exposed`` when more than 5% of the pixels are saturated.
+(:func:`annotator.detection.deblur.estimate_blur`), ``median``/``saturated``, the median
+grey level (8-bit) and the fraction of saturated pixels, and ``marker_white``/``marker_black``,
+the grey levels of the detected markers' printed white and black (:func:`marker_exposure`).
+Warnings: ``blurred`` when the edge blur exceeds ``blur_warn_px`` (2.5 px: cells of 20 px
+markers then merge); ``under_exposed`` judged on the markers where some were read — their
+white below ``dark_marker_white`` (40) or their white-to-black contrast below
+``min_marker_contrast`` (25): the corners drown in the noise — and on the image's median
+(below 25) only where none was read (a dark bin floor filling the frame is no fault when the
+markers on the parts are well exposed); ``over_exposed`` when more than 5% of the pixels are
+saturated.
 """
 
 from __future__ import annotations
@@ -52,6 +58,8 @@ class CompletenessSettings:
     min_region_fraction: float = 0.3
     blur_warn_px: float = 2.5
     dark_median: float = 25.0
+    dark_marker_white: float = 40.0
+    min_marker_contrast: float = 25.0
     saturated_fraction: float = 0.05
 
 
@@ -287,14 +295,9 @@ def quality_warnings(
             + f", above {settings.blur_warn_px} px): markers may be unreadable"
         )
         out.append(SceneWarning(WarningKind.BLURRED, message, cameras=tuple(sorted(blurred))))
-    dark = [
-        c for c, q in quality.items() if q.median is not None and q.median < settings.dark_median
-    ]
+    dark = {c: why for c, q in quality.items() if (why := _too_dark(q, settings))}
     if dark:
-        message = (
-            f"images too dark (median grey level below {settings.dark_median:g}): "
-            + ", ".join(dark)
-        )
+        message = "images too dark: " + ", ".join(f"{c} ({why})" for c, why in dark.items())
         out.append(SceneWarning(WarningKind.UNDER_EXPOSED, message, cameras=tuple(dark)))
     bright = [
         c
@@ -310,13 +313,70 @@ def quality_warnings(
     return out
 
 
+def _too_dark(q: ImageQuality, settings: CompletenessSettings) -> str | None:
+    """Why ``q``'s image is under-exposed (the markers' levels where it has them, else its
+    median), or None."""
+    if q.marker_white is not None and q.marker_black is not None:
+        if q.marker_white < settings.dark_marker_white:
+            return f"markers' white at grey level {q.marker_white:.0f}, below {settings.dark_marker_white:g}"
+        contrast = q.marker_white - q.marker_black
+        if contrast < settings.min_marker_contrast:
+            return (
+                f"markers' contrast {contrast:.0f} grey levels, below "
+                f"{settings.min_marker_contrast:g}"
+            )
+        return None
+    if q.median is not None and q.median < settings.dark_median:
+        return f"median grey level {q.median:.0f}, below {settings.dark_median:g}, no marker read"
+    return None
+
+
+def marker_exposure(gray: np.ndarray, quads: list[np.ndarray]) -> tuple[float, float] | None:
+    """The printed white and black of the markers (8-bit grey levels): each quad (4, 2) is
+    warped to a square of its cells, its outer ring (the black border) gives the black,
+    the brightest quarter of its inner cells the white; the medians over the markers. None
+    without a quad.
+
+    >>> import numpy as np
+    >>> img = np.full((40, 40), 10, np.uint8); img[12:28, 12:28] = 200
+    >>> white, black = marker_exposure(img, [np.array([[6, 6], [33, 6], [33, 33], [6, 33.0]])])
+    >>> round(white), round(black)
+    (200, 10)
+    """
+    if not quads:
+        return None
+    side = 48  # px of the warped square: 8 px a cell of a 4x4 marker with its border
+    ring = side // 6
+    square = np.array([[0, 0], [side, 0], [side, side], [0, side]], np.float32)
+    whites, blacks = [], []
+    for q in quads:
+        H = cv2.getPerspectiveTransform(np.asarray(q, np.float32) + 0.5, square)
+        patch = cv2.warpPerspective(gray, H, (side, side), flags=cv2.INTER_LINEAR)
+        # The cell edges blur into their neighbours: keep each ring's middle.
+        inner = patch[ring + 2 : side - ring - 2, ring + 2 : side - ring - 2]
+        border = np.concatenate(
+            [patch[1 : ring - 1].ravel(), patch[side - ring + 1 : side - 1].ravel()]
+        )
+        whites.append(float(np.percentile(inner, 85)))
+        blacks.append(float(np.median(border)))
+    return float(np.median(whites)), float(np.median(blacks))
+
+
 def image_quality(
     ds: Dataset, readings: list[ImageReading], grays: list[np.ndarray]
 ) -> dict[str, ImageQuality]:
-    """Per camera, the blur the detector measured and the exposure of the image."""
+    """Per camera, the blur the detector measured and the exposure of the image and of its
+    markers."""
     out = {}
     for cam, reading, gray in zip(ds.rig.cameras, readings, grays):
         median, saturated = exposure(gray)
         blur = None if reading.blur_px is None else round(reading.blur_px, 2)
-        out[cam.name] = ImageQuality(blur, round(median, 4), round(saturated, 4))
+        levels = marker_exposure(gray, [m.corners for m in reading.markers if not m.soft])
+        out[cam.name] = ImageQuality(
+            blur,
+            round(median, 4),
+            round(saturated, 4),
+            marker_white=None if levels is None else round(levels[0], 2),
+            marker_black=None if levels is None else round(levels[1], 2),
+        )
     return out

@@ -6,7 +6,12 @@ import argparse
 
 from annotator.commands import add_ray_option, add_workers_option, finish_batch
 from annotator.commands.synth_calibration import add_calibration_options, synth_calibration
-from annotator.commands.synth_scenes import add_rendering_options, add_scene_options, scene_settings
+from annotator.commands.synth_scenes import (
+    add_pbr_options,
+    add_rendering_options,
+    add_scene_options,
+    scene_settings,
+)
 from annotator.errors import UserError
 
 
@@ -19,6 +24,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_workers_option(parser)
     add_ray_option(parser)
     add_rendering_options(parser)
+    add_pbr_options(parser)
     add_calibration_options(parser)
     _add_twin_options(parser)
     _add_output_options(parser)
@@ -68,6 +74,9 @@ def run(args: argparse.Namespace) -> int:
         )
     if args.cameras != 2 and (args.twin or args.calibration):
         raise UserError(f"--cameras does not apply to {'--twin' if args.twin else '--calibration'}")
+    if args.render == "pbr" and (args.twin or args.calibration or args.frames):
+        what = "--twin" if args.twin else "--calibration" if args.calibration else "--frames"
+        raise UserError(f"--render pbr does not apply to {what} (fixed-rig scenes only)")
     if args.motion_blur is not None and not args.frames:
         raise UserError("--motion-blur applies to sequences only: give --frames N too")
     batch = dict(

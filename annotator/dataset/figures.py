@@ -348,21 +348,27 @@ def depth_regions(
 @dataclass
 class ImageQuality:
     """One camera's image figures: the edge blur (px, None where no marker edge was
-    measured), the median grey level and the fraction of saturated pixels (None where a file
-    does not say); ``extra``: fields this version does not know."""
+    measured), the median grey level and the fraction of saturated pixels, and the grey
+    levels of the detected markers' printed white and black (None where no marker was read
+    or a file does not say); ``extra``: fields this version does not know."""
 
     edge_blur_px: float | None
     median: float | None
     saturated: float | None
     extra: dict[str, Any] = field(default_factory=dict)
+    marker_white: float | None = None
+    marker_black: float | None = None
 
     def to_json(self) -> dict[str, Any]:
-        return {
+        out = {
             "edge_blur_px": self.edge_blur_px,
             "median": self.median,
             "saturated": self.saturated,
-            **self.extra,
         }
+        if self.marker_white is not None or self.marker_black is not None:
+            out["marker_white"] = self.marker_white
+            out["marker_black"] = self.marker_black
+        return {**out, **self.extra}
 
     @classmethod
     def from_json(cls, doc: dict[str, Any]) -> ImageQuality:
@@ -370,8 +376,13 @@ class ImageQuality:
             doc.get("edge_blur_px"),
             doc.get("median"),
             doc.get("saturated"),
-            _extra(doc, ("edge_blur_px", "median", "saturated")),
+            _extra(doc, _QUALITY_FIELDS),
+            marker_white=doc.get("marker_white"),
+            marker_black=doc.get("marker_black"),
         )
+
+
+_QUALITY_FIELDS = ("edge_blur_px", "median", "saturated", "marker_white", "marker_black")
 
 
 def image_qualities(doc: Any) -> dict[str, ImageQuality]:

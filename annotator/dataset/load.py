@@ -15,6 +15,7 @@ from typing import Any
 
 import numpy as np
 
+from annotator.dataset.materials import parse_material
 from annotator.dataset.model import (
     FLIP_HORIZONTAL,
     FORMAT_VERSION,
@@ -444,6 +445,12 @@ def _parse_object(root: Path, name: str, problems: list[Problem]) -> ObjectModel
     if mesh_path is None:
         return None
     symmetry = _parse_symmetry(p, doc.get("symmetry", {"class": "none"}))
+    if doc.get("material") is not None:
+        try:
+            parse_material(doc["material"], path=path)
+        except UserError as exc:
+            # parse_material names the file itself; the problem is reported with its path.
+            p.problem(exc.message.removeprefix(f"{path}: "))
     markers = None
     if "markers" in doc and doc["markers"] is not None:
         markers = _parse_markers(p, doc["markers"])

@@ -33,10 +33,16 @@ class MarkedPart:
 
 
 def write_object_files(
-    folder: Path, part: Part, sites: MarkerSites, instances: Sequence[Instance]
+    folder: Path,
+    part: Part,
+    sites: MarkerSites,
+    instances: Sequence[Instance],
+    *,
+    material: str | None = None,
 ) -> None:
     """The part's mesh (``model.ply``) and ``object.yaml`` (its symmetry, marker sites and
-    instances) in ``folder``: what a dataset needs of an object."""
+    instances, and ``material`` when given) in ``folder``: what a dataset needs of an
+    object."""
     trimesh.Trimesh(part.mesh.vertices, part.mesh.faces, process=False).export(folder / "model.ply")
     write_object_yaml(
         folder,
@@ -44,6 +50,7 @@ def write_object_files(
         symmetry=part.symmetry,
         markers=sites,
         instances=instances,
+        **({} if material is None else {"material": material}),
     )
 
 

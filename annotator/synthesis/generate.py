@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
+from annotator.dataset.materials import Material
 from annotator.dataset.model import FORMAT_VERSION, SCENES_DIR, Instance, Rig
 from annotator.dataset.poses import InstancePose, write_poses
 from annotator.dataset.write import sites_to_yaml, write_dataset_yaml
@@ -30,6 +31,13 @@ from annotator.occlusion import scene_visibility
 from annotator.parts import Part, build_part
 from annotator.parts.marking import write_object_files
 from annotator.rendering.raycast import Hits, PlacedMesh, Rect
+from annotator.synthesis.pbr.render import (
+    BIN,
+    TABLE,
+    PbrSettings,
+    render_images,
+    structured_depth,
+)
 from annotator.synthesis.physics import Bin, drop_parts
 from annotator.synthesis.rig import RigSetup, make_rig
 from annotator.synthesis.shading import (
@@ -76,6 +84,19 @@ class SynthSettings:
     #: as an RGB-D sensor's colour camera: its depth still comes from the simulated stereo
     #: pair, whose second camera is then rendered for the depth only).
     cameras: int = 2
+    #: ``lambert``: the fast ray-cast render (diffuse, lit from the camera); ``pbr``: Cycles
+    #: (:mod:`annotator.synthesis.pbr`), with ``pbr``'s materials, lights, lens and sensor.
+    render: str = "lambert"
+    pbr: PbrSettings = PbrSettings()
+
+    @property
+    def structured_light(self) -> bool:
+        """The depth map is the structured-light model's (a pbr render's default)."""
+        return self.render == "pbr" and self.pbr.depth_model == "structured_light"
+
+
+#: ``SynthSettings.render``'s values.
+RENDERS = ("lambert", "pbr")
 
 
 @dataclass
@@ -103,6 +124,10 @@ class SceneTiming:
 
 def plan_dataset(config: SynthSettings) -> DatasetPlan:
     """Build the parts, their marker layouts and enough physical instances for any scene."""
+    if config.render not in RENDERS:
+        raise UserError(f"unknown render {config.render!r} (valid: {', '.join(RENDERS)})")
+    if config.render == "pbr":
+        config.pbr.check(config.parts)
     parts = [build_part(name) for name in config.parts]
     pool = config.instances[1]
     # Every physical instance needs its own ids: cap the sites so that all fit the dictionary.
@@ -153,7 +178,8 @@ def write_dataset_files(plan: DatasetPlan, root: Path) -> None:
     for part, layout, insts in zip(plan.parts, plan.layouts, plan.instances):
         folder = root / "objects" / part.name
         folder.mkdir(parents=True, exist_ok=True)
-        write_object_files(folder, part, layout.sites, insts)
+        material = plan.config.pbr.material_of(part.name).name if _pbr(plan) else None
+        write_object_files(folder, part, layout.sites, insts, material=material)
     if plan.config.glue != (0.0, 0.0):
         write_json(
             root / GLUED_SITES,
@@ -171,14 +197,25 @@ def write_dataset_files(plan: DatasetPlan, root: Path) -> None:
             for cam, world_T_cam in zip(rig.cameras, plan.setup.world_T_cams)
         ]
         rng = np.random.default_rng([plan.config.seed, 1 << 30])
-        depth = simulate_depth(
-            plan.setup,
-            surfaces,
-            views,
-            rng,
-            pattern_seed=plan.config.seed + 7,
-            fixed=len(surfaces),
-        )
+        if plan.config.structured_light:
+            depth = structured_depth(
+                plan.setup,
+                surfaces,
+                _materials(plan, surfaces),
+                views[0],
+                rng,
+                plan.config.pbr,
+                fixed=len(surfaces),
+            )
+        else:
+            depth = simulate_depth(
+                plan.setup,
+                surfaces,
+                views,
+                rng,
+                pattern_seed=plan.config.seed + 7,
+                fixed=len(surfaces),
+            )
         write_png(root / BACKGROUND_DEPTH, encode_depth(depth, rig.depth.scale))
         rig = replace(rig, depth=replace(rig.depth, background=BACKGROUND_DEPTH))
     write_dataset_yaml(
@@ -195,8 +232,23 @@ def write_dataset_files(plan: DatasetPlan, root: Path) -> None:
             and not (k == "markers" and v)
             and not (k in ("frames", "motion_blur") and not plan.config.frames)
             and not (k == "cameras" and v == 2)
-        },
+            and k not in ("render", "pbr")
+        }
+        | ({"render": "pbr", "pbr": plan.config.pbr.to_json()} if _pbr(plan) else {}),
     )
+
+
+def _pbr(plan: DatasetPlan) -> bool:
+    return plan.config.render == "pbr"
+
+
+def _materials(plan: DatasetPlan, surfaces: Sequence[Surface]) -> list[Material]:
+    """Each surface's material: the table's and the bin's, then each part's (by its mesh)."""
+    by_mesh = {id(p.mesh): plan.config.pbr.material_of(p.name) for p in plan.parts}
+    fixed = 1 + len(plan.bin.meshes())
+    return [TABLE] + [
+        by_mesh[id(s.mesh)] if k >= fixed else BIN for k, s in enumerate(surfaces[1:], 1)
+    ]
 
 
 def written_rig(plan: DatasetPlan) -> Rig:
@@ -236,9 +288,10 @@ class BinContents:
 
 
 def make_scene(
-    plan: DatasetPlan, index: int, folder: Path
+    plan: DatasetPlan, index: int, folder: Path, *, progress: bool = False
 ) -> tuple[list[InstancePose], SceneTiming]:
-    """Simulate, render and write scene ``index`` into ``folder``; return its true poses."""
+    """Simulate, render and write scene ``index`` into ``folder``; return its true poses
+    (``progress``: a bar per pbr image)."""
     # One generator for the whole scene, drawn in a fixed order: the same seed and index
     # make the same scene.
     rng = np.random.default_rng([plan.config.seed, index])
@@ -247,7 +300,7 @@ def make_scene(
     contents = fill_bin(plan, rng)
     timing.physics = time.perf_counter() - t0
     staged = stage_bin(plan, contents)
-    views = write_shot(plan, staged, folder, rng, timing)
+    views = write_shot(plan, staged, folder, rng, timing, index=index, progress=progress)
     staged_occlusion(plan, staged, views, timing)
     write_poses(folder / "gt.json", staged.poses, format=FORMAT_VERSION)
     return staged.poses, timing
@@ -266,11 +319,19 @@ def write_shot(
     timing: SceneTiming,
     *,
     smear: Smear | None = None,
+    index: int = 0,
+    progress: bool = False,
 ) -> list[View]:
     """Render what ``plan``'s rig sees of ``staged`` into ``folder`` (each camera's image,
-    and with depth the simulated and exact depth maps), timed into ``timing``; the views."""
+    and with depth the simulated and exact depth maps), timed into ``timing``; the views.
+    ``index``: the scene's (Cycles' seed); ``progress``: a bar per pbr image."""
     t0 = time.perf_counter()
-    views = _write_images(plan, staged, folder, rng, smear=smear)
+    if _pbr(plan):
+        if smear is not None:
+            raise UserError("--render pbr makes fixed-rig scenes only (no sequences)")
+        views = _write_pbr_images(plan, staged, folder, rng, index=index, progress=progress)
+    else:
+        views = _write_images(plan, staged, folder, rng, smear=smear)
     timing.rendering = time.perf_counter() - t0
     if plan.config.depth:
         t0 = time.perf_counter()
@@ -378,20 +439,79 @@ def _write_images(
     return views
 
 
+def _write_pbr_images(
+    plan: DatasetPlan,
+    staged: _Staged,
+    folder: Path,
+    rng: np.random.Generator,
+    *,
+    index: int,
+    progress: bool,
+) -> list[View]:
+    """Each written camera's Cycles image into ``folder``; every camera's centre-ray view
+    (the truth, the depth and the occlusion rates are our ray caster's, as in the default
+    render)."""
+    cfg = plan.config
+    views = [
+        render_view(cam, invert(world_T_cam), staged.surfaces, fixed=staged.fixed)
+        for cam, world_T_cam in zip(plan.setup.rig.cameras, plan.setup.world_T_cams)
+    ]
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=100, desc=f"pbr {index:06d}", leave=False, unit="%")
+
+    def step(fraction: float) -> None:
+        if bar is not None:
+            bar.n = round(100 * fraction)
+            bar.refresh()
+
+    try:
+        images = render_images(
+            plan.setup,
+            plan.setup.rig.cameras[: cfg.cameras],
+            staged.surfaces,
+            _materials(plan, staged.surfaces),
+            cfg.pbr,
+            seed=(cfg.seed * 100003 + index) % (1 << 31),
+            rng=rng,
+            progress=step,
+            markers=cfg.markers,
+        )
+    finally:
+        if bar is not None:
+            bar.close()
+    for name, img in images.items():
+        write_png(folder / f"{name}.png", img)
+    return views
+
+
 def _write_depth(
     plan: DatasetPlan, staged: _Staged, views: list[View], folder: Path, rng: np.random.Generator
 ) -> None:
     """The simulated sensor's depth map, and the exact one."""
     depth_spec = plan.setup.rig.depth
     assert depth_spec is not None  # make_rig always gives the rig a depth camera
-    depth = simulate_depth(
-        plan.setup,
-        staged.surfaces,
-        views,
-        rng,
-        pattern_seed=plan.config.seed + 7,
-        fixed=staged.fixed,
-    )
+    if plan.config.structured_light:
+        depth = structured_depth(
+            plan.setup,
+            staged.surfaces,
+            _materials(plan, staged.surfaces),
+            views[0],
+            rng,
+            plan.config.pbr,
+            fixed=staged.fixed,
+        )
+    else:
+        depth = simulate_depth(
+            plan.setup,
+            staged.surfaces,
+            views,
+            rng,
+            pattern_seed=plan.config.seed + 7,
+            fixed=staged.fixed,
+        )
     write_png(folder / "depth.png", encode_depth(depth, depth_spec.scale))
     # The exact depth of everything (parts, bin, clutter), for comparison with the sensor's.
     write_png(folder / "depth_ideal.png", encode_depth(views[0].hits.depth, depth_spec.scale))
@@ -462,6 +582,8 @@ class SceneJob:
 
     config: SynthSettings
     root: str
+    #: A progress bar per pbr image.
+    progress: bool = False
 
     def prepare(self) -> None:
         """Plan the dataset (parts, rig, ray tables) once, before workers are forked."""
@@ -488,7 +610,7 @@ class SceneJob:
         plan = cached_plan(self.config)
         folder = Path(self.root) / SCENES_DIR / scene_id
         folder.mkdir(parents=True, exist_ok=True)
-        poses, timing = make_scene(plan, int(scene_id), folder)
+        poses, timing = make_scene(plan, int(scene_id), folder, progress=self.progress)
         return {"instances": len(poses), **timing.__dict__}
 
 

@@ -14,6 +14,7 @@ from annotator.io.atomic import atomic_folder
 from annotator.io.output_folder import check_output_folder, write_manifest
 from annotator.runner import BatchReport, run_batch
 from annotator.synthesis.generate import SceneJob, SynthSettings, cached_plan, write_dataset_files
+from annotator.synthesis.pbr.cycles_job import bpy_python
 
 #: The stages a scene's time is reported for (``seconds_per_scene``).
 STAGES = ("physics", "rendering", "depth", "occlusion")
@@ -91,11 +92,14 @@ def synthesize_scenes(
         raise ValueError("settings.frames asks for sequences: use synthesize_sequences")
     out = Path(out)
     check_output_folder(out, command="synth", overwrite=overwrite)
+    plan = cached_plan(settings)
+    if settings.render == "pbr":
+        bpy_python()  # a missing extra is told before any work
     with atomic_folder(out) as tmp:
         write_manifest(tmp, command="synth")
-        write_dataset_files(cached_plan(settings), tmp)
+        write_dataset_files(plan, tmp)
         report = run_batch(
-            SceneJob(settings, str(tmp)),
+            SceneJob(settings, str(tmp), progress=not quiet and settings.render == "pbr"),
             [f"{k:06d}" for k in range(settings.scenes)],
             workers=workers,
             desc="synth",
