@@ -106,6 +106,18 @@ def test_same_seed_same_bytes_and_reported_summary(tmp_path, capsys) -> None:
     assert {o.symmetry.kind for o in ds.objects.values()} == {"none", "revolution_flip"}
 
 
+def test_one_camera_fixed_rig_has_the_empty_bins_depth(tmp_path) -> None:
+    """``--cameras 1`` on a fixed rig: the empty bin's depth still comes from the stereo
+    pair (it once asked the one written camera for a second image)."""
+    out = tmp_path / "one"
+    args = ["synth", str(out), "--scenes", "1", "--instances", "3-3", "--size", "320x256"]
+    assert main(args + ["--cameras", "1", "--quiet"]) == 0
+    ds = load_dataset(out)
+    assert [c.name for c in ds.rig.cameras] == ["left"]
+    assert ds.rig.depth is not None and ds.rig.depth.background is not None
+    assert (out / ds.rig.depth.background).is_file()
+
+
 def test_bad_options_give_one_line_and_change_nothing(tmp_path, capsys) -> None:
     existing = tmp_path / "exists"
     existing.mkdir()

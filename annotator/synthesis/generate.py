@@ -192,9 +192,10 @@ def write_dataset_files(plan: DatasetPlan, root: Path) -> None:
     # The empty bin's depth is a fixed rig's: a moving rig sees it from everywhere.
     if plan.config.depth and rig.depth is not None and not rig.moving:
         surfaces = _setting(plan)
+        # Every camera of the simulated pair: a one-camera rig's depth still comes from both.
         views = [
             render_view(cam, invert(world_T_cam), surfaces, fixed=len(surfaces))
-            for cam, world_T_cam in zip(rig.cameras, plan.setup.world_T_cams)
+            for cam, world_T_cam in zip(plan.setup.rig.cameras, plan.setup.world_T_cams)
         ]
         rng = np.random.default_rng([plan.config.seed, 1 << 30])
         if plan.config.structured_light:
