@@ -6,7 +6,7 @@ measured depth."""
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -49,18 +49,73 @@ def bundle(
     the instances it disowns started again from the adjusted frames. ``streaks``: (frames,
     cameras) the motion streak (px) of each image (each marker's own in ``readings``): its
     corners' noise (:func:`corner_sigma`)."""
-    names = [r.frame for r in readings]
     cams = ds.rig.cameras
     keys = sorted(placed.models)
-    index = {k: i for i, k in enumerate(keys)}
     live = [f for f, T in enumerate(placed.frames) if T is not None]
-    fidx = {f: n for n, f in enumerate(live)}
+    obs, ids = _gathered(seen, live, keys)
+    # Each marker's own streak where it was measured (a turning camera smears one side of
+    # the image more than the other), else its image's.
+    streak = np.array(
+        [readings[live[f]].streak_px(c, m) for f, c, m in zip(obs.frame, obs.camera, ids)]
+    )
+    sigma = corner_sigma(streak)
+    p = _Problem(
+        cams,
+        obs,
+        frames=np.stack([T for T in placed.frames if T is not None]),
+        models=np.stack([placed.models[k] for k in keys]),
+        keep=np.zeros(len(ids), bool),
+        sigma=sigma,
+        fixed_frame=live.index(placed.reference),
+        depth_camera=depth_cam,
+    )
+    p.keep = p.residuals() < s.inlier_px * sigma / NOISE.corner_px
+    _leave_out_outliers(p, seen, live, keys, s)
+    scale_sigma = _scale_by_depth(ds, p, keys, s, out)
+    # Each frame's corner noise as its own residuals show it (never below what its streak
+    # gives): a frame noisier than the rest is not trusted as much as the rest.
+    p.sigma = frame_sigma(p.obs, p.residuals(), p.keep, p.sigma)
+    # The last solve on what is kept, from where the rounds left the poses: its covariance.
+    result = p.solve(covariance=True)
+    err = p.residuals()
+    limit = max(s.final_inlier_px, 4 * result.sigma_px)
+    moved = _moved(cams, seen, live, p.frames, p.models, keys, p.obs, p.keep, limit, s)
+    depth = marker_depths(cams, p.obs, p.frames, p.models)
+    blur = FrameBlur(
+        streaks[live].max(axis=1), median_by(p.obs.frame[p.keep], depth[p.keep], len(live))
+    )
+    site_mm = site_sigma(p.obs, err, p.keep, depth, float(cams[0].K[0, 0]), len(keys))
+    solved = SolvedSequence(
+        keys=keys,
+        names=[r.frame for r in readings],
+        live=live,
+        obs=p.obs,
+        ids=ids,
+        keep=p.keep,
+        result=result,
+        err=err,
+        placed=placed,
+        moved=moved,
+        blur=blur,
+        agree_px=limit * p.sigma / NOISE.corner_px,
+        site_mm=site_mm,
+        scale=(depth, scale_sigma),
+    )
+    records(ds, solved, s, out)
+
+
+def _gathered(
+    seen: list[Seen], live: list[int], keys: list[tuple[str, str]]
+) -> tuple[BundleObservations, np.ndarray]:
+    """Every marker observation of the instances ``keys`` in the ``live`` frames (indexed
+    among them), and each one's marker id."""
+    index = {k: i for i, k in enumerate(keys)}
     rows: list[tuple[int, int, Observation, float]] = []
-    for f in live:
+    for n, f in enumerate(live):
         for k, obs in seen[f].raw.items():
             if k in index:
-                rows += [(fidx[f], index[k], o, z) for o, z in obs]
-    all_obs = BundleObservations(
+                rows += [(n, index[k], o, z) for o, z in obs]
+    gathered = BundleObservations(
         np.array([r[0] for r in rows], dtype=int),
         np.array([r[1] for r in rows], dtype=int),
         np.array([r[2].camera for r in rows], dtype=int),
@@ -68,104 +123,104 @@ def bundle(
         np.stack([r[2].image_corners for r in rows]).astype(np.float64),
         np.array([r[3] for r in rows], dtype=np.float64),
     )
-    frames0 = np.stack([T for T in placed.frames if T is not None])
-    models0 = np.stack([placed.models[k] for k in keys])
-    err = _residuals(cams, all_obs, frames0, models0)
-    # Each marker's own streak where it was measured (a turning camera smears one side of
-    # the image more than the other), else its image's.
-    streak = np.array([readings[live[r[0]]].streak_px(r[2].camera, r[2].marker_id) for r in rows])
-    sigma = corner_sigma(streak)
-    keep = err < s.inlier_px * sigma / NOISE.corner_px
+    return gathered, np.array([r[2].marker_id for r in rows], dtype=int)
 
-    def solve(covariance: bool) -> BundleResult:
-        return bundle_adjust(
-            cams,
-            all_obs.subset(keep),
-            frames0,
-            models0,
-            fixed_frame=fidx[placed.reference],
-            depth_camera=depth_cam,
+
+@dataclass
+class _Problem:
+    """What the rounds of the adjustment work on: the observations, the poses reached so
+    far (scene_T_rig of each live frame, scene_T_model of each instance), which observations
+    are kept, and each one's corner noise (px)."""
+
+    cams: Sequence[Camera]
+    obs: BundleObservations
+    frames: np.ndarray
+    models: np.ndarray
+    keep: np.ndarray
+    sigma: np.ndarray
+    fixed_frame: int
+    depth_camera: int | None
+
+    def solve(self, *, covariance: bool = False) -> BundleResult:
+        """One bundle adjustment of what is kept, from the poses so far, which it moves."""
+        result = bundle_adjust(
+            self.cams,
+            self.obs.subset(self.keep),
+            self.frames,
+            self.models,
+            fixed_frame=self.fixed_frame,
+            depth_camera=self.depth_camera,
             covariance=covariance,
             corner_sigma_px=NOISE.corner_px,
-            obs_sigma_px=sigma[keep],
+            obs_sigma_px=self.sigma[self.keep],
         )
+        self.frames, self.models = result.scene_T_rig, result.scene_T_model
+        return result
 
-    def kept(err: np.ndarray, limit: float) -> np.ndarray:
-        # An observation is left out with the rest of its frame's view of its instance: a
-        # part that moved disagrees as a whole. Limits in units of each corner's own noise.
-        err = err * NOISE.corner_px / sigma
-        bad_edge = _edge_rms(all_obs, err) > limit
-        return (err < 2 * limit) & ~bad_edge[all_obs.frame, all_obs.instance]
+    def residuals(self) -> np.ndarray:
+        return _residuals(self.cams, self.obs, self.frames, self.models)
 
+    def agreeing(self, limit: float) -> np.ndarray:
+        """The observations within ``limit`` (in units of each corner's own noise), each
+        left out with the rest of its frame's view of its instance where those disagree: a
+        part that moved disagrees as a whole."""
+        err = self.residuals() * NOISE.corner_px / self.sigma
+        bad_edge = _edge_rms(self.obs, err) > limit
+        return (err < 2 * limit) & ~bad_edge[self.obs.frame, self.obs.instance]
+
+
+def _leave_out_outliers(
+    p: _Problem, seen: list[Seen], live: list[int], keys: list[tuple[str, str]], s: AnnotateSettings
+) -> None:
+    """Solve and leave out what disagrees until nothing more does (at most
+    ``solve_rounds``); after the first solve, the instances the adjusted frames disown are
+    started again from those frames."""
     for round_ in range(s.sequence.solve_rounds):
-        result = solve(covariance=False)
-        frames0, models0 = result.scene_T_rig, result.scene_T_model
+        result = p.solve()
         limit = max(s.final_inlier_px, 4 * result.sigma_px)
-        new_keep = kept(_residuals(cams, all_obs, frames0, models0), limit)
+        keep = p.agreeing(limit)
         if round_ == 0:
-            models0 = _restart_disowned(
-                cams, seen, live, frames0, models0, keys, all_obs, new_keep, s
+            p.models = _restart_disowned(
+                p.cams, seen, live, p.frames, p.models, keys, p.obs, keep, s
             )
-            new_keep = kept(_residuals(cams, all_obs, frames0, models0), limit)
-        if np.array_equal(new_keep, keep):
+            keep = p.agreeing(limit)
+        if np.array_equal(keep, p.keep):
             break
-        keep = new_keep
+        p.keep = keep
+
+
+def _scale_by_depth(
+    ds: Dataset,
+    p: _Problem,
+    keys: list[tuple[str, str]],
+    s: AnnotateSettings,
+    out: SequenceSolution,
+) -> float:
+    """The markers put at the depth measured, when the depth disagrees with the corners'
+    scale: sites and translations scaled together (a similarity, which leaves the images as
+    they are) and solved again, the factor kept in ``out.site_scale``. The scale's sigma."""
     scale_sigma = s.sequence.scale_sigma
-    if depth_cam is not None:
-        under = surface_centres(ds, keys, all_obs)
-        for _ in range(s.sequence.scale_rounds):
-            z = marker_depths(cams, all_obs, frames0, models0, under * out.site_scale)
-            use = keep & (all_obs.camera == depth_cam)
-            found = depth_scale(z[use], all_obs.depth_mm[use])
-            if found is None:
-                break
-            scale_sigma = max(found.sigma, s.sequence.depth_scale_sigma)
-            # Within what the depth map itself is sure of, the corners' scale stands; once
-            # the depth disagrees, it is followed to the end.
-            if abs(found.factor - 1) < (2 * scale_sigma if out.site_scale == 1 else 1e-5):
-                break
-            # A similarity: sites and translations scaled together leave the images as
-            # they are, and put the markers at the depth measured.
-            all_obs = replace(all_obs, model_corners=all_obs.model_corners * found.factor)
-            frames0, models0 = frames0.copy(), models0.copy()
-            frames0[:, :3, 3] *= found.factor
-            models0[:, :3, 3] *= found.factor
-            out.site_scale *= found.factor
-            result = solve(covariance=False)
-            frames0, models0 = result.scene_T_rig, result.scene_T_model
-    # Each frame's corner noise as its own residuals show it (never below what its streak
-    # gives): a frame noisier than the rest is not trusted as much as the rest.
-    sigma = frame_sigma(all_obs, _residuals(cams, all_obs, frames0, models0), keep, sigma)
-    # The last solve on what is kept, from where the rounds left the poses: its covariance.
-    result = solve(covariance=True)
-    frames0, models0 = result.scene_T_rig, result.scene_T_model
-    err = _residuals(cams, all_obs, frames0, models0)
-    ids = np.array([r[2].marker_id for r in rows], dtype=int)
-    limit = max(s.final_inlier_px, 4 * result.sigma_px)
-    moved = _moved(cams, seen, live, frames0, models0, keys, all_obs, keep, limit, s)
-    depth = marker_depths(cams, all_obs, frames0, models0)
-    blur = FrameBlur(
-        streaks[live].max(axis=1), median_by(all_obs.frame[keep], depth[keep], len(live))
-    )
-    site_mm = site_sigma(all_obs, err, keep, depth, float(cams[0].K[0, 0]), len(keys))
-    agree_px = limit * sigma / NOISE.corner_px
-    solved = SolvedSequence(
-        keys=keys,
-        names=names,
-        live=live,
-        obs=all_obs,
-        ids=ids,
-        keep=keep,
-        result=result,
-        err=err,
-        placed=placed,
-        moved=moved,
-        blur=blur,
-        agree_px=agree_px,
-        site_mm=site_mm,
-        scale=(depth, scale_sigma),
-    )
-    records(ds, solved, s, out)
+    if p.depth_camera is None:
+        return scale_sigma
+    under = surface_centres(ds, keys, p.obs)
+    for _ in range(s.sequence.scale_rounds):
+        z = marker_depths(p.cams, p.obs, p.frames, p.models, under * out.site_scale)
+        use = p.keep & (p.obs.camera == p.depth_camera)
+        found = depth_scale(z[use], p.obs.depth_mm[use])
+        if found is None:
+            break
+        scale_sigma = max(found.sigma, s.sequence.depth_scale_sigma)
+        # Within what the depth map itself is sure of, the corners' scale stands; once the
+        # depth disagrees, it is followed to the end.
+        if abs(found.factor - 1) < (2 * scale_sigma if out.site_scale == 1 else 1e-5):
+            break
+        p.obs = replace(p.obs, model_corners=p.obs.model_corners * found.factor)
+        p.frames, p.models = p.frames.copy(), p.models.copy()
+        p.frames[:, :3, 3] *= found.factor
+        p.models[:, :3, 3] *= found.factor
+        out.site_scale *= found.factor
+        p.solve()
+    return scale_sigma
 
 
 def _moved(
