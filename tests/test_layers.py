@@ -151,3 +151,74 @@ def test_commands_only_parse_and_print() -> None:
         if (n := len(p.read_text().splitlines())) > 200
     ]
     assert not long, "command modules over 200 lines: " + ", ".join(long)
+
+
+#: The packages' layers, lowest first (README, Development): each imports only from layers
+#: below its own. A new package takes the lowest layer above everything it imports.
+LAYERS = [
+    ["errors", "noise"],
+    ["geometry", "values"],
+    ["io", "pnp", "rendering", "symmetry"],
+    ["markers"],
+    ["dataset", "detection"],
+    ["calibration", "formats", "parts", "refinement", "review", "runner"],
+    ["ingest", "occlusion", "physics", "repair"],
+    ["annotation", "evaluation", "export", "synthesis"],
+    ["estimation", "sites", "twins", "viewer"],
+    ["commands"],
+    ["cli"],
+    ["__main__"],
+]
+
+
+def _layer_of() -> dict[str, int]:
+    return {
+        ("viewer" if name == "viewer" else f"annotator.{name}"): k
+        for k, names in enumerate(LAYERS)
+        for name in names
+    }
+
+
+def test_every_import_points_down_the_layers() -> None:
+    layer = _layer_of()
+    edges = _imports()
+    unplaced = sorted((set(edges) | {b for t in edges.values() for b in t}) - set(layer))
+    assert not unplaced, "packages in no layer of LAYERS: " + ", ".join(unplaced)
+    upward = [
+        f"{a} -> {b} ({module})"
+        for a, targets in edges.items()
+        for b, module in targets.items()
+        if layer[b] >= layer[a]
+    ]
+    assert not upward, "imports not pointing down the layers: " + "; ".join(upward)
+
+
+#: A function longer than this needs a reason in its docstring ("Over 80 lines: ...").
+MAX_FUNCTION_LINES = 80
+
+
+def _long_functions() -> list[tuple[str, int, bool]]:
+    """Every function of the project over MAX_FUNCTION_LINES (docstring included): where,
+    its length, whether its docstring states why."""
+    found = []
+    for folder in ("annotator", "viewer"):
+        for path in sorted((ROOT / folder).rglob("*.py")):
+            for node in ast.walk(ast.parse(path.read_text())):
+                if not isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                    continue
+                assert node.end_lineno is not None
+                n = node.end_lineno - node.lineno + 1
+                if n > MAX_FUNCTION_LINES:
+                    doc = ast.get_docstring(node) or ""
+                    where = f"{path.relative_to(ROOT)}:{node.lineno} {node.name}"
+                    found.append((where, n, "Over 80 lines: " in doc))
+    return found
+
+
+def test_no_function_is_long_without_a_reason() -> None:
+    found = _long_functions()
+    unexplained = [f"{w} ({n} lines)" for w, n, why in found if not why]
+    assert not unexplained, "functions over 80 lines with no reason: " + ", ".join(unexplained)
+    assert len(found) <= 2, "more than two functions over 80 lines: " + ", ".join(
+        w for w, _, _ in found
+    )

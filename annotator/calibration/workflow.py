@@ -157,6 +157,9 @@ def calibrate_rig(
 
     Raises:
         UserError: bad captures, board or options; the board in no image; too few shots.
+
+    Over 80 lines: the documentation of the options `annotator calibrate` passes through,
+    and its example; the steps themselves are each a function.
     """
     say = tell or (lambda line: None)
     root = Path(captures)

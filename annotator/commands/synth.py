@@ -6,12 +6,8 @@ import argparse
 
 from annotator.commands import add_ray_option, add_workers_option, finish_batch
 from annotator.commands.synth_calibration import add_calibration_options, synth_calibration
-from annotator.commands.synth_scenes import (
-    add_pbr_options,
-    add_rendering_options,
-    add_scene_options,
-    scene_settings,
-)
+from annotator.commands.synth_pbr import add_pbr_options
+from annotator.commands.synth_scenes import add_rendering_options, add_scene_options, scene_settings
 from annotator.errors import UserError
 
 

@@ -15,6 +15,7 @@ import sys
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
+from types import ModuleType
 from typing import TYPE_CHECKING, Any
 
 from annotator.errors import UserError
@@ -123,31 +124,10 @@ def evaluate_dataset(
             given, fmt.NAME, str(coco_results), settings, coco=_coco(gt_path, coco_results)
         )
     for flag, on in (("bop19", bop19), ("bop24", bop24)):
-        if on and results is None:
-            raise UserError(
-                f"--{flag} scores a BOP dataset against a result CSV (--results); export ours "
-                "first with `annotator export DATASET OUT --format bop`"
-            )
-        if on and fmt.NAME != "bop":
-            raise UserError(
-                f"--{flag} scores a BOP dataset; export ours first with "
-                "`annotator export DATASET OUT --format bop`",
-                path=gt_path,
-            )
+        if on:
+            _check_bop_scored(flag, fmt.NAME, gt_path, results)
     gt = fmt.read_ground_truth(gt_path, symmetry=symmetry)
-    if results is not None:
-        found = fmt.read_results(Path(results), gt)
-        unit = "metres" if gt.unit == "m" else "mm"
-        source = f"{results} (lengths in {unit}, as the ground truth)"
-    elif fmt.NAME == "ours":
-        from annotator.formats.ours import annotations_as_results
-
-        found = annotations_as_results(gt_path, gt)
-        if not found.poses:
-            raise UserError("no annotation.json to score and no --results given", path=gt_path)
-        source = "annotation.json (auto-annotation vs gt.json)"
-    else:
-        raise UserError("--results is required for BOP and Siléane ground truth")
+    found, source = _scored(fmt, gt_path, gt, results)
     report = evaluate(gt, found, settings)
     out = EvaluationSummary(given, fmt.NAME, source, settings, gt, found, report)
     if bop19 and results is not None:
@@ -171,6 +151,42 @@ def evaluate_dataset(
         n = max(settings.max_results)
         out.physics = results_physics(load_dataset(gt_path), gt, found, per_object=n)
     return out
+
+
+def _check_bop_scored(flag: str, fmt: str, gt_path: Path, results: str | Path | None) -> None:
+    """Raise UserError unless ``--flag`` (a BOP score) has a BOP dataset and a result CSV."""
+    if results is None:
+        raise UserError(
+            f"--{flag} scores a BOP dataset against a result CSV (--results); export ours "
+            "first with `annotator export DATASET OUT --format bop`"
+        )
+    if fmt != "bop":
+        raise UserError(
+            f"--{flag} scores a BOP dataset; export ours first with "
+            "`annotator export DATASET OUT --format bop`",
+            path=gt_path,
+        )
+
+
+def _scored(
+    fmt: ModuleType, gt_path: Path, gt: GroundTruth, results: str | Path | None
+) -> tuple[PoseResults, str]:
+    """The results to score (``results``' file, or on our datasets the auto-annotation) and
+    what they are, as the summary says it."""
+    if results is not None:
+        unit = "metres" if gt.unit == "m" else "mm"
+        return (
+            fmt.read_results(Path(results), gt),
+            f"{results} (lengths in {unit}, as the ground truth)",
+        )
+    if fmt.NAME != "ours":
+        raise UserError("--results is required for BOP and Siléane ground truth")
+    from annotator.formats.ours import annotations_as_results
+
+    found = annotations_as_results(gt_path, gt)
+    if not found.poses:
+        raise UserError("no annotation.json to score and no --results given", path=gt_path)
+    return found, "annotation.json (auto-annotation vs gt.json)"
 
 
 def _bop19(gt_path: Path, results: Path, gt: GroundTruth) -> Bop19Scores:

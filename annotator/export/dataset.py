@@ -146,24 +146,11 @@ def export_dataset(
         raise sel.nothing_error(ds, include_pending=include_pending, what="to export")
     tick = progress(len(sel.scenes)) if progress else None
     filled: list[tuple[int, int]] = []
-    markers: dict[str, Any] = {
-        "remove_markers": remove_markers,
-        "fill": fill,
-        "markers_filled": lambda n, elsewhere: filled.append((n, elsewhere)),
-    }
+    markers: dict[str, Any] = {"remove_markers": remove_markers, "fill": fill}
+    markers["markers_filled"] = lambda n, elsewhere: filled.append((n, elsewhere))
     with atomic_folder(out) as tmp:
         write_manifest(tmp, command="export")
-        unreadable = _write(
-            format,
-            ds,
-            sel,
-            tmp,
-            cameras=chosen,
-            progress=tick,
-            layout=layout,
-            sensors=sensors,
-            markers=markers,
-        )
+        unreadable = _write(format, ds, sel, tmp, chosen, tick, layout, sensors, markers)
     summary = _summary(format, out, sel, unreadable)
     if remove_markers:
         summary.markers_filled = sum(n for n, _ in filled)
@@ -213,7 +200,6 @@ def _write(
     ds: Dataset,
     sel: Selection,
     tmp: Path,
-    *,
     cameras: list[str],
     progress: Callable[[], None] | None,
     layout: Layout,

@@ -175,10 +175,6 @@ def bundle_adjust(
         lin_new = linearise(f_new, m_new)
         return (f_new, m_new, lin_new), huber_cost(lin_new.r, huber_px), step
 
-    def small(cost: float, new: float, step: Step) -> bool:
-        biggest = max(float(np.abs(step[0]).max(initial=0.0)), float(np.abs(step[1]).max()))
-        return cost - new < 1e-7 * max(cost, 1e-12) or biggest < 1e-8
-
     lin0 = linearise(frames, models)
     found = levenberg_marquardt(
         (frames, models, lin0),
@@ -186,10 +182,45 @@ def bundle_adjust(
         normal,
         trial,
         damping=_DAMPING,
-        small=small,
+        small=_converged,
         max_iterations=max_iterations,
     )
     (frames, models, lin), iterations = found.state, found.iterations
+    return _result(
+        frames,
+        models,
+        lin,
+        obs,
+        shape,
+        scale,
+        iterations,
+        corner_sigma_px=corner_sigma_px,
+        huber_px=huber_px,
+        covariance=covariance,
+    )
+
+
+def _converged(cost: float, new: float, step: tuple[np.ndarray, np.ndarray]) -> bool:
+    """The LM step gained too little, or moved nothing."""
+    biggest = max(float(np.abs(step[0]).max(initial=0.0)), float(np.abs(step[1]).max()))
+    return cost - new < 1e-7 * max(cost, 1e-12) or biggest < 1e-8
+
+
+def _result(
+    frames: np.ndarray,
+    models: np.ndarray,
+    lin: _Linear,
+    obs: BundleObservations,
+    shape: _Shape,
+    scale: np.ndarray,
+    iterations: int,
+    *,
+    corner_sigma_px: float,
+    huber_px: float,
+    covariance: bool,
+) -> BundleResult:
+    """The solved poses with each observation's residual, the corner noise the inliers show
+    and (``covariance``) the poses' covariances, from the linearisation ``lin`` at them."""
     corners = lin.r[: 8 * len(obs)].reshape(-1, 4, 2)
     per_obs = np.sqrt(np.mean(np.sum(corners**2, axis=-1), axis=-1)) / scale
     # The corner noise as the inliers show it (median absolute deviation, robust to the

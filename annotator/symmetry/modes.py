@@ -111,6 +111,8 @@ def find_modes(
     >>> rigid = PoseSpace.from_moments(brick.mesh.moments, Symmetry("none"))
     >>> find_modes(votes, np.ones(80), rigid, bandwidth=10.0).weights.tolist()
     [20.0, 20.0, 20.0, 20.0]
+
+    Over 80 lines: the method and its worked example; the steps are each a function.
     """
     space, R, t, w = poses_and_values(poses, weights, part, "weights")
     _check_arguments(w, bandwidth, seeds)

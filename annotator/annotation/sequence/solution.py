@@ -5,7 +5,7 @@ with its figures and flags, every instance's pose with its uncertainty and flags
 from __future__ import annotations
 
 from collections import defaultdict
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -31,6 +31,7 @@ from annotator.dataset.records import (
     FramePose,
     InstanceAnnotation,
 )
+from annotator.geometry.camera import Camera
 from annotator.geometry.mesh import SurfaceMoments
 from annotator.geometry.transforms import invert
 from annotator.noise import NOISE
@@ -218,6 +219,25 @@ def records(ds: Dataset, sv: SolvedSequence, s: AnnotateSettings, out: SequenceS
         )
 
 
+def _marker_uses(
+    cams: Sequence[Camera], sv: SolvedSequence, mine: np.ndarray
+) -> tuple[dict[str, MarkerUse], dict[str, float]]:
+    """Per camera, the markers of the observations ``mine`` the solve kept and those it
+    left out, and the kept ones' RMS residual (px)."""
+    obs, ids, keep = sv.obs, sv.ids, sv.keep
+    markers: dict[str, MarkerUse] = {}
+    per_cam: dict[str, float] = {}
+    for j, cam in enumerate(cams):
+        u = mine & keep & (obs.camera == j)
+        r = mine & ~keep & (obs.camera == j)
+        if u.any() or r.any():
+            good = {int(x) for x in ids[u]}
+            markers[cam.name] = MarkerUse(sorted(good), sorted({int(x) for x in ids[r]} - good))
+        if u.any():
+            per_cam[cam.name] = round(float(np.sqrt(np.mean(sv.err[u] ** 2))), 4)
+    return markers, per_cam
+
+
 def _instance_record(
     ds: Dataset,
     sv: SolvedSequence,
@@ -252,16 +272,7 @@ def _instance_record(
     )
     # The scene's scale, as well as it is known, moves the part along its line of sight.
     unc = float(np.hypot(unc, sv.scale[1] * float(np.median(sv.scale[0][used]))))
-    markers: dict[str, MarkerUse] = {}
-    per_cam: dict[str, float] = {}
-    for j, cam in enumerate(cams):
-        u = used & (obs.camera == j)
-        r = mine & ~keep & (obs.camera == j)
-        if u.any() or r.any():
-            good = {int(x) for x in ids[u]}
-            markers[cam.name] = MarkerUse(sorted(good), sorted({int(x) for x in ids[r]} - good))
-        if u.any():
-            per_cam[cam.name] = round(float(np.sqrt(np.mean(err[u] ** 2))), 4)
+    markers, per_cam = _marker_uses(cams, sv, mine)
     rms = float(np.sqrt(np.mean(err[used] ** 2)))
     flags: list[Flag | str] = []
     if i in sv.moved:
