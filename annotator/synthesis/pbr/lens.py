@@ -61,7 +61,8 @@ def wide_pinhole(camera: Camera, *, margin: int = 2) -> WidePinhole:
     f = float(camera.K[0, 0])
     half_w = float(np.abs(x).max()) * f + 0.5 + margin
     half_h = float(np.abs(y).max()) * f + 0.5 + margin
-    width, height = 2 * int(np.ceil(half_w)), 2 * int(np.ceil(half_h))
+    # The tolerance keeps a reach of exactly a whole pixel (float32 rounding aside) from growing.
+    width, height = 2 * int(np.ceil(half_w - 1e-3)), 2 * int(np.ceil(half_h - 1e-3))
     map_x = (f * x + (width - 1) / 2).astype(np.float32)
     map_y = (f * y + (height - 1) / 2).astype(np.float32)
     return WidePinhole(f, width, height, map_x, map_y)
