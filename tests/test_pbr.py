@@ -25,6 +25,7 @@ from annotator.errors import UserError
 from annotator.geometry.camera import Camera
 from annotator.synthesis.pbr import cycles_job
 from annotator.synthesis.pbr.lens import wide_pinhole
+from annotator.synthesis.pbr.render import PAPER_LIFT, marker_quads
 from annotator.synthesis.pbr.sensor import SensorSettings, expose
 from annotator.synthesis.pbr.structured_light import (
     Reflectance,
@@ -32,6 +33,7 @@ from annotator.synthesis.pbr.structured_light import (
     returned_signal,
     structured_light_depth,
 )
+from annotator.synthesis.shading import Surface
 from tests.cli_calls import one_error_line, run_cli
 
 # ------------------------------------------------------------------ structured light
@@ -174,6 +176,29 @@ def test_an_unknown_material_option_is_one_line(tmp_path, capsys) -> None:
 
 
 # ------------------------------------------------------------------- lens and sensor
+
+
+def test_the_printed_corners_are_the_sites_on_flat_faces(sample) -> None:
+    # The truth's sites are where the printed corners are: a sheet floating 0.05 mm above
+    # them brought every pbr pose 0.05 mm nearer the camera than the truth.
+    bracket = load_dataset(sample).objects["bracket"]
+    sites = bracket.markers.corners
+    T = np.eye(4)
+    T[:3, 3] = [5.0, -3.0, 400.0]
+    bits = np.zeros((len(sites), 4, 4), np.uint8)
+    quads, tiles = marker_quads(Surface(bracket.mesh, T, 0.5, sites, bits))
+    assert tiles.shape == (len(sites), 6, 6)
+    world = sites + T[:3, 3]
+    # The sheet's corners lie on lines through the sites' corners (the paper margin around
+    # them) in a plane PAPER_LIFT above theirs.
+    ex, ey = world[:, 1] - world[:, 0], world[:, 3] - world[:, 0]
+    normal = np.cross(ey, ex)
+    normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+    height = np.einsum("mkd,md->mk", quads - world[:, :1], normal)
+    assert np.abs(height - PAPER_LIFT).max() < 1e-9
+    centre = world.mean(axis=1, keepdims=True)
+    grown = quads - height[..., None] * normal[:, None]
+    assert np.allclose(grown - centre, (world - centre) * (1 + 2 / 4), atol=1e-9)
 
 
 def test_the_wide_pinhole_remap_puts_each_point_where_the_lens_does() -> None:

@@ -113,6 +113,10 @@ class PbrSettings:
 
 #: A printed marker's white margin around its black border, in cells.
 PAPER_MARGIN = 1.0
+#: How far the paper floats above its site's plane (mm): enough for Cycles to tell the two
+#: surfaces apart, small against what a pose is judged by (the sites are where the printed
+#: corners are; a sheet 0.05 mm up moved the corners of an oblique marker by 0.1 px).
+PAPER_LIFT = 0.002
 #: The printed black and the paper's white (linear reflectance).
 INK, PAPER_WHITE = 0.04, 0.85
 
@@ -146,7 +150,7 @@ def marker_quads(surface: Surface) -> tuple[np.ndarray, np.ndarray]:
         tl[:, None]
         + grow[None, :, :1] * ex[:, None]
         + grow[None, :, 1:] * ey[:, None]
-        + (lift + 0.05)[:, None, None] * normal[:, None]
+        + (lift + PAPER_LIFT)[:, None, None] * normal[:, None]
     )
     world = quads @ surface.world_T_model[:3, :3].T + surface.world_T_model[:3, 3]
     tiles = np.full((len(sites), cells + 2, cells + 2), PAPER_WHITE, np.float32)
