@@ -26,48 +26,30 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 import cv2
 import numpy as np
 
-from annotator.dataset import load_dataset, read_poses
+from annotator.dataset import load_dataset
 from annotator.dataset.records import SceneAnnotation
-from annotator.evaluation.evaluate import per_instance_errors
+from devkit.whole_process import posed_of_visible, relative_errors, run_annotator as run
 
-EXE = str(Path(sys.executable).with_name("annotator"))
 TARGET_S = 60.0
-
-
-def run(*args: str) -> tuple[float, str]:
-    t0 = time.perf_counter()
-    proc = subprocess.run([EXE, *args], capture_output=True, text=True)
-    if proc.returncode != 0:
-        sys.exit(f"annotator {' '.join(args)} failed ({proc.returncode}):\n{proc.stderr}")
-    return time.perf_counter() - t0, proc.stdout
 
 
 def figures(root: Path) -> dict[str, float]:
     """Pose errors, calibration, flags, warnings and depth holes of an annotated dataset."""
-    errors = per_instance_errors(root)
-    rel = np.array([e["error_mm"] / e["diameter_mm"] * 100 for e in errors])
-    flagged = np.array([bool(e["flags"]) for e in errors])
+    errors, rel, flagged = relative_errors(root)
     stated = [e for e in errors if e["uncertainty_mm"] is not None]
     within = np.mean([e["error_mm"] <= 3 * e["uncertainty_mm"] for e in stated]) if stated else 0
     ds = load_dataset(root)
-    visible = posed = 0
+    posed, visible = posed_of_visible(root, errors)
     warned = old_rule = 0
     holes = []
     for sc in ds.scenes():
-        have = {e["instance"] for e in errors if e["scene"] == sc.id}
-        for p in read_poses(sc.gt_path):
-            if p.extra["occlusion"]["rate"] <= 0.5:
-                visible += 1
-                posed += p.key in have
         ann = SceneAnnotation.read(sc.annotation_path)
         warned += any(w.kind in ("under_exposed", "over_exposed") for w in ann.warnings)
         old_rule += any(

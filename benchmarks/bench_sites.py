@@ -20,41 +20,20 @@ from __future__ import annotations
 
 import argparse
 import json
-import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 import numpy as np
 
-from annotator.dataset import load_dataset, read_poses
-from annotator.evaluation.evaluate import per_instance_errors
-
-EXE = str(Path(sys.executable).with_name("annotator"))
-
-
-def run(*args: str) -> tuple[float, str]:
-    t0 = time.perf_counter()
-    proc = subprocess.run([EXE, *args], capture_output=True, text=True)
-    if proc.returncode not in (0,):
-        sys.exit(f"annotator {' '.join(args)} failed ({proc.returncode}):\n{proc.stderr}")
-    return time.perf_counter() - t0, proc.stdout
+from annotator.dataset import load_dataset
+from devkit.whole_process import posed_of_visible, relative_errors, run_annotator as run
 
 
 def pose_figures(root: Path) -> dict[str, float]:
     """Pose error (% of D), flags and posed fraction of the parts at least half visible."""
-    errors = per_instance_errors(root)
-    rel = np.array([e["error_mm"] / e["diameter_mm"] * 100 for e in errors])
-    flagged = np.array([bool(e["flags"]) for e in errors])
-    ds = load_dataset(root)
-    visible = posed = 0
-    for sc in ds.scenes():
-        have = {e["instance"] for e in errors if e["scene"] == sc.id}
-        for p in read_poses(sc.gt_path):
-            if p.extra["occlusion"]["rate"] <= 0.5:
-                visible += 1
-                posed += p.key in have
+    errors, rel, flagged = relative_errors(root)
+    posed, visible = posed_of_visible(root, errors)
     return {
         "median": float(np.median(rel)),
         "p95": float(np.percentile(rel, 95)),

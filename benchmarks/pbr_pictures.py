@@ -1,20 +1,22 @@
 """The pictures of README's "Photoreal scenes": one per effect of ``synth --render pbr``.
 
 One scene (seed 21, the bracket in steel, the brick in aluminium, the reference camera
-alone) is rendered four ways: by the default renderer, and by Cycles with everything on
+alone) is rendered five ways: by the default renderer, and by Cycles with everything on
 (two area lights, depth of field at 480 mm f/1.4, shot and read noise, structured-light
-depth), without the depth of field, and without the sensor noise.
+depth), without the depth of field, focused nearer (400 mm, so that the parts are out of
+focus: at 480 mm on a 4.8 um sensor the bin's depth blurs by about a pixel at most), and
+without the sensor noise.
 Each picture puts the same crop of two of them side by side:
 
 - ``docs/pbr_metal.png``: the default render and Cycles on the part whose markers sit
   nearest a highlight;
-- ``docs/pbr_dof.png``: Cycles without and with the depth of field, on the part farthest
-  from the focus distance;
-- ``docs/pbr_noise.png``: Cycles without and with the sensor noise (a dark corner, 3x);
+- ``docs/pbr_dof.png``: Cycles without and with the depth of field focused at 400 mm, on
+  the farthest part (2x);
+- ``docs/pbr_noise.png``: Cycles without and with the sensor noise, on a marker (3x);
 - ``docs/pbr_depth.png``: the default render's active-stereo depth and the structured-light
   depth of the whole image (holes black).
 
-    .venv/bin/python -m benchmarks.pbr_pictures [--out docs] [--samples 16]
+    .venv/bin/python -m benchmarks.pbr_pictures [--out docs] [--samples 16] [--keep DIR]
 
 Prints what it rendered and the seconds per image.
 """
@@ -22,18 +24,15 @@ Prints what it rendered and the seconds per image.
 from __future__ import annotations
 
 import argparse
-import subprocess
-import sys
 import tempfile
-import time
 from pathlib import Path
 
 import cv2
 import numpy as np
 
 from annotator.dataset import load_dataset, read_poses
+from devkit.whole_process import run_annotator
 
-EXE = str(Path(sys.executable).with_name("annotator"))
 COMMON = ["--scenes", "1", "--seed", "21", "--parts", "bracket,brick", "--instances", "8-14"]
 COMMON += ["--cameras", "1", "--quiet", "--overwrite"]
 PBR = ["--render", "pbr", "--material", "bracket=steel", "--material", "brick=aluminium"]
@@ -44,6 +43,7 @@ VARIANTS = {
     "pbr": PBR + FOCUS,
     "pbr_pinhole": PBR,
     "pbr_ideal_sensor": PBR + FOCUS + ["--no-sensor-noise"],
+    "pbr_focus_400": PBR + ["--dof", "400,1.4"],
 }
 CROP = 200  # px, the side of each crop at full resolution
 
@@ -52,13 +52,12 @@ def render(root: Path, samples: int) -> dict[str, Path]:
     done = {}
     for name, extra in VARIANTS.items():
         out = root / name
-        t0 = time.perf_counter()
-        args = [*COMMON, *extra] + (["--samples", str(samples)] if extra else [])
-        proc = subprocess.run([EXE, "synth", str(out), *args], capture_output=True, text=True)
-        if proc.returncode != 0:
-            sys.exit(f"annotator synth {' '.join(args)} failed:\n{proc.stderr}")
-        print(f"  {name:17s} {time.perf_counter() - t0:6.1f} s (one image, whole process)")
         done[name] = out / "scenes" / "000000"
+        if (done[name] / "left.png").exists():
+            continue  # kept from an earlier run (--keep)
+        args = [*COMMON, *extra] + (["--samples", str(samples)] if extra else [])
+        seconds, _ = run_annotator("synth", str(out), *args)
+        print(f"  {name:17s} {seconds:6.1f} s (one image, whole process)")
     return done
 
 
@@ -73,10 +72,12 @@ def centres(scene: Path, dataset: Path) -> dict[str, tuple[np.ndarray, float]]:
 
 
 def crop(image: np.ndarray, centre: np.ndarray, scale: int = 1) -> np.ndarray:
+    """The square of CROP / scale px around ``centre``, magnified ``scale`` times."""
     h, w = image.shape[:2]
-    x = int(np.clip(centre[0] - CROP // 2, 0, w - CROP))
-    y = int(np.clip(centre[1] - CROP // 2, 0, h - CROP))
-    part = image[y : y + CROP, x : x + CROP]
+    side = CROP // scale
+    x = int(np.clip(centre[0] - side // 2, 0, w - side))
+    y = int(np.clip(centre[1] - side // 2, 0, h - side))
+    part = image[y : y + side, x : x + side]
     if scale > 1:
         part = cv2.resize(part, None, fx=scale, fy=scale, interpolation=cv2.INTER_NEAREST)
     return part
@@ -86,8 +87,9 @@ def pair(a: np.ndarray, b: np.ndarray, labels: tuple[str, str]) -> np.ndarray:
     tiles = []
     for image, label in zip((a, b), labels):
         tile = cv2.cvtColor(image, cv2.COLOR_GRAY2BGR) if image.ndim == 2 else image.copy()
-        cv2.putText(tile, label, (8, 24), cv2.FONT_HERSHEY_SIMPLEX, 0.7, (0, 0, 0), 4)
-        cv2.putText(tile, label, (8, 24), cv2.FONT_HERSHEY_SIMPLEX, 0.7, (255, 255, 255), 1)
+        font = cv2.FONT_HERSHEY_SIMPLEX
+        cv2.putText(tile, label, (6, 16), font, 0.42, (0, 0, 0), 3, cv2.LINE_AA)
+        cv2.putText(tile, label, (6, 16), font, 0.42, (255, 255, 255), 1, cv2.LINE_AA)
         tiles.append(tile)
     gap = np.full((tiles[0].shape[0], 6, 3), 255, np.uint8)
     return np.hstack([tiles[0], gap, tiles[1]])
@@ -104,11 +106,12 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--out", type=Path, default=Path("docs"))
     ap.add_argument("--samples", type=int, default=16)
+    ap.add_argument("--keep", type=Path, help="render into (and reuse) this folder")
     args = ap.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
-        scenes = render(Path(tmp), args.samples)
+        scenes = render(args.keep or Path(tmp), args.samples)
         read = {k: cv2.imread(str(v / "left.png"), cv2.IMREAD_GRAYSCALE) for k, v in scenes.items()}
-        where = centres(scenes["pbr"], Path(tmp) / "pbr")
+        where = centres(scenes["pbr"], scenes["pbr"].parents[1])
         # The metal part with the brightest highlight near its centre.
         bright = max(
             where,
@@ -122,29 +125,28 @@ def main() -> None:
             crop(read["pbr"], where[bright][0]),
             ("default render", "pbr: steel, aluminium"),
         )
-        far = max(where, key=lambda k: abs(where[k][1] - 480.0))
+        far = max(where, key=lambda k: where[k][1])
         dof = pair(
-            crop(read["pbr_pinhole"], where[far][0]),
-            crop(read["pbr"], where[far][0]),
-            ("pbr, pinhole", f"pbr, f/1.4 focused at 480 mm ({where[far][1]:.0f} mm)"),
+            crop(read["pbr_pinhole"], where[far][0], 2),
+            crop(read["pbr_focus_400"], where[far][0], 2),
+            ("pinhole", f"f/1.4 focused at 400 mm (part at {where[far][1]:.0f} mm)"),
         )
-        near = min(where, key=lambda k: float(np.mean(crop(read["pbr"], where[k][0]))))
         noise = pair(
-            crop(read["pbr_ideal_sensor"], where[near][0])[: CROP // 3, : CROP // 3],
-            crop(read["pbr"], where[near][0])[: CROP // 3, : CROP // 3],
-            ("ideal", "noise"),
+            crop(read["pbr_ideal_sensor"], where[bright][0], 3),
+            crop(read["pbr"], where[bright][0], 3),
+            ("ideal sensor", "shot and read noise"),
         )
-        noise = cv2.resize(noise, None, fx=3, fy=3, interpolation=cv2.INTER_NEAREST)
         stereo = cv2.imread(str(scenes["lambert"] / "depth.png"), cv2.IMREAD_UNCHANGED)
         light = cv2.imread(str(scenes["pbr"] / "depth.png"), cv2.IMREAD_UNCHANGED)
         seen = light[(light > 0) & (light < 65535)]
         lo, hi = np.percentile(seen, 2), np.percentile(seen, 98)
-        depth = pair(
-            coloured_depth(stereo, lo, hi),
-            coloured_depth(light, lo, hi),
-            ("active stereo (default)", "structured light (pbr)"),
-        )
-        depth = cv2.resize(depth, None, fx=0.5, fy=0.5, interpolation=cv2.INTER_AREA)
+        half = [
+            cv2.resize(
+                coloured_depth(d, lo, hi), None, fx=0.5, fy=0.5, interpolation=cv2.INTER_AREA
+            )
+            for d in (stereo, light)
+        ]
+        depth = pair(*half, ("active stereo (default)", "structured light (pbr): holes black"))
         args.out.mkdir(parents=True, exist_ok=True)
         for name, image in (("metal", metal), ("dof", dof), ("noise", noise), ("depth", depth)):
             path = args.out / f"pbr_{name}.png"

@@ -1,0 +1,52 @@
+"""The annotator run as a user runs it (a whole process), and the pose errors of what it wrote.
+
+For benchmarks that time commands and score their output against the truth of synthetic
+scenes.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from annotator.dataset import load_dataset, read_poses
+from annotator.evaluation.evaluate import per_instance_errors
+
+#: The ``annotator`` command of this interpreter's environment.
+EXE = str(Path(sys.executable).with_name("annotator"))
+
+
+def run_annotator(*args: str) -> tuple[float, str]:
+    """Run ``annotator ARGS``: its wall time (s) and standard output; exit on a failure,
+    printing its standard error."""
+    t0 = time.perf_counter()
+    proc = subprocess.run([EXE, *args], capture_output=True, text=True)
+    if proc.returncode != 0:
+        sys.exit(f"annotator {' '.join(args)} failed ({proc.returncode}):\n{proc.stderr}")
+    return time.perf_counter() - t0, proc.stdout
+
+
+def relative_errors(root: Path) -> tuple[list[dict], np.ndarray, np.ndarray]:
+    """Each annotated instance's row (:func:`per_instance_errors`), its error in % of the
+    object's diameter, and whether it carries a flag."""
+    errors = per_instance_errors(root)
+    rel = np.array([e["error_mm"] / e["diameter_mm"] * 100 for e in errors])
+    flagged = np.array([bool(e["flags"]) for e in errors])
+    return errors, rel, flagged
+
+
+def posed_of_visible(root: Path, errors: list[dict]) -> tuple[int, int]:
+    """How many of the parts at most half hidden (in the truth) have a pose in ``errors``,
+    and how many there are."""
+    visible = posed = 0
+    for sc in load_dataset(root).scenes():
+        have = {e["instance"] for e in errors if e["scene"] == sc.id}
+        for p in read_poses(sc.gt_path):
+            if p.extra["occlusion"]["rate"] <= 0.5:
+                visible += 1
+                posed += p.key in have
+    return posed, visible
