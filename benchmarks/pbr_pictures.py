@@ -129,7 +129,7 @@ def main() -> None:
         dof = pair(
             crop(read["pbr_pinhole"], where[far][0], 2),
             crop(read["pbr_focus_400"], where[far][0], 2),
-            ("pinhole", f"f/1.4 focused at 400 mm (part at {where[far][1]:.0f} mm)"),
+            ("pinhole", f"f/1.4, focus 400 mm, part {where[far][1]:.0f} mm"),
         )
         noise = pair(
             crop(read["pbr_ideal_sensor"], where[bright][0], 3),
