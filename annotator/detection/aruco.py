@@ -71,6 +71,16 @@ class MarkerDetector:
         opencv_only: Use OpenCV's own identification and sub-pixel corners instead (several
             times slower, corners biased on small markers): the reference the fast path is
             tested against.
+
+    A 60 px marker drawn from pixel 30 on: its outline's corners are half a pixel before
+    the first pixel centre (pixel centres are at integer coordinates).
+
+    >>> import cv2, numpy as np
+    >>> image = np.full((120, 120), 255, np.uint8)
+    >>> d = cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_4X4_1000)
+    >>> image[30:90, 30:90] = cv2.aruco.generateImageMarker(d, 7, 60)
+    >>> [(m.id, m.corners.round(1).tolist()) for m in MarkerDetector("DICT_4X4_1000").detect(image)]
+    [(7, [[29.5, 29.5], [89.5, 29.5], [89.5, 89.5], [29.5, 89.5]])]
     """
 
     def __init__(self, dictionary_name: str, *, opencv_only: bool = False) -> None:
