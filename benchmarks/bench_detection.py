@@ -14,10 +14,10 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-from bench_annotate import make_dataset
 
 from annotator.dataset import load_dataset, read_poses
 from annotator.detection import MarkerDetector
+from benchmarks.bench_annotate import make_dataset
 
 
 def corner_errors(ds, scene, cam, detections) -> tuple[list[float], int]:

@@ -386,8 +386,11 @@ def _page_on(app: ReviewApp, sid: str, key: str) -> tuple[ClientConnection, Sess
     assert wait_until(lambda: len(app.sessions) == 1), "the page did not connect"
     session = next(iter(app.sessions.values()))
     assert wait_until(lambda: session.displayed is not None)
+    # The page opens on the first scene with a physics flag, which may lie either side of sid.
+    ids = list(session.nav.scenes.ids)
     while session.nav.current != sid:
-        session.next()
+        ahead = ids.index(session.nav.current) < ids.index(sid)
+        session.next() if ahead else session.previous()
     session.select(key)
     assert wait_until(
         lambda: session.shown.zoom_for is not None and session.shown.zoom_for[0] == sid

@@ -4,9 +4,10 @@ OpenCV's sub-pixel refinement leaves the corners of small markers (20-40 px) ins
 square (``benchmarks/bench_detection.py`` measures by how much, on rendered images whose
 corners are known exactly). So each identified quad is refined here: cv2.cornerSubPix with a
 small window first, then along each side, at many points, the centroid of the intensity
-gradient across the side (within half a cell each way), a line fitted to these points, and the
-corners where adjacent lines meet. For a step edge under any symmetric blur, the centroid of
-the gradient is the edge itself, hence no bias.
+gradient across the side (within half a cell each way), a line fitted to these points (those
+far from it left out), and the corners where adjacent lines meet, over a few rounds. For a
+step edge under any symmetric blur, the centroid of the gradient is the edge itself, hence no
+bias; a highlight beside the paper or a neighbour's edge is a point off the line, left out.
 
 Corner order is OpenCV's: top-left, top-right, bottom-right, bottom-left of the printed marker.
 """
@@ -15,6 +16,8 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
+
+from annotator.geometry.robust import MAD_TO_SIGMA
 
 #: Half-size of cv2.cornerSubPix's window before the edge fit; larger windows reach across
 #: the cells of 20 px markers and pull the corners inwards (2 px gave the smallest corner
@@ -42,13 +45,50 @@ def refine_quads(
     """Refine (N, 4, 2) quads by fitting lines to the gradient centroids across each side.
 
     The search across a side reaches at most half a marker cell (``cells`` per side, border
-    included) each way, so that it never reaches the edges of the inner bits. All sides of all
-    quads are processed at once. A quad is left as it is if a side is too short or too weak,
-    or if a refined corner moved more than 2 px.
+    included) each way, so that it never reaches the edges of the inner bits, and counts only
+    the gradient of the side's own direction (dark ink inside, paper outside). A line is fitted
+    to each side's edge points with the points far from it left out (a highlight beside the
+    paper, a neighbour's edge), and the corners are where adjacent lines meet; this is done
+    :data:`ROUNDS` times, each round searching across the sides the last one found. All sides
+    of all quads are processed at once. A quad is left as it is if a side is too short, too
+    weak or not straight, or if a corner moved further than :func:`_max_move` allows.
     """
     if len(quads) == 0:
         return quads
     img = cv2.GaussianBlur(gray.astype(np.float32), (0, 0), 0.5)
+    current = quads.copy()
+    found = np.zeros(len(quads), bool)
+    for _ in range(ROUNDS):
+        corners, good = _edge_fit(img, current, samples=samples, cells=cells)
+        current = np.where(good[:, None, None], corners, current)
+        found |= good
+    moved = np.nan_to_num(np.abs(current - quads), nan=np.inf).max(axis=(1, 2))
+    found &= moved < _max_move(quads)
+    return np.where(found[:, None, None], current, quads)
+
+
+#: Edge-fit rounds: a corner the contour put a few pixels off (a highlight beside the paper
+#: joins the margin to the ink) comes back over the rounds as its sides' lines settle.
+ROUNDS = 3
+
+
+#: Edge points nearer their side's line than this (px) are never left out of its fit: the
+#: sides of a marker wrapped round a cylinder bow by a few tenths of a pixel.
+TRIM_PX = 0.6
+
+
+def _max_move(quads: np.ndarray) -> np.ndarray:
+    """How far (px) the edge fit may move a quad's corners: 2 px, or a quarter of its
+    shortest side."""
+    sides = np.linalg.norm(np.roll(quads, -1, axis=1) - quads, axis=2).min(axis=1)
+    return np.maximum(2.0, 0.25 * sides)
+
+
+def _edge_fit(
+    img: np.ndarray, quads: np.ndarray, *, samples: int, cells: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """One round of the edge fit: the (N, 4, 2) corners where the sides' lines meet, and
+    which quads all four of whose sides were fitted."""
     a = quads.reshape(-1, 2)  # (N*4, 2): side k runs from corner k to corner k+1
     b = np.roll(quads, -1, axis=1).reshape(-1, 2)
     side = b - a
@@ -58,11 +98,14 @@ def refine_quads(
     reach = np.clip(0.5 * length / cells, 1.0, 2.5)
     steps = 21
     offs = np.linspace(-1.0, 1.0, steps)[None, :] * reach[:, None]  # (S, steps)
-    s = np.linspace(0.15, 0.85, samples)  # stay away from the corners
+    s = np.linspace(0.1, 0.9, samples)  # stay away from the corners
     base = a[:, None, :] + s[None, :, None] * side[:, None, :]  # (S, samples, 2)
     pts = base[:, :, None, :] + offs[:, None, :, None] * normal[:, None, None, :]
     prof = _bilinear(img, pts.reshape(-1, 2)).reshape(len(a), samples, steps)
-    grad = np.abs(np.diff(prof, axis=2))  # between consecutive offsets
+    # The side's own direction of change across it, from most of its samples; a gradient
+    # the other way (the inner bits' edges, the paper's own border) counts for nothing.
+    sign = np.sign(np.median(prof[..., -3:].mean(-1) - prof[..., :3].mean(-1), axis=1))
+    grad = np.clip(np.diff(prof, axis=2) * sign[:, None, None], 0.0, None)
     mid = 0.5 * (offs[:, 1:] + offs[:, :-1])  # (S, steps-1)
     # The centroid of the gradient across the window, not a parabola through its peak: the
     # profile is bilinear between pixels, so its gradient is flat across each pixel and a
@@ -71,16 +114,43 @@ def refine_quads(
     pos = (grad * mid[:, None, :]).sum(axis=2) / np.maximum(g1, 1e-12)
     edge = base + pos[..., None] * normal[:, None, :]  # (S, samples, 2)
     strong = g1 > 0.25 * np.median(g1, axis=1, keepdims=True)
-    point, direction = _fit_lines(edge, strong.astype(np.float64))
-    usable = (length >= 8) & (strong.sum(axis=1) >= 4)
+    strong &= np.abs(pos) < 0.8 * reach[:, None]  # an edge at the window's end is cut off
+    point, direction, used, rms = _fit_lines_robust(edge, strong)
+    usable = (length >= 8) & (used.sum(axis=1) >= 4) & (rms < 0.5)
     # Corner k is where side k-1 (ending at it) meets side k (starting at it).
     p = point.reshape(-1, 4, 2)
     d = direction.reshape(-1, 4, 2)
     corners = _intersect(np.roll(p, 1, axis=1), np.roll(d, 1, axis=1), p, d)
-    good = usable.reshape(-1, 4).all(axis=1)
-    good &= np.isfinite(corners).all(axis=(1, 2))
-    good &= np.nan_to_num(np.abs(corners - quads), nan=np.inf).max(axis=(1, 2)) < 2.0
-    return np.where(good[:, None, None], corners, quads)
+    good = usable.reshape(-1, 4).all(axis=1) & np.isfinite(corners).all(axis=(1, 2))
+    return corners, good
+
+
+def _fit_lines_robust(
+    pts: np.ndarray, keep: np.ndarray, *, rounds: int = 2
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Lines through (L, P, 2) points, those of ``keep`` (L, P) only, refitted ``rounds``
+    times without the points further from the line than 3 robust sigmas (at least
+    :data:`TRIM_PX`): points on them, unit directions, the points used, and their RMS
+    distance (px)."""
+    used = keep.copy()
+    point, direction = _fit_lines(pts, used.astype(np.float64))
+    dist = _distances(pts, point, direction)
+    for _ in range(rounds):
+        mad = np.median(np.where(used, dist, np.nan), axis=1)  # NaN where none is used
+        tol = np.maximum(TRIM_PX, 3.0 * MAD_TO_SIGMA * np.nan_to_num(mad))
+        used = keep & (dist < tol[:, None])
+        point, direction = _fit_lines(pts, used.astype(np.float64))
+        dist = _distances(pts, point, direction)
+    n = np.maximum(used.sum(axis=1), 1)
+    rms = np.sqrt(np.where(used, dist**2, 0.0).sum(axis=1) / n)
+    return point, direction, used, rms
+
+
+def _distances(pts: np.ndarray, point: np.ndarray, direction: np.ndarray) -> np.ndarray:
+    """(L, P) distances of points (L, P, 2) to the lines through ``point`` along
+    ``direction`` (L, 2)."""
+    normal = np.stack([-direction[:, 1], direction[:, 0]], axis=1)
+    return np.abs(np.einsum("lpd,ld->lp", pts - point[:, None, :], normal))
 
 
 def _bilinear(img: np.ndarray, pts: np.ndarray) -> np.ndarray:
