@@ -8,10 +8,9 @@ this module only reads options, prints and writes.
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 
-from annotator.commands import number, whole
+from annotator.commands import number, show, whole
 from annotator.errors import UserError
 
 
@@ -130,7 +129,6 @@ def _add_report_options(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from annotator.evaluation.dataset import evaluate_dataset
     from annotator.evaluation.evaluate import EvaluationSettings
-    from annotator.evaluation.text import summary_text, summary_warnings
 
     _check_options(args)
     summary = evaluate_dataset(
@@ -151,9 +149,8 @@ def run(args: argparse.Namespace) -> int:
         twin_results=args.twin_results,
         physics=args.physics,
     )
-    for line in summary_warnings(summary):
-        print(line, file=sys.stderr)
-    print(summary_text(summary, per_object=args.per_object))
+    summary.per_object = args.per_object
+    show(summary)
     if args.json:
         from annotator.io.atomic import write_json
 

@@ -63,6 +63,31 @@ class EvaluationSummary:
     coco: list[CocoScores] = field(default_factory=list)
     physics: ResultsPhysics | None = None
     annotation_errors: list[dict[str, Any]] = field(default_factory=list)
+    #: Whether :meth:`text` has a row per object even for one object.
+    per_object: bool = False
+
+    def counts(self) -> dict[str, int]:
+        out: dict[str, int] = {}
+        if self.report is not None:
+            out.update(tp=self.report.overall.tp, fp=self.report.overall.fp)
+            out["fn"] = self.report.overall.fn
+        return out
+
+    def warnings(self) -> list[str]:
+        from annotator.evaluation.text import summary_warnings
+
+        return summary_warnings(self)
+
+    def written_paths(self) -> list[Path]:
+        return []  # the command writes --json and --plot where it is told
+
+    def text(self) -> str:
+        from annotator.evaluation.text import summary_text
+
+        return summary_text(self, per_object=self.per_object)
+
+    def exit_status(self) -> int:
+        return 0
 
     def to_json(self) -> dict[str, Any]:
         """The report as ``--json`` writes it (BOP's key names for BOP's scores)."""

@@ -101,12 +101,29 @@ class IngestSummary:
     every: int = 1
     blur_threshold: float = BLUR_THRESHOLD
 
+    def counts(self) -> dict[str, int]:
+        return {
+            "source_frames": self.source_frames,
+            "candidates": self.candidates,
+            "written": self.written,
+            "blurred": len(self.blurred),
+            "dropped": len(self.dropped),
+        }
+
+    def warnings(self) -> list[str]:
+        return []  # what was dropped and why is in the text: it is what ingest reports
+
+    def written_paths(self) -> list[Path]:
+        return [Path(self.scene)]
+
+    def exit_status(self) -> int:
+        return 0
+
     def to_json(self) -> dict[str, Any]:
         """The summary as plain JSON values."""
         return asdict(self)
 
-    def line(self) -> str:
-        """The one line the command prints."""
+    def text(self) -> str:
         stride = "every frame" if self.every == 1 else f"one frame in {self.every}"
         depth = "no" if not self.depth else "yes"
         if self.depth_registered:

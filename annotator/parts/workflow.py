@@ -74,14 +74,25 @@ class MarkSummary:
     ids: tuple[int, int]
     out: str
 
+    def counts(self) -> dict[str, int]:
+        return {"sites": self.sites, "min_facing": self.min_facing, "instances": self.instances}
+
+    def warnings(self) -> list[str]:
+        return []
+
+    def written_paths(self) -> list[Path]:
+        return [Path(self.out)]
+
+    def exit_status(self) -> int:
+        return 0
+
     def to_json(self) -> dict[str, Any]:
         """The summary as plain JSON values (``annotator markers --json``)."""
         doc = asdict(self)
         doc["ids"] = list(self.ids)
         return doc
 
-    def line(self) -> str:
-        """The one line the command prints."""
+    def text(self) -> str:
         return (
             f"markers: {self.sites} sites of {self.size_mm:g} mm on {self.part}; from any "
             f"direction at least {self.min_facing} face the viewer (within 60 degrees); "
@@ -181,12 +192,23 @@ class DictionarySummary:
     min_distance: int
     max_correction_bits: int
 
+    def counts(self) -> dict[str, int]:
+        return {"markers": self.markers, "bits": self.bits, "min_distance": self.min_distance}
+
+    def warnings(self) -> list[str]:
+        return []
+
+    def written_paths(self) -> list[Path]:
+        return [Path(self.dictionary)]
+
+    def exit_status(self) -> int:
+        return 0
+
     def to_json(self) -> dict[str, Any]:
         """The summary as plain JSON values (``annotator markers --write-dictionary --json``)."""
         return asdict(self)
 
-    def line(self) -> str:
-        """The one line the command prints."""
+    def text(self) -> str:
         return (
             f"markers: wrote {self.dictionary}: {self.markers} markers of {self.bits}x"
             f"{self.bits} bits, any two at least {self.min_distance} bits apart (up to "

@@ -26,12 +26,23 @@ class CapturesSummary:
     board: dict[str, Any]
     board_text: str
 
+    def counts(self) -> dict[str, int]:
+        return {"shots": self.shots, "cameras": len(self.cameras)}
+
+    def warnings(self) -> list[str]:
+        return []  # a shot that fails to render fails the whole run (UserError)
+
+    def written_paths(self) -> list[Path]:
+        return [Path(self.out)]
+
+    def exit_status(self) -> int:
+        return 0
+
     def to_json(self) -> dict[str, Any]:
         """The summary as plain JSON values (``annotator synth --calibration --json``)."""
         return {"out": self.out, "shots": self.shots, "cameras": self.cameras, "board": self.board}
 
-    def line(self) -> str:
-        """The one line the command prints."""
+    def text(self) -> str:
         return (
             f"synth --calibration: {self.shots} shots of a {self.board_text} board seen by "
             f"{', '.join(self.cameras)}, written to {self.out} (board.yaml, truth.yaml)"
