@@ -118,7 +118,7 @@ class AnnotateSettings:
     refine_marker_px: float = 0.5
     measured_site_mm: float = NOISE.measured_site_mm
     measured_site_deg: float = NOISE.measured_site_deg
-    depth_correlation: float = 30.0
-    depth_bias_mm: float = 0.2
+    depth_correlation: float = NOISE.depth_correlation
+    depth_bias_mm: float = NOISE.depth_bias_mm
     completeness: CompletenessSettings = field(default_factory=CompletenessSettings)
     sequence: SequenceSettings = field(default_factory=SequenceSettings)

@@ -10,7 +10,10 @@ cost is taken and the damping divided (:class:`Damping`), one that does not is r
 the damping multiplied; the iteration stops when a step taken is small enough (the solver's
 ``small``), when the damping passes its ceiling (no step lowers the cost: a minimum, as well
 as the problem can be solved), when the solver cannot solve its system, or after
-``max_iterations``.
+``max_iterations``. A solver whose problem changes from one iteration to the next (the depth
+refinement, :mod:`annotator.refinement.depth`, narrows the gate its matches are sought
+within) gives ``cost_at``: a state's cost under the next iteration's problem, against which
+the next steps are judged.
 """
 
 from __future__ import annotations
@@ -70,6 +73,7 @@ def levenberg_marquardt(
     small: Callable[[float, float, D], bool],
     max_iterations: int,
     refused_count: bool = True,
+    cost_at: Callable[[S], float] | None = None,
 ) -> Minimum[S]:
     """Minimise from ``state`` (whose cost is ``cost``).
 
@@ -80,6 +84,8 @@ def levenberg_marquardt(
         small: ``(cost, new cost, step)`` -> whether a step taken is small enough to stop.
         refused_count: Whether a refused step counts as an iteration (else an iteration is
             one linearisation, with as many trials as it takes to lower the cost).
+        cost_at: A state taken -> its cost under the next iteration's problem, for a problem
+            that changes between iterations (None: the cost its trial gave stands).
 
     >>> # f(x) = (x - 3)^2 from x = 0: one Gauss-Newton step, then a step of nothing.
     >>> def trial(x, lin, lam):
@@ -108,6 +114,8 @@ def levenberg_marquardt(
                 lam = max(lam / damping.factor, damping.floor)
                 if done:
                     return Minimum(state, cost, iterations, Stop.SMALL_STEP)
+                if cost_at is not None:
+                    cost = cost_at(state)
                 lin = linearise(state)
                 break
             lam *= damping.factor
