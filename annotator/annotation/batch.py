@@ -158,6 +158,15 @@ class AnnotateSummary:
         scenes: Scenes matching the pattern.
         report: Per-scene outcomes (done: their counts; failed: one line each).
         skipped: Scenes whose annotation was up to date.
+
+    >>> from annotator.runner import BatchReport
+    >>> done = {"000000": {"instances": 8, "flagged": 1, "warned": 0}}
+    >>> failed = {"000001": "no depth.png"}
+    >>> s = AnnotateSummary(scenes=2, report=BatchReport(done, failed), skipped=0)
+    >>> s.counts()["instances_posed"], s.exit_status()
+    (8, 1)
+    >>> s.warnings()
+    ['failed: scene 000001: no depth.png']
     """
 
     scenes: int

@@ -103,6 +103,10 @@ class AnnotateSettings:
             uncertainty counts it.
         completeness: The completeness checks' own thresholds.
         sequence: A moving rig's sequences' own thresholds.
+
+    >>> s = AnnotateSettings(refine_max_markers=0)
+    >>> s.refine_max_markers, s.depth_bias_mm
+    (0, 0.2)
     """
 
     inlier_px: float = 4.0

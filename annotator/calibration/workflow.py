@@ -56,6 +56,13 @@ class CalibrationSummary:
         update: Its new text and diff (None: no dataset, or a rig that does not hold
             together).
         written: Whether dataset.yaml was written; ``declined``: the user said no.
+
+    :func:`calibrate_rig`'s example makes one from synthetic shots (a calibration takes
+    seconds); every summary answers the one protocol:
+
+    >>> from annotator.summary import StageSummary
+    >>> issubclass(CalibrationSummary, StageSummary)
+    True
     """
 
     calibration: Calibration
@@ -198,6 +205,8 @@ def calibrate_rig(
     >>> rig = calibrate_rig(captures, write=False)  # write=True: into --dataset's dataset.yaml
     >>> [c["name"] for c in rig.to_json()["cameras"]], rig.to_json()["rms_px"] < 0.5
     (['left', 'right'], True)
+    >>> rig.exit_status(), rig.warnings(), rig.text().startswith("calibrate: RMS")
+    (0, [], True)
 
     Args:
         board: The board description (YAML; default ``CAPTURES/board.yaml``).

@@ -30,6 +30,15 @@ class EstimateSummary:
         scenes: Scenes matching the pattern.
         report: Per-scene outcomes (done: their rows and time; failed: one line each).
         rows: Every result written, scene by scene.
+
+    >>> from pathlib import Path
+    >>> from annotator.runner import BatchReport
+    >>> report = BatchReport({"000000": {"seconds": [2.0]}})
+    >>> s = EstimateSummary("PPF", Path("ppf.csv"), Path("ppf.json"), 1, report, rows=[])
+    >>> s.counts()
+    {'scenes': 1, 'done': 1, 'failed': 0, 'results': 0}
+    >>> [str(p) for p in s.written_paths()]
+    ['ppf.csv', 'ppf.json']
     """
 
     method: str

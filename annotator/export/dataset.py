@@ -49,6 +49,13 @@ class ExportSummary:
             site), masked and filled whole; None without.
         frames_left_out: An exported sequence's frames not exported -> why (not posed, with
             annotate's flags; rejected by a reviewer).
+
+    >>> from pathlib import Path
+    >>> s = ExportSummary("bop", Path("out"), exported=3, left_out={"000004": "pending"})
+    >>> s.text()
+    'export: 3 scenes written to out (bop); left out: 1 pending'
+    >>> s.counts(), s.exit_status()
+    ({'exported': 3, 'pending': 1}, 0)
     """
 
     format: str

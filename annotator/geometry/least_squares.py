@@ -1,6 +1,7 @@
 """Damped least squares (Levenberg-Marquardt): the one iteration every solver of the project
 runs, the multi-camera PnP (:mod:`annotator.pnp.multiview`), the sequences' bundle adjustment
-(:mod:`annotator.pnp.bundle`) and the rig calibration (:mod:`annotator.calibration.bundle`).
+(:mod:`annotator.pnp.bundle`), the rig calibration (:mod:`annotator.calibration.bundle`) and
+the depth refinement (:mod:`annotator.refinement.depth`).
 
 A solver brings what is its own: how to linearise its problem at a state (the normal
 equations, dense or sparse, robust weights or not) and how to try a step from it with a given

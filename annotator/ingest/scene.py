@@ -79,6 +79,13 @@ class IngestSummary:
         rig_written: Whether dataset.yaml was written from the source (``--rig-from-source``).
         every: The stride.
         blur_threshold: The sharpness threshold (times the running median).
+
+    >>> s = IngestSummary("scenes/000000", "shots", "image folder", "left", source_frames=10,
+    ...                   candidates=10, written=8, blurred=[3, 7])
+    >>> s.counts()
+    {'source_frames': 10, 'candidates': 10, 'written': 8, 'blurred': 2, 'dropped': 0}
+    >>> s.exit_status()
+    0
     """
 
     scene: str
@@ -173,6 +180,10 @@ class IngestSettings:
             file's calibration describes.
         dictionary: The ArUco dictionary of a dataset created by ``rig_from_source``.
         overwrite: Replace the scene if ingest wrote it.
+
+    >>> s = IngestSettings(camera="left", every=5)
+    >>> s.every, s.depth
+    (5, True)
     """
 
     camera: str | None = None

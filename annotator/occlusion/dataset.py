@@ -22,6 +22,13 @@ class OcclusionSummary:
     Attributes:
         report: Per-scene outcomes (done, and failed: one line each).
         skipped: Scenes whose visibility.json was up to date.
+
+    >>> from annotator.runner import BatchReport
+    >>> s = OcclusionSummary(BatchReport({"000000": {}}), skipped=3)
+    >>> s.text()
+    'occlusion: 1 scenes done, 3 up to date, 0 failed'
+    >>> s.to_json()
+    {'done': 1, 'skipped': 3, 'failed': 0, 'failures': {}}
     """
 
     report: BatchReport

@@ -49,6 +49,9 @@ class MarkSettings:
         symmetry: The symmetry class of a mesh file's part.
         dpi: The sheets' resolution.
         seed: The layout's random seed.
+
+    >>> MarkSettings(size_mm=12.0, instances=4).instances
+    4
     """
 
     size_mm: float | None = None
@@ -64,7 +67,15 @@ class MarkSettings:
 
 @dataclass(frozen=True)
 class MarkSummary:
-    """What :func:`mark_part` wrote."""
+    """What :func:`mark_part` wrote.
+
+    >>> s = MarkSummary("bracket", sites=12, min_facing=3, size_mm=10.0, instances=4,
+    ...                 ids=(0, 47), out="bracket")
+    >>> s.counts()
+    {'sites': 12, 'min_facing': 3, 'instances': 4}
+    >>> s.to_json()["ids"]
+    [0, 47]
+    """
 
     part: str
     sites: int
@@ -184,7 +195,15 @@ def _mark(part: Part, s: MarkSettings, name: str, n_dict: int) -> MarkedPart:
 
 @dataclass(frozen=True)
 class DictionarySummary:
-    """What :func:`write_custom_dictionary` wrote, as read back."""
+    """What :func:`write_custom_dictionary` wrote, as read back.
+
+    >>> s = DictionarySummary("mine.yml", markers=20, bits=6, min_distance=14,
+    ...                       max_correction_bits=6)
+    >>> s.counts()
+    {'markers': 20, 'bits': 6, 'min_distance': 14}
+    >>> [str(p) for p in s.written_paths()]
+    ['mine.yml']
+    """
 
     dictionary: str
     markers: int

@@ -49,7 +49,14 @@ class ScenePhysics:
 
 @dataclass
 class PhysicsSummary:
-    """:func:`physics_of_dataset`'s scenes, and the scenes it could not check (one line)."""
+    """:func:`physics_of_dataset`'s scenes, and the scenes it could not check (one line).
+
+    >>> s = PhysicsSummary(failed={"000002": "no frame is posed"})
+    >>> s.text()
+    'physics: 0 scenes checked, 0 instances flagged, 1 not checked'
+    >>> s.warnings()
+    ['failed: scene 000002: no frame is posed']
+    """
 
     scenes: list[ScenePhysics] = field(default_factory=list)
     failed: dict[str, str] = field(default_factory=dict)

@@ -166,7 +166,18 @@ def instance_lines(m: InstanceSites) -> list[str]:
 @dataclass
 class SitesSummary:
     """What :func:`measure_sites` measured (:attr:`survey`) and which object.yaml files
-    :meth:`write` wrote; :meth:`to_json` is ``annotator sites --json``."""
+    :meth:`write` wrote; :meth:`to_json` is ``annotator sites --json``.
+
+    >>> from pathlib import Path
+    >>> from annotator.runner import BatchReport
+    >>> from annotator.sites.survey import SitesSurvey
+    >>> survey = SitesSurvey(scenes=[], report=BatchReport(), measured=[], spread=None, updates=[])
+    >>> s = SitesSummary(survey, Path("ds"))
+    >>> s.text()
+    'sites: 0 instances measured from 0 scenes, 0 markers flagged; nothing written'
+    >>> s.exit_status()
+    0
+    """
 
     survey: SitesSurvey
     root: Path

@@ -18,7 +18,15 @@ __all__ = ["CapturesSummary", "calibration_board", "synthesize_captures"]
 
 @dataclass(frozen=True)
 class CapturesSummary:
-    """What :func:`synthesize_captures` wrote."""
+    """What :func:`synthesize_captures` wrote.
+
+    >>> s = CapturesSummary("shots", 8, ["left", "right"], {}, "7x5 ChArUco")
+    >>> print(s.text())  # doctest: +NORMALIZE_WHITESPACE
+    synth --calibration: 8 shots of a 7x5 ChArUco board seen by left, right, written to shots
+    (board.yaml, truth.yaml)
+    >>> s.counts()
+    {'shots': 8, 'cameras': 2}
+    """
 
     out: str
     shots: int

@@ -29,6 +29,15 @@ class SynthesisSummary:
         out: The dataset folder.
         report: Per-scene outcomes (done: instances and seconds per stage; failed: one line
             each, the scene's folder removed).
+
+    >>> from pathlib import Path
+    >>> from annotator.runner import BatchReport
+    >>> times = {"physics": 0.4, "rendering": 0.1, "depth": 0.02, "occlusion": 0.01}
+    >>> s = SynthesisSummary(Path("synth"), BatchReport({"000000": {"instances": 12, **times}}))
+    >>> s.counts()
+    {'scenes': 1, 'failed': 0, 'instances': 12}
+    >>> s.warnings(), s.exit_status()
+    ([], 0)
     """
 
     out: Path

@@ -489,6 +489,14 @@ class SequenceSummary:
         report: The per-scene outcomes (a scene fails when its drop or a frame does).
         frames: Frames per sequence.
         seconds_per_frame: Mean seconds per frame of ``rendering``, ``depth``, ``occlusion``.
+
+    >>> from pathlib import Path
+    >>> from annotator.runner import BatchReport
+    >>> per_frame = {"rendering": 0.1, "depth": 0.02, "occlusion": 0.01}
+    >>> report = BatchReport({"000000": {"frames": 5, "instances": 9}})
+    >>> s = SequenceSummary(Path("seq"), report, 5, per_frame)
+    >>> s.counts()
+    {'scenes': 1, 'frames': 5, 'failed': 0, 'instances': 9}
     """
 
     out: Path

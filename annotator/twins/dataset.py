@@ -27,6 +27,14 @@ class TwinSummary:
         out: The twin dataset's folder.
         report: Per-scene outcomes (a twin scene each; failed: one line each).
         left_out: Why scenes were not twinned (by the reviews) -> how many.
+
+    >>> from pathlib import Path
+    >>> from annotator.runner import BatchReport
+    >>> report = BatchReport({"000000": {}})
+    >>> s = TwinSummary(Path("real"), Path("twin"), report, left_out={"pending": 2})
+    >>> print(s.text())  # doctest: +NORMALIZE_WHITESPACE
+    synth --twin: 1 twin scenes of real written to twin; left out: 2 pending; compare them:
+    annotator twin-report real twin
     """
 
     source: Path
