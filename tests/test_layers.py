@@ -271,3 +271,29 @@ def test_commands_end_through_the_summary() -> None:
             if isinstance(node, ast.Attribute) and node.attr in ("to_json", "dumps", "line"):
                 found.append(f"{path.relative_to(ROOT)}:{node.lineno} .{node.attr}")
     assert not found, "commands printing a summary themselves: " + "; ".join(found)
+
+
+def test_evaluate_names_its_scores_only_in_the_registry() -> None:
+    """A score of ``evaluate`` is registered once (:mod:`annotator.evaluation.scores`): the
+    command's options and the rules of which needs what come from there, so neither the
+    command nor the evaluation names a score's option."""
+    options = ["--bop19", "--bop24", "--coco-results", "--physics"]
+    for rel in ("annotator/commands/evaluate.py", "annotator/evaluation/dataset.py"):
+        text = (ROOT / rel).read_text()
+        named = [o for o in options if o in text]
+        assert not named, f"{rel} names {named}: register them in evaluation/scores.py"
+
+
+def test_one_noise_record_and_one_least_squares_loop() -> None:
+    """The measurement noise is one record (:class:`annotator.noise.NoiseModel`) and every
+    solver iterates with :func:`annotator.geometry.least_squares.levenberg_marquardt`: no
+    other ``*Noise*`` class, and each solver module calls the one loop."""
+    noise = []
+    for path in sorted((ROOT / "annotator").rglob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.ClassDef) and "Noise" in node.name:
+                noise.append(f"{path.relative_to(ROOT)}:{node.lineno} {node.name}")
+    assert len(noise) == 1 and noise[0].startswith("annotator/noise.py"), noise
+    solvers = ["pnp/multiview.py", "pnp/bundle.py", "calibration/bundle.py", "refinement/depth.py"]
+    for rel in solvers:
+        assert "levenberg_marquardt(" in (ROOT / "annotator" / rel).read_text(), rel
