@@ -117,7 +117,8 @@ def levenberg_marquardt(
                     return Minimum(state, cost, iterations, Stop.SMALL_STEP)
                 if cost_at is not None:
                     cost = cost_at(state)
-                lin = linearise(state)
+                if iterations < max_iterations:  # else it would go unused
+                    lin = linearise(state)
                 break
             lam *= damping.factor
             if lam > damping.ceiling:

@@ -416,7 +416,7 @@ class _MarkerTerm:
 
 #: The damping starts (and stays, while steps lower the cost) far below the scaled system's
 #: unit diagonal: the steps are Gauss-Newton's; a step that raises the cost is damped.
-_DAMPING = Damping(start=1e-12, floor=1e-12, ceiling=1e6)
+_DAMPING = Damping(start=1e-12, floor=1e-12, ceiling=1e4, factor=100.0)
 
 
 @dataclass(frozen=True)
