@@ -11,7 +11,12 @@ from pathlib import Path
 
 
 class UserError(Exception):
-    """A mistake in the user's input, reported as one line naming the file and the problem."""
+    """A mistake in the user's input, reported as one line naming the file and the problem.
+
+    >>> from pathlib import Path
+    >>> print(UserError("no rig section", path=Path("ds/dataset.yaml")))
+    ds/dataset.yaml: no rig section
+    """
 
     def __init__(self, message: str, *, path: str | Path | None = None) -> None:
         self.path = None if path is None else Path(path)

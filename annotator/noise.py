@@ -7,7 +7,10 @@ are made of, as the defaults of its settings (a user changes them there, per run
   (a sharp corner as the detector fits it; a blurred one is worse, by its streak) and the
   depth under a marker's centre by :attr:`NoiseModel.marker_depth_mm`;
 - the depth refinement weighs measured surface points by :attr:`NoiseModel.depth_mm` and the
-  markers of the pose it moves by :attr:`NoiseModel.refined_corner_px`;
+  markers of the pose it moves by :attr:`NoiseModel.refined_corner_px`; the covariance of the
+  pose it refines floors the corners at :attr:`NoiseModel.corner_px` and the points at
+  :attr:`NoiseModel.depth_fit_mm`, counts the points :attr:`NoiseModel.depth_correlation`
+  times fewer and adds their shared offset, :attr:`NoiseModel.depth_bias_mm`;
 - ``annotator sites`` weighs corners against the part by :attr:`NoiseModel.site_corner_px`
   and depth points by :attr:`NoiseModel.depth_mm`;
 - a sequence's uncertainties count each marker corner off on its part by
@@ -34,6 +37,13 @@ class NoiseModel:
         refined_corner_px: A corner in the depth refinement, whose pose the depth pulls off
             the markers' own fit (the sites' error on top of the detector's).
         depth_mm: A measured depth point on a part's surface.
+        depth_fit_mm: The floor of the measured points' point-to-plane spread about a refined
+            pose (their residuals' own when larger).
+        depth_correlation: The measured points count as this many times fewer independent
+            ones: stereo depth is matched over windows and smoothed, so neighbouring points
+            share their errors.
+        depth_bias_mm: An offset all of a part's measured points share along their rays (a
+            face seen flat gets one disparity: its depth is off by one amount).
         marker_depth_mm: The depth under a marker's centre, read on a few pixels where the
             printed pattern spoils the stereo match.
         site_mm: Each corner of a marker on its part (printing, gluing flat, the corner
@@ -46,6 +56,9 @@ class NoiseModel:
     site_corner_px: float = 0.4
     refined_corner_px: float = 0.5
     depth_mm: float = 1.0
+    depth_fit_mm: float = 0.1
+    depth_correlation: float = 30.0
+    depth_bias_mm: float = 0.2
     marker_depth_mm: float = 2.0
     site_mm: float = 0.15
     measured_site_mm: float = 0.1

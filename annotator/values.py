@@ -27,7 +27,15 @@ from annotator.errors import UserError
 
 class BadValue(UserError):
     """A value out of its range or of the wrong kind; ``reason`` is the message without the
-    name, which the command line puts after the option's own."""
+    name, which the command line puts after the option's own.
+
+    >>> from annotator.values import whole
+    >>> try:
+    ...     whole(0, name="workers", low=1)
+    ... except BadValue as exc:
+    ...     print(exc.reason)
+    must be a whole number at least 1, not 0
+    """
 
     def __init__(self, name: str, reason: str) -> None:
         super().__init__(f"{name}: {reason}")

@@ -20,9 +20,10 @@ from annotator.dataset.flags import Flag
 from annotator.dataset.records import InstanceAnnotation, SceneAnnotation
 from annotator.detection import MarkerDetector
 from annotator.io.images import to_gray8
+from annotator.noise import NOISE
 from annotator.pnp import Observation, rms_uncertainty
 from annotator.refinement import DepthTerm, RefineSettings, measured_points, refine_instance
-from annotator.refinement.depth import Noise, pose_covariance
+from annotator.refinement.depth import pose_covariance
 from annotator.rendering.raycast import PlacedMesh
 from annotator.repair import instance_observations, used_observations
 from annotator.symmetry import PoseSpace
@@ -104,7 +105,7 @@ def test_the_depth_bias_and_the_site_errors_widen_the_uncertainty(sample) -> Non
             cameras=ds.rig.cameras,
             observations=used,
             site_sigmas=sites,
-            noise=Noise(depth_bias_mm=bias),
+            noise=dataclasses.replace(NOISE, depth_bias_mm=bias),
         )
         return rms_uncertainty(moments, inst.R, cov)
 

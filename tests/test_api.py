@@ -52,6 +52,13 @@ def test_every_public_name_is_there_and_documented() -> None:
         assert len(_own_doc(value)) >= 20, f"annotator.{name} has no docstring of its own"
 
 
+def test_every_public_name_shows_an_example() -> None:
+    """Each public class and function has a runnable example in its docstring (run by
+    ``--doctest-modules``), so that a newcomer sees it used."""
+    missing = [n for n in annotator.__all__ if ">>>" not in _own_doc(getattr(annotator, n))]
+    assert not missing, "public names without an example: " + ", ".join(missing)
+
+
 def test_one_list_of_public_names_drives_the_imports_and_the_types() -> None:
     import ast
 

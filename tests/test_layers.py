@@ -156,7 +156,7 @@ def test_commands_only_parse_and_print() -> None:
 #: The packages' layers, lowest first (README, Development): each imports only from layers
 #: below its own. A new package takes the lowest layer above everything it imports.
 LAYERS = [
-    ["errors", "noise"],
+    ["errors", "noise", "summary"],
     ["geometry", "values"],
     ["io", "pnp", "rendering", "symmetry"],
     ["markers"],
@@ -222,3 +222,78 @@ def test_no_function_is_long_without_a_reason() -> None:
     assert len(found) <= 2, "more than two functions over 80 lines: " + ", ".join(
         w for w, _, _ in found
     )
+
+
+#: Summaries that are not a stage's return value: the paper's AP over a set of scenes is one
+#: score of :class:`annotator.evaluation.evaluate.EvaluationReport`, not what a stage did.
+NOT_STAGES = {"annotator.evaluation.metrics.Summary"}
+
+
+def _summary_classes() -> list[str]:
+    """Every class named ``*Summary`` in annotator/, as ``module.Class``."""
+    found = []
+    for path in sorted((ROOT / "annotator").rglob("*.py")):
+        module = ".".join(path.relative_to(ROOT).with_suffix("").parts).removesuffix(".__init__")
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.ClassDef) and node.name.endswith("Summary"):
+                found.append(f"{module}.{node.name}")
+    return found
+
+
+def test_every_stage_summary_satisfies_the_protocol() -> None:
+    """What every stage returns answers :class:`annotator.summary.StageSummary` (counts,
+    warnings, written paths, text, to_json, exit status), checked at run time."""
+    import importlib
+
+    from annotator.summary import StageSummary
+
+    names = [n for n in _summary_classes() if n not in NOT_STAGES]
+    assert len(names) >= 15, names
+    missing = []
+    for name in names:
+        module, _, cls = name.rpartition(".")
+        if not issubclass(getattr(importlib.import_module(module), cls), StageSummary):
+            missing.append(name)
+    assert not missing, "summaries not satisfying StageSummary: " + ", ".join(missing)
+
+
+def test_commands_end_through_the_summary() -> None:
+    """A command prints a stage's summary through :func:`annotator.commands.finish` (or
+    :func:`~annotator.commands.show`): none calls ``to_json`` or ``json.dumps`` itself,
+    except ``check`` (its report is a list of problems, not a stage's summary) and
+    ``twin-report`` and ``evaluate`` (which write their JSON to a file)."""
+    own_json = {"check.py", "twin_report.py", "evaluate.py"}
+    found = []
+    for path in sorted((ROOT / "annotator" / "commands").glob("*.py")):
+        if path.name in own_json or path.name == "__init__.py":
+            continue
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.Attribute) and node.attr in ("to_json", "dumps", "line"):
+                found.append(f"{path.relative_to(ROOT)}:{node.lineno} .{node.attr}")
+    assert not found, "commands printing a summary themselves: " + "; ".join(found)
+
+
+def test_evaluate_names_its_scores_only_in_the_registry() -> None:
+    """A score of ``evaluate`` is registered once (:mod:`annotator.evaluation.scores`): the
+    command's options and the rules of which needs what come from there, so neither the
+    command nor the evaluation names a score's option."""
+    options = ["--bop19", "--bop24", "--coco-results", "--physics"]
+    for rel in ("annotator/commands/evaluate.py", "annotator/evaluation/dataset.py"):
+        text = (ROOT / rel).read_text()
+        named = [o for o in options if o in text]
+        assert not named, f"{rel} names {named}: register them in evaluation/scores.py"
+
+
+def test_one_noise_record_and_one_least_squares_loop() -> None:
+    """The measurement noise is one record (:class:`annotator.noise.NoiseModel`) and every
+    solver iterates with :func:`annotator.geometry.least_squares.levenberg_marquardt`: no
+    other ``*Noise*`` class, and each solver module calls the one loop."""
+    noise = []
+    for path in sorted((ROOT / "annotator").rglob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.ClassDef) and "Noise" in node.name:
+                noise.append(f"{path.relative_to(ROOT)}:{node.lineno} {node.name}")
+    assert len(noise) == 1 and noise[0].startswith("annotator/noise.py"), noise
+    solvers = ["pnp/multiview.py", "pnp/bundle.py", "calibration/bundle.py", "refinement/depth.py"]
+    for rel in solvers:
+        assert "levenberg_marquardt(" in (ROOT / "annotator" / rel).read_text(), rel

@@ -16,7 +16,7 @@ from annotator.annotation.settings import AnnotateSettings
 from annotator.dataset import Dataset, Scene, as_dataset, cached_dataset, require_meshes
 from annotator.dataset.check import BROKEN_LINK
 from annotator.dataset.flags import WarningKind
-from annotator.dataset.frames import frames_left_out
+from annotator.dataset.frames import frames_left_out, frames_line
 from annotator.dataset.poses import read_pose_file
 from annotator.dataset.records import SceneAnnotation
 from annotator.dataset.review import now_iso
@@ -27,6 +27,7 @@ from annotator.io.images import write_png
 from annotator.physics.scene import empty_bin
 from annotator.runner import BatchReport, run_batch
 from annotator.runner.files import description_files, dictionary_files
+from annotator.summary import failure_lines
 from annotator.values import number, of_type, whole
 
 
@@ -157,6 +158,15 @@ class AnnotateSummary:
         scenes: Scenes matching the pattern.
         report: Per-scene outcomes (done: their counts; failed: one line each).
         skipped: Scenes whose annotation was up to date.
+
+    >>> from annotator.runner import BatchReport
+    >>> done = {"000000": {"instances": 8, "flagged": 1, "warned": 0}}
+    >>> failed = {"000001": "no depth.png"}
+    >>> s = AnnotateSummary(scenes=2, report=BatchReport(done, failed), skipped=0)
+    >>> s.counts()["instances_posed"], s.exit_status()
+    (8, 1)
+    >>> s.warnings()
+    ['failed: scene 000001: no depth.png']
     """
 
     scenes: int
@@ -167,16 +177,12 @@ class AnnotateSummary:
     #: A sequence annotated now -> its notes (parts moved, frames of another arrangement,
     #: markers glued off their layout: run ``annotator sites``).
     notes: dict[str, list[str]] = field(default_factory=dict)
+    #: The annotation.json files written now, in scene order.
+    written: list[Path] = field(default_factory=list)
 
-    def to_json(self) -> dict[str, Any]:
+    def counts(self) -> dict[str, int]:
         done = self.report.done.values()
-        moving = {
-            "frames": sum(r.get("frames", 0) for r in done),
-            "frames_posed": sum(r.get("frames_posed", 0) for r in done),
-            "frames_left_out": self.frames_left_out,
-            "notes": self.notes,
-        }
-        return {
+        out = {
             "scenes": self.scenes,
             "done": len(self.report.done),
             "skipped": self.skipped,
@@ -184,9 +190,47 @@ class AnnotateSummary:
             "instances_posed": sum(r["instances"] for r in done),
             "instances_flagged": sum(r["flagged"] for r in done),
             "scenes_warned": sum(r["warned"] for r in done),
-            "failures": dict(sorted(self.report.failed.items())),
-            **(moving if any("frames" in r for r in done) else {}),
         }
+        if any("frames" in r for r in done):  # sequences: frames are counted too
+            out["frames"] = sum(r.get("frames", 0) for r in done)
+            out["frames_posed"] = sum(r.get("frames_posed", 0) for r in done)
+        return out
+
+    def warnings(self) -> list[str]:
+        """The frames of each sequence left out, its notes (what to do next, what moved),
+        then the failed scenes."""
+        lines = [
+            f"scene {sid}: {frames_line(left, self.report.done[sid].get('frames'))}"
+            for sid, left in sorted(self.frames_left_out.items())
+        ]
+        lines += [f"scene {sid}: {n}" for sid, said in sorted(self.notes.items()) for n in said]
+        return lines + failure_lines(self.report.failed)
+
+    def written_paths(self) -> list[Path]:
+        return list(self.written)
+
+    def text(self) -> str:
+        n = self.counts()
+        frames = f"{n['frames_posed']} of {n['frames']} frames posed; " if "frames" in n else ""
+        return (
+            f"annotate: {n['done']} scenes done, {n['skipped']} up to date (skipped), "
+            f"{n['failed']} failed; {frames}{n['instances_posed']} instances posed, "
+            f"{n['instances_flagged']} flagged; {n['scenes_warned']} scenes with warnings "
+            "(parts without a pose, blur, exposure: `annotator check --annotations`)"
+        )
+
+    def to_json(self) -> dict[str, Any]:
+        n = self.counts()
+        moving = {"frames_left_out": self.frames_left_out, "notes": self.notes}
+        frames: dict[str, Any] = {k: n.pop(k) for k in ("frames", "frames_posed") if k in n}
+        return {
+            **n,
+            "failures": dict(sorted(self.report.failed.items())),
+            **({**frames, **moving} if frames else {}),
+        }
+
+    def exit_status(self) -> int:
+        return 1 if self.report.failed else 0
 
 
 def annotate_dataset(
@@ -260,4 +304,5 @@ def annotate_dataset(
         said = [w.message for w in ann.warnings if w.kind == WarningKind.NOTE]
         if said:
             notes[sid] = said
-    return AnnotateSummary(len(chosen), report, len(chosen) - len(todo), left, notes)
+    written = [ds.scene(sid).annotation_path for sid in sorted(report.done)]
+    return AnnotateSummary(len(chosen), report, len(chosen) - len(todo), left, notes, written)

@@ -30,6 +30,7 @@ pins nothing) keeps ``high_uncertainty``.
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import replace
 
 import numpy as np
 
@@ -39,6 +40,7 @@ from annotator.dataset.figures import Reprojection
 from annotator.dataset.flags import Flag, sort_flags
 from annotator.dataset.model import ObjectModel
 from annotator.dataset.records import InstanceAnnotation
+from annotator.noise import NOISE
 from annotator.pnp import Observation, reprojection_errors, rms_uncertainty
 from annotator.refinement import (
     DepthTerm,
@@ -47,7 +49,7 @@ from annotator.refinement import (
     measured_points,
     refine_instance,
 )
-from annotator.refinement.depth import Noise, pose_covariance
+from annotator.refinement.depth import pose_covariance
 from annotator.rendering.raycast import PlacedMesh
 
 #: A site of an instance within this of the layout's (mm, RMS over its corners) was not moved
@@ -105,7 +107,8 @@ def refine_few_marker_poses(
             cameras=ds.rig.cameras,
             observations=used,
             site_sigmas=site_sigmas(model, r.instance, used, settings),
-            noise=Noise(
+            noise=replace(
+                NOISE,
                 depth_correlation=settings.depth_correlation,
                 depth_bias_mm=settings.depth_bias_mm,
             ),

@@ -46,7 +46,16 @@ CONTRADICTED = 0.3
 @dataclass
 class SceneResult:
     """What annotating a scene gives: the annotation.json record and the unexplained-depth
-    mask (uint8, 255 = unexplained, on the depth camera's grid), or None without depth."""
+    mask (uint8, 255 = unexplained, on the depth camera's grid), or None without depth.
+
+    :func:`annotate_scene`'s example makes one; this one holds an annotation.json as written:
+
+    >>> from annotator.dataset.records import SceneAnnotation
+    >>> ann = SceneAnnotation.read("sample_scenes/scenes/000003/annotation.json")
+    >>> result = SceneResult(ann, None)
+    >>> len(result.annotation.instances), result.unexplained is None
+    (10, True)
+    """
 
     annotation: SceneAnnotation
     unexplained: np.ndarray | None

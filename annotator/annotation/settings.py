@@ -103,6 +103,10 @@ class AnnotateSettings:
             uncertainty counts it.
         completeness: The completeness checks' own thresholds.
         sequence: A moving rig's sequences' own thresholds.
+
+    >>> s = AnnotateSettings(refine_max_markers=0)
+    >>> s.refine_max_markers, s.depth_bias_mm
+    (0, 0.2)
     """
 
     inlier_px: float = 4.0
@@ -118,7 +122,7 @@ class AnnotateSettings:
     refine_marker_px: float = 0.5
     measured_site_mm: float = NOISE.measured_site_mm
     measured_site_deg: float = NOISE.measured_site_deg
-    depth_correlation: float = 30.0
-    depth_bias_mm: float = 0.2
+    depth_correlation: float = NOISE.depth_correlation
+    depth_bias_mm: float = NOISE.depth_bias_mm
     completeness: CompletenessSettings = field(default_factory=CompletenessSettings)
     sequence: SequenceSettings = field(default_factory=SequenceSettings)

@@ -29,7 +29,7 @@ from annotator.calibration.detect import CapturesDetection, detect_captures
 from annotator.calibration.model_choice import CANDIDATES, calibrate_and_assess
 from annotator.calibration.outputs import DatasetUpdate, dataset_update, write_report_folder
 from annotator.calibration.records import Calibration, CalibrationSettings, View
-from annotator.calibration.report import report_dict
+from annotator.calibration.report import report_dict, summary_lines
 from annotator.calibration.rig_yaml import existing_rig, read_dataset_doc
 from annotator.dataset.model import DepthSpec
 from annotator.errors import UserError
@@ -56,6 +56,13 @@ class CalibrationSummary:
         update: Its new text and diff (None: no dataset, or a rig that does not hold
             together).
         written: Whether dataset.yaml was written; ``declined``: the user said no.
+
+    :func:`calibrate_rig`'s example makes one from synthetic shots (a calibration takes
+    seconds); every summary answers the one protocol:
+
+    >>> from annotator.summary import StageSummary
+    >>> issubclass(CalibrationSummary, StageSummary)
+    True
     """
 
     calibration: Calibration
@@ -90,6 +97,66 @@ class CalibrationSummary:
             self.written = True
         else:
             self.declined = True
+
+    def preview(self) -> str:
+        """What is shown before asking to write: the calibration's summary, then the diff of
+        dataset.yaml (or that it already has this rig)."""
+        lines = summary_lines(self.calibration)
+        if self.holds and self.update is not None:
+            diff = self.update.diff
+            lines.append(
+                diff.removesuffix("\n")
+                if diff
+                else f"{self.update.path} already has this rig: nothing to write"
+            )
+        return "\n".join(lines)
+
+    def counts(self) -> dict[str, int]:
+        return {
+            "cameras": len(self.calibration.cameras),
+            "problems": len(self.calibration.problems),
+            "written": int(self.written),
+        }
+
+    def warnings(self) -> list[str]:
+        """For a rig that does not hold together: each check that failed, then what to try."""
+        if self.holds:
+            return []
+        path = self.dataset_yaml
+        where = f"{path}: not written: " if path is not None else ""
+        return [f"error: {where}{p}" for p in self.calibration.problems] + [f"error: {self.advice}"]
+
+    def written_paths(self) -> list[Path]:
+        paths = [self.report]
+        return paths + [self.update.path] if self.written and self.update is not None else paths
+
+    def exit_status(self) -> int:
+        return 1 if not self.holds or self.declined else 0
+
+    def text(self) -> str:
+        """The last line: the RMS, the held-out transfer error, where the rig went."""
+        cal = self.calibration
+        held = cal.held_out
+        transfer = (
+            ""
+            if held is None or len(cal.cameras) < 2 or held.median_px != held.median_px
+            else f", held-out transfer error {held.median_px:.2f} px median"
+        )
+        head = f"calibrate: RMS {cal.rms_px:.3f} px{transfer}; report in {self.report}; "
+        if not self.holds:
+            path = self.dataset_yaml
+            return (
+                head
+                + "the rig does not hold together: "
+                + (f"{path} not written" if path is not None else "no rig.yaml")
+            )
+        if self.update is None:
+            return head + (
+                f"rig section in {self.report / 'rig.yaml'} (use --dataset DS to write it)"
+            )
+        if self.written:
+            return head + f"wrote the rig into {self.update.path}"
+        return head + ("dataset.yaml not written" if self.update.diff else "dataset.yaml unchanged")
 
     def to_json(self) -> dict[str, Any]:
         result = dict(self.details)
@@ -138,6 +205,8 @@ def calibrate_rig(
     >>> rig = calibrate_rig(captures, write=False)  # write=True: into --dataset's dataset.yaml
     >>> [c["name"] for c in rig.to_json()["cameras"]], rig.to_json()["rms_px"] < 0.5
     (['left', 'right'], True)
+    >>> rig.exit_status(), rig.warnings(), rig.text().startswith("calibrate: RMS")
+    (0, [], True)
 
     Args:
         board: The board description (YAML; default ``CAPTURES/board.yaml``).

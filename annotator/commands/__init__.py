@@ -1,7 +1,8 @@
 """One module per ``annotator`` subcommand: argument parsing and terminal output only.
 
-The work itself lives in the pipeline packages; a command module wires options to library
-calls and prints results (``--json`` where scripts consume the output).
+The work itself lives in the pipeline packages; a command module wires options to one library
+call and prints what it returns, a :class:`~annotator.summary.StageSummary`, through
+:func:`finish` (``--json`` where scripts consume the output).
 """
 
 from __future__ import annotations
@@ -13,7 +14,8 @@ from collections.abc import Callable
 from pathlib import Path
 
 from annotator import values
-from annotator.runner import RAY_WAIT_S, BatchReport, available_cpus
+from annotator.runner import RAY_WAIT_S, available_cpus
+from annotator.summary import StageSummary
 
 
 def add_workers_option(parser: argparse.ArgumentParser) -> None:
@@ -113,12 +115,18 @@ def confirm(path: Path) -> bool:
     return answer in ("y", "yes")
 
 
-def finish_batch(report: BatchReport, summary: dict, line: str, *, as_json: bool) -> int:
-    """End a batch command: the summary as JSON (``--json``), or each failed scene and then
-    ``line``; the exit status, 1 if a scene failed."""
+def show(summary: StageSummary) -> None:
+    """Print a stage's summary for a person: its warnings on stderr, then its text."""
+    for line in summary.warnings():
+        print(line, file=sys.stderr)
+    print(summary.text())
+
+
+def finish(summary: StageSummary, *, as_json: bool) -> int:
+    """End a command the one way every stage ends: its summary as JSON (``--json``), or its
+    warnings and text (:func:`show`); the exit status the summary gives."""
     if as_json:
-        print(json.dumps(summary, indent=1))
+        print(json.dumps(summary.to_json(), indent=1))
     else:
-        report.print_failures()
-        print(line)
-    return 1 if report.failed else 0
+        show(summary)
+    return summary.exit_status()

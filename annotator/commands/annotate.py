@@ -3,11 +3,9 @@
 from __future__ import annotations
 
 import argparse
-import sys
 
-from annotator.commands import add_ray_option, add_workers_option, finish_batch
+from annotator.commands import add_ray_option, add_workers_option, finish
 from annotator.dataset import load_dataset
-from annotator.dataset.frames import frames_line
 
 #: The argument naming the dataset this command writes into (its writer lock is held).
 WRITES = "dataset"
@@ -40,21 +38,4 @@ def run(args: argparse.Namespace) -> int:
         ray_address=args.ray,
         ray_wait=args.ray_wait,
     )
-    doc = summary.to_json()
-    if not args.json:
-        for sid, left in sorted(summary.frames_left_out.items()):
-            total = summary.report.done[sid].get("frames")
-            print(f"scene {sid}: {frames_line(left, total)}", file=sys.stderr)
-        for sid, notes in sorted(summary.notes.items()):
-            for note in notes:  # what to do next (`annotator sites`), what moved
-                print(f"scene {sid}: {note}", file=sys.stderr)
-    frames = f"{doc['frames_posed']} of {doc['frames']} frames posed; " if "frames" in doc else ""
-    return finish_batch(
-        summary.report,
-        doc,
-        f"annotate: {doc['done']} scenes done, {doc['skipped']} up to date (skipped), "
-        f"{doc['failed']} failed; {frames}{doc['instances_posed']} instances posed, "
-        f"{doc['instances_flagged']} flagged; {doc['scenes_warned']} scenes with warnings "
-        "(parts without a pose, blur, exposure: `annotator check --annotations`)",
-        as_json=args.json,
-    )
+    return finish(summary, as_json=args.json)

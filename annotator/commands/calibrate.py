@@ -7,11 +7,9 @@ a board in random poses seen by the synthetic rig, with the truth beside them.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
-from typing import TYPE_CHECKING
 
-from annotator.commands import confirm
+from annotator.commands import confirm, finish
 from annotator.commands.calibrate_options import (
     add_board_options,
     add_model_options,
@@ -19,10 +17,6 @@ from annotator.commands.calibrate_options import (
     add_rig_options,
     board_fields,
 )
-
-if TYPE_CHECKING:  # imported when the command runs, so that `annotator --help` stays fast
-    from annotator.calibration.records import Calibration
-    from annotator.calibration.workflow import CalibrationSummary
 
 DESCRIPTION = """\
 Calibrate the rig from synchronised shots of a ChArUco board or a plain chessboard: OpenCV's
@@ -94,73 +88,8 @@ def run(args: argparse.Namespace) -> int:
         tell=None if args.json else print,
         warn=lambda line: print(f"warning: {line}", file=sys.stderr),
     )
-    cal, report = summary.calibration, summary.report
-    if not summary.holds:
-        return _refuse(args, summary)
-    if summary.update is not None:
-        if not args.json:
-            _print_summary(cal)
-            diff = summary.update.diff
-            print(
-                diff if diff else f"{summary.update.path} already has this rig: nothing to write",
-                end="",
-            )
-            if diff and not diff.endswith("\n"):
-                print()
-        if not args.dry_run:  # asked first on a terminal, unless --yes
-            summary.write(confirm=None if args.yes or not sys.stdin.isatty() else confirm)
-    elif not args.json:
-        _print_summary(cal)
-    if args.json:
-        print(json.dumps(summary.to_json(), indent=1))
-    else:
-        print(
-            f"calibrate: RMS {cal.rms_px:.3f} px{_transfer(cal)}; report in {report}; "
-            + _what_became(summary)
-        )
-    return 1 if summary.declined else 0
-
-
-def _refuse(args: argparse.Namespace, summary: CalibrationSummary) -> int:
-    """A rig that does not hold together: the summary and the report, nothing written into
-    the dataset, the checks that failed on stderr, exit 1."""
-    cal, path = summary.calibration, summary.dataset_yaml
-    if args.json:
-        print(json.dumps(summary.to_json(), indent=1))
-    else:
-        _print_summary(cal)
-        print(
-            f"calibrate: RMS {cal.rms_px:.3f} px{_transfer(cal)}; report in {summary.report}; "
-            "the rig does "
-            "not hold together: " + (f"{path} not written" if path is not None else "no rig.yaml")
-        )
-    where = f"{path}: not written: " if path is not None else ""
-    for p in cal.problems:
-        print(f"error: {where}{p}", file=sys.stderr)
-    print(f"error: {summary.advice}", file=sys.stderr)
-    return 1
-
-
-def _print_summary(cal: Calibration) -> None:
-    from annotator.calibration.report import summary_lines
-
-    for line in summary_lines(cal):
-        print(line)
-
-
-def _transfer(cal: Calibration) -> str:
-    """``, held-out transfer error X px median`` for a rig of several cameras."""
-    held = cal.held_out
-    if held is None or len(cal.cameras) < 2 or held.median_px != held.median_px:
-        return ""
-    return f", held-out transfer error {held.median_px:.2f} px median"
-
-
-def _what_became(summary: CalibrationSummary) -> str:
-    """The end of the last line: where the rig went."""
-    update = summary.update
-    if update is None:
-        return f"rig section in {summary.report / 'rig.yaml'} (use --dataset DS to write it)"
-    if summary.written:
-        return f"wrote the rig into {update.path}"
-    return "dataset.yaml not written" if update.diff else "dataset.yaml unchanged"
+    if not args.json:
+        print(summary.preview())
+    if summary.holds and not args.dry_run:  # asked first on a terminal, unless --yes
+        summary.write(confirm=None if args.yes or not sys.stdin.isatty() else confirm)
+    return finish(summary, as_json=args.json)

@@ -46,7 +46,7 @@ def run(args: argparse.Namespace) -> int:
     if (args.physics or args.stability) and not report.errors:
         # Physics needs open3d, scipy.spatial and mujoco (about a second to import): only
         # when asked for, so that a plain check starts at once.
-        from annotator.physics.dataset import physics_json, physics_of_dataset, physics_problems
+        from annotator.physics.dataset import physics_of_dataset, physics_problems
 
         ds = load_dataset(args.dataset)
         physics = physics_of_dataset(ds, poses=args.poses, stability=args.stability)
@@ -55,7 +55,7 @@ def run(args: argparse.Namespace) -> int:
         print(
             json.dumps(
                 {
-                    **({"physics": physics_json(physics)} if physics is not None else {}),
+                    **({"physics": physics.to_json()} if physics is not None else {}),
                     "scenes": scenes,
                     "problems": [
                         {"path": str(p.path), "message": p.message}

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import argparse
 
-from annotator.commands import add_ray_option, add_workers_option, finish_batch, whole
+from annotator.commands import add_ray_option, add_workers_option, finish, whole
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -75,4 +75,4 @@ def run(args: argparse.Namespace) -> int:
         ray_wait=args.ray_wait,
         overwrite=args.overwrite,
     )
-    return finish_batch(summary.report, summary.to_json(), summary.line(), as_json=args.json)
+    return finish(summary, as_json=args.json)

@@ -8,10 +8,9 @@ this module only reads options, prints and writes.
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 
-from annotator.commands import number, whole
+from annotator.commands import number, show, whole
 from annotator.errors import UserError
 
 
@@ -92,36 +91,17 @@ def _add_twin_options(parser: argparse.ArgumentParser) -> None:
 
 
 def _add_report_options(parser: argparse.ArgumentParser) -> None:
-    """What else is computed and where the report goes."""
+    """The scores asked for (one option each, from the registry) and where the report goes."""
+    from annotator.evaluation.scores import SCORES
+
     group = parser.add_argument_group("report")
-    group.add_argument(
-        "--bop19",
-        action="store_true",
-        help="also BOP's average recall (VSD when the depth images are there, MSSD, MSPD), "
-        "as bop_toolkit's eval_bop19_pose.py computes it; BOP ground truth and a result CSV",
-    )
-    group.add_argument(
-        "--bop24",
-        action="store_true",
-        help="also BOP's 6D detection scores: bop24_mAP (MSSD and MSPD), bop25_mAP (MSSD), "
-        "bop25_mAP_mm (MSSD in mm), as bop_toolkit's eval_bop24_pose.py computes them "
-        "(images of test_targets_bop24.json, instances under 10%% visible ignored, the best "
-        "100 estimates per image); BOP ground truth and a result CSV",
-    )
-    group.add_argument(
-        "--coco-results",
-        metavar="RESULTS.json",
-        help="also BOP's 2D detection and segmentation scores (COCO's AP and AR, as "
-        "bop_toolkit's eval_bop22_coco.py) of a COCO results file, on a BOP dataset's "
-        "scene_gt_coco files: boxes if every result has one, masks likewise; alone (without "
-        "--results) only these",
-    )
-    group.add_argument(
-        "--physics",
-        action="store_true",
-        help="also the share of estimates physically impossible in the real pile (through a "
-        "true part or the support, or resting on nothing), per object; our datasets only",
-    )
+    for score in SCORES:
+        if score.option is None:
+            continue
+        if score.metavar is None:
+            group.add_argument(score.option, action="store_true", help=score.help)
+        else:
+            group.add_argument(score.option, metavar=score.metavar, help=score.help)
     group.add_argument("--json", metavar="OUT", help="write the full report as JSON")
     group.add_argument("--plot", metavar="OUT.png", help="draw the mean precision/recall curves")
     group.add_argument("--overwrite", action="store_true", help="replace --json, --plot files")
@@ -130,9 +110,9 @@ def _add_report_options(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from annotator.evaluation.dataset import evaluate_dataset
     from annotator.evaluation.evaluate import EvaluationSettings
-    from annotator.evaluation.text import summary_text, summary_warnings
+    from annotator.evaluation.scores import SCORES
 
-    _check_options(args)
+    _check_outputs(args)
     summary = evaluate_dataset(
         args.gt,
         results=args.results,
@@ -144,16 +124,12 @@ def run(args: argparse.Namespace) -> int:
             only_scenes_with_results=args.only_scenes_with_results,
         ),
         symmetry=args.symmetry,
-        bop19=args.bop19,
-        bop24=args.bop24,
-        coco_results=args.coco_results,
         twin=args.twin,
         twin_results=args.twin_results,
-        physics=args.physics,
+        asked={s.name: getattr(args, s.dest) for s in SCORES if s.option is not None},
+        per_object=args.per_object,
     )
-    for line in summary_warnings(summary):
-        print(line, file=sys.stderr)
-    print(summary_text(summary, per_object=args.per_object))
+    show(summary)
     if args.json:
         from annotator.io.atomic import write_json
 
@@ -163,11 +139,12 @@ def run(args: argparse.Namespace) -> int:
 
         plot_curves(summary.report, args.plot)
         print(f"precision/recall curves: {args.plot}")
-    return 0
+    return summary.exit_status()
 
 
-def _check_options(args: argparse.Namespace) -> None:
-    """Combinations that cannot work, refused before anything is read."""
+def _check_outputs(args: argparse.Namespace) -> None:
+    """The report's files, refused before anything is read (the scores' own rules are
+    :func:`annotator.evaluation.scores.check_request`'s, which the evaluation applies)."""
     from annotator.io.output_folder import check_output_files
 
     for out in (args.json, args.plot):
@@ -179,19 +156,3 @@ def _check_options(args: argparse.Namespace) -> None:
         datasets=[args.gt, args.twin],
         overwrite=args.overwrite,
     )
-    if (args.twin or args.twin_results) and not (args.twin and args.twin_results and args.results):
-        raise UserError("--twin needs --twin-results, and --results for GT")
-    for flag in ("bop19", "bop24"):
-        if getattr(args, flag) and not args.results:
-            raise UserError(
-                f"--{flag} scores a BOP dataset against a result CSV (--results); export ours "
-                "first with `annotator export DATASET OUT --format bop`"
-            )
-        if getattr(args, flag) and args.twin:
-            raise UserError(f"--{flag} and --twin cannot be combined")
-    from annotator.formats import detect_format
-
-    if args.physics and detect_format(Path(args.gt)).NAME != "ours":
-        raise UserError(
-            "--physics needs the parts' meshes and depth of one of our datasets", path=args.gt
-        )

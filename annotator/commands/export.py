@@ -3,14 +3,13 @@
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from collections.abc import Callable
 
 from tqdm import tqdm
 
+from annotator.commands import finish
 from annotator.dataset import load_dataset
-from annotator.dataset.frames import frames_line
 from annotator.errors import UserError
 from annotator.export.dataset import export_dataset
 from annotator.export.fill import METHODS as FILLS
@@ -113,22 +112,4 @@ def run(args: argparse.Namespace) -> int:
     finally:
         for bar in bars:
             bar.close()
-    if args.json:
-        print(json.dumps(summary.to_json(), indent=1))
-    else:
-        for sid, err in sorted(summary.failures.items()):
-            print(f"failed: scene {sid}: {err}", file=sys.stderr)
-        for sid, frames in sorted(summary.frames_left_out.items()):
-            print(f"scene {sid}: {frames_line(frames)}", file=sys.stderr)
-        why = "; ".join(f"{n} {r}" for r, n in sorted(summary.reasons().items()))
-        print(
-            f"export: {summary.exported} scenes written to {summary.out} ({args.format})"
-            + (
-                f", {summary.markers_filled} markers filled in"
-                f" ({summary.markers_found_beyond} beyond where the poses put them)"
-                if summary.markers_filled is not None
-                else ""
-            )
-            + (f"; left out: {why}" if why else "")
-        )
-    return 1 if summary.failures else 0
+    return finish(summary, as_json=args.json)

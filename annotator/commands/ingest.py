@@ -4,9 +4,8 @@ dataset (:func:`annotator.ingest.scene.ingest_recording`)."""
 from __future__ import annotations
 
 import argparse
-import json
 
-from annotator.commands import number, whole
+from annotator.commands import finish, number, whole
 from annotator.ingest.selection import BLUR_THRESHOLD
 from annotator.ingest.sources import PAIR_TOLERANCE_S
 
@@ -142,8 +141,4 @@ def run(args: argparse.Namespace) -> int:
         overwrite=args.overwrite,
     )
     summary = ingest_recording(args.dataset, args.source, args.scene, settings, quiet=args.quiet)
-    if args.json:
-        print(json.dumps(summary.to_json(), indent=1))
-    else:
-        print(summary.line())
-    return 0
+    return finish(summary, as_json=args.json)

@@ -13,10 +13,9 @@ their turns (OpenCV's format, usable wherever a dictionary is named).
 from __future__ import annotations
 
 import argparse
-import json
 from typing import TYPE_CHECKING
 
-from annotator.commands import number, whole
+from annotator.commands import finish, number, whole
 from annotator.errors import UserError
 from annotator.parts import PART_NAMES
 
@@ -113,5 +112,4 @@ def run(args: argparse.Namespace) -> int:
             seed=args.seed,
         )
         summary = mark_part(args.part, args.out, settings, overwrite=args.overwrite)
-    print(json.dumps(summary.to_json()) if args.json else summary.line())
-    return 0
+    return finish(summary, as_json=args.json)

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import argparse
 
-from annotator.commands import add_ray_option, add_workers_option, finish_batch, number
+from annotator.commands import add_ray_option, add_workers_option, finish, number
 from annotator.occlusion import DEPTH_TOLERANCE_MM
 from annotator.occlusion.dataset import compute_occlusion
 
@@ -47,4 +47,4 @@ def run(args: argparse.Namespace) -> int:
         ray_address=args.ray,
         ray_wait=args.ray_wait,
     )
-    return finish_batch(summary.report, summary.to_json(), summary.line(), as_json=args.json)
+    return finish(summary, as_json=args.json)

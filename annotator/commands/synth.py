@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from annotator.commands import add_ray_option, add_workers_option, finish_batch
+from annotator.commands import add_ray_option, add_workers_option, finish
 from annotator.commands.synth_calibration import add_calibration_options, synth_calibration
 from annotator.commands.synth_pbr import add_pbr_options
 from annotator.commands.synth_scenes import add_rendering_options, add_scene_options, scene_settings
@@ -91,16 +91,16 @@ def run(args: argparse.Namespace) -> int:
             overwrite=args.overwrite,
             **batch,
         )
-        return finish_batch(done.report, done.to_json(), done.line(), as_json=args.json)
+        return finish(done, as_json=args.json)
     settings = scene_settings(args)
     if settings.frames:
         from annotator.synthesis.sequence import synthesize_sequences
 
         made = synthesize_sequences(args.out, settings, overwrite=args.overwrite, **batch)
-        return finish_batch(made.report, made.to_json(), made.line(), as_json=args.json)
+        return finish(made, as_json=args.json)
     if args.calibration:
         return synth_calibration(args, settings)
     from annotator.synthesis.scenes import synthesize_scenes
 
     scenes = synthesize_scenes(args.out, settings, overwrite=args.overwrite, **batch)
-    return finish_batch(scenes.report, scenes.to_json(), scenes.line(), as_json=args.json)
+    return finish(scenes, as_json=args.json)

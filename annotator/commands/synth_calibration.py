@@ -5,9 +5,8 @@ scenes (:func:`annotator.synthesis.board.write_captures`); called by
 from __future__ import annotations
 
 import argparse
-import json
 
-from annotator.commands import number, number_pair
+from annotator.commands import finish, number, number_pair
 from annotator.errors import UserError
 from annotator.synthesis.board import CaptureSettings
 from annotator.synthesis.generate import SynthSettings
@@ -149,5 +148,4 @@ def synth_calibration(args: argparse.Namespace, config: SynthSettings) -> int:
         video=args.video,
         overwrite=args.overwrite,
     )
-    print(json.dumps(summary.to_json(), indent=1) if args.json else summary.line())
-    return 0
+    return finish(summary, as_json=args.json)

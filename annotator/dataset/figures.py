@@ -47,7 +47,11 @@ def _extra(doc: dict[str, Any], known: tuple[str, ...]) -> dict[str, Any]:
 class MarkerUse:
     """An instance's markers in one camera: ``used`` by the pose, ``rejected`` by the
     consensus, and those of ``used`` that were ``recovered`` (read only with the pose's help,
-    through the blur model). ``extra``: fields this version does not know, kept as read."""
+    through the blur model). ``extra``: fields this version does not know, kept as read.
+
+    >>> MarkerUse(used=[18, 9], rejected=[2]).to_json()
+    {'used': [18, 9], 'rejected': [2]}
+    """
 
     used: list[int] = field(default_factory=list)
     rejected: list[int] = field(default_factory=list)
@@ -73,7 +77,11 @@ class MarkerUse:
 @dataclass
 class Reprojection:
     """Reprojection error (px) of the markers used: RMS and worst corner (None where a file
-    does not say), and RMS per camera."""
+    does not say), and RMS per camera.
+
+    >>> Reprojection.from_json({"rms": 0.17, "max": 0.36, "per_camera": {"left": 0.19}}).per_camera
+    {'left': 0.19}
+    """
 
     rms: float | None
     max: float | None
@@ -97,7 +105,11 @@ class Reprojection:
 class DepthCheck:
     """How the measured depth agrees with the depth rendered at the pose, over the instance's
     visible pixels of the depth camera: the fraction that agree, the median absolute
-    difference (mm), and the number of pixels compared (None where a file does not say)."""
+    difference (mm), and the number of pixels compared (None where a file does not say).
+
+    >>> DepthCheck.from_json({"agreement": 0.97, "median_abs_mm": 0.24, "pixels": 48076})
+    DepthCheck(agreement=0.97, median_abs_mm=0.24, pixels=48076, extra={})
+    """
 
     agreement: float | None
     median_abs_mm: float | None
@@ -135,6 +147,9 @@ class PhysicsCheck:
         fall_mm: With the stability check, how far it moved when left to gravity.
         partners: Per physics flag the instance carries, what it names (a key or
             ``"support"``).
+
+    >>> PhysicsCheck(penetration_mm=1.5, penetrates="brick/01").to_json()["penetrates"]
+    'brick/01'
     """
 
     penetration_mm: float = 0.0
@@ -186,7 +201,11 @@ class PhysicsCheck:
 class Occlusion:
     """Occlusion rate (1 - visible / full silhouette pixels) in the reference camera, with the
     depth test where it is the depth camera (None where a file does not say), and per
-    camera."""
+    camera.
+
+    >>> Occlusion(rate=0.25).to_json()
+    {'rate': 0.25, 'per_camera': {}}
+    """
 
     rate: float | None
     per_camera: dict[str, float] = field(default_factory=dict)
@@ -214,6 +233,10 @@ class DepthRegion:
         unread_markers: Centres (x, y) of the candidate marker squares on it that could not
             be read.
         extra: Fields this version does not know, kept as read.
+
+    >>> r = DepthRegion((10, 20, 50, 60), pixels=900)
+    >>> DepthRegion.from_json(r.to_json()) == r
+    True
     """
 
     box: Rect
@@ -285,6 +308,11 @@ class SceneWarning:
         cameras: For the image-quality kinds: the cameras concerned.
         details: The kind's other fields, kept as read (and ``regions`` or ``cameras`` as
             read, where they were not all readable).
+
+    >>> from annotator.dataset.flags import WarningKind
+    >>> w = SceneWarning(WarningKind.NOTE, "a part moved between frames")
+    >>> w.text
+    'a part moved between frames'
     """
 
     kind: WarningKind | str

@@ -20,7 +20,11 @@ __all__ = [
 
 
 class Flag(StrEnum):
-    """Reasons a reviewer should look at an instance, in the order annotation.json lists them."""
+    """Reasons a reviewer should look at an instance, in the order annotation.json lists them.
+
+    >>> Flag("high_uncertainty") is Flag.HIGH_UNCERTAINTY
+    True
+    """
 
     #: A lone marker / single view whose two pose solutions fit about equally well.
     AMBIGUOUS = "ambiguous"
@@ -80,7 +84,11 @@ class FrameFlag(StrEnum):
 
 
 class WarningKind(StrEnum):
-    """What a scene-level warning is about."""
+    """What a scene-level warning is about.
+
+    >>> WarningKind.NOTE.value
+    'note'
+    """
 
     NO_MARKERS = "no_markers"
     UNEXPLAINED_DEPTH = "unexplained_depth"

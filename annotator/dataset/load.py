@@ -38,7 +38,12 @@ from annotator.symmetry.classes import symmetry_from_yaml
 
 @dataclass(frozen=True)
 class Problem:
-    """One problem in a dataset: the file it is in and what is wrong."""
+    """One problem in a dataset: the file it is in and what is wrong.
+
+    >>> from pathlib import Path
+    >>> print(Problem(Path("ds/dataset.yaml"), "no rig section"))
+    ds/dataset.yaml: no rig section
+    """
 
     path: Path
     message: str

@@ -57,6 +57,11 @@ class Rig:
     ``flipped``: names of the cameras whose stored images are mirrored (``flip: horizontal``
     in dataset.yaml); their calibration describes the images flipped back, which is what
     :meth:`Scene.read_image` returns.
+
+    >>> from annotator import load_dataset
+    >>> rig = load_dataset("sample_scenes").rig
+    >>> [c.name for c in rig.cameras], rig.depth_camera.name
+    (['left', 'right'], 'left')
     """
 
     cameras: tuple[Camera, ...]
@@ -102,7 +107,13 @@ class MarkerRef:
 
 @dataclass(eq=False)
 class ObjectModel:
-    """One object (part) of the dataset, read from ``objects/<name>/object.yaml``."""
+    """One object (part) of the dataset, read from ``objects/<name>/object.yaml``.
+
+    >>> from annotator import load_dataset
+    >>> part = load_dataset("sample_scenes").objects["bracket"]
+    >>> part.name, part.mesh_path.name, len(part.instances)
+    ('bracket', 'model.ply', 12)
+    """
 
     name: str
     folder: Path
@@ -209,6 +220,11 @@ class Scene(Capture):
     ``flipped``: the rig's mirrored cameras (:attr:`Rig.flipped`), whose images
     :meth:`read_image` flips, so that every reader of images gets them as calibrated.
     A moving rig's scene holds its images in :meth:`frames` instead.
+
+    >>> from annotator import load_dataset
+    >>> scene = load_dataset("sample_scenes").scene("000000")
+    >>> scene.id, scene.annotation_path.name
+    ('000000', 'annotation.json')
     """
 
     id: str
@@ -251,7 +267,13 @@ class Scene(Capture):
 
 @dataclass(eq=False)
 class Dataset:
-    """A dataset folder (FORMAT.md)."""
+    """A dataset folder (FORMAT.md).
+
+    >>> from annotator import load_dataset
+    >>> ds = load_dataset("sample_scenes")
+    >>> [s.id for s in ds.scenes()], sorted(ds.objects)
+    (['000000', '000001', '000002', '000003'], ['bracket', 'brick', 'cylinder'])
+    """
 
     root: Path
     name: str

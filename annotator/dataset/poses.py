@@ -21,7 +21,13 @@ from annotator.io.documents import finite_number, read_json
 
 @dataclass
 class InstancePose:
-    """The pose of one instance in the reference camera: ``x_cam = R @ x_model + t`` (mm)."""
+    """The pose of one instance in the reference camera: ``x_cam = R @ x_model + t`` (mm).
+
+    >>> from annotator.dataset import read_poses
+    >>> p = read_poses("sample_scenes/scenes/000000/gt.json")[0]
+    >>> p.key, p.T.shape
+    ('brick/01', (4, 4))
+    """
 
     object: str
     instance: str

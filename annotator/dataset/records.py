@@ -67,6 +67,11 @@ class InstanceAnnotation:
         frames_seen: A sequence's: how many frames read its markers (None: a fixed rig's).
         depth_agreement_median: A sequence's: the median over frames of its depth agreement.
         extra: Fields this version does not know, kept as read.
+
+    >>> ann = SceneAnnotation.read("sample_scenes/scenes/000003/annotation.json")
+    >>> i = ann.instances[0]
+    >>> i.key, sorted(i.marker_ids())[:2], i.reprojection.rms < 1.0
+    ('bracket/01', [2, 9], True)
     """
 
     object: str
@@ -330,6 +335,10 @@ class SceneAnnotation:
         depth_scale: A sequence's depth scale where it is not 1 (``annotator sites``
             measures it).
         extra: Top-level fields this version does not know.
+
+    >>> ann = SceneAnnotation.read("sample_scenes/scenes/000003/annotation.json")
+    >>> len(ann.instances), ann.instances[0].key
+    (10, 'bracket/01')
     """
 
     instances: list[InstanceAnnotation] = field(default_factory=list)

@@ -64,6 +64,9 @@ class ReviewStatus(StrEnum):
 
     It is a ``str``, so ``status == "accepted"`` and JSON encoding work as with plain strings.
     Instances are only ever ``accepted`` or ``rejected`` (no entry means no decision).
+
+    >>> [s.value for s in ReviewStatus]
+    ['pending', 'accepted', 'rejected']
     """
 
     PENDING = "pending"

@@ -16,6 +16,7 @@ from annotator.estimation.results import ResultRow, coco_path, coco_results, wri
 from annotator.io.atomic import write_json
 from annotator.io.output_folder import check_output_files
 from annotator.runner import BatchReport, run_batch
+from annotator.summary import failure_lines
 
 
 @dataclass
@@ -29,6 +30,15 @@ class EstimateSummary:
         scenes: Scenes matching the pattern.
         report: Per-scene outcomes (done: their rows and time; failed: one line each).
         rows: Every result written, scene by scene.
+
+    >>> from pathlib import Path
+    >>> from annotator.runner import BatchReport
+    >>> report = BatchReport({"000000": {"seconds": [2.0]}})
+    >>> s = EstimateSummary("PPF", Path("ppf.csv"), Path("ppf.json"), 1, report, rows=[])
+    >>> s.counts()
+    {'scenes': 1, 'done': 1, 'failed': 0, 'results': 0}
+    >>> [str(p) for p in s.written_paths()]
+    ['ppf.csv', 'ppf.json']
     """
 
     method: str
@@ -44,21 +54,34 @@ class EstimateSummary:
         seconds = [self.report.done[sid]["seconds"][0] for sid in self.report.done]
         return round(sum(seconds) / max(len(seconds), 1), 3)
 
+    def counts(self) -> dict[str, int]:
+        return {
+            "scenes": self.scenes,
+            "done": len(self.report.done),
+            "failed": len(self.report.failed),
+            "results": len(self.rows),
+        }
+
+    def warnings(self) -> list[str]:
+        return failure_lines(self.report.failed)
+
+    def written_paths(self) -> list[Path]:
+        return [self.out, self.coco]
+
     def to_json(self) -> dict[str, Any]:
         return {
             "method": self.method,
             "out": str(self.out),
             "coco": str(self.coco),
-            "scenes": self.scenes,
-            "done": len(self.report.done),
-            "failed": len(self.report.failed),
-            "results": len(self.rows),
+            **self.counts(),
             "seconds_per_scene": self.seconds_per_scene,
             "failures": dict(sorted(self.report.failed.items())),
         }
 
-    def line(self) -> str:
-        """The one line the command prints."""
+    def exit_status(self) -> int:
+        return 1 if self.report.failed else 0
+
+    def text(self) -> str:
         return (
             f"estimate ({self.method}): {len(self.rows)} results for {len(self.report.done)} "
             f"scenes written to {self.out} (COCO boxes and masks: {self.coco}), "

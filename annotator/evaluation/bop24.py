@@ -69,6 +69,11 @@ class Bop24Scores:
             threshold of MSSD); ``dropped``: beyond the per-image limit.
         time_per_image: Mean of the result file's times per image (s); -1 when the file
             has none, as bop_toolkit.
+
+    >>> from annotator.evaluation.bop24 import bop24_scores
+    >>> s = bop24_scores([], {}, {})
+    >>> s.targets, s.estimates, s.bop24_map
+    (0, 0, None)
     """
 
     maps: dict[str, float | None]

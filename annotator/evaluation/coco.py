@@ -55,7 +55,12 @@ RES_TYPES = (
 
 @dataclass
 class CocoScores:
-    """COCO's scores of a result file, with what was counted."""
+    """COCO's scores of a result file, with what was counted.
+
+    >>> s = CocoScores("bbox", {"AP": 0.5, "AP50": 0.8}, 0.1, images=4, annotations=36, results=37)
+    >>> s.to_json()["AP50"]
+    0.8
+    """
 
     ann_type: str
     stats: dict[str, float]

@@ -1,25 +1,26 @@
 """Evaluation of a dataset's files as ``annotator evaluate`` does it: the ground truth read in
 its format (ours, BOP, Siléane), the results read (or, on ours, the auto-annotation taken as
-results), the paper's AP, and beside it what was asked for: BOP's scores of 2019
-(:mod:`.bop19`), of 2024-25 (:mod:`.bop24`) and of 2D detection (:mod:`.coco`), a
-synthetic twin scored alike, and the physics of the estimates (:mod:`annotator.physics`).
+results), then every score asked for or called for by the inputs, each as
+:mod:`.scores` registers it: the paper's AP (a synthetic twin's beside it), BOP's scores of
+2019 (:mod:`.bop19`), of 2024-25 (:mod:`.bop24`) and of 2D detection (:mod:`.coco`), the
+auto-annotation's own errors and the physics of the estimates (:mod:`annotator.physics`).
 
-:func:`evaluate_dataset` returns them in one :class:`EvaluationSummary`; :mod:`.text` writes
-it as the command prints it. Heavy libraries are imported only where a part needs them, so
-that a run on the paper's files takes a fraction of a second.
+:func:`evaluate_dataset` returns them in one :class:`EvaluationSummary`, whose
+:meth:`~EvaluationSummary.text` is what the command prints. Heavy libraries are imported only
+where a score needs them, so that a run on the paper's files takes a fraction of a second.
 """
 
 from __future__ import annotations
 
-import sys
-from collections.abc import Callable
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import ModuleType
 from typing import TYPE_CHECKING, Any
 
 from annotator.errors import UserError
-from annotator.evaluation.evaluate import EvaluationReport, EvaluationSettings, evaluate
+from annotator.evaluation.evaluate import EvaluationReport, EvaluationSettings
+from annotator.evaluation.scores import SCORES, Inputs, check_request
 from annotator.formats import detect_format
 from annotator.formats.base import GroundTruth, PoseResults
 
@@ -34,51 +35,124 @@ __all__ = ["EvaluationSummary", "evaluate_dataset"]
 
 @dataclass
 class EvaluationSummary:
-    """What :func:`evaluate_dataset` found.
+    """What :func:`evaluate_dataset` found, a :class:`~annotator.summary.StageSummary`.
 
     Attributes:
-        gt_path, format_name: The ground truth (as given) and its format (``ours``, ``bop``,
-            ``sileane``).
-        source: Where the results come from, in words.
-        settings: The paper's AP's settings.
-        gt, results: As read (None when only 2D detections were scored).
-        report: The paper's AP (None when only 2D detections were scored).
-        twin: The synthetic twin's report, scored alike.
-        bop19, bop24, coco: BOP's scores, where asked for.
-        physics: The estimates' physics, where asked for.
-        annotation_errors: On our datasets without results: each posed instance's error
-            against gt.json (:func:`~annotator.evaluation.evaluate.per_instance_errors`).
+        inputs: What was scored against what, and how it is printed
+            (:class:`~annotator.evaluation.scores.Inputs`: the ground truth and the results
+            as read, None when only 2D detections were scored).
+        scores: Each score computed, by its name in :data:`~annotator.evaluation.scores.SCORES`
+            (``paper``, ``bop19``, ``bop24``, ``coco``, ``annotation_errors``, ``physics``);
+            the properties below read them.
+
+    >>> s = evaluate_dataset("sample_scenes")
+    >>> sorted(s.scores), s.counts()
+    (['annotation_errors', 'paper'], {'tp': 35, 'fp': 1, 'fn': 0})
     """
 
-    gt_path: str
-    format_name: str
-    source: str
-    settings: EvaluationSettings
-    gt: GroundTruth | None = None
-    results: PoseResults | None = None
-    report: EvaluationReport | None = None
-    twin: EvaluationReport | None = None
-    bop19: Bop19Scores | None = None
-    bop24: Bop24Scores | None = None
-    coco: list[CocoScores] = field(default_factory=list)
-    physics: ResultsPhysics | None = None
-    annotation_errors: list[dict[str, Any]] = field(default_factory=list)
+    inputs: Inputs
+    scores: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def gt_path(self) -> str:
+        """The ground truth, as given."""
+        return self.inputs.given
+
+    @property
+    def format_name(self) -> str:
+        """The ground truth's format: ``ours``, ``bop``, ``sileane``."""
+        return self.inputs.format_name
+
+    @property
+    def source(self) -> str:
+        """Where the results come from, in words."""
+        return self.inputs.source
+
+    @property
+    def settings(self) -> EvaluationSettings:
+        """The paper's AP's settings."""
+        return self.inputs.settings
+
+    @property
+    def gt(self) -> GroundTruth | None:
+        return self.inputs.gt
+
+    @property
+    def results(self) -> PoseResults | None:
+        return self.inputs.found
+
+    @property
+    def report(self) -> EvaluationReport | None:
+        """The paper's AP (None when only 2D detections were scored)."""
+        paper = self.scores.get("paper")
+        return None if paper is None else paper.report
+
+    @property
+    def twin(self) -> EvaluationReport | None:
+        """The synthetic twin's report, scored alike."""
+        paper = self.scores.get("paper")
+        return None if paper is None else paper.twin
+
+    @property
+    def bop19(self) -> Bop19Scores | None:
+        return self.scores.get("bop19")
+
+    @property
+    def bop24(self) -> Bop24Scores | None:
+        return self.scores.get("bop24")
+
+    @property
+    def coco(self) -> list[CocoScores]:
+        return self.scores.get("coco", [])
+
+    @property
+    def physics(self) -> ResultsPhysics | None:
+        return self.scores.get("physics")
+
+    @property
+    def annotation_errors(self) -> list[dict[str, Any]]:
+        """On our datasets without results: each posed instance's error against gt.json
+        (:func:`~annotator.evaluation.evaluate.per_instance_errors`)."""
+        return self.scores.get("annotation_errors", [])
+
+    def counts(self) -> dict[str, int]:
+        out: dict[str, int] = {}
+        if self.report is not None:
+            overall = self.report.overall
+            out.update(tp=overall.tp, fp=overall.fp, fn=overall.fn)
+        return out
+
+    def warnings(self) -> list[str]:
+        """What the user must know before the figures."""
+        unknown = self.results.unknown_scenes if self.results is not None else []
+        if not unknown:
+            return []
+        more = ", ..." if len(unknown) > 5 else ""
+        return [
+            f"warning: {len(unknown)} result scenes have no ground truth and are not scored: "
+            f"{', '.join(unknown[:5])}{more}"
+        ]
+
+    def written_paths(self) -> list[Path]:
+        return []  # the command writes --json and --plot where it is told
+
+    def text(self) -> str:
+        """The report: each score's lines, in the order of the registry."""
+        lines = []
+        for score in SCORES:
+            if score.name in self.scores:
+                lines += score.lines(self.scores[score.name], self.inputs)
+        return "\n".join(lines)
+
+    def exit_status(self) -> int:
+        return 0
 
     def to_json(self) -> dict[str, Any]:
         """The report as ``--json`` writes it (BOP's key names for BOP's scores)."""
         doc: dict[str, Any] = {}
-        if self.report is not None:
-            doc = self.report.to_json()
-            if self.twin is not None:
-                doc = {"real": doc, "twin": self.twin.to_json()}
-        if self.bop19 is not None:
-            doc["bop19"] = self.bop19.to_json()
-        if self.bop24 is not None:
-            doc["bop24"] = self.bop24.to_json()
-        for c in self.coco:
-            doc[f"bop22_coco_{c.ann_type}"] = c.to_json()
-        if self.physics is not None:
-            doc["physics"] = self.physics.to_json()
+        for score in SCORES:
+            if score.name in self.scores:
+                doc.update(score.to_json(self.scores[score.name]))
         return doc
 
 
@@ -94,6 +168,8 @@ def evaluate_dataset(
     twin: str | Path | None = None,
     twin_results: str | Path | None = None,
     physics: bool = False,
+    asked: Mapping[str, Any] | None = None,
+    per_object: bool = False,
 ) -> EvaluationSummary:
     """Score ``results`` (a BOP CSV, a folder of per-scene JSON lists; None on our datasets:
     the auto-annotation against gt.json) against the ground truth at ``gt_path``.
@@ -106,9 +182,14 @@ def evaluate_dataset(
             ``results`` is None).
         twin, twin_results: A synthetic twin and the results on it, scored alike.
         physics: Also the estimates' physics in the real pile (our datasets).
+        asked: The scores asked for by name (:data:`~annotator.evaluation.scores.SCORES`):
+            True, or the file a score reads; ``bop19``, ``bop24``, ``coco_results`` and
+            ``physics`` add to it.
+        per_object: A row per object in the printed table even for one object.
 
     Raises:
-        UserError: A combination that cannot work, or a file that cannot be read.
+        UserError: A combination that cannot work (:func:`~.scores.check_request`, before
+            anything is read), or a file that cannot be read.
 
     >>> s = evaluate_dataset("sample_scenes")
     >>> s.format_name, s.source
@@ -116,56 +197,36 @@ def evaluate_dataset(
     >>> round(s.report.overall.ap, 3), s.report.overall.tp
     (1.0, 35)
     """
-    settings = settings if settings is not None else EvaluationSettings()
-    given, gt_path = str(gt_path), Path(gt_path)
-    fmt = detect_format(gt_path)
-    if coco_results is not None and results is None:
-        return EvaluationSummary(
-            given, fmt.NAME, str(coco_results), settings, coco=_coco(gt_path, coco_results)
-        )
-    for flag, on in (("bop19", bop19), ("bop24", bop24)):
-        if on:
-            _check_bop_scored(flag, fmt.NAME, gt_path, results)
-    gt = fmt.read_ground_truth(gt_path, symmetry=symmetry)
-    found, source = _scored(fmt, gt_path, gt, results)
-    report = evaluate(gt, found, settings)
-    out = EvaluationSummary(given, fmt.NAME, source, settings, gt, found, report)
-    if bop19 and results is not None:
-        out.bop19 = _bop19(gt_path, Path(results), gt)
-    if bop24 and results is not None:
-        out.bop24 = _bop24(gt_path, Path(results), gt)
-    if coco_results is not None:
-        out.coco = _coco(gt_path, coco_results)
-    if twin is not None and twin_results is not None:
-        twin_fmt = detect_format(Path(twin))
-        twin_gt = twin_fmt.read_ground_truth(Path(twin), symmetry=symmetry)
-        out.twin = evaluate(twin_gt, twin_fmt.read_results(Path(twin_results), twin_gt), settings)
-    if results is None and fmt.NAME == "ours":
-        from annotator.evaluation.evaluate import per_instance_errors
-
-        out.annotation_errors = per_instance_errors(gt_path)
+    wanted = dict(asked or {})
+    for name, value in (("bop19", bop19), ("bop24", bop24), ("coco", coco_results)):
+        if value:
+            wanted[name] = value
     if physics:
-        from annotator.dataset import load_dataset
-        from annotator.physics.results import results_physics
-
-        n = max(settings.max_results)
-        out.physics = results_physics(load_dataset(gt_path), gt, found, per_object=n)
+        wanted["physics"] = True
+    check_request(gt_path, results=results, twin=twin, twin_results=twin_results, asked=wanted)
+    fmt = detect_format(Path(gt_path))
+    inputs = Inputs(
+        Path(gt_path),
+        fmt.NAME,
+        settings if settings is not None else EvaluationSettings(),
+        given=str(gt_path),
+        results=None if results is None else Path(results),
+        twin=None if twin is None else Path(twin),
+        twin_results=None if twin_results is None else Path(twin_results),
+        symmetry=symmetry,
+        per_object=per_object,
+    )
+    if wanted.get("coco") and results is None:
+        inputs.source = str(wanted["coco"])  # only 2D detections: no poses read
+    else:
+        inputs.gt = fmt.read_ground_truth(inputs.gt_path, symmetry=symmetry)
+        inputs.found, inputs.source = _scored(fmt, inputs.gt_path, inputs.gt, results)
+    # One dict: a score printed beside an earlier one reads it from the inputs.
+    out = EvaluationSummary(inputs, inputs.computed)
+    for score in SCORES:
+        if score.wanted(inputs, wanted):
+            out.scores[score.name] = score.compute(inputs, wanted.get(score.name))
     return out
-
-
-def _check_bop_scored(flag: str, fmt: str, gt_path: Path, results: str | Path | None) -> None:
-    """Raise UserError unless ``--flag`` (a BOP score) has a BOP dataset and a result CSV."""
-    if results is None:
-        raise UserError(
-            f"--{flag} scores a BOP dataset against a result CSV (--results); export ours "
-            "first with `annotator export DATASET OUT --format bop`"
-        )
-    if fmt != "bop":
-        raise UserError(
-            f"--{flag} scores a BOP dataset; export ours first with "
-            "`annotator export DATASET OUT --format bop`",
-            path=gt_path,
-        )
 
 
 def _scored(
@@ -187,86 +248,3 @@ def _scored(
     if not found.poses:
         raise UserError("no annotation.json to score and no --results given", path=gt_path)
     return found, "annotation.json (auto-annotation vs gt.json)"
-
-
-def _bop19(gt_path: Path, results: Path, gt: GroundTruth) -> Bop19Scores:
-    from tqdm import tqdm
-
-    from annotator.evaluation.bop19 import bop19_scores
-    from annotator.formats.bop_images import read_bop_split
-    from annotator.rendering.raycast import render_depth
-
-    split = read_bop_split(gt_path, results, gt)
-    with tqdm(
-        total=len(split.images),
-        desc="BOP scores",
-        unit="image",
-        disable=not sys.stderr.isatty(),
-        file=sys.stderr,
-    ) as bar:
-        progress: Callable[[], Any] = bar.update
-        scores = bop19_scores(
-            split.images,
-            split.estimates,
-            split.objects,
-            render=render_depth,
-            delta=split.delta,
-            progress=progress,
-        )
-    scores.notes[:0] = split.notes
-    return scores
-
-
-def _bop24(gt_path: Path, results: Path, gt: GroundTruth) -> Bop24Scores:
-    from annotator.evaluation.bop24 import bop24_scores, max_estimates_for
-    from annotator.formats.bop_images import read_bop_split
-
-    split = read_bop_split(gt_path, results, gt, task="detection")
-    limit = max_estimates_for(results.name)
-    scores = bop24_scores(
-        split.images, split.estimates, split.objects, max_per_image=limit, times=split.times
-    )
-    scores.notes[:0] = split.notes
-    if scores.dropped:
-        scores.notes.append(
-            f"{scores.dropped} estimates beyond the best {limit} of their image not scored"
-        )
-    if scores.ignored:
-        scores.notes.append(
-            f"{scores.ignored} estimates of instances under 10% visible ignored (at MSSD 0.05)"
-        )
-    return scores
-
-
-def _coco(gt_path: Path, results: str | Path) -> list[CocoScores]:
-    """COCO's scores of a results file, for boxes and masks as the results have them."""
-    from annotator.evaluation.coco import coco_scores
-    from annotator.formats.coco_results import (
-        check_against_images,
-        coco_result_kinds,
-        read_coco_ground_truth,
-        read_coco_results,
-    )
-
-    if detect_format(gt_path).NAME != "bop":
-        raise UserError(
-            "--coco-results scores 2D detections on a BOP dataset's scene_gt_coco files; "
-            "export ours first with `annotator export DATASET OUT --format bop`",
-            path=gt_path,
-        )
-    path = Path(results)
-    types = coco_result_kinds(path)
-    if not types:
-        read_coco_results(path, "bbox")  # names what is wrong with the file
-        raise UserError("no result has a 'bbox' or a 'segmentation' to score", path=path)
-    gt = read_coco_ground_truth(gt_path)
-    out: list[CocoScores] = []
-    for t in types:
-        rows = read_coco_results(path, t)
-        notes = check_against_images(rows, gt, path, t)
-        scores = coco_scores(gt, rows, t)
-        # What is said of the results' scenes and images holds for both kinds: said once.
-        said = {n for c in out for n in c.notes}
-        scores.notes[:0] = [n for n in notes if n not in said]
-        out.append(scores)
-    return out

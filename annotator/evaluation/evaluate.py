@@ -33,6 +33,13 @@ class EvaluationSettings:
             neither, the dataset's own threshold where it has one (the paper's files carry
             one), else :data:`MATCH_THRESHOLD_FRACTION` of the diameter.
         only_scenes_with_results: Score only the scenes the results mention.
+
+    >>> EvaluationSettings(threshold_mm=5.0).max_results
+    (1, 3)
+    >>> EvaluationSettings(threshold_mm=5.0, threshold_fraction=0.1)
+    Traceback (most recent call last):
+    ...
+    annotator.errors.UserError: threshold_mm and threshold_fraction cannot be given together
     """
 
     max_occlusion: float = 0.5
@@ -72,6 +79,12 @@ class EvaluationReport:
         thresholds: The match threshold used per object (mm).
         options: The options it was made with.
         unscored_scenes: Ground-truth scenes left out (``only_scenes_with_results``).
+
+    >>> from annotator import read_ground_truth, annotations_as_results, evaluate
+    >>> gt = read_ground_truth("sample_scenes")
+    >>> report = evaluate(gt, annotations_as_results("sample_scenes", gt), EvaluationSettings())
+    >>> round(report.overall.ap, 3), sorted(report.per_object)
+    (1.0, ['bracket', 'brick', 'cylinder'])
     """
 
     per_object: dict[str, Summary]

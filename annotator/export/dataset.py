@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from annotator.dataset import Dataset, as_dataset
+from annotator.dataset.frames import frames_line
 from annotator.errors import UserError
 from annotator.export.fill import METHODS as FILLS
 from annotator.export.options import (
@@ -28,6 +29,7 @@ from annotator.export.options import (
 from annotator.export.selection import Selection, select_scenes
 from annotator.io.atomic import atomic_folder
 from annotator.io.output_folder import check_output_folder, write_manifest
+from annotator.summary import failure_lines
 from annotator.values import of_type
 
 
@@ -47,6 +49,13 @@ class ExportSummary:
             site), masked and filled whole; None without.
         frames_left_out: An exported sequence's frames not exported -> why (not posed, with
             annotate's flags; rejected by a reviewer).
+
+    >>> from pathlib import Path
+    >>> s = ExportSummary("bop", Path("out"), exported=3, left_out={"000004": "pending"})
+    >>> s.text()
+    'export: 3 scenes written to out (bop); left out: 1 pending'
+    >>> s.counts(), s.exit_status()
+    ({'exported': 3, 'pending': 1}, 0)
     """
 
     format: str
@@ -66,6 +75,34 @@ class ExportSummary:
         if self.failures:
             out["unreadable"] = len(self.failures)
         return out
+
+    def counts(self) -> dict[str, int]:
+        return {"exported": self.exported, **self.reasons()}
+
+    def warnings(self) -> list[str]:
+        """The scenes that could not be read, then each sequence's frames left out."""
+        return failure_lines(self.failures) + [
+            f"scene {sid}: {frames_line(frames)}"
+            for sid, frames in sorted(self.frames_left_out.items())
+        ]
+
+    def written_paths(self) -> list[Path]:
+        return [self.out]
+
+    def exit_status(self) -> int:
+        return 1 if self.failures else 0
+
+    def text(self) -> str:
+        why = "; ".join(f"{n} {r}" for r, n in sorted(self.reasons().items()))
+        filled = (
+            f", {self.markers_filled} markers filled in"
+            f" ({self.markers_found_beyond} beyond where the poses put them)"
+            if self.markers_filled is not None
+            else ""
+        )
+        return f"export: {self.exported} scenes written to {self.out} ({self.format}){filled}" + (
+            f"; left out: {why}" if why else ""
+        )
 
     def to_json(self) -> dict[str, Any]:
         return {

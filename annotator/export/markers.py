@@ -102,6 +102,13 @@ class MarkerRegion:
             instance's surface, other instances ignored.
         px_visib: Of those, the pixels no other part hides: where the image shows it.
         bbox_visib: ``(x, y, w, h)`` of :attr:`pixels`, or None.
+
+    >>> import numpy as np
+    >>> corners = np.array([[10.0, 10.0], [30.0, 10.0], [30.0, 30.0], [10.0, 30.0]])
+    >>> r = MarkerRegion(instance=0, marker_id=18, site=2, corners=corners, facing=True,
+    ...                  px_surface=400, px_visib=250)
+    >>> r.px_visib / r.px_surface
+    0.625
     """
 
     instance: int

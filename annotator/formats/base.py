@@ -73,6 +73,11 @@ class GroundTruth:
         object_ids: Numeric object ids (BOP CSV) to names.
         thresholds: Match thresholds (mm) that the dataset itself prescribes, per object
             (the paper's files carry one).
+
+    >>> from annotator import read_ground_truth
+    >>> gt = read_ground_truth("sample_scenes")
+    >>> gt.format, len(gt.scenes), sorted(gt.spaces)
+    ('ours', 4, ['bracket', 'brick', 'cylinder'])
     """
 
     spaces: dict[str, PoseSpace]
@@ -96,7 +101,13 @@ class GroundTruth:
 class PoseResults:
     """Results to score: poses per (scene, object) with scores as values; ``unknown_scenes``
     are scene keys found in the results but not in the ground truth (they are not scored);
-    ``scenes`` the known scenes the results mention (a file with an empty list included)."""
+    ``scenes`` the known scenes the results mention (a file with an empty list included).
+
+    >>> from annotator import read_ground_truth, annotations_as_results
+    >>> found = annotations_as_results("sample_scenes", read_ground_truth("sample_scenes"))
+    >>> len(found.scenes), found.unknown_scenes
+    (4, [])
+    """
 
     poses: Table
     unknown_scenes: list[str] = field(default_factory=list)

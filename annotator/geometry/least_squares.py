@@ -1,6 +1,7 @@
 """Damped least squares (Levenberg-Marquardt): the one iteration every solver of the project
 runs, the multi-camera PnP (:mod:`annotator.pnp.multiview`), the sequences' bundle adjustment
-(:mod:`annotator.pnp.bundle`) and the rig calibration (:mod:`annotator.calibration.bundle`).
+(:mod:`annotator.pnp.bundle`), the rig calibration (:mod:`annotator.calibration.bundle`) and
+the depth refinement (:mod:`annotator.refinement.depth`).
 
 A solver brings what is its own: how to linearise its problem at a state (the normal
 equations, dense or sparse, robust weights or not) and how to try a step from it with a given
@@ -10,7 +11,10 @@ cost is taken and the damping divided (:class:`Damping`), one that does not is r
 the damping multiplied; the iteration stops when a step taken is small enough (the solver's
 ``small``), when the damping passes its ceiling (no step lowers the cost: a minimum, as well
 as the problem can be solved), when the solver cannot solve its system, or after
-``max_iterations``.
+``max_iterations``. A solver whose problem changes from one iteration to the next (the depth
+refinement, :mod:`annotator.refinement.depth`, narrows the gate its matches are sought
+within) gives ``cost_at``: a state's cost under the next iteration's problem, against which
+the next steps are judged.
 """
 
 from __future__ import annotations
@@ -70,6 +74,7 @@ def levenberg_marquardt(
     small: Callable[[float, float, D], bool],
     max_iterations: int,
     refused_count: bool = True,
+    cost_at: Callable[[S], float] | None = None,
 ) -> Minimum[S]:
     """Minimise from ``state`` (whose cost is ``cost``).
 
@@ -80,6 +85,8 @@ def levenberg_marquardt(
         small: ``(cost, new cost, step)`` -> whether a step taken is small enough to stop.
         refused_count: Whether a refused step counts as an iteration (else an iteration is
             one linearisation, with as many trials as it takes to lower the cost).
+        cost_at: A state taken -> its cost under the next iteration's problem, for a problem
+            that changes between iterations (None: the cost its trial gave stands).
 
     >>> # f(x) = (x - 3)^2 from x = 0: one Gauss-Newton step, then a step of nothing.
     >>> def trial(x, lin, lam):
@@ -108,7 +115,10 @@ def levenberg_marquardt(
                 lam = max(lam / damping.factor, damping.floor)
                 if done:
                     return Minimum(state, cost, iterations, Stop.SMALL_STEP)
-                lin = linearise(state)
+                if cost_at is not None:
+                    cost = cost_at(state)
+                if iterations < max_iterations:  # else it would go unused
+                    lin = linearise(state)
                 break
             lam *= damping.factor
             if lam > damping.ceiling:

@@ -79,6 +79,13 @@ class IngestSummary:
         rig_written: Whether dataset.yaml was written from the source (``--rig-from-source``).
         every: The stride.
         blur_threshold: The sharpness threshold (times the running median).
+
+    >>> s = IngestSummary("scenes/000000", "shots", "image folder", "left", source_frames=10,
+    ...                   candidates=10, written=8, blurred=[3, 7])
+    >>> s.counts()
+    {'source_frames': 10, 'candidates': 10, 'written': 8, 'blurred': 2, 'dropped': 0}
+    >>> s.exit_status()
+    0
     """
 
     scene: str
@@ -101,12 +108,29 @@ class IngestSummary:
     every: int = 1
     blur_threshold: float = BLUR_THRESHOLD
 
+    def counts(self) -> dict[str, int]:
+        return {
+            "source_frames": self.source_frames,
+            "candidates": self.candidates,
+            "written": self.written,
+            "blurred": len(self.blurred),
+            "dropped": len(self.dropped),
+        }
+
+    def warnings(self) -> list[str]:
+        return []  # what was dropped and why is in the text: it is what ingest reports
+
+    def written_paths(self) -> list[Path]:
+        return [Path(self.scene)]
+
+    def exit_status(self) -> int:
+        return 0
+
     def to_json(self) -> dict[str, Any]:
         """The summary as plain JSON values."""
         return asdict(self)
 
-    def line(self) -> str:
-        """The one line the command prints."""
+    def text(self) -> str:
         stride = "every frame" if self.every == 1 else f"one frame in {self.every}"
         depth = "no" if not self.depth else "yes"
         if self.depth_registered:
@@ -156,6 +180,10 @@ class IngestSettings:
             file's calibration describes.
         dictionary: The ArUco dictionary of a dataset created by ``rig_from_source``.
         overwrite: Replace the scene if ingest wrote it.
+
+    >>> s = IngestSettings(camera="left", every=5)
+    >>> s.every, s.depth
+    (5, True)
     """
 
     camera: str | None = None

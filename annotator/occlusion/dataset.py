@@ -3,15 +3,16 @@ runs (the per-scene work is :class:`~annotator.occlusion.job.VisibilityJob`)."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from annotator.dataset import Dataset, as_dataset
 from annotator.dataset.selection import EVERY_SCENE, matching_scenes
 from annotator.occlusion import DEPTH_TOLERANCE_MM
-from annotator.occlusion.job import VisibilityJob, is_fresh
+from annotator.occlusion.job import VISIBILITY_FILE, VisibilityJob, is_fresh
 from annotator.runner import BatchReport, run_batch
+from annotator.summary import failure_lines
 
 
 @dataclass
@@ -21,25 +22,44 @@ class OcclusionSummary:
     Attributes:
         report: Per-scene outcomes (done, and failed: one line each).
         skipped: Scenes whose visibility.json was up to date.
+
+    >>> from annotator.runner import BatchReport
+    >>> s = OcclusionSummary(BatchReport({"000000": {}}), skipped=3)
+    >>> s.text()
+    'occlusion: 1 scenes done, 3 up to date, 0 failed'
+    >>> s.to_json()
+    {'done': 1, 'skipped': 3, 'failed': 0, 'failures': {}}
     """
 
     report: BatchReport
     skipped: int
+    #: The visibility.json files written now, in scene order.
+    written: list[Path] = field(default_factory=list)
 
-    def to_json(self) -> dict[str, Any]:
+    def counts(self) -> dict[str, int]:
         return {
             "done": len(self.report.done),
             "skipped": self.skipped,
             "failed": len(self.report.failed),
-            "failures": self.report.failed,
         }
 
-    def line(self) -> str:
-        """The one line the command prints."""
+    def warnings(self) -> list[str]:
+        return failure_lines(self.report.failed)
+
+    def written_paths(self) -> list[Path]:
+        return list(self.written)
+
+    def to_json(self) -> dict[str, Any]:
+        return {**self.counts(), "failures": self.report.failed}
+
+    def text(self) -> str:
         return (
             f"occlusion: {len(self.report.done)} scenes done, {self.skipped} up to date, "
             f"{len(self.report.failed)} failed"
         )
+
+    def exit_status(self) -> int:
+        return 1 if self.report.failed else 0
 
 
 def compute_occlusion(
@@ -86,4 +106,5 @@ def compute_occlusion(
         ray_address=ray_address,
         ray_wait=ray_wait,
     )
-    return OcclusionSummary(report, len(chosen) - len(todo))
+    written = [ds.scene(sid).path / VISIBILITY_FILE for sid in sorted(report.done)]
+    return OcclusionSummary(report, len(chosen) - len(todo), written)

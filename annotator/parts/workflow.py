@@ -49,6 +49,9 @@ class MarkSettings:
         symmetry: The symmetry class of a mesh file's part.
         dpi: The sheets' resolution.
         seed: The layout's random seed.
+
+    >>> MarkSettings(size_mm=12.0, instances=4).instances
+    4
     """
 
     size_mm: float | None = None
@@ -64,7 +67,15 @@ class MarkSettings:
 
 @dataclass(frozen=True)
 class MarkSummary:
-    """What :func:`mark_part` wrote."""
+    """What :func:`mark_part` wrote.
+
+    >>> s = MarkSummary("bracket", sites=12, min_facing=3, size_mm=10.0, instances=4,
+    ...                 ids=(0, 47), out="bracket")
+    >>> s.counts()
+    {'sites': 12, 'min_facing': 3, 'instances': 4}
+    >>> s.to_json()["ids"]
+    [0, 47]
+    """
 
     part: str
     sites: int
@@ -74,14 +85,25 @@ class MarkSummary:
     ids: tuple[int, int]
     out: str
 
+    def counts(self) -> dict[str, int]:
+        return {"sites": self.sites, "min_facing": self.min_facing, "instances": self.instances}
+
+    def warnings(self) -> list[str]:
+        return []
+
+    def written_paths(self) -> list[Path]:
+        return [Path(self.out)]
+
+    def exit_status(self) -> int:
+        return 0
+
     def to_json(self) -> dict[str, Any]:
         """The summary as plain JSON values (``annotator markers --json``)."""
         doc = asdict(self)
         doc["ids"] = list(self.ids)
         return doc
 
-    def line(self) -> str:
-        """The one line the command prints."""
+    def text(self) -> str:
         return (
             f"markers: {self.sites} sites of {self.size_mm:g} mm on {self.part}; from any "
             f"direction at least {self.min_facing} face the viewer (within 60 degrees); "
@@ -173,7 +195,15 @@ def _mark(part: Part, s: MarkSettings, name: str, n_dict: int) -> MarkedPart:
 
 @dataclass(frozen=True)
 class DictionarySummary:
-    """What :func:`write_custom_dictionary` wrote, as read back."""
+    """What :func:`write_custom_dictionary` wrote, as read back.
+
+    >>> s = DictionarySummary("mine.yml", markers=20, bits=6, min_distance=14,
+    ...                       max_correction_bits=6)
+    >>> s.counts()
+    {'markers': 20, 'bits': 6, 'min_distance': 14}
+    >>> [str(p) for p in s.written_paths()]
+    ['mine.yml']
+    """
 
     dictionary: str
     markers: int
@@ -181,12 +211,23 @@ class DictionarySummary:
     min_distance: int
     max_correction_bits: int
 
+    def counts(self) -> dict[str, int]:
+        return {"markers": self.markers, "bits": self.bits, "min_distance": self.min_distance}
+
+    def warnings(self) -> list[str]:
+        return []
+
+    def written_paths(self) -> list[Path]:
+        return [Path(self.dictionary)]
+
+    def exit_status(self) -> int:
+        return 0
+
     def to_json(self) -> dict[str, Any]:
         """The summary as plain JSON values (``annotator markers --write-dictionary --json``)."""
         return asdict(self)
 
-    def line(self) -> str:
-        """The one line the command prints."""
+    def text(self) -> str:
         return (
             f"markers: wrote {self.dictionary}: {self.markers} markers of {self.bits}x"
             f"{self.bits} bits, any two at least {self.min_distance} bits apart (up to "

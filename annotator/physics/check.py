@@ -35,6 +35,9 @@ class PhysicsSettings:
         penetration_floor_mm: Penetrations up to this are never flagged.
         gap_floor_mm: Gaps up to this are never flagged.
         fall_floor_mm: With the stability check, moves up to this are never flagged.
+
+    >>> PhysicsSettings() == PhysicsSettings()
+    True
     """
 
     sigmas: float = 3.0

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 from annotator.dataset import Dataset, InstancePose, Scene
@@ -19,6 +20,7 @@ from annotator.errors import UserError
 from annotator.physics.check import InstancePhysics, PhysicsSettings
 from annotator.physics.contact import check_solid
 from annotator.physics.scene import shot_physics
+from annotator.summary import failure_lines
 
 
 @dataclass
@@ -47,10 +49,48 @@ class ScenePhysics:
 
 @dataclass
 class PhysicsSummary:
-    """:func:`physics_of_dataset`'s scenes, and the scenes it could not check (one line)."""
+    """:func:`physics_of_dataset`'s scenes, and the scenes it could not check (one line).
+
+    >>> s = PhysicsSummary(failed={"000002": "no frame is posed"})
+    >>> s.text()
+    'physics: 0 scenes checked, 0 instances flagged, 1 not checked'
+    >>> s.warnings()
+    ['failed: scene 000002: no frame is posed']
+    """
 
     scenes: list[ScenePhysics] = field(default_factory=list)
     failed: dict[str, str] = field(default_factory=dict)
+
+    def counts(self) -> dict[str, int]:
+        return {
+            "scenes": len(self.scenes),
+            "flagged": sum(len(sp.flagged) for sp in self.scenes),
+            "failed": len(self.failed),
+        }
+
+    def warnings(self) -> list[str]:
+        return failure_lines(self.failed)
+
+    def written_paths(self) -> list[Path]:
+        return []  # it only reads: ``check --physics`` reports, nothing is written
+
+    def text(self) -> str:
+        n = self.counts()
+        return (
+            f"physics: {n['scenes']} scenes checked, {n['flagged']} instances flagged, "
+            f"{n['failed']} not checked"
+        )
+
+    def to_json(self) -> dict[str, Any]:
+        """``check --physics --json``'s ``physics``: per scene, its support and instances."""
+        return {
+            "scenes": {sp.scene: sp.to_json() for sp in self.scenes},
+            "flagged": sum(len(sp.flagged) for sp in self.scenes),
+            "failures": dict(sorted(self.failed.items())),
+        }
+
+    def exit_status(self) -> int:
+        return 0  # a flagged pose or a scene not checked is a warning, as ``check`` says it
 
 
 def scene_poses(
@@ -121,12 +161,3 @@ def physics_problems(ds: Dataset, summary: PhysicsSummary, poses: str) -> list[P
     for sid, why in sorted(summary.failed.items()):
         out.append(Problem(ds.scene(sid).path, f"physics not checked: {why}", warning=True))
     return out
-
-
-def physics_json(summary: PhysicsSummary) -> dict[str, Any]:
-    """``check --physics --json``'s ``physics``: per scene, its support and instances."""
-    return {
-        "scenes": {sp.scene: sp.to_json() for sp in summary.scenes},
-        "flagged": sum(len(sp.flagged) for sp in summary.scenes),
-        "failures": dict(sorted(summary.failed.items())),
-    }

@@ -6,9 +6,11 @@ away from its edges), less the pixels that another posed part explains (rendered
 front of it, or at the measured depth): a neighbour's surface must not pull the part onto it.
 Each measured point is matched to its nearest model point (a k-d tree of the model's samples,
 within a gate that shrinks over the iterations, model normals facing the camera only) and the
-pose minimises, by Gauss-Newton with Huber weights, the point-to-plane distances in mm
+pose minimises Huber's loss of the point-to-plane distances in mm
 together with the reprojection errors of the instance's markers in px (:mod:`annotator.pnp`),
-each over its noise. Where the depth alone is ambiguous (a cylinder about its axis, a face
+each over its noise (:data:`annotator.noise.NOISE`), on the project's one damped least-squares
+iteration (:func:`annotator.geometry.least_squares.levenberg_marquardt`). Where the depth
+alone is ambiguous (a cylinder about its axis, a face
 seen flat) the marker term keeps the pose; where there are no markers, the depth alone
 decides.
 
@@ -27,6 +29,7 @@ from __future__ import annotations
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import cv2
 import numpy as np
@@ -34,10 +37,11 @@ from scipy.spatial import cKDTree
 
 from annotator.dataset.review import RepairOp, RepairStep
 from annotator.geometry.camera import Camera
+from annotator.geometry.least_squares import Damping, Stop, levenberg_marquardt
 from annotator.geometry.lie import perturb
 from annotator.geometry.mesh import Mesh, surface_samples
-from annotator.geometry.robust import huber_weights
-from annotator.noise import NOISE
+from annotator.geometry.robust import huber_cost, huber_weights
+from annotator.noise import NOISE, NoiseModel
 from annotator.pnp.multiview import Observation, reprojection_errors, residuals_jacobian
 from annotator.rendering.raycast import PlacedMesh, cast_alone, clip_region, projected_bbox
 
@@ -239,40 +243,63 @@ class DepthTerm:
         #: The measured points are taken this far (mm) along their rays from where measured.
         self.offset = 0.0
 
-    def shifted(self) -> np.ndarray:
-        """The measured points moved by :attr:`offset` along their rays."""
-        return self.points + self.offset * self.rays if self.offset else self.points
+    def shifted(self, offset: float | None = None) -> np.ndarray:
+        """The measured points moved by ``offset`` (default :attr:`offset`) along their
+        rays."""
+        offset = self.offset if offset is None else offset
+        return self.points + offset * self.rays if offset else self.points
 
     def offset_derivative(self, J: np.ndarray, i: np.ndarray) -> np.ndarray:
         """The derivative of the residuals (Jacobian ``J`` at scene indices ``i``, as
         :meth:`residuals` gives them) with respect to :attr:`offset`."""
         return -np.einsum("ij,ij->i", J[:, 3:], self.rays[i])
 
-    def residuals(self, T: np.ndarray, gate: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def residuals(
+        self, T: np.ndarray, gate: float, offset: float | None = None
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Residuals (mm) and Jacobian (N, 6) of the matches within ``gate``, and their scene
-        indices."""
+        indices; the measured points moved by ``offset`` (default :attr:`offset`)."""
+        i, j = self.matches(T, gate, offset)
+        r, J = self.paired(T, i, j, offset)
+        return r, J, i
+
+    def matches(
+        self, T: np.ndarray, gate: float, offset: float | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """The measured points (scene indices) matched within ``gate`` at pose ``T``, and
+        their model samples."""
+        none = np.zeros(0, int), np.zeros(0, int)
         if len(self.points) == 0:
-            return np.zeros(0), np.zeros((0, 6)), np.zeros(0, int)
+            return none
         R, t = T[:3, :3], T[:3, 3]
-        points = self.shifted()
+        points = self.shifted(offset)
         # Each measured point, brought to the model frame, against its nearest model sample.
         dist, nearest = self.tree.query((points - t) @ R, k=1, distance_upper_bound=gate)
         i = np.flatnonzero(np.isfinite(dist))
         if len(i) == 0:
-            return np.zeros(0), np.zeros((0, 6)), np.zeros(0, int)
+            return none
         j = nearest[i]
-        y = self.model[j] @ R.T
         n = self.normals[j] @ R.T
-        p = y + t
+        p = self.model[j] @ R.T + t
         # A surface the camera can see, turned as the measured one: the floor beside a
         # part's end must not pull the part along onto it.
         ok = (np.einsum("ij,ij->i", n, p - self.centre) < 0) & (
             np.einsum("ij,ij->i", n, self.point_normals[i]) > _SAME_NORMAL
         )
-        i, y, n, p = i[ok], y[ok], n[ok], p[ok]
-        r = np.einsum("ij,ij->i", n, p - points[i])
-        J = np.concatenate([np.cross(y, n), n], axis=1)
-        return r, J, i
+        return i[ok], j[ok]
+
+    def paired(
+        self, T: np.ndarray, i: np.ndarray, j: np.ndarray, offset: float | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Residuals (mm) and Jacobian (N, 6) at pose ``T`` of the measured points ``i``
+        against the model samples ``j``: each one's distance to the sample's tangent plane."""
+        if len(i) == 0:
+            return np.zeros(0), np.zeros((0, 6))
+        R, t = T[:3, :3], T[:3, 3]
+        y = self.model[j] @ R.T
+        n = self.normals[j] @ R.T
+        r = np.einsum("ij,ij->i", n, y + t - self.shifted(offset)[i])
+        return r, np.concatenate([np.cross(y, n), n], axis=1)
 
 
 #: Directions of the normal equations this much weaker than the strongest (after scaling)
@@ -281,15 +308,15 @@ class DepthTerm:
 _WEAK = 1e-6
 
 
-def _solve(H: np.ndarray, g: np.ndarray) -> np.ndarray:
-    """The Gauss-Newton step ``-H^+ g``, scaled to unit diagonal first (rotations about the
-    reference origin, far from the part, weigh far more than translations) and without the
-    unobserved directions."""
+def _solve(H: np.ndarray, g: np.ndarray, damping: float) -> np.ndarray:
+    """The damped step ``-(H + damping diag(H))^+ g``, scaled to unit diagonal first
+    (rotations about the reference origin, far from the part, weigh far more than
+    translations) and without the unobserved directions (judged undamped)."""
     d = np.sqrt(np.maximum(np.diag(H), 1e-300))
     Hs = H / d[:, None] / d[None, :]
     w, V = np.linalg.eigh(Hs)
     keep = w > _WEAK * w.max()
-    x = V[:, keep] @ ((V[:, keep].T @ (-g / d)) / w[keep])
+    x = V[:, keep] @ ((V[:, keep].T @ (-g / d)) / (w[keep] + damping))
     return x / d
 
 
@@ -356,7 +383,9 @@ def refine_instance(
         why = "no measured depth and no marker on it"
         return Refinement(T0, T0, False, 0, before, before, why, time.perf_counter() - started)
     markers = _MarkerTerm(cameras, obs, np.stack([o.image_corners for o in obs])) if obs else None
-    T, k, done = _gauss_newton(T0, term, markers, settings)
+    T, offset, k, done = _minimise(T0, term, markers, settings)
+    if term is not None:
+        term.offset = offset
     after = residuals_at(T, term, cameras, obs, settings)
     why = _why_not_kept(done, term is not None, bool(obs), after, settings)
     converged = not why
@@ -385,72 +414,181 @@ class _MarkerTerm:
         return residuals_jacobian(self.cameras, self.observations, T, self.corners)
 
 
-def _gauss_newton(
+#: The damping starts (and stays, while steps lower the cost) far below the scaled system's
+#: unit diagonal: the steps are Gauss-Newton's; a step that raises the cost is damped.
+_DAMPING = Damping(start=1e-12, floor=1e-12, ceiling=1e4, factor=100.0)
+
+
+@dataclass(frozen=True)
+class _State:
+    """Where the iteration is: the pose and the measured points' offset along their rays."""
+
+    T: np.ndarray
+    offset: float
+
+
+@dataclass(frozen=True)
+class _Linear:
+    """The Huber-weighted normal equations ``H step = -g`` at a state, the Jacobian of each
+    term that has residuals, and the depth's matches they were made with (scene indices,
+    model samples)."""
+
+    H: np.ndarray
+    g: np.ndarray
+    jacobians: list[np.ndarray]
+    pairs: tuple[np.ndarray, np.ndarray]
+
+
+class _Problem:
+    """The depth and marker terms of one refinement, as the damped iteration asks for them:
+    the cost of a state, its normal equations, the state a damped step reaches.
+
+    Its cost is Huber's loss of each term over its noise (the depth's threshold 1.5 sigma,
+    the markers' 3 sigma) plus the offset's prior: the loss whose iteratively reweighted
+    normal equations these are. As in ICP, the depth's matches (within :attr:`gate`) are
+    made once per linearisation and a step is judged with them, against the tangent planes
+    of the same model samples (matching again at every trial would judge a step by which
+    samples lie nearest, a cost that jumps); the state a step reaches is matched afresh."""
+
+    def __init__(
+        self, term: DepthTerm | None, markers: _MarkerTerm | None, settings: RefineSettings
+    ) -> None:
+        self.term, self.markers, self.s = term, markers, settings
+        #: The offset is a 7th unknown only with a prior on it.
+        self.unknowns = 7 if term is not None and settings.depth_offset_sigma_mm > 0 else 6
+        #: The depth's matches are sought within this (mm); :func:`_minimise` narrows it.
+        self.gate = settings.start_gate_mm
+        self._memo: tuple[tuple[bytes, float, float], tuple[np.ndarray, np.ndarray]] | None
+        self._memo = None
+
+    def matched(self, state: _State) -> tuple[np.ndarray, np.ndarray]:
+        """The depth's matches at a state; the last ones kept: a state's cost and its normal
+        equations come from one search."""
+        key = (state.T.tobytes(), state.offset, self.gate)
+        if self._memo is None or self._memo[0] != key:
+            none = np.zeros(0, int), np.zeros(0, int)
+            term = self.term
+            found = none if term is None else term.matches(state.T, self.gate, state.offset)
+            self._memo = key, found
+        return self._memo[1]
+
+    def terms(self, state: _State, pairs: tuple[np.ndarray, np.ndarray]) -> Any:
+        """Each term's residuals and Jacobian at a state (the depth's of ``pairs``)."""
+        depth = None if self.term is None else self.term.paired(state.T, *pairs, state.offset)
+        markers = None if self.markers is None else self.markers.residuals(state.T)
+        return depth, markers
+
+    def cost(self, state: _State, pairs: tuple[np.ndarray, np.ndarray]) -> float:
+        s = self.s
+        depth, markers = self.terms(state, pairs)
+        out = 0.0
+        if depth is not None:
+            sd = s.depth_sigma_mm
+            out += huber_cost(depth[0], 1.5 * sd) / sd**2
+        if markers is not None:
+            sm = s.marker_sigma_px
+            out += huber_cost(markers[0], 3.0 * sm) / sm**2
+        if self.unknowns == 7:
+            out += 0.5 * (state.offset / s.depth_offset_sigma_mm) ** 2
+        return out
+
+    def cost_at(self, state: _State) -> float:
+        """A state's cost with its own matches."""
+        return self.cost(state, self.matched(state))
+
+    def linearise(self, state: _State) -> _Linear:
+        s, n = self.s, self.unknowns
+        pairs = self.matched(state)
+        depth, markers = self.terms(state, pairs)
+        H, g = np.zeros((n, n)), np.zeros(n)
+        jacobians = []
+        if n == 7:
+            H[6, 6] = 1.0 / s.depth_offset_sigma_mm**2
+            g[6] = state.offset / s.depth_offset_sigma_mm**2
+        if depth is not None and len(depth[0]):
+            r, J = depth
+            if n == 7:
+                assert self.term is not None
+                J = np.concatenate([J, self.term.offset_derivative(J, pairs[0])[:, None]], axis=1)
+            w = huber_weights(r, 1.5 * s.depth_sigma_mm) / s.depth_sigma_mm**2
+            H += J.T @ (J * w[:, None])
+            g += J.T @ (r * w)
+            jacobians.append(J)
+        if markers is not None:
+            r, J = markers
+            if n == 7:
+                J = np.concatenate([J, np.zeros((len(J), 1))], axis=1)
+            w = huber_weights(r, 3.0 * s.marker_sigma_px) / s.marker_sigma_px**2
+            H += J.T @ (J * w[:, None])
+            g += J.T @ (r * w)
+            jacobians.append(J)
+        return _Linear(H, g, jacobians, pairs)
+
+    def trial(
+        self, state: _State, lin: _Linear, damping: float
+    ) -> tuple[_State, float, float] | None:
+        """The state a damped step reaches, its cost with the linearisation's matches, and
+        how far the step moves the residuals (the larger RMS of the terms, mm or px); None
+        when nothing is left to fit (no match within the gate, no marker)."""
+        if not lin.jacobians:
+            return None
+        step = _solve(lin.H, lin.g, damping)
+        offset = state.offset + (float(step[6]) if len(step) > 6 else 0.0)
+        new = _State(perturb(state.T, step[:6]), offset)
+        moved = max(float(np.sqrt(np.mean((J @ step) ** 2))) for J in lin.jacobians)
+        return new, self.cost(new, lin.pairs), moved
+
+
+def _minimise(
     T0: np.ndarray,
     term: DepthTerm | None,
     markers: _MarkerTerm | None,
     settings: RefineSettings,
-) -> tuple[np.ndarray, int, bool]:
-    """Iterate from ``T0``: the pose reached, the iterations made, and whether it converged
-    (the depth term's offset, when solved for, is left in it)."""
-    T = T0.copy()
-    k = 0
-    for k in range(1, settings.iterations + 1):
-        frac = min(1.0, (k - 1) / max(settings.gate_iterations - 1, 1))
-        gate = settings.start_gate_mm + (settings.end_gate_mm - settings.start_gate_mm) * frac
-        H, g, jacobians = _normal_equations(T, term, markers, gate, settings)
-        if not np.any(H):
-            return T, k, False
-        step = _solve(H, g)
-        T = perturb(T, step[:6])
-        if len(step) > 6 and term is not None:
-            term.offset += float(step[6])
-        # Converged when the step moves the residuals (mm, px) by a few hundredths RMS: a
-        # motion the data hardly sees (a faceted cylinder turning about its axis, snapping
-        # from facet to facet) does not count.
-        moved = max(float(np.sqrt(np.mean((J @ step) ** 2))) for J in jacobians)
-        if moved < settings.converged_moves and frac >= 1.0:
-            return T, k, True
-    return T, k, False
+) -> tuple[np.ndarray, float, int, bool]:
+    """Iterate from ``T0``: the pose reached, the depth's offset along its rays, the
+    iterations made, and whether it converged.
 
-
-def _normal_equations(
-    T: np.ndarray,
-    term: DepthTerm | None,
-    markers: _MarkerTerm | None,
-    gate: float,
-    settings: RefineSettings,
-) -> tuple[np.ndarray, np.ndarray, list[np.ndarray]]:
-    """The Huber-weighted Gauss-Newton system ``H step = g`` of the depth and marker terms
-    at ``T``, and the Jacobian of each term that has residuals; with
-    ``depth_offset_sigma_mm``, the depth's offset is a 7th unknown, with its prior."""
-    sigma_b = settings.depth_offset_sigma_mm
-    n = 7 if term is not None and sigma_b > 0 else 6
-    H = np.zeros((n, n))
-    g = np.zeros(n)
-    jacobians = []
-    if n == 7:
-        assert term is not None
-        H[6, 6] = 1.0 / sigma_b**2
-        g[6] = term.offset / sigma_b**2
-    if term is not None:
-        r, J, i = term.residuals(T, gate)
-        if len(r):
-            if n == 7:
-                J = np.concatenate([J, term.offset_derivative(J, i)[:, None]], axis=1)
-            w = huber_weights(r, 1.5 * settings.depth_sigma_mm) / settings.depth_sigma_mm**2
-            H += J.T @ (J * w[:, None])
-            g += J.T @ (r * w)
-            jacobians.append(J)
-    if markers is not None:
-        r, J = markers.residuals(T)
-        if n == 7:
-            J = np.concatenate([J, np.zeros((len(J), 1))], axis=1)
-        w = huber_weights(r, 3.0 * settings.marker_sigma_px) / settings.marker_sigma_px**2
-        H += J.T @ (J * w[:, None])
-        g += J.T @ (r * w)
-        jacobians.append(J)
-    return H, g, jacobians
+    The gate narrows from ``start_gate_mm`` to ``end_gate_mm`` with one step at each gate
+    (a pose far off first finds its surface, then only the points near it); at the end gate
+    the iteration goes on until a step moves the residuals by less than ``converged_moves``
+    (mm or px: a motion the data hardly sees, a faceted cylinder turning about its axis from
+    facet to facet, is none) or no step lowers the cost (a minimum)."""
+    problem = _Problem(term, markers, settings)
+    state = _State(np.array(T0, float), 0.0)
+    narrowing = max(settings.gate_iterations - 1, 1)
+    spent = 0
+    for k in range(min(narrowing, settings.iterations)):
+        problem.gate = settings.start_gate_mm + (settings.end_gate_mm - settings.start_gate_mm) * (
+            k / narrowing
+        )
+        step = levenberg_marquardt(
+            state,
+            problem.cost_at(state),
+            problem.linearise,
+            problem.trial,
+            damping=_DAMPING,
+            small=lambda cost, new, moved: False,
+            max_iterations=1,
+        )
+        state, spent = step.state, spent + 1
+        if step.stop is Stop.SINGULAR:
+            return state.T, state.offset, spent, False
+    if spent == settings.iterations:
+        return state.T, state.offset, spent, False
+    problem.gate = settings.end_gate_mm
+    found = levenberg_marquardt(
+        state,
+        problem.cost_at(state),
+        problem.linearise,
+        problem.trial,
+        damping=_DAMPING,
+        small=lambda cost, new, moved: moved < settings.converged_moves,
+        max_iterations=settings.iterations - spent,
+        refused_count=False,  # an iteration is a linearisation, damped as often as it takes
+        cost_at=problem.cost_at,
+    )
+    converged = found.stop in (Stop.SMALL_STEP, Stop.NO_DESCENT)
+    return found.state.T, found.state.offset, spent + found.iterations, converged
 
 
 def _why_not_kept(
@@ -469,27 +607,6 @@ def _why_not_kept(
     return ""
 
 
-@dataclass(frozen=True)
-class Noise:
-    """What the covariance of a refined pose assumes (px, mm, rad).
-
-    Attributes:
-        marker_px: Floor of the corners' standard deviation (the residuals' own is taken when
-            larger: with few corners they underestimate it).
-        depth_mm: Floor of the measured points' point-to-plane standard deviation.
-        depth_correlation: The measured points count as this many times fewer independent
-            ones: stereo depth is matched over windows and smoothed, so neighbouring points
-            share their errors.
-        depth_bias_mm: 1-sigma of an offset all of the part's measured points share along
-            their rays (a face seen flat gets one disparity: its depth is off by one amount).
-    """
-
-    marker_px: float = 0.3
-    depth_mm: float = 0.1
-    depth_correlation: float = 30.0
-    depth_bias_mm: float = 0.2
-
-
 def pose_covariance(
     T: np.ndarray,
     *,
@@ -497,7 +614,7 @@ def pose_covariance(
     cameras: Sequence[Camera],
     observations: Sequence[Observation],
     site_sigmas: dict[int, tuple[float, float]] | None = None,
-    noise: Noise = Noise(),
+    noise: NoiseModel = NOISE,
     settings: RefineSettings = RefineSettings(),
 ) -> np.ndarray:
     """The 6x6 covariance of ``(w, v)`` (the perturbation of :mod:`annotator.pnp`) of a pose
@@ -515,7 +632,7 @@ def pose_covariance(
         x = np.stack([o.image_corners for o in obs])
         r, Jm = residuals_jacobian(cameras, obs, T, x)
         dof = max(r.size - 6, 1)
-        sm = max(float(np.sqrt(r @ r / dof)), noise.marker_px)
+        sm = max(float(np.sqrt(r @ r / dof)), noise.corner_px)
         H += Jm.T @ Jm / sm**2
         if site_sigmas:
             Js, scale = _site_jacobian(cameras, obs, T, site_sigmas)
@@ -523,7 +640,7 @@ def pose_covariance(
     if depth is not None:
         rd, Jd, i = depth.residuals(T, settings.end_gate_mm)
         if len(rd):
-            sd = max(float(np.sqrt(np.mean(rd**2))), noise.depth_mm)
+            sd = max(float(np.sqrt(np.mean(rd**2))), noise.depth_fit_mm)
             w = huber_weights(rd, 1.5 * sd) / (sd**2 * noise.depth_correlation)
             H += Jd.T @ (Jd * w[:, None])
             # The residuals' derivative with respect to the measured points' common offset

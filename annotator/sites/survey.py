@@ -10,6 +10,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from annotator.dataset import Dataset, Scene, as_dataset, require_meshes
 from annotator.dataset.model import SCENES_DIR
 from annotator.dataset.records import SceneAnnotation
@@ -22,6 +24,7 @@ from annotator.runner import BatchReport, run_batch
 from annotator.sites.measure import DetectJob, InstanceSites, units, updated_object_yaml
 from annotator.sites.rounds import measure_in_rounds
 from annotator.sites.solve import SiteSettings
+from annotator.summary import failure_lines
 
 
 @dataclass(frozen=True)
@@ -136,21 +139,59 @@ def object_updates(ds: Dataset, measured: list[InstanceSites]) -> list[ObjectUpd
     return updates
 
 
+def instance_lines(m: InstanceSites) -> list[str]:
+    """One instance's table as ``annotator sites`` prints it: its corner RMS before and after,
+    then each site seen (or flagged) with its correction and 1-sigma."""
+    sol = m.solution
+    head = (
+        f"{m.key}: {len(sol.poses)} scenes, {sol.used} marker views used"
+        f"{f' ({sol.left_out} left out)' if sol.left_out else ''}, corner RMS "
+        f"{sol.rms_before:.2f} -> {sol.rms_after:.2f} px"
+        + (f"; not observable: {', '.join(sol.unobservable)}" if sol.unobservable else "")
+    )
+    out = [head, "  site    id  scenes   du mm (1-sigma)   dv mm (1-sigma)   turn deg (1-sigma)"]
+    for k, mid in enumerate(m.marker_ids):
+        if sol.seen[k] == 0 and k not in m.flags:
+            continue
+        du, dv, dt = sol.corrections[k]
+        su, sv, st = sol.std[k]
+        cells = (
+            f"  {k:4d}  {mid:4d}  {sol.seen[k]:6d}   {du:+6.2f} ({su:4.2f})     "
+            f"{dv:+6.2f} ({sv:4.2f})     {np.degrees(dt):+6.2f} ({np.degrees(st):4.2f})"
+        )
+        out.append(cells + (f"   ! {m.flags[k]}" if k in m.flags else ""))
+    return out
+
+
 @dataclass
 class SitesSummary:
     """What :func:`measure_sites` measured (:attr:`survey`) and which object.yaml files
-    :meth:`write` wrote; :meth:`to_json` is ``annotator sites --json``."""
+    :meth:`write` wrote; :meth:`to_json` is ``annotator sites --json``.
+
+    >>> from pathlib import Path
+    >>> from annotator.runner import BatchReport
+    >>> from annotator.sites.survey import SitesSurvey
+    >>> survey = SitesSurvey(scenes=[], report=BatchReport(), measured=[], spread=None, updates=[])
+    >>> s = SitesSummary(survey, Path("ds"))
+    >>> s.text()
+    'sites: 0 instances measured from 0 scenes, 0 markers flagged; nothing written'
+    >>> s.exit_status()
+    0
+    """
 
     survey: SitesSurvey
     root: Path
     #: The object.yaml files written, and whether the user declined any.
     written: list[str] = field(default_factory=list)
     declined: bool = False
+    #: Whether :meth:`write` was called (not: ``--dry-run``).
+    offered: bool = False
 
     def write(self, *, confirm: Callable[[Path], bool] | None = None) -> None:
         """Write every object.yaml whose sites change, all together
         (:func:`annotator.io.atomic.write_together`): those ``confirm`` says yes to, asked
         about each first (every question before any file is written), or all of them."""
+        self.offered = True
         chosen = {}
         for update in self.survey.updates:
             if confirm is None or confirm(update.path):
@@ -160,6 +201,56 @@ class SitesSummary:
                 self.declined = True
         if self.survey.updates:
             write_together(self.root, chosen)
+
+    def preview(self) -> str:
+        """What is shown before asking to write: every instance's table, then the diffs."""
+        lines = [line for m in self.survey.measured for line in instance_lines(m)]
+        lines += [u.diff.removesuffix("\n") for u in self.survey.updates]
+        return "\n".join(lines)
+
+    def counts(self) -> dict[str, int]:
+        survey = self.survey
+        return {
+            "scenes": len(survey.scenes),
+            "instances": len(survey.measured),
+            "flagged_markers": survey.flagged,
+            "written": len(self.written),
+            "failed": len(survey.report.failed),
+        }
+
+    def warnings(self) -> list[str]:
+        return failure_lines(self.survey.report.failed)
+
+    def written_paths(self) -> list[Path]:
+        return [Path(p) for p in self.written]
+
+    def exit_status(self) -> int:
+        return 1 if self.survey.report.failed or self.declined else 0
+
+    def text(self) -> str:
+        survey, spread = self.survey, self.survey.spread
+        told = (
+            ""
+            if spread is None
+            else f" (gluing moved them by {spread[0]:.2f} mm and {spread[1]:.1f} deg, 1-sigma)"
+        )
+        settled = (
+            f"; {survey.rounds} rounds (the last moved the sites by {survey.moves[-1]:.3f} mm RMS)"
+            if survey.moves
+            else ""
+        )
+        unit = "frames" if any("/" in u for u in survey.report.done) else "scenes"
+        if self.written:
+            outcome = (
+                f"wrote {len(self.written)} object.yaml; run `annotator annotate {self.root}` again"
+            )
+        else:
+            dry = not self.offered and survey.updates
+            outcome = "nothing written" + (" (--dry-run)" if dry else "")
+        return (
+            f"sites: {len(survey.measured)} instances measured from {len(survey.report.done)} "
+            f"{unit}{told}{settled}, {survey.flagged} markers flagged; {outcome}"
+        )
 
     def to_json(self) -> dict[str, Any]:
         survey, spread = self.survey, self.survey.spread

@@ -102,6 +102,10 @@ class CaptureSettings:
         speed: The board's largest motion during a shot: its centre's speed (mm/s) and its
             turn (degrees/s); each shot's is that times the cube of a uniform random number
             (a board held by hand is mostly still, now and then moving).
+
+    >>> s = CaptureSettings(shots=4, size=(320, 256))
+    >>> s.shots, s.board.describe()
+    (4, '7x5 ChArUco, 30 mm squares, 22 mm markers, DICT_4X4_50')
     """
 
     shots: int = 30

@@ -18,7 +18,15 @@ __all__ = ["CapturesSummary", "calibration_board", "synthesize_captures"]
 
 @dataclass(frozen=True)
 class CapturesSummary:
-    """What :func:`synthesize_captures` wrote."""
+    """What :func:`synthesize_captures` wrote.
+
+    >>> s = CapturesSummary("shots", 8, ["left", "right"], {}, "7x5 ChArUco")
+    >>> print(s.text())  # doctest: +NORMALIZE_WHITESPACE
+    synth --calibration: 8 shots of a 7x5 ChArUco board seen by left, right, written to shots
+    (board.yaml, truth.yaml)
+    >>> s.counts()
+    {'shots': 8, 'cameras': 2}
+    """
 
     out: str
     shots: int
@@ -26,12 +34,23 @@ class CapturesSummary:
     board: dict[str, Any]
     board_text: str
 
+    def counts(self) -> dict[str, int]:
+        return {"shots": self.shots, "cameras": len(self.cameras)}
+
+    def warnings(self) -> list[str]:
+        return []  # a shot that fails to render fails the whole run (UserError)
+
+    def written_paths(self) -> list[Path]:
+        return [Path(self.out)]
+
+    def exit_status(self) -> int:
+        return 0
+
     def to_json(self) -> dict[str, Any]:
         """The summary as plain JSON values (``annotator synth --calibration --json``)."""
         return {"out": self.out, "shots": self.shots, "cameras": self.cameras, "board": self.board}
 
-    def line(self) -> str:
-        """The one line the command prints."""
+    def text(self) -> str:
         return (
             f"synth --calibration: {self.shots} shots of a {self.board_text} board seen by "
             f"{', '.join(self.cameras)}, written to {self.out} (board.yaml, truth.yaml)"

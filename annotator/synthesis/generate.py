@@ -54,7 +54,12 @@ DICTIONARY = "DICT_4X4_1000"
 
 @dataclass(frozen=True)
 class SynthSettings:
-    """Everything that defines a synthetic dataset (with the seed, it fixes every byte)."""
+    """Everything that defines a synthetic dataset (with the seed, it fixes every byte).
+
+    >>> s = SynthSettings(scenes=2, seed=7)
+    >>> s.scenes, s.size
+    (2, (1280, 1024))
+    """
 
     parts: tuple[str, ...] = ("bracket", "cylinder")
     scenes: int = 10

@@ -13,6 +13,7 @@ from annotator.dataset.model import SCENES_DIR
 from annotator.io.atomic import atomic_folder
 from annotator.io.output_folder import check_output_folder, write_manifest
 from annotator.runner import BatchReport, run_batch
+from annotator.summary import failure_lines
 from annotator.synthesis.generate import SceneJob, SynthSettings, cached_plan, write_dataset_files
 from annotator.synthesis.pbr.cycles_job import bpy_python
 
@@ -28,6 +29,15 @@ class SynthesisSummary:
         out: The dataset folder.
         report: Per-scene outcomes (done: instances and seconds per stage; failed: one line
             each, the scene's folder removed).
+
+    >>> from pathlib import Path
+    >>> from annotator.runner import BatchReport
+    >>> times = {"physics": 0.4, "rendering": 0.1, "depth": 0.02, "occlusion": 0.01}
+    >>> s = SynthesisSummary(Path("synth"), BatchReport({"000000": {"instances": 12, **times}}))
+    >>> s.counts()
+    {'scenes': 1, 'failed': 0, 'instances': 12}
+    >>> s.warnings(), s.exit_status()
+    ([], 0)
     """
 
     out: Path
@@ -39,19 +49,32 @@ class SynthesisSummary:
         done = self.report.done.values()
         return {k: round(sum(r[k] for r in done) / max(len(done), 1), 3) for k in STAGES}
 
-    def to_json(self) -> dict[str, Any]:
+    def counts(self) -> dict[str, int]:
         return {
-            "out": str(self.out),
             "scenes": len(self.report.done),
             "failed": len(self.report.failed),
             "instances": sum(r["instances"] for r in self.report.done.values()),
+        }
+
+    def warnings(self) -> list[str]:
+        return failure_lines(self.report.failed)
+
+    def written_paths(self) -> list[Path]:
+        return [self.out]
+
+    def exit_status(self) -> int:
+        return 1 if self.report.failed else 0
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "out": str(self.out),
+            **self.counts(),
             "seconds_per_scene": self.seconds_per_scene,
             "failures": dict(sorted(self.report.failed.items())),
         }
 
-    def line(self) -> str:
-        """The one line the command prints."""
-        j, t = self.to_json(), self.seconds_per_scene
+    def text(self) -> str:
+        j, t = self.counts(), self.seconds_per_scene
         return (
             f"synth: {j['scenes']} scenes ({j['instances']} instances) written to {self.out}, "
             f"{j['failed']} failed; per scene: physics {t['physics']} s, rendering "

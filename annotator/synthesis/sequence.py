@@ -56,6 +56,7 @@ from annotator.dataset.records import FramePose, frames_to_json
 from annotator.geometry.camera import Camera
 from annotator.geometry.transforms import invert
 from annotator.runner import BatchReport, run_batch
+from annotator.summary import failure_lines
 from annotator.synthesis.generate import (
     BinContents,
     DatasetPlan,
@@ -488,6 +489,14 @@ class SequenceSummary:
         report: The per-scene outcomes (a scene fails when its drop or a frame does).
         frames: Frames per sequence.
         seconds_per_frame: Mean seconds per frame of ``rendering``, ``depth``, ``occlusion``.
+
+    >>> from pathlib import Path
+    >>> from annotator.runner import BatchReport
+    >>> per_frame = {"rendering": 0.1, "depth": 0.02, "occlusion": 0.01}
+    >>> report = BatchReport({"000000": {"frames": 5, "instances": 9}})
+    >>> s = SequenceSummary(Path("seq"), report, 5, per_frame)
+    >>> s.counts()
+    {'scenes': 1, 'frames': 5, 'failed': 0, 'instances': 9}
     """
 
     out: Path
@@ -495,22 +504,34 @@ class SequenceSummary:
     frames: int
     seconds_per_frame: dict[str, float]
 
-    def to_json(self) -> dict[str, Any]:
-        """The summary as plain JSON values."""
+    def counts(self) -> dict[str, int]:
         done = self.report.done.values()
         return {
-            "out": str(self.out),
             "scenes": len(self.report.done),
             "frames": sum(r["frames"] for r in done),
             "failed": len(self.report.failed),
             "instances": sum(r["instances"] for r in done),
+        }
+
+    def warnings(self) -> list[str]:
+        return failure_lines(self.report.failed)
+
+    def written_paths(self) -> list[Path]:
+        return [self.out]
+
+    def exit_status(self) -> int:
+        return 1 if self.report.failed else 0
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "out": str(self.out),
+            **self.counts(),
             "seconds_per_frame": self.seconds_per_frame,
             "failures": dict(sorted(self.report.failed.items())),
         }
 
-    def line(self) -> str:
-        """The one line the command prints."""
-        j, t = self.to_json(), self.seconds_per_frame
+    def text(self) -> str:
+        j, t = self.counts(), self.seconds_per_frame
         return (
             f"synth: {j['scenes']} sequences of {self.frames} frames ({j['instances']} "
             f"instances) written to {self.out}, {j['failed']} failed; per frame: rendering "

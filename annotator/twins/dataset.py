@@ -13,6 +13,7 @@ from annotator.geometry.transforms import invert
 from annotator.io.atomic import atomic_folder
 from annotator.io.output_folder import check_output_folder, write_manifest
 from annotator.runner import BatchReport, run_batch
+from annotator.summary import failure_lines
 from annotator.twins.render import TwinJob, TwinSettings, write_twin_description
 
 
@@ -26,6 +27,14 @@ class TwinSummary:
         out: The twin dataset's folder.
         report: Per-scene outcomes (a twin scene each; failed: one line each).
         left_out: Why scenes were not twinned (by the reviews) -> how many.
+
+    >>> from pathlib import Path
+    >>> from annotator.runner import BatchReport
+    >>> report = BatchReport({"000000": {}})
+    >>> s = TwinSummary(Path("real"), Path("twin"), report, left_out={"pending": 2})
+    >>> print(s.text())  # doctest: +NORMALIZE_WHITESPACE
+    synth --twin: 1 twin scenes of real written to twin; left out: 2 pending; compare them:
+    annotator twin-report real twin
     """
 
     source: Path
@@ -33,17 +42,27 @@ class TwinSummary:
     report: BatchReport
     left_out: dict[str, int] = field(default_factory=dict)
 
+    def counts(self) -> dict[str, int]:
+        return {"twins": len(self.report.done), "failed": len(self.report.failed)}
+
+    def warnings(self) -> list[str]:
+        return failure_lines(self.report.failed)
+
+    def written_paths(self) -> list[Path]:
+        return [self.out]
+
+    def exit_status(self) -> int:
+        return 1 if self.report.failed else 0
+
     def to_json(self) -> dict[str, Any]:
         return {
             "out": str(self.out),
-            "twins": len(self.report.done),
-            "failed": len(self.report.failed),
+            **self.counts(),
             "left_out": self.left_out,
             "failures": dict(sorted(self.report.failed.items())),
         }
 
-    def line(self) -> str:
-        """The one line the command prints."""
+    def text(self) -> str:
         why = "; ".join(f"{n} {r}" for r, n in sorted(self.left_out.items()))
         return (
             f"synth --twin: {len(self.report.done)} twin scenes of {self.source} written to "
