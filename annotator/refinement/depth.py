@@ -39,6 +39,7 @@ from annotator.geometry.mesh import Mesh, surface_samples
 from annotator.geometry.robust import huber_weights
 from annotator.noise import NOISE
 from annotator.pnp.multiview import Observation, reprojection_errors, residuals_jacobian
+from annotator.refinement.nearest import TrackedNearest
 from annotator.rendering.raycast import PlacedMesh, cast_alone, clip_region, projected_bbox
 
 #: The model's surface samples are about this far apart (mm): well below the depth's own
@@ -162,9 +163,10 @@ def measured_points(
         return np.zeros((0, 6))
     m = settings.margin_px
     grow = max(m, 0)
-    x0, y0, x1, y1 = clip_region(
+    region = clip_region(
         (box[0] - grow, box[1] - grow, box[2] + grow, box[3] + grow), camera.width, camera.height
     )
+    x0, y0, x1, y1 = region
     rays = camera.pixel_rays()[y0:y1, x0:x1]
     own = cast_alone(mesh, cam_T_model, rays).depth
     mask = np.isfinite(own)
@@ -172,18 +174,7 @@ def measured_points(
         kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * m + 1, 2 * m + 1))
         mask = cv2.dilate(mask.astype(np.uint8), kernel) > 0
     measured = depth[y0:y1, x0:x1]
-    other = np.full(own.shape, np.inf, np.float32)
-    for pm in others:
-        cam_T_other = camera.cam_T_rig @ pm.cam_T_model
-        ob = projected_bbox(camera, pm.mesh, cam_T_other)
-        if ob is None:
-            continue
-        bx0, by0, bx1, by1 = max(ob[0], x0), max(ob[1], y0), min(ob[2], x1), min(ob[3], y1)
-        if bx0 >= bx1 or by0 >= by1:
-            continue
-        d = cast_alone(pm.mesh, cam_T_other, rays[by0 - y0 : by1 - y0, bx0 - x0 : bx1 - x0]).depth
-        sub = other[by0 - y0 : by1 - y0, bx0 - x0 : bx1 - x0]
-        np.minimum(sub, d, out=sub)
+    other = _nearest_other(camera, others, rays, region, mask)
     theirs = np.isfinite(other) & (
         (np.abs(measured - other) < settings.explained_mm) | (other < own)
     )
@@ -193,32 +184,70 @@ def measured_points(
         mask = cv2.erode(mask.astype(np.uint8), kernel, borderValue=0) > 0
     mask &= np.isfinite(measured) & (measured > 0)
     grid = rays.astype(np.float64) * measured[..., None]
-    normals = _grid_normals(grid)
-    mask &= np.isfinite(normals).all(axis=-1)
     ys, xs = np.nonzero(mask)
+    normals = _grid_normals(grid, ys, xs)
+    good = np.isfinite(normals).all(axis=-1)
+    ys, xs, normals = ys[good], xs[good], normals[good]
     if len(ys) > settings.max_points:  # evenly thinned, deterministically
         keep = np.linspace(0, len(ys) - 1, settings.max_points).astype(int)
-        ys, xs = ys[keep], xs[keep]
+        ys, xs, normals = ys[keep], xs[keep], normals[keep]
     R, t = camera.rig_T_cam[:3, :3], camera.rig_T_cam[:3, 3]
-    return np.concatenate([grid[ys, xs] @ R.T + t, normals[ys, xs] @ R.T], axis=1)
+    return np.concatenate([grid[ys, xs] @ R.T + t, normals @ R.T], axis=1)
 
 
-def _grid_normals(grid: np.ndarray) -> np.ndarray:
-    """Unit normals (towards the camera) of a grid of measured points (H, W, 3), from their
-    neighbours; NaN where a neighbour is missing or the surface jumps (a depth edge)."""
-    out = np.full(grid.shape, np.nan)
-    dx = grid[1:-1, 2:] - grid[1:-1, :-2]
-    dy = grid[2:, 1:-1] - grid[:-2, 1:-1]
+def _nearest_other(
+    camera: Camera,
+    others: Sequence[PlacedMesh],
+    rays: np.ndarray,
+    region: tuple[int, int, int, int],
+    need: np.ndarray,
+) -> np.ndarray:
+    """The depth of the nearest of the ``others`` along each ray of ``rays`` (the grid of
+    the camera's ``region``) where ``need`` holds (inf elsewhere, and where none is hit).
+    Only those rays are cast: a pixel outside the part's region cannot be kept whatever is
+    in front of it."""
+    x0, y0, x1, y1 = region
+    other = np.full(need.shape, np.inf, np.float32)
+    for pm in others:
+        cam_T_other = camera.cam_T_rig @ pm.cam_T_model
+        ob = projected_bbox(camera, pm.mesh, cam_T_other)
+        if ob is None:
+            continue
+        bx0, by0, bx1, by1 = max(ob[0], x0), max(ob[1], y0), min(ob[2], x1), min(ob[3], y1)
+        if bx0 >= bx1 or by0 >= by1:
+            continue
+        window = (slice(by0 - y0, by1 - y0), slice(bx0 - x0, bx1 - x0))
+        sub_need = need[window]
+        if not sub_need.any():
+            continue
+        d = cast_alone(pm.mesh, cam_T_other, rays[window][sub_need]).depth
+        sub = other[window]
+        sub[sub_need] = np.minimum(sub[sub_need], d)
+    return other
+
+
+def _grid_normals(grid: np.ndarray, ys: np.ndarray, xs: np.ndarray) -> np.ndarray:
+    """Unit normals (towards the camera) of a grid of measured points (H, W, 3) at its
+    pixels ``(ys, xs)``, from their neighbours: (N, 3), NaN where a neighbour is missing or
+    the surface jumps (a depth edge). Only the pixels asked for: most of a part's rectangle
+    is not its region."""
+    h, w = grid.shape[:2]
+    out = np.full((len(ys), 3), np.nan)
+    inner = (ys > 0) & (ys < h - 1) & (xs > 0) & (xs < w - 1)
+    y, x = ys[inner], xs[inner]
+    dx = grid[y, x + 1] - grid[y, x - 1]
+    dy = grid[y + 1, x] - grid[y - 1, x]
+    centre = grid[y, x]
     n = np.cross(dx, dy)
     norm = np.linalg.norm(n, axis=-1, keepdims=True)
     n = n / np.where(norm > 0, norm, np.nan)
-    n *= -np.sign(np.einsum("ijk,ijk->ij", n, grid[1:-1, 1:-1]))[..., None]
+    n *= -np.sign(np.einsum("ij,ij->i", n, centre))[..., None]
     # Across a depth edge the "surface" is the jump itself: a neighbour step far longer than
     # the pixel's footprint.
-    footprint = np.abs(grid[1:-1, 1:-1, 2]) / 500.0
+    footprint = np.abs(centre[:, 2]) / 500.0
     jump = np.maximum(np.linalg.norm(dx, axis=-1), np.linalg.norm(dy, axis=-1)) > 8 * footprint
     n[jump] = np.nan
-    out[1:-1, 1:-1] = n
+    out[inner] = n
     return out
 
 
@@ -232,6 +261,8 @@ class DepthTerm:
     def __init__(self, mesh: Mesh, measured: np.ndarray, camera_centre: np.ndarray) -> None:
         self.tree, self.model, self.normals = _model_cloud(mesh)
         self.points = measured[:, :3]
+        # The pose moves little from one call to the next: most points keep their match.
+        self.nearest = TrackedNearest(self.tree, self.model, len(self.points))
         self.point_normals = measured[:, 3:]
         self.centre = camera_centre  # the depth camera's centre, reference frame
         rays = self.points - camera_centre
@@ -256,7 +287,7 @@ class DepthTerm:
         R, t = T[:3, :3], T[:3, 3]
         points = self.shifted()
         # Each measured point, brought to the model frame, against its nearest model sample.
-        dist, nearest = self.tree.query((points - t) @ R, k=1, distance_upper_bound=gate)
+        dist, nearest = self.nearest.query((points - t) @ R, gate)
         i = np.flatnonzero(np.isfinite(dist))
         if len(i) == 0:
             return np.zeros(0), np.zeros((0, 6)), np.zeros(0, int)
