@@ -42,10 +42,14 @@ from annotator.geometry.mesh import Mesh
 from annotator.rendering.raycast import (
     Hits,
     PlacedMesh,
-    cast_separately,
+    cast_alone,
     nearest,
     projected_bbox,
 )
+
+#: Instances cast alone, by (camera, step, mesh digest, pose bytes): their rectangle on the
+#: sample grid and their hits there (see ``scene_visibility``'s ``memo``).
+CastMemo = dict[tuple[str, int, bytes, bytes], tuple[Rect | None, Hits | None]]
 
 #: How much closer (mm) a measurement must be than the rendered part to hide a pixel of it:
 #: several times the sensor noise.
@@ -121,6 +125,7 @@ def scene_visibility(
     step: int = 1,
     renders: dict[str, tuple[np.ndarray, np.ndarray]] | None = None,
     casts: Mapping[str, Sequence[tuple[Rect, Hits] | None]] | None = None,
+    memo: CastMemo | None = None,
 ) -> list[InstanceVisibility]:
     """Silhouettes and occlusion of every posed instance (poses: ``rig_T_model`` 4x4).
 
@@ -138,6 +143,8 @@ def scene_visibility(
         casts: Per camera, each instance cast alone over its rectangle (what
             :func:`cast_separately` returns, with the rectangle), when it has already been
             done at ``step=1`` (by the synthetic renderer); missing cameras are cast here.
+        memo: Each instance's own cast, kept by camera, step, mesh and pose: given again
+            (for the same rig), an instance that has not moved is not cast again.
     """
     if masks and step != 1:
         raise ValueError("masks need step=1")
@@ -148,7 +155,7 @@ def scene_visibility(
     for name in names:
         cam = rig.camera(name)
         done = casts.get(name) if casts is not None and step == 1 else None
-        boxes, alone, front, zbuf = _cast_camera(cam, meshes, poses, step, done)
+        boxes, alone, front, zbuf = _cast_camera(cam, meshes, poses, step, done, memo)
         if renders is not None:
             renders[name] = (zbuf, front)
         measured = depth[::step, ::step] if depth is not None and name == depth_cam else None
@@ -170,20 +177,32 @@ def _cast_camera(
     poses: Sequence[np.ndarray],
     step: int,
     done: Sequence[tuple[Rect, Hits] | None] | None,
+    memo: CastMemo | None,
 ) -> tuple[list[Rect | None], list[tuple[np.ndarray, np.ndarray] | None], np.ndarray, np.ndarray]:
-    """Every instance cast alone over its rectangle, then a depth buffer of all of them (on
-    equal depths the first instance wins, so that visible parts never overlap): the
-    rectangles (on the sample grid), per instance its (hit mask, depth) there, and the
-    nearest instance and its depth at every sample."""
+    """Every instance cast alone over its rectangle (as :func:`cast_separately` does; or from
+    ``done`` or ``memo``), then a depth buffer of all of them (on equal depths the first
+    instance wins, so that visible parts never overlap): the rectangles (on the sample grid),
+    per instance its (hit mask, depth) there, and the nearest instance and its depth at every
+    sample."""
     rays = cam.pixel_rays(step)
     if done is not None:
         boxes = [None if c is None else c[0] for c in done]
         own = [None if c is None else c[1] for c in done]
-        together = nearest(rays.shape[:2], boxes, own, surface=False)
     else:
-        placed = [PlacedMesh(m, cam.cam_T_rig @ T) for m, T in zip(meshes, poses)]
-        boxes = [_on_grid(projected_bbox(cam, pm.mesh, pm.cam_T_model), step) for pm in placed]
-        together, own = cast_separately(rays, placed, boxes, surface=False)
+        boxes, own = [], []
+        for m, T in zip(meshes, poses):
+            key = (cam.name, step, m.digest, np.asarray(T, float).tobytes())
+            found = memo.get(key) if memo is not None else None
+            if found is None:
+                pm = PlacedMesh(m, cam.cam_T_rig @ T)
+                box = _on_grid(projected_bbox(cam, pm.mesh, pm.cam_T_model), step)
+                window = rays if box is None else rays[box[1] : box[3], box[0] : box[2]]
+                found = (box, None if box is None else cast_alone(pm.mesh, pm.cam_T_model, window))
+                if memo is not None:
+                    memo[key] = found
+            boxes.append(found[0])
+            own.append(found[1])
+    together = nearest(rays.shape[:2], boxes, own, surface=False)
     alone = [None if h is None else (h.hit, h.depth) for h in own]
     return boxes, alone, together.instance, together.depth
 

@@ -34,7 +34,7 @@ from scipy.spatial import cKDTree
 
 from annotator.dataset.review import RepairOp, RepairStep
 from annotator.geometry.camera import Camera
-from annotator.geometry.lie import perturb
+from annotator.geometry.lie import cross, perturb
 from annotator.geometry.mesh import Mesh, surface_samples
 from annotator.geometry.robust import huber_weights
 from annotator.noise import NOISE
@@ -302,7 +302,7 @@ class DepthTerm:
         )
         i, y, n, p = i[ok], y[ok], n[ok], p[ok]
         r = np.einsum("ij,ij->i", n, p - points[i])
-        J = np.concatenate([np.cross(y, n), n], axis=1)
+        J = np.concatenate([cross(y, n), n], axis=1)
         return r, J, i
 
 
