@@ -43,8 +43,8 @@ from annotator.rendering.raycast import (
     Hits,
     PlacedMesh,
     cast_alone,
+    hit_bbox,
     nearest,
-    projected_bbox,
 )
 
 #: Instances cast alone, by (camera, step, mesh digest, pose bytes): their rectangle on the
@@ -87,15 +87,6 @@ class InstanceVisibility:
 
 #: Depth agreement: measured and rendered depth agree within max(3 mm, 1% of the depth).
 AGREEMENT_TOLERANCE_MM = 3.0
-
-
-def _on_grid(box: Rect | None, step: int) -> Rect | None:
-    """A pixel rectangle ``(x0, y0, x1, y1)`` as the range of grid samples ``pixel / step``
-    inside it; None if it holds no sample."""
-    if box is None:
-        return None
-    g = tuple(-(-v // step) for v in box)
-    return None if g[0] >= g[2] or g[1] >= g[3] else g  # type: ignore[return-value]
 
 
 def _bbox(mask: np.ndarray, x0: int = 0, y0: int = 0, step: int = 1) -> XYWH | None:
@@ -195,7 +186,7 @@ def _cast_camera(
             found = memo.get(key) if memo is not None else None
             if found is None:
                 pm = PlacedMesh(m, cam.cam_T_rig @ T)
-                box = _on_grid(projected_bbox(cam, pm.mesh, pm.cam_T_model), step)
+                box = hit_bbox(cam, pm.mesh, pm.cam_T_model, step=step)
                 window = rays if box is None else rays[box[1] : box[3], box[0] : box[2]]
                 found = (box, None if box is None else cast_alone(pm.mesh, pm.cam_T_model, window))
                 if memo is not None:

@@ -40,7 +40,7 @@ from annotator.geometry.robust import huber_weights
 from annotator.noise import NOISE
 from annotator.pnp.multiview import Observation, reprojection_errors, residuals_jacobian
 from annotator.refinement.nearest import TrackedNearest
-from annotator.rendering.raycast import PlacedMesh, cast_alone, clip_region, projected_bbox
+from annotator.rendering.raycast import PlacedMesh, cast_alone, clip_region, hit_bbox
 
 #: The model's surface samples are about this far apart (mm): well below the depth's own
 #: spacing at the working distance.
@@ -158,7 +158,9 @@ def measured_points(
     (N, 6) in the reference frame (mm): see the module docstring. ``others`` are the other
     posed parts, placed in the reference frame."""
     cam_T_model = camera.cam_T_rig @ rig_T_model
-    box = projected_bbox(camera, mesh, cam_T_model)
+    # Two pixels around the rays that can hit the part: each of its pixels has its
+    # neighbours (for the normals), and one beyond them is empty (as for the erosion).
+    box = hit_bbox(camera, mesh, cam_T_model, margin=2)
     if box is None:
         return np.zeros((0, 6))
     m = settings.margin_px
@@ -210,7 +212,7 @@ def _nearest_other(
     other = np.full(need.shape, np.inf, np.float32)
     for pm in others:
         cam_T_other = camera.cam_T_rig @ pm.cam_T_model
-        ob = projected_bbox(camera, pm.mesh, cam_T_other)
+        ob = hit_bbox(camera, pm.mesh, cam_T_other)
         if ob is None:
             continue
         bx0, by0, bx1, by1 = max(ob[0], x0), max(ob[1], y0), min(ob[2], x1), min(ob[3], y1)
