@@ -286,11 +286,12 @@ def render_scene(
     camera: Camera, placed: Sequence[PlacedMesh], *, fixed: int = 0
 ) -> tuple[Hits, list[tuple[Rect, Hits] | None]]:
     """:func:`render` of a scene whose first ``fixed`` meshes are its unchanging surroundings
-    (a table, a bin: :func:`render_once`), the others cast each alone over its projected
-    rectangle (:func:`cast_separately`). Returns the hits, and per mesh after the fixed ones
-    its rectangle and its own hits there (None when out of view)."""
+    (a table, a bin: :func:`render_once`), the others cast each alone over the rectangle of
+    the rays that can hit it (:func:`hit_bbox`, :func:`cast_separately`). Returns the hits,
+    and per mesh after the fixed ones its rectangle and its own hits there (None when out of
+    view)."""
     behind = render_once(camera, placed[:fixed]) if fixed else None
-    rects = [projected_bbox(camera, pm.mesh, pm.cam_T_model) for pm in placed[fixed:]]
+    rects = [hit_bbox(camera, pm.mesh, pm.cam_T_model) for pm in placed[fixed:]]
     hits, own = cast_separately(
         camera.pixel_rays(), placed[fixed:], rects, behind=behind, first=fixed
     )
