@@ -359,6 +359,7 @@ def refine_instance(
     observations: Sequence[Observation] = (),
     settings: RefineSettings = RefineSettings(),
     points: np.ndarray | None = None,
+    term: DepthTerm | None = None,
 ) -> Refinement:
     """Refine one instance's pose ``rig_T_model`` (see the module docstring).
 
@@ -371,12 +372,17 @@ def refine_instance(
             (:func:`annotator.repair.instance_observations`); none: depth only.
         points: The measured points, if already found (:func:`measured_points` at
             ``rig_T_model``).
+        term: The :class:`DepthTerm` of the measured points, if already made (instead of
+            ``points``; it keeps its matches, so a caller that goes on with the refined
+            pose, as to its covariance, need not search them again); its offset is solved
+            for in place.
     """
     started = time.perf_counter()
     T0 = np.array(rig_T_model, float)
     obs = list(observations)
-    term = None
-    if depth is not None and depth_camera is not None:
+    if depth is None or depth_camera is None:
+        term = None
+    elif term is None:
         pts = (
             measured_points(depth_camera, depth, mesh, T0, others, settings)
             if points is None
@@ -384,6 +390,8 @@ def refine_instance(
         )
         if len(pts) >= settings.min_points:
             term = DepthTerm(mesh, pts, depth_camera.rig_T_cam[:3, 3])
+    elif len(term.points) < settings.min_points:
+        term = None
     before = residuals_at(T0, term, cameras, obs, settings)
     if term is None and not obs:
         why = "no measured depth and no marker on it"
