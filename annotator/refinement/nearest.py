@@ -6,8 +6,9 @@ nearest sample cannot have changed.
 A search gives each point its nearest sample (at ``d1``) and the distance ``d2`` to the
 second nearest (or to the gate, when no other sample lies within it). A point that has since
 moved by less than ``(d2 - d1) / 2`` still has the same nearest sample: every other sample is
-still further away than it. Only the points that moved more are searched again; the others'
-distances are measured to their sample. In a Gauss-Newton refinement the pose's steps soon
+still further away than it. A point with no sample within the gate ``g`` has none within
+``g - moved`` either: none is within a new gate that small. Only the other points are
+searched again; the first kind's distances are measured to their sample. In a Gauss-Newton refinement the pose's steps soon
 become small, so after the first iterations most points are not searched again.
 """
 
@@ -29,6 +30,7 @@ class TrackedNearest:
         self.at = np.full((n, 3), np.nan)  # each point where it was last searched
         self.index = np.zeros(n, np.intp)  # its nearest sample then
         self.margin = np.full(n, -np.inf)  # how far it may move and keep that sample
+        self.empty = np.zeros(n)  # no sample lies nearer than this to it (when none matched)
         self.searched = 0  # points searched, over all queries (for tests and profiling)
 
     def query(self, points: np.ndarray, gate: float) -> tuple[np.ndarray, np.ndarray]:
@@ -36,9 +38,10 @@ class TrackedNearest:
         to its nearest sample (inf where none lies within ``gate``) and that sample's index
         (``len(samples)`` where none)."""
         moved = np.linalg.norm(points - self.at, axis=1)
-        redo = ~(moved < self.margin)  # NaN (never searched) is searched too
-        dist = np.empty(len(points))
-        index = np.empty(len(points), np.intp)
+        none = moved + gate + _SAFETY_MM <= self.empty  # NaN (never searched): False
+        redo = ~(moved < self.margin) & ~none  # NaN (never searched) is searched too
+        dist = np.full(len(points), np.inf)
+        index = np.full(len(points), len(self.samples), np.intp)
         if redo.any():
             q = points[redo]
             d, j = self.tree.query(q, k=2, distance_upper_bound=gate)
@@ -49,8 +52,9 @@ class TrackedNearest:
             gap = np.minimum(d[:, 1], gate) - d[:, 0]
             with np.errstate(invalid="ignore"):  # inf - inf: no sample within the gate
                 self.margin[redo] = np.where(np.isfinite(d[:, 0]), 0.5 * gap - _SAFETY_MM, -np.inf)
+            self.empty[redo] = np.where(np.isfinite(d[:, 0]), 0.0, gate)
             dist[redo], index[redo] = d[:, 0], j[:, 0]
-        kept = ~redo
+        kept = ~redo & ~none
         if kept.any():
             j = self.index[kept]
             d = np.linalg.norm(points[kept] - self.samples[j], axis=1)
