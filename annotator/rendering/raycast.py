@@ -131,7 +131,9 @@ class RayScene:
         # open3d's rays in one array made once (the directions rounded to float32 as
         # astype rounds them): no intermediate copies of a large bundle.
         rays = np.empty((int(np.prod(shape)), 6), np.float32)
-        rays[:, :3] = 0.0 if origin is None else np.asarray(origin, np.float32)
+        start = np.zeros(3, np.float32) if origin is None else np.asarray(origin, np.float32)
+        for k in range(3):  # a column at a time: twice as fast as one strided (N, 3) fill
+            rays[:, k] = start[k]
         rays[:, 3:] = np.asarray(directions).reshape(-1, 3)
         if not self.placed:
             return Hits(
