@@ -195,3 +195,29 @@ def test_a_biased_depth_map_does_not_pull_the_pose_with_its_offset_solved(sample
     assert solved.depth_offset_mm == pytest.approx(-1.0, abs=0.35)
     moved = [np.linalg.norm(r.T[:3, 3] - g.t) for r in (plain, solved)]
     assert moved[1] < 0.5 * moved[0]
+
+
+def test_tracked_nearest_samples_are_the_k_d_trees_own() -> None:
+    """A cloud moved a little at a time, as a refinement's measured points are: the same
+    nearest samples and distances as a query of the tree each time, gate included, with most
+    points not searched again once the steps are small."""
+    from scipy.spatial import cKDTree
+
+    from annotator.geometry.lie import perturb
+    from annotator.refinement.nearest import TrackedNearest
+
+    rng = np.random.default_rng(3)
+    samples = rng.uniform(-20, 20, (5000, 3))
+    tree = cKDTree(samples)
+    points = samples[rng.choice(len(samples), 800)] + rng.normal(0, 0.5, (800, 3))
+    points[:20] += 30.0  # beyond every gate at first
+    tracked = TrackedNearest(tree, samples, len(points))
+    T = np.eye(4)
+    for k, gate in enumerate([15.0, 9.0, 3.0, 3.0, 3.0, 5.0, 3.0, 3.0]):
+        q = points @ T[:3, :3].T + T[:3, 3]
+        got = tracked.query(q, gate)
+        want = tree.query(q, k=1, distance_upper_bound=gate)
+        np.testing.assert_array_equal(got[1], want[1])
+        np.testing.assert_allclose(got[0], want[0], rtol=1e-12)
+        T = perturb(T, np.r_[0.02, -0.01, 0.01, 0.5, 0.2, -0.3] * 0.3**k)
+    assert tracked.searched < 0.6 * 8 * len(points)

@@ -103,3 +103,30 @@ def test_casting_each_mesh_alone_gives_the_scene_cast() -> None:
     assert np.allclose(np.linalg.norm(n[hits.hit], axis=1), 1.0, atol=1e-5)
     assert not n[~hits.hit].any()
     assert np.allclose(n[hits.instance == 0], [0, 0, -1], atol=1e-6)  # facing the camera
+
+
+def test_every_hit_lies_in_the_hit_bbox_and_it_is_tighter() -> None:
+    """Turned parts under strong distortion, one reaching out of the image, on the full grid
+    and every second pixel: no hit outside the rectangle, and fewer rays than the box of
+    the turned bounding box."""
+    from annotator.rendering.raycast import hit_bbox
+
+    cam = Camera("c", 640, 480, K, np.array([-0.3, 0.12, 0.002, -0.001, 0.0]))
+    tighter = 0
+    for pm in _pile(12, seed=4) + [
+        PlacedMesh(_box((60, 40, 20)), make_transform(np.eye(3), [260.0, 0, 400]))
+    ]:
+        for step in (1, 2):
+            hits = render(cam, [pm]).hit[::step, ::step]
+            box = hit_bbox(cam, pm.mesh, pm.cam_T_model, step=step)
+            if box is None:
+                assert not hits.any()
+                continue
+            x0, y0, x1, y1 = box
+            inside = np.zeros_like(hits)
+            inside[y0:y1, x0:x1] = True
+            assert not (hits & ~inside).any()
+            loose = projected_bbox(cam, pm.mesh, pm.cam_T_model)
+            if step == 1 and loose is not None:
+                tighter += (x1 - x0) * (y1 - y0) < (loose[2] - loose[0]) * (loose[3] - loose[1])
+    assert tighter >= 6

@@ -86,6 +86,7 @@ def refine_few_marker_poses(
         model = ds.objects[r.object]
         others = placed[:k] + placed[k + 1 :]
         points = measured_points(cam, depth, model.mesh, r.T, others, rs)
+        term = DepthTerm(model.mesh, points, cam.rig_T_cam[:3, 3])
         result = refine_instance(
             model.mesh,
             r.T,
@@ -95,12 +96,11 @@ def refine_few_marker_poses(
             cameras=ds.rig.cameras,
             observations=used,
             settings=rs,
-            points=points,
+            term=term,
         )
         if not _better(result.converged, result.before, result.after, settings):
             continue
-        term = DepthTerm(model.mesh, points, cam.rig_T_cam[:3, 3])
-        term.offset = result.depth_offset_mm
+        term.offset = result.depth_offset_mm  # (what it holds already: it converged)
         cov = pose_covariance(
             result.T,
             depth=term,

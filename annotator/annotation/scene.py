@@ -34,6 +34,7 @@ from annotator.dataset.model import UNEXPLAINED_MASK
 from annotator.dataset.records import InstanceAnnotation, SceneAnnotation
 from annotator.detection import MarkerDetector
 from annotator.io.images import to_gray8
+from annotator.occlusion import CastMemo
 from annotator.physics.scene import record_physics
 from annotator.values import of_type
 
@@ -96,7 +97,8 @@ def annotate_scene(
     forgive_misreadings(ds.rig.cameras, instances, markers.per_instance)
     depth = scene.read_depth(ds.rig)
     renders: Renders = {}
-    add_visibility(ds, instances, depth, settings, renders)
+    memo: CastMemo = {}  # the parts that the steps below leave where they are: cast once
+    add_visibility(ds, instances, depth, settings, renders, memo)
     doubtful = [r for r in instances if not _supported(r, depth is not None)]
     unconfirmed: dict[str, list[int]] = {}
     if doubtful:
@@ -105,10 +107,10 @@ def annotate_scene(
             for cam_name, m in r.markers.items():
                 unconfirmed.setdefault(cam_name, []).extend(m.used)
         renders = {}
-        add_visibility(ds, instances, depth, settings, renders)
+        add_visibility(ds, instances, depth, settings, renders, memo)
     if refine_few_marker_poses(ds, instances, markers.per_instance, depth, settings):
         renders = {}
-        add_visibility(ds, instances, depth, settings, renders)
+        add_visibility(ds, instances, depth, settings, renders, memo)
     record_physics(ds, scene_shots(ds, scene)[0], instances, depth)
     quality = image_quality(ds, readings, grays)
     warnings = quality_warnings(quality, settings.completeness)

@@ -10,7 +10,7 @@ from annotator.dataset import Dataset, InstancePose
 from annotator.dataset.figures import DepthCheck, Occlusion
 from annotator.dataset.flags import Flag, sort_flags
 from annotator.dataset.records import InstanceAnnotation
-from annotator.occlusion import InstanceVisibility, scene_visibility
+from annotator.occlusion import CastMemo, InstanceVisibility, scene_visibility
 
 #: Per camera, the depth (mm) of the nearest posed instance and its index, on a sample grid.
 Renders = dict[str, tuple[np.ndarray, np.ndarray]]
@@ -35,10 +35,12 @@ def add_visibility(
     depth: np.ndarray | None,
     s: AnnotateSettings,
     renders: Renders,
+    memo: CastMemo | None = None,
 ) -> None:
     """Set the occlusion rates and depth agreement of the posed instances (all instances as
     occluders), and their ``depth_disagreement`` flag; ``renders`` receives what each camera
-    sees of them."""
+    sees of them. ``memo``: the instances' casts of an earlier call on the same scene, kept
+    (see :func:`annotator.occlusion.scene_visibility`)."""
     if not instances:
         return
     vis = scene_visibility(
@@ -49,6 +51,7 @@ def add_visibility(
         agreement_tolerance=s.depth_tolerance_mm,
         step=s.visibility_step,
         renders=renders,
+        memo=memo,
     )
     depth_cam = ds.rig.depth.camera if ds.rig.depth is not None else None
     for r, v in zip(instances, vis):

@@ -42,10 +42,14 @@ from annotator.geometry.mesh import Mesh
 from annotator.rendering.raycast import (
     Hits,
     PlacedMesh,
-    cast_separately,
+    cast_alone,
+    hit_bbox,
     nearest,
-    projected_bbox,
 )
+
+#: Instances cast alone, by (camera, step, mesh digest, pose bytes): their rectangle on the
+#: sample grid and their hits there (see ``scene_visibility``'s ``memo``).
+CastMemo = dict[tuple[str, int, bytes, bytes], tuple[Rect | None, Hits | None]]
 
 #: How much closer (mm) a measurement must be than the rendered part to hide a pixel of it:
 #: several times the sensor noise.
@@ -85,26 +89,18 @@ class InstanceVisibility:
 AGREEMENT_TOLERANCE_MM = 3.0
 
 
-def _on_grid(box: Rect | None, step: int) -> Rect | None:
-    """A pixel rectangle ``(x0, y0, x1, y1)`` as the range of grid samples ``pixel / step``
-    inside it; None if it holds no sample."""
-    if box is None:
-        return None
-    g = tuple(-(-v // step) for v in box)
-    return None if g[0] >= g[2] or g[1] >= g[3] else g  # type: ignore[return-value]
-
-
 def _bbox(mask: np.ndarray, x0: int = 0, y0: int = 0, step: int = 1) -> XYWH | None:
     """``(x, y, w, h)`` of the true samples of a grid mask whose sample (0, 0) is grid point
-    ``(x0, y0)``, in pixels."""
-    ys, xs = np.nonzero(mask)
+    ``(x0, y0)``, in pixels. (From the rows and columns holding one: the positions of
+    every true sample cost several times more.)"""
+    ys, xs = np.flatnonzero(mask.any(axis=1)), np.flatnonzero(mask.any(axis=0))
     if len(xs) == 0:
         return None
     return (
-        int(xs.min() + x0) * step,
-        int(ys.min() + y0) * step,
-        int(xs.max() - xs.min()) * step + 1,
-        int(ys.max() - ys.min()) * step + 1,
+        int(xs[0] + x0) * step,
+        int(ys[0] + y0) * step,
+        int(xs[-1] - xs[0]) * step + 1,
+        int(ys[-1] - ys[0]) * step + 1,
     )
 
 
@@ -121,6 +117,7 @@ def scene_visibility(
     step: int = 1,
     renders: dict[str, tuple[np.ndarray, np.ndarray]] | None = None,
     casts: Mapping[str, Sequence[tuple[Rect, Hits] | None]] | None = None,
+    memo: CastMemo | None = None,
 ) -> list[InstanceVisibility]:
     """Silhouettes and occlusion of every posed instance (poses: ``rig_T_model`` 4x4).
 
@@ -138,6 +135,8 @@ def scene_visibility(
         casts: Per camera, each instance cast alone over its rectangle (what
             :func:`cast_separately` returns, with the rectangle), when it has already been
             done at ``step=1`` (by the synthetic renderer); missing cameras are cast here.
+        memo: Each instance's own cast, kept by camera, step, mesh and pose: given again
+            (for the same rig), an instance that has not moved is not cast again.
     """
     if masks and step != 1:
         raise ValueError("masks need step=1")
@@ -148,7 +147,7 @@ def scene_visibility(
     for name in names:
         cam = rig.camera(name)
         done = casts.get(name) if casts is not None and step == 1 else None
-        boxes, alone, front, zbuf = _cast_camera(cam, meshes, poses, step, done)
+        boxes, alone, front, zbuf = _cast_camera(cam, meshes, poses, step, done, memo)
         if renders is not None:
             renders[name] = (zbuf, front)
         measured = depth[::step, ::step] if depth is not None and name == depth_cam else None
@@ -170,20 +169,32 @@ def _cast_camera(
     poses: Sequence[np.ndarray],
     step: int,
     done: Sequence[tuple[Rect, Hits] | None] | None,
+    memo: CastMemo | None,
 ) -> tuple[list[Rect | None], list[tuple[np.ndarray, np.ndarray] | None], np.ndarray, np.ndarray]:
-    """Every instance cast alone over its rectangle, then a depth buffer of all of them (on
-    equal depths the first instance wins, so that visible parts never overlap): the
-    rectangles (on the sample grid), per instance its (hit mask, depth) there, and the
-    nearest instance and its depth at every sample."""
+    """Every instance cast alone over its rectangle (as :func:`cast_separately` does; or from
+    ``done`` or ``memo``), then a depth buffer of all of them (on equal depths the first
+    instance wins, so that visible parts never overlap): the rectangles (on the sample grid),
+    per instance its (hit mask, depth) there, and the nearest instance and its depth at every
+    sample."""
     rays = cam.pixel_rays(step)
     if done is not None:
         boxes = [None if c is None else c[0] for c in done]
         own = [None if c is None else c[1] for c in done]
-        together = nearest(rays.shape[:2], boxes, own, surface=False)
     else:
-        placed = [PlacedMesh(m, cam.cam_T_rig @ T) for m, T in zip(meshes, poses)]
-        boxes = [_on_grid(projected_bbox(cam, pm.mesh, pm.cam_T_model), step) for pm in placed]
-        together, own = cast_separately(rays, placed, boxes, surface=False)
+        boxes, own = [], []
+        for m, T in zip(meshes, poses):
+            key = (cam.name, step, m.digest, np.asarray(T, float).tobytes())
+            found = memo.get(key) if memo is not None else None
+            if found is None:
+                pm = PlacedMesh(m, cam.cam_T_rig @ T)
+                box = hit_bbox(cam, pm.mesh, pm.cam_T_model, step=step)
+                window = rays if box is None else rays[box[1] : box[3], box[0] : box[2]]
+                found = (box, None if box is None else cast_alone(pm.mesh, pm.cam_T_model, window))
+                if memo is not None:
+                    memo[key] = found
+            boxes.append(found[0])
+            own.append(found[1])
+    together = nearest(rays.shape[:2], boxes, own, surface=False)
     alone = [None if h is None else (h.hit, h.depth) for h in own]
     return boxes, alone, together.instance, together.depth
 

@@ -164,7 +164,13 @@ def _gap(
             break
         if j == i or not boxes_overlap(a, b, margin=best):
             continue
-        d = hull_distance(low, b)
+        # The hull lies in b's box: a point further than ``best`` from the box is further
+        # from the hull, and cannot be the nearest.
+        lo, hi = b.box
+        near = np.all((low >= lo[:, None] - best) & (low <= hi[:, None] + best), axis=0)
+        if not near.any():
+            continue
+        d = hull_distance(low[:, near], b)
         if len(d) and float(d.min()) < best:
             best, rests_on = float(d.min()), b.key
     return best, rests_on

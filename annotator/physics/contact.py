@@ -26,6 +26,9 @@ INSIDE_VOTES = 5
 # Ray-casting scenes of meshes (and of their hulls), by geometry: built once per process.
 _SCENES: dict[tuple[bytes, bool], object] = {}
 _HULLS: dict[bytes, Mesh] = {}
+# Surface samples of meshes (and with their vertices), by geometry: drawn once per process.
+_DRAWN: dict[bytes, tuple[np.ndarray, np.ndarray]] = {}
+_MODEL_POINTS: dict[bytes, np.ndarray] = {}
 
 
 @dataclass(frozen=True, eq=False)
@@ -69,14 +72,28 @@ class Body:
 
 
 def _drawn(mesh: Mesh) -> tuple[np.ndarray, np.ndarray]:
-    """About :data:`SAMPLES` points over the surface (model frame) and their normals."""
-    area = float(mesh.face_areas.sum())
-    spacing = np.sqrt(12.0 * area / SAMPLES)  # surface_samples' density: 12 per spacing^2
-    return surface_samples(mesh, spacing)
+    """About :data:`SAMPLES` points over the surface (model frame) and their normals; drawn
+    once per mesh (by content) and process: every body of a scene asks for them."""
+    hit = _DRAWN.get(mesh.digest)
+    if hit is None:
+        area = float(mesh.face_areas.sum())
+        spacing = np.sqrt(12.0 * area / SAMPLES)  # surface_samples' density: 12 per spacing^2
+        if len(_DRAWN) >= 64:
+            _DRAWN.clear()
+        hit = _DRAWN[mesh.digest] = surface_samples(mesh, spacing)
+        for a in hit:
+            a.setflags(write=False)
+    return hit
 
 
 def _model_points(mesh: Mesh) -> np.ndarray:
-    return np.concatenate([mesh.vertices, _drawn(mesh)[0]])
+    hit = _MODEL_POINTS.get(mesh.digest)
+    if hit is None:
+        if len(_MODEL_POINTS) >= 64:
+            _MODEL_POINTS.clear()
+        hit = _MODEL_POINTS[mesh.digest] = np.concatenate([mesh.vertices, _drawn(mesh)[0]])
+        hit.setflags(write=False)
+    return hit
 
 
 def check_solid(mesh: Mesh, path: Path) -> None:

@@ -17,7 +17,7 @@ import numpy as np
 
 from annotator.geometry.camera import Camera
 from annotator.geometry.least_squares import Damping, levenberg_marquardt
-from annotator.geometry.lie import perturb
+from annotator.geometry.lie import cross, perturb
 from annotator.geometry.transforms import make_transform
 from annotator.noise import NOISE
 
@@ -244,6 +244,6 @@ def residuals_jacobian(
         r[idx] = uv.reshape(len(idx), 4, 2) - x[idx]
         G = jac[:, 3:6].reshape(-1, 2, 3) @ cam.cam_T_rig[:3, :3]  # d(pixel)/dy, (N, 2, 3)
         y = X @ T[:3, :3].T  # R X, about the rig origin
-        Jw = np.cross(y[:, None, :], G)  # g^T (-[y]x) = (y x g)^T
+        Jw = cross(y[:, None, :], G)  # g^T (-[y]x) = (y x g)^T
         J[idx] = np.concatenate([Jw, G], axis=-1).reshape(len(idx), 4, 2, 6)
     return r.ravel(), J.reshape(-1, 6)

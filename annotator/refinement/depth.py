@@ -38,12 +38,13 @@ from scipy.spatial import cKDTree
 from annotator.dataset.review import RepairOp, RepairStep
 from annotator.geometry.camera import Camera
 from annotator.geometry.least_squares import Damping, Stop, levenberg_marquardt
-from annotator.geometry.lie import perturb
+from annotator.geometry.lie import cross, perturb
 from annotator.geometry.mesh import Mesh, surface_samples
 from annotator.geometry.robust import huber_cost, huber_weights
 from annotator.noise import NOISE, NoiseModel
 from annotator.pnp.multiview import Observation, reprojection_errors, residuals_jacobian
-from annotator.rendering.raycast import PlacedMesh, cast_alone, clip_region, projected_bbox
+from annotator.refinement.nearest import TrackedNearest
+from annotator.rendering.raycast import PlacedMesh, cast_alone, clip_region, hit_bbox
 
 #: The model's surface samples are about this far apart (mm): well below the depth's own
 #: spacing at the working distance.
@@ -161,14 +162,17 @@ def measured_points(
     (N, 6) in the reference frame (mm): see the module docstring. ``others`` are the other
     posed parts, placed in the reference frame."""
     cam_T_model = camera.cam_T_rig @ rig_T_model
-    box = projected_bbox(camera, mesh, cam_T_model)
+    # Two pixels around the rays that can hit the part: each of its pixels has its
+    # neighbours (for the normals), and one beyond them is empty (as for the erosion).
+    box = hit_bbox(camera, mesh, cam_T_model, margin=2)
     if box is None:
         return np.zeros((0, 6))
     m = settings.margin_px
     grow = max(m, 0)
-    x0, y0, x1, y1 = clip_region(
+    region = clip_region(
         (box[0] - grow, box[1] - grow, box[2] + grow, box[3] + grow), camera.width, camera.height
     )
+    x0, y0, x1, y1 = region
     rays = camera.pixel_rays()[y0:y1, x0:x1]
     own = cast_alone(mesh, cam_T_model, rays).depth
     mask = np.isfinite(own)
@@ -176,18 +180,7 @@ def measured_points(
         kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * m + 1, 2 * m + 1))
         mask = cv2.dilate(mask.astype(np.uint8), kernel) > 0
     measured = depth[y0:y1, x0:x1]
-    other = np.full(own.shape, np.inf, np.float32)
-    for pm in others:
-        cam_T_other = camera.cam_T_rig @ pm.cam_T_model
-        ob = projected_bbox(camera, pm.mesh, cam_T_other)
-        if ob is None:
-            continue
-        bx0, by0, bx1, by1 = max(ob[0], x0), max(ob[1], y0), min(ob[2], x1), min(ob[3], y1)
-        if bx0 >= bx1 or by0 >= by1:
-            continue
-        d = cast_alone(pm.mesh, cam_T_other, rays[by0 - y0 : by1 - y0, bx0 - x0 : bx1 - x0]).depth
-        sub = other[by0 - y0 : by1 - y0, bx0 - x0 : bx1 - x0]
-        np.minimum(sub, d, out=sub)
+    other = _nearest_other(camera, others, rays, region, mask)
     theirs = np.isfinite(other) & (
         (np.abs(measured - other) < settings.explained_mm) | (other < own)
     )
@@ -197,32 +190,70 @@ def measured_points(
         mask = cv2.erode(mask.astype(np.uint8), kernel, borderValue=0) > 0
     mask &= np.isfinite(measured) & (measured > 0)
     grid = rays.astype(np.float64) * measured[..., None]
-    normals = _grid_normals(grid)
-    mask &= np.isfinite(normals).all(axis=-1)
     ys, xs = np.nonzero(mask)
+    normals = _grid_normals(grid, ys, xs)
+    good = np.isfinite(normals).all(axis=-1)
+    ys, xs, normals = ys[good], xs[good], normals[good]
     if len(ys) > settings.max_points:  # evenly thinned, deterministically
         keep = np.linspace(0, len(ys) - 1, settings.max_points).astype(int)
-        ys, xs = ys[keep], xs[keep]
+        ys, xs, normals = ys[keep], xs[keep], normals[keep]
     R, t = camera.rig_T_cam[:3, :3], camera.rig_T_cam[:3, 3]
-    return np.concatenate([grid[ys, xs] @ R.T + t, normals[ys, xs] @ R.T], axis=1)
+    return np.concatenate([grid[ys, xs] @ R.T + t, normals @ R.T], axis=1)
 
 
-def _grid_normals(grid: np.ndarray) -> np.ndarray:
-    """Unit normals (towards the camera) of a grid of measured points (H, W, 3), from their
-    neighbours; NaN where a neighbour is missing or the surface jumps (a depth edge)."""
-    out = np.full(grid.shape, np.nan)
-    dx = grid[1:-1, 2:] - grid[1:-1, :-2]
-    dy = grid[2:, 1:-1] - grid[:-2, 1:-1]
+def _nearest_other(
+    camera: Camera,
+    others: Sequence[PlacedMesh],
+    rays: np.ndarray,
+    region: tuple[int, int, int, int],
+    need: np.ndarray,
+) -> np.ndarray:
+    """The depth of the nearest of the ``others`` along each ray of ``rays`` (the grid of
+    the camera's ``region``) where ``need`` holds (inf elsewhere, and where none is hit).
+    Only those rays are cast: a pixel outside the part's region cannot be kept whatever is
+    in front of it."""
+    x0, y0, x1, y1 = region
+    other = np.full(need.shape, np.inf, np.float32)
+    for pm in others:
+        cam_T_other = camera.cam_T_rig @ pm.cam_T_model
+        ob = hit_bbox(camera, pm.mesh, cam_T_other)
+        if ob is None:
+            continue
+        bx0, by0, bx1, by1 = max(ob[0], x0), max(ob[1], y0), min(ob[2], x1), min(ob[3], y1)
+        if bx0 >= bx1 or by0 >= by1:
+            continue
+        window = (slice(by0 - y0, by1 - y0), slice(bx0 - x0, bx1 - x0))
+        sub_need = need[window]
+        if not sub_need.any():
+            continue
+        d = cast_alone(pm.mesh, cam_T_other, rays[window][sub_need]).depth
+        sub = other[window]
+        sub[sub_need] = np.minimum(sub[sub_need], d)
+    return other
+
+
+def _grid_normals(grid: np.ndarray, ys: np.ndarray, xs: np.ndarray) -> np.ndarray:
+    """Unit normals (towards the camera) of a grid of measured points (H, W, 3) at its
+    pixels ``(ys, xs)``, from their neighbours: (N, 3), NaN where a neighbour is missing or
+    the surface jumps (a depth edge). Only the pixels asked for: most of a part's rectangle
+    is not its region."""
+    h, w = grid.shape[:2]
+    out = np.full((len(ys), 3), np.nan)
+    inner = (ys > 0) & (ys < h - 1) & (xs > 0) & (xs < w - 1)
+    y, x = ys[inner], xs[inner]
+    dx = grid[y, x + 1] - grid[y, x - 1]
+    dy = grid[y + 1, x] - grid[y - 1, x]
+    centre = grid[y, x]
     n = np.cross(dx, dy)
     norm = np.linalg.norm(n, axis=-1, keepdims=True)
     n = n / np.where(norm > 0, norm, np.nan)
-    n *= -np.sign(np.einsum("ijk,ijk->ij", n, grid[1:-1, 1:-1]))[..., None]
+    n *= -np.sign(np.einsum("ij,ij->i", n, centre))[..., None]
     # Across a depth edge the "surface" is the jump itself: a neighbour step far longer than
     # the pixel's footprint.
-    footprint = np.abs(grid[1:-1, 1:-1, 2]) / 500.0
+    footprint = np.abs(centre[:, 2]) / 500.0
     jump = np.maximum(np.linalg.norm(dx, axis=-1), np.linalg.norm(dy, axis=-1)) > 8 * footprint
     n[jump] = np.nan
-    out[1:-1, 1:-1] = n
+    out[inner] = n
     return out
 
 
@@ -236,6 +267,8 @@ class DepthTerm:
     def __init__(self, mesh: Mesh, measured: np.ndarray, camera_centre: np.ndarray) -> None:
         self.tree, self.model, self.normals = _model_cloud(mesh)
         self.points = measured[:, :3]
+        # The pose moves little from one call to the next: most points keep their match.
+        self.nearest = TrackedNearest(self.tree, self.model, len(self.points))
         self.point_normals = measured[:, 3:]
         self.centre = camera_centre  # the depth camera's centre, reference frame
         rays = self.points - camera_centre
@@ -274,7 +307,7 @@ class DepthTerm:
         R, t = T[:3, :3], T[:3, 3]
         points = self.shifted(offset)
         # Each measured point, brought to the model frame, against its nearest model sample.
-        dist, nearest = self.tree.query((points - t) @ R, k=1, distance_upper_bound=gate)
+        dist, nearest = self.nearest.query((points - t) @ R, gate)
         i = np.flatnonzero(np.isfinite(dist))
         if len(i) == 0:
             return none
@@ -299,7 +332,7 @@ class DepthTerm:
         y = self.model[j] @ R.T
         n = self.normals[j] @ R.T
         r = np.einsum("ij,ij->i", n, y + t - self.shifted(offset)[i])
-        return r, np.concatenate([np.cross(y, n), n], axis=1)
+        return r, np.concatenate([cross(y, n), n], axis=1)
 
 
 #: Directions of the normal equations this much weaker than the strongest (after scaling)
@@ -353,6 +386,7 @@ def refine_instance(
     observations: Sequence[Observation] = (),
     settings: RefineSettings = RefineSettings(),
     points: np.ndarray | None = None,
+    term: DepthTerm | None = None,
 ) -> Refinement:
     """Refine one instance's pose ``rig_T_model`` (see the module docstring).
 
@@ -365,12 +399,17 @@ def refine_instance(
             (:func:`annotator.repair.instance_observations`); none: depth only.
         points: The measured points, if already found (:func:`measured_points` at
             ``rig_T_model``).
+        term: The :class:`DepthTerm` of the measured points, if already made (instead of
+            ``points``; it keeps its matches, so a caller that goes on with the refined
+            pose, as to its covariance, need not search them again); its offset is solved
+            for in place.
     """
     started = time.perf_counter()
     T0 = np.array(rig_T_model, float)
     obs = list(observations)
-    term = None
-    if depth is not None and depth_camera is not None:
+    if depth is None or depth_camera is None:
+        term = None
+    elif term is None:
         pts = (
             measured_points(depth_camera, depth, mesh, T0, others, settings)
             if points is None
@@ -378,6 +417,8 @@ def refine_instance(
         )
         if len(pts) >= settings.min_points:
             term = DepthTerm(mesh, pts, depth_camera.rig_T_cam[:3, 3])
+    elif len(term.points) < settings.min_points:
+        term = None
     before = residuals_at(T0, term, cameras, obs, settings)
     if term is None and not obs:
         why = "no measured depth and no marker on it"

@@ -131,7 +131,9 @@ class RayScene:
         # open3d's rays in one array made once (the directions rounded to float32 as
         # astype rounds them): no intermediate copies of a large bundle.
         rays = np.empty((int(np.prod(shape)), 6), np.float32)
-        rays[:, :3] = 0.0 if origin is None else np.asarray(origin, np.float32)
+        start = np.zeros(3, np.float32) if origin is None else np.asarray(origin, np.float32)
+        for k in range(3):  # a column at a time: twice as fast as one strided (N, 3) fill
+            rays[:, k] = start[k]
         rays[:, 3:] = np.asarray(directions).reshape(-1, 3)
         if not self.placed:
             return Hits(
@@ -286,11 +288,12 @@ def render_scene(
     camera: Camera, placed: Sequence[PlacedMesh], *, fixed: int = 0
 ) -> tuple[Hits, list[tuple[Rect, Hits] | None]]:
     """:func:`render` of a scene whose first ``fixed`` meshes are its unchanging surroundings
-    (a table, a bin: :func:`render_once`), the others cast each alone over its projected
-    rectangle (:func:`cast_separately`). Returns the hits, and per mesh after the fixed ones
-    its rectangle and its own hits there (None when out of view)."""
+    (a table, a bin: :func:`render_once`), the others cast each alone over the rectangle of
+    the rays that can hit it (:func:`hit_bbox`, :func:`cast_separately`). Returns the hits,
+    and per mesh after the fixed ones its rectangle and its own hits there (None when out of
+    view)."""
     behind = render_once(camera, placed[:fixed]) if fixed else None
-    rects = [projected_bbox(camera, pm.mesh, pm.cam_T_model) for pm in placed[fixed:]]
+    rects = [hit_bbox(camera, pm.mesh, pm.cam_T_model) for pm in placed[fixed:]]
     hits, own = cast_separately(
         camera.pixel_rays(), placed[fixed:], rects, behind=behind, first=fixed
     )
@@ -353,6 +356,63 @@ def projected_bbox(
     x1, y1 = np.ceil(uv.max(axis=0)).astype(int) + margin + 1
     box = clip_region((x0, y0, x1, y1), camera.width, camera.height)
     return None if box[0] >= box[2] or box[1] >= box[3] else box
+
+
+#: How far (normalised image coordinates) a ray may pass outside its mesh's projected
+#: vertices and still hit it: float32 rounding of rays and vertices, by far less (1e-4 is
+#: about a tenth of a pixel).
+_HIT_SLACK = 1e-4
+
+# Per camera grid: each row's range of ray y and each column's range of ray x.
+_RANGES: dict[tuple, tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = {}
+
+
+def _ray_ranges(camera: Camera, step: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Of the camera's grid of rays (:meth:`Camera.pixel_rays`): per row the least and
+    greatest y of its rays, per column the least and greatest x (lens distortion bends
+    rows and columns)."""
+    key = (camera.grid_key, step)
+    found = _RANGES.get(key)
+    if found is None:
+        rays = camera.pixel_rays(step)
+        y, x = rays[..., 1], rays[..., 0]
+        found = (y.min(axis=1), y.max(axis=1), x.min(axis=0), x.max(axis=0))
+        if len(_RANGES) > 16:
+            _RANGES.clear()
+        _RANGES[key] = found
+    return found
+
+
+def hit_bbox(
+    camera: Camera, mesh: Mesh, cam_T_model: np.ndarray, *, step: int = 1, margin: int = 0
+) -> tuple[int, int, int, int] | None:
+    """A rectangle ``(x0, y0, x1, y1)`` of the camera's grid of every ``step``-th pixel
+    (:meth:`Camera.pixel_rays`; sample indices, end exclusive) outside which none of its rays
+    can hit the placed mesh, grown by ``margin`` samples; None when none can.
+
+    A ray meets a triangle in front of the camera only through the triangle's projection,
+    which lies within its vertices' projections: so the rays that can hit the mesh have
+    undistorted image coordinates within the range of its vertices'. The rectangle holds the
+    rows and columns with such rays, which is tighter than :func:`projected_bbox` (the box of
+    the mesh's bounding box, turned with it) for a turned part: the same hits from fewer
+    rays, found from a few numbers per row and column.
+    """
+    width, height = -(-camera.width // step), -(-camera.height // step)
+    cam = mesh.vertices @ cam_T_model[:3, :3].T + cam_T_model[:3, 3]
+    if np.any(cam[:, 2] <= 0):  # a vertex behind the camera: no such range
+        loose = projected_bbox(camera, mesh, cam_T_model)
+        if loose is None:
+            return None
+        x0, y0, x1, y1 = (-(-v // step) for v in loose)
+    else:
+        x, y = cam[:, 0] / cam[:, 2], cam[:, 1] / cam[:, 2]
+        row_lo, row_hi, col_lo, col_hi = _ray_ranges(camera, step)
+        rows = np.flatnonzero((row_hi >= y.min() - _HIT_SLACK) & (row_lo <= y.max() + _HIT_SLACK))
+        cols = np.flatnonzero((col_hi >= x.min() - _HIT_SLACK) & (col_lo <= x.max() + _HIT_SLACK))
+        if len(rows) == 0 or len(cols) == 0:
+            return None
+        x0, y0, x1, y1 = int(cols[0]), int(rows[0]), int(cols[-1]) + 1, int(rows[-1]) + 1
+    return clip_region((x0 - margin, y0 - margin, x1 + margin, y1 + margin), width, height)
 
 
 def _vertices_bbox(

@@ -296,7 +296,7 @@ def render_view(
 
     The first ``fixed`` surfaces are the scene's surroundings, the same in every scene (a
     table, a bin): they are rendered once per camera and kept; each other surface is cast
-    alone over its projected rectangle (:func:`render_scene`).
+    alone over the rectangle of the rays that can hit it (:func:`render_scene`).
     """
     placed = [PlacedMesh(s.mesh, cam_T_world @ s.world_T_model) for s in surfaces]
     hits, own = render_scene(camera, placed, fixed=fixed)
