@@ -226,7 +226,9 @@ def test_the_depth_gives_the_scale_a_corner_bias_would_take(one_camera) -> None:
     blind = [replace(r, marker_depth=np.full_like(r.marker_depth, np.nan)) for r in readings]
     without, _ = too_far(blind)
     with_depth, sol = too_far(readings)
-    assert without > 0.004  # the bias scales the scene
+    # The bias scales the scene: by 0.5 % exactly with unbiased corners; the corners' own
+    # residual bias (a few hundredths of a pixel along the diagonals) moves that by ~0.15 %.
+    assert without > 0.003
     # The depth takes it back (the adjustment's own depth term some of it, the scale the rest).
     assert abs(with_depth) < 0.001 and sol.site_scale < 0.9995
     ann = sequence_annotation_of(sol, readings)

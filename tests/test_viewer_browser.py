@@ -40,6 +40,8 @@ PENDING_RGB = (255, 220, 0)
 
 @contextlib.contextmanager
 def _serving(root: Path, **kwargs):
+    # The pages open on the first scene: the sample's 000003 has a physics flag.
+    kwargs.setdefault("start_scene", "000000")
     app = ReviewApp(root, host="127.0.0.1", port=free_port(), **kwargs)
     try:
         yield app
@@ -307,7 +309,9 @@ def test_a_non_local_host_without_a_token_is_refused(browser, sample_copy, monke
         "ViserServer",
         lambda host, port, **kw: real(host="127.0.0.1", port=port, **kw),
     )
-    args = Namespace(dataset=str(sample_copy), host="0.0.0.0", port=free_port(), token=None)
+    args = Namespace(
+        dataset=str(sample_copy), host="0.0.0.0", port=free_port(), token=None, scene=None
+    )
     app = review.start(args)
     try:
         out = capsys.readouterr().out

@@ -53,7 +53,7 @@ def shown(monkeypatch) -> list[str]:
 
 @contextlib.contextmanager
 def _serving(root: Path):
-    app = ReviewApp(root, host="127.0.0.1", port=free_port())
+    app = ReviewApp(root, host="127.0.0.1", port=free_port(), start_scene="000000")
     try:
         yield app
     finally:

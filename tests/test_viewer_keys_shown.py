@@ -28,7 +28,7 @@ SCENE = "000000"
 
 @contextlib.contextmanager
 def _pages(root: Path, count: int):
-    """A review server on ``root`` and ``count`` pages on it, each showing the first scene."""
+    """A review server on ``root`` and ``count`` pages on it, each showing SCENE (the first)."""
     app = ReviewApp(root, host="127.0.0.1", port=free_port())
     sockets = []
     try:
@@ -36,6 +36,11 @@ def _pages(root: Path, count: int):
             sockets.append(open_page(app.port, width=900, height=700))
         assert wait_until(lambda: len(app.sessions) == count), "the pages did not connect"
         sessions: list[Session] = sorted(app.sessions.values(), key=lambda s: s.id)
+        # A page opens on the first scene with a physics flag: each is taken back to SCENE.
+        for s in sessions:
+            assert wait_until(lambda s=s: s.displayed is not None)
+            while s.nav.current != SCENE:
+                s.previous()
         assert wait_until(lambda: all(s.displayed == SCENE for s in sessions))
         yield app, sessions
     finally:
@@ -131,3 +136,21 @@ def test_a_pages_own_quick_keys_never_conflict(sample_copy: Path) -> None:
         moved = np.linalg.norm(now.t - auto.t)
         assert moved == pytest.approx(3 * 1.0, abs=1e-6)  # each from the one before
         assert "page-" not in page.editor.repair_text
+
+
+def test_a_start_scene_that_does_not_exist_is_said_in_one_line(sample_copy: Path) -> None:
+    from annotator.errors import UserError
+
+    with pytest.raises(UserError, match="--scene 000099: no such scene"):
+        ReviewApp(sample_copy, host="127.0.0.1", port=free_port(), start_scene="000099")
+
+
+def test_every_page_opens_on_the_start_scene(sample_copy: Path) -> None:
+    app = ReviewApp(sample_copy, host="127.0.0.1", port=free_port(), start_scene="000002")
+    try:
+        open_page(app.port, width=900, height=700)
+        assert wait_until(lambda: len(app.sessions) == 1)
+        session = next(iter(app.sessions.values()))
+        assert wait_until(lambda: session.displayed == "000002")
+    finally:
+        app.stop()

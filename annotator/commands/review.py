@@ -28,6 +28,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="port, 1 to 65535 (default 8080; the next free one if it is taken)",
     )
     parser.add_argument(
+        "--scene",
+        default=None,
+        help="the scene every page opens on (default: the first with a physics flag, else the "
+        "first)",
+    )
+    parser.add_argument(
         "--token",
         default=None,
         help="token the page's address must carry (default: none on 127.0.0.1, a random one "
@@ -46,7 +52,9 @@ def start(args: argparse.Namespace):
     token = args.token
     if token is None and not is_loopback(args.host):
         token = new_token()
-    app = ReviewApp(args.dataset, host=args.host, port=args.port, token=token)
+    app = ReviewApp(
+        args.dataset, host=args.host, port=args.port, token=token, start_scene=args.scene
+    )
     done, total = app.state.progress()
     annotated = sum(app.state.info(s).annotated for s in app.state.ids)
     print(f"review: {total} scenes ({done} reviewed) at {app.url}  (Ctrl-C to stop)", flush=True)

@@ -20,6 +20,7 @@ class ReviewHost(Protocol):
     state: ReviewState
     cache: PrefetchCache[Prepared]
     tag: str  # tells this server's pages from another server's
+    start_scene: str | None  # where a new page opens (None: the navigator's choice)
 
     def prepared(self, sid: str, info: SceneInfo) -> Prepared:
         """The scene's overlays for the poses of ``info`` (made, or from the cache)."""

@@ -41,7 +41,7 @@ class Session(PageDecisions):
         self.app = app
         self.client = client
         self.id = f"page-{app.tag}-{client.client_id}"
-        self.nav = Navigator(app.state)
+        self.nav = Navigator(app.state, current=app.start_scene)
         self._lock = threading.RLock()  # the cursor and the flags below
         self.fill = False
         self.armed = False

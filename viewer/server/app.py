@@ -82,6 +82,8 @@ class ReviewApp:
             ``token``.
         port: port (the next free one if it is taken; see :attr:`port`).
         token: the token a page must present (None: none, for 127.0.0.1 only).
+        start_scene: the scene every new page opens on (None: the first with a physics flag,
+            else the first).
     """
 
     def __init__(
@@ -91,6 +93,7 @@ class ReviewApp:
         host: str = "127.0.0.1",
         port: int = 8080,
         token: str | None = None,
+        start_scene: str | None = None,
     ) -> None:
         if not is_loopback(host) and not token:
             raise UserError(
@@ -101,6 +104,9 @@ class ReviewApp:
         _check_listenable(host)
         bound_allocator()
         self.state = ReviewState(root)
+        if start_scene is not None and start_scene not in self.state.ids:
+            raise UserError(f"--scene {start_scene}: no such scene in {root}")
+        self.start_scene = start_scene
         self.cache: PrefetchCache[Prepared] = PrefetchCache(
             size=CACHE_SCENES, max_bytes=CACHE_BYTES, weigh=lambda prep: prep.nbytes
         )
