@@ -156,7 +156,9 @@ def test_a_non_local_host_needs_a_token(sample_copy, monkeypatch, capsys) -> Non
         lambda host, port, **kw: real(host="127.0.0.1", port=port, **kw),
     )
     app = review.start(
-        Namespace(dataset=str(sample_copy), host="0.0.0.0", port=free_port(), token=None)
+        Namespace(
+            dataset=str(sample_copy), host="0.0.0.0", port=free_port(), token=None, scene=None
+        )
     )
     try:
         out = capsys.readouterr().out
@@ -165,7 +167,9 @@ def test_a_non_local_host_needs_a_token(sample_copy, monkeypatch, capsys) -> Non
     finally:
         app.stop()
     app = review.start(
-        Namespace(dataset=str(sample_copy), host="0.0.0.0", port=free_port(), token="mine")
+        Namespace(
+            dataset=str(sample_copy), host="0.0.0.0", port=free_port(), token="mine", scene=None
+        )
     )
     try:
         assert app.access.token == "mine" and "token%3Dmine" in capsys.readouterr().out
