@@ -35,7 +35,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, Protocol, runtime_checkable
 
-__all__ = ["StageSummary", "failure_lines"]
+__all__ = ["FolderBatch", "StageSummary", "failure_lines"]
 
 
 @runtime_checkable
@@ -71,3 +71,21 @@ class StageSummary(Protocol):
 def failure_lines(failed: Mapping[str, str]) -> list[str]:
     """One warning line per failed scene, in scene order (as every batch stage says it)."""
     return [f"failed: scene {sid}: {why}" for sid, why in sorted(failed.items())]
+
+
+class FolderBatch:
+    """The warnings, written paths and exit status of a batch stage that writes one folder
+    ``out`` and keeps a report whose ``failed`` maps a scene to why it failed (synth, its
+    sequences, twins): a summary that is that names both as attributes."""
+
+    out: Path
+    report: Any
+
+    def warnings(self) -> list[str]:
+        return failure_lines(self.report.failed)
+
+    def written_paths(self) -> list[Path]:
+        return [self.out]
+
+    def exit_status(self) -> int:
+        return 1 if self.report.failed else 0

@@ -13,7 +13,7 @@ from annotator.dataset.model import SCENES_DIR
 from annotator.io.atomic import atomic_folder
 from annotator.io.output_folder import check_output_folder, write_manifest
 from annotator.runner import BatchReport, run_batch
-from annotator.summary import failure_lines
+from annotator.summary import FolderBatch
 from annotator.synthesis.generate import SceneJob, SynthSettings, cached_plan, write_dataset_files
 from annotator.synthesis.pbr.cycles_job import bpy_python
 
@@ -22,7 +22,7 @@ STAGES = ("physics", "rendering", "depth", "occlusion")
 
 
 @dataclass
-class SynthesisSummary:
+class SynthesisSummary(FolderBatch):
     """What :func:`synthesize_scenes` wrote; :meth:`to_json` is ``annotator synth --json``.
 
     Attributes:
@@ -55,15 +55,6 @@ class SynthesisSummary:
             "failed": len(self.report.failed),
             "instances": sum(r["instances"] for r in self.report.done.values()),
         }
-
-    def warnings(self) -> list[str]:
-        return failure_lines(self.report.failed)
-
-    def written_paths(self) -> list[Path]:
-        return [self.out]
-
-    def exit_status(self) -> int:
-        return 1 if self.report.failed else 0
 
     def to_json(self) -> dict[str, Any]:
         return {

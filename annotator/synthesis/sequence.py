@@ -56,7 +56,7 @@ from annotator.dataset.records import FramePose, frames_to_json
 from annotator.geometry.camera import Camera
 from annotator.geometry.transforms import invert
 from annotator.runner import BatchReport, run_batch
-from annotator.summary import failure_lines
+from annotator.summary import FolderBatch
 from annotator.synthesis.generate import (
     BinContents,
     DatasetPlan,
@@ -480,7 +480,7 @@ def _scene_gt(
 
 
 @dataclass(frozen=True)
-class SequenceSummary:
+class SequenceSummary(FolderBatch):
     """What :func:`synthesize_sequences` wrote (``synth --frames --json`` prints
     :meth:`to_json`).
 
@@ -512,15 +512,6 @@ class SequenceSummary:
             "failed": len(self.report.failed),
             "instances": sum(r["instances"] for r in done),
         }
-
-    def warnings(self) -> list[str]:
-        return failure_lines(self.report.failed)
-
-    def written_paths(self) -> list[Path]:
-        return [self.out]
-
-    def exit_status(self) -> int:
-        return 1 if self.report.failed else 0
 
     def to_json(self) -> dict[str, Any]:
         return {

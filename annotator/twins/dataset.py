@@ -13,12 +13,12 @@ from annotator.geometry.transforms import invert
 from annotator.io.atomic import atomic_folder
 from annotator.io.output_folder import check_output_folder, write_manifest
 from annotator.runner import BatchReport, run_batch
-from annotator.summary import failure_lines
+from annotator.summary import FolderBatch
 from annotator.twins.render import TwinJob, TwinSettings, write_twin_description
 
 
 @dataclass
-class TwinSummary:
+class TwinSummary(FolderBatch):
     """What :func:`synthesize_twins` wrote; :meth:`to_json` is ``annotator synth --twin
     --json``.
 
@@ -44,15 +44,6 @@ class TwinSummary:
 
     def counts(self) -> dict[str, int]:
         return {"twins": len(self.report.done), "failed": len(self.report.failed)}
-
-    def warnings(self) -> list[str]:
-        return failure_lines(self.report.failed)
-
-    def written_paths(self) -> list[Path]:
-        return [self.out]
-
-    def exit_status(self) -> int:
-        return 1 if self.report.failed else 0
 
     def to_json(self) -> dict[str, Any]:
         return {
