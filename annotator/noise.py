@@ -49,7 +49,10 @@ class NoiseModel:
         site_mm: Each corner of a marker on its part (printing, gluing flat, the corner
             fit's bias); it does not average out over frames.
         measured_site_mm, measured_site_deg: A site ``annotator sites`` measured (its shift
-            in its plane, its turn about its normal).
+            in its plane, its turn about its normal), at best.
+        one_scene_site_mm: The shift of a site measured from one scene; from ``n`` scenes,
+            this over ``n`` (the site error falls about as fast: ``bench_sites.py`` prints it
+            by scene count), never below ``measured_site_mm``.
     """
 
     corner_px: float = 0.3
@@ -63,6 +66,7 @@ class NoiseModel:
     site_mm: float = 0.15
     measured_site_mm: float = 0.1
     measured_site_deg: float = 0.5
+    one_scene_site_mm: float = 0.25
 
 
 #: The noise the solvers assume unless told otherwise.

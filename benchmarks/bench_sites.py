@@ -9,11 +9,15 @@ annotate, then ``annotator sites --yes``, then annotate again; everything as who
 
     .venv/bin/python -m benchmarks.bench_sites [--scenes 15] [--rounds 1] [--seed 5] [--keep DIR]
 
-Targets: after sites and a re-annotation of the glued scenes, median pose error <= 0.2% of D,
-p95 <= 1% of D, flagged poses <= 30%, no gross error (> 5% of D) without a flag, posed >= 95%
-of the parts at least half visible; measured sites within 0.2 mm RMS (corner positions) of
-the true glued sites over the markers used in at least 3 scenes; on exact sites, median error
-within 10% of before and corrections under 0.1 mm RMS; ``annotator sites`` under a minute.
+Targets (issue 54): after one ``sites`` and a re-annotation of the glued scenes, median pose
+error <= 0.154% of D, p95 <= 1% of D, flagged poses <= 25%, no pose off by more than 1% of D
+without a flag; and, from before: posed >= 95% of the parts at least half visible; measured
+sites within 0.2 mm RMS (corner positions) of the true glued sites over the markers used in
+at least 3 scenes; on exact sites, median error within 10% of before and corrections under
+0.1 mm RMS; ``annotator sites`` under a minute. Also printed: the share of poses within 3x
+their stated uncertainty, and the measured sites' error against the truth by the number of
+scenes they were measured from (what ``annotate``'s trust in a site, ``site_scenes``, rests
+on).
 """
 
 from __future__ import annotations
@@ -39,6 +43,11 @@ def pose_figures(root: Path) -> dict[str, float]:
         "p95": float(np.percentile(rel, 95)),
         "flagged": float(flagged.mean()),
         "gross_unflagged": int(((rel > 5) & ~flagged).sum()),
+        "within_3_sigma": float(
+            np.mean(
+                [e["error_mm"] <= 3 * e["uncertainty_mm"] for e in errors if e["uncertainty_mm"]]
+            )
+        ),
         "over_1pct_unflagged": int(((rel > 1) & ~flagged).sum()),
         "posed": posed / max(visible, 1),
         "poses": len(rel),
@@ -85,6 +94,24 @@ def site_errors(root: Path, report: dict) -> tuple[float, float, int]:
         before += list(np.mean(np.sum((layout[keep] - true[keep]) ** 2, -1), axis=1))
         after += list(np.mean(np.sum((aligned - true[keep]) ** 2, -1), axis=1))
     return float(np.sqrt(np.mean(before))), float(np.sqrt(np.mean(after))), len(after)
+
+
+def by_scenes(root: Path) -> dict[str, tuple[int, float]]:
+    """The measured sites' RMS corner error (mm) against the truth, gauge included (what a
+    pose meets), by the number of scenes object.yaml's ``site_scenes`` says they were
+    measured from (``"5+"`` five or more)."""
+    truth = json.loads((root / "glued_sites.json").read_text())
+    ds = load_dataset(root)
+    groups: dict[str, list[float]] = {}
+    for obj, insts in truth.items():
+        for inst, true in insts.items():
+            counts = ds.objects[obj].instance(inst).site_scenes
+            if counts is None:
+                continue
+            sq = np.mean(np.sum((ds.objects[obj].site_corners(inst) - true) ** 2, -1), axis=1)
+            for n, e in zip(counts, sq):
+                groups.setdefault(str(n) if n < 5 else "5+", []).append(float(e))
+    return {n: (len(v), float(np.sqrt(np.mean(v)))) for n, v in sorted(groups.items())}
 
 
 def corrections_rms(report: dict) -> float:
@@ -136,6 +163,7 @@ def show(name: str, r: dict) -> None:
             f"  {label:<16} median {f['median']:.3f}% D  p95 {f['p95']:.3f}% D  "
             f"flagged {100 * f['flagged']:.0f}%  gross unflagged {f['gross_unflagged']}  "
             f"> 1% D unflagged {f['over_1pct_unflagged']}  "
+            f"within 3 sigma {100 * f['within_3_sigma']:.0f}%  "
             f"posed {100 * f['posed']:.1f}% ({f['poses']} poses)"
         )
 
@@ -170,6 +198,8 @@ def main() -> int:
             f"{b:.3f} mm (layout) -> {a:.3f} mm (measured, up to the directions reported "
             "not observable); target 0.2 mm"
         )
+        for n, (count, rms) in by_scenes(Path(tmp) / "glued").items():
+            print(f"    sites measured from {n} scene(s): {count} markers, {rms:.3f} mm RMS")
         spread = glued["rounds"][-1]["report"]["glue_spread"]
         print(
             f"  gluing spread estimated from the data: {spread['mm']:.3f} mm, "
@@ -180,10 +210,10 @@ def main() -> int:
     after = glued["rounds"][-1]["poses"]
     ratio = exact["rounds"][0]["poses"]["median"] / exact["before"]["median"]
     checks = {
-        "median <= 0.2% D": after["median"] <= 0.2,
+        "median <= 0.154% D": after["median"] <= 0.154,
         "p95 <= 1% D": after["p95"] <= 1.0,
-        "flagged <= 30%": after["flagged"] <= 0.30,
-        "0 gross unflagged": after["gross_unflagged"] == 0,
+        "flagged <= 25%": after["flagged"] <= 0.25,
+        "0 poses > 1% D unflagged": after["over_1pct_unflagged"] == 0,
         "posed >= 95%": after["posed"] >= 0.95,
         "sites <= 0.2 mm RMS": a <= 0.2,
         f"exact: median ratio {ratio:.3f} within 10%": abs(ratio - 1) <= 0.10,

@@ -11,7 +11,7 @@ import functools
 import numpy as np
 import pytest
 
-from annotator.annotation.refine import refinable, site_sigmas
+from annotator.annotation.refine import refinable
 from annotator.annotation.scene import annotate_scene
 from annotator.annotation.settings import AnnotateSettings
 from annotator.dataset import load_dataset, read_poses
@@ -21,7 +21,7 @@ from annotator.dataset.records import InstanceAnnotation, SceneAnnotation
 from annotator.detection import MarkerDetector
 from annotator.io.images import to_gray8
 from annotator.noise import NOISE
-from annotator.pnp import Observation, rms_uncertainty
+from annotator.pnp import rms_uncertainty
 from annotator.refinement import DepthTerm, RefineSettings, measured_points, refine_instance
 from annotator.refinement.depth import pose_covariance
 from annotator.rendering.raycast import PlacedMesh
@@ -118,36 +118,6 @@ def test_the_depth_bias_and_the_site_errors_widen_the_uncertainty(sample) -> Non
     assert alone < measured < glued
     # A lone marker's site error goes into the pose whole: at least the shift itself.
     assert glued > 0.7
-
-
-def test_the_sites_a_refined_pose_counts(sample) -> None:
-    """Without measured sites the layout is exact; a site ``sites`` moved is known to
-    ``measured_site_mm``; one it left on the layout only to the spread of those it moved."""
-    ds = load_dataset(sample)
-    brick = ds.objects["brick"]
-    assert brick.markers is not None
-    s = AnnotateSettings()
-    first, second = brick.instances[0], brick.instances[1]
-    ids = first.marker_ids
-
-    def obs(marker_id: int) -> Observation:
-        return Observation(0, marker_id, np.zeros((4, 3)), np.zeros((4, 2)))
-
-    assert site_sigmas(brick, first.name, [obs(ids[0])], s) == {ids[0]: (0.0, 0.0)}
-    moved = brick.markers.corners.copy()
-    moved[0] += [0.5, 0.0, 0.0]
-    measured = dataclasses.replace(
-        brick,
-        instances=(dataclasses.replace(first, sites=moved), *brick.instances[1:]),
-    )
-    got = site_sigmas(measured, first.name, [obs(ids[0]), obs(ids[1])], s)
-    assert got[ids[0]] == (s.measured_site_mm, pytest.approx(np.radians(s.measured_site_deg)))
-    shift, turn = got[ids[1]]
-    assert shift == pytest.approx(0.5 / np.sqrt(2))
-    assert turn == pytest.approx(shift / (brick.markers.size / np.sqrt(2)))
-    # Another copy without sites of its own: its layout is as doubtful.
-    other = site_sigmas(measured, second.name, [obs(second.marker_ids[0])], s)
-    assert other[second.marker_ids[0]] == got[ids[1]]
 
 
 def test_which_poses_the_depth_may_refine() -> None:

@@ -123,12 +123,13 @@ def _box():
 
 
 def _fake_dataset(cams):
-    """The two things the per-instance pipeline reads from a Dataset: cameras and the mesh."""
+    """What the per-instance pipeline reads from a Dataset: cameras, the mesh and the marker
+    sites (none measured: the layout is exact)."""
     from types import SimpleNamespace
 
     mesh = Mesh(*_box())
     return SimpleNamespace(
-        rig=SimpleNamespace(cameras=cams), objects={"box": SimpleNamespace(mesh=mesh)}
+        rig=SimpleNamespace(cameras=cams), objects={"box": SimpleNamespace(mesh=mesh, markers=None)}
     )
 
 

@@ -192,6 +192,13 @@ def test_measured_sites_match_the_glued_truth_and_annotate_uses_them(glued, tmp_
                 before.append(
                     np.mean(np.sum((ds.objects[obj].markers.corners[k] - true[k]) ** 2, -1))
                 )
+    # object.yaml says from how many scenes each site was measured (annotate's trust in it).
+    for rec in report["instances"]:
+        obj, inst = rec["instance"].split("/")
+        counts = ds.objects[obj].instance(inst).site_scenes
+        assert counts is not None and [counts[m["site"]] for m in rec["markers"]] == [
+            m["scenes"] for m in rec["markers"]
+        ]
     gain = [r["corner_rms_px"][1] / r["corner_rms_px"][0] for r in report["instances"]]
     assert np.median(gain) < 0.5, gain
     assert len(errors) >= 10
@@ -281,3 +288,9 @@ def test_check_validates_the_instances_sites(sample_copy, capsys) -> None:
     path.write_text(yaml.safe_dump(doc, sort_keys=False))
     assert main(["check", str(sample_copy)]) == 1
     assert "instances[0].sites must have" in capsys.readouterr().out
+    doc["instances"][0]["sites"] = sites.tolist()
+    doc["instances"][0]["site_scenes"] = [1, 2]  # not one per site
+    path.write_text(yaml.safe_dump(doc, sort_keys=False))
+    assert main(["check", str(sample_copy)]) == 1
+    out = capsys.readouterr().out
+    assert f"instances[0].site_scenes must be {len(sites)} non-negative integers" in out

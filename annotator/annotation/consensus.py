@@ -18,6 +18,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from annotator.annotation.settings import AnnotateSettings
+from annotator.annotation.site_trust import SiteErrors, site_errors
 from annotator.dataset import Dataset
 from annotator.dataset.figures import MarkerUse, Reprojection
 from annotator.dataset.flags import Flag
@@ -32,6 +33,7 @@ from annotator.pnp import (
     rms_uncertainty,
 )
 from annotator.pnp.multiview import lone_marker_poses
+from annotator.refinement.depth import pose_covariance
 from annotator.symmetry import PoseSpace
 from annotator.symmetry.space import MATCH_THRESHOLD_FRACTION
 
@@ -54,7 +56,8 @@ def pose_instance(
         return None  # one blurred reading alone is not evidence enough
     err = reprojection_errors(cams, obs, est.T)
     model = ds.objects[obj]
-    unc = rms_uncertainty(model.mesh.moments, est.T[:3, :3], est.covariance)
+    sites = site_errors(model, inst, used, s)
+    unc = rms_uncertainty(model.mesh.moments, est.T[:3, :3], _covariance(cams, used, est, sites))
     reprojection = _reprojection(cams, obs, inliers, err)
     flags: list[Flag | str] = []
     if len(reprojection.per_camera) < 2:
@@ -68,6 +71,8 @@ def pose_instance(
         flags.append(Flag.REJECTED_MARKERS)
     if not unc < s.high_uncertainty_fraction * model.mesh.moments.diameter:
         flags.append(Flag.HIGH_UNCERTAINTY)
+    if sites.unchecked:
+        flags.append(Flag.UNCHECKED_SITES)
     return InstanceAnnotation(
         obj,
         inst,
@@ -78,6 +83,24 @@ def pose_instance(
         markers=_marker_use(cams, obs, inliers),
         views=len(reprojection.per_camera),
         flags=flags,
+    )
+
+
+def _covariance(
+    cams: Sequence[Camera], used: list[Observation], est: PoseEstimate, sites: SiteErrors
+) -> np.ndarray:
+    """The pose's covariance, with what its markers' site errors do to it where the sites
+    are not exact (:mod:`annotator.annotation.site_trust`): the residuals cannot show them,
+    the pose follows its sites."""
+    if sites.exact:
+        return est.covariance
+    return pose_covariance(
+        est.T,
+        depth=None,
+        cameras=cams,
+        observations=used,
+        site_sigmas=sites.taken,
+        fitted_sites=sites.fitted,
     )
 
 

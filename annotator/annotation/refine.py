@@ -18,13 +18,9 @@ the solution the depth shows (it keeps its flag).
 The depth's points share an offset along their rays (a face seen flat gets one disparity),
 solved for with a prior of ``AnnotateSettings.depth_bias_mm``. The refined pose's uncertainty
 is that of both terms together (:func:`annotator.refinement.depth.pose_covariance`), with what
-such an offset and the markers' site errors do to it: a site that ``annotator sites``
-measured (the instance's own site, moved off the layout) is known to
-``AnnotateSettings.measured_site_mm`` and ``measured_site_deg``; one it could not measure
-(left on the layout) only to the spread of the object's measured sites about their layout;
-without measured sites the layout is taken as exact, as everywhere else. A pose that is
-really uncertain (a lone marker on a site nobody measured, a surface that
-pins nothing) keeps ``high_uncertainty``.
+such an offset and the markers' site errors do to it (how well each site is known:
+:mod:`annotator.annotation.site_trust`). A pose that is really uncertain (a lone marker on a
+site nobody measured, a surface that pins nothing) keeps ``high_uncertainty``.
 """
 
 from __future__ import annotations
@@ -35,10 +31,10 @@ from dataclasses import replace
 import numpy as np
 
 from annotator.annotation.settings import AnnotateSettings
+from annotator.annotation.site_trust import site_errors
 from annotator.dataset import Dataset
 from annotator.dataset.figures import Reprojection
 from annotator.dataset.flags import Flag, sort_flags
-from annotator.dataset.model import ObjectModel
 from annotator.dataset.records import InstanceAnnotation
 from annotator.noise import NOISE
 from annotator.pnp import Observation, reprojection_errors, rms_uncertainty
@@ -51,10 +47,6 @@ from annotator.refinement import (
 )
 from annotator.refinement.depth import pose_covariance
 from annotator.rendering.raycast import PlacedMesh
-
-#: A site of an instance within this of the layout's (mm, RMS over its corners) was not moved
-#: by ``annotator sites``: it could not measure it.
-UNMOVED_MM = 0.01
 
 
 def refine_few_marker_poses(
@@ -101,12 +93,14 @@ def refine_few_marker_poses(
         if not _better(result.converged, result.before, result.after, settings):
             continue
         term.offset = result.depth_offset_mm  # (what it holds already: it converged)
+        sites = site_errors(model, r.instance, used, settings)
         cov = pose_covariance(
             result.T,
             depth=term,
             cameras=ds.rig.cameras,
             observations=used,
-            site_sigmas=site_sigmas(model, r.instance, used, settings),
+            site_sigmas=sites.taken,
+            fitted_sites=sites.fitted,
             noise=replace(
                 NOISE,
                 depth_correlation=settings.depth_correlation,
@@ -155,49 +149,6 @@ def _better(converged: bool, before: Residuals, after: Residuals, s: AnnotateSet
         and after.marker_rms_px <= before.marker_rms_px + s.refine_marker_px
         and after.marker_rms_px <= s.high_residual_px
     )
-
-
-def site_sigmas(
-    model: ObjectModel, instance: str, used: Sequence[Observation], s: AnnotateSettings
-) -> dict[int, tuple[float, float]]:
-    """Per marker id of ``used``, the 1-sigma of its site's shifts (mm) and turn (rad):
-    see the module docstring."""
-    if model.markers is None:
-        return {}
-    moved_by = _moved(model)
-    # A site nobody measured may be as far off as the measured ones are: the spread of their
-    # corners, split between the two shifts and the turn's reach at the corners (none when
-    # no site of the object was measured: the layout is then taken as exact).
-    shift = _spread(moved_by) / np.sqrt(2.0)
-    unmeasured = (shift, shift / (model.markers.size / np.sqrt(2.0)))
-    measured = (s.measured_site_mm, float(np.radians(s.measured_site_deg)))
-    ids = [int(m) for m in model.instance(instance).marker_ids]
-    mine = moved_by[instance]
-    return {
-        o.marker_id: measured if mine[ids.index(o.marker_id)] > UNMOVED_MM else unmeasured
-        for o in used
-    }
-
-
-def _moved(model: ObjectModel) -> dict[str, np.ndarray]:
-    """Per instance, how far each of its sites is from the layout's (mm, RMS over corners;
-    zeros without its own sites)."""
-    assert model.markers is not None
-    layout = model.markers.corners
-    out = {}
-    for inst in model.instances:
-        if inst.sites is None:
-            out[inst.name] = np.zeros(len(layout))
-        else:
-            out[inst.name] = np.sqrt(np.mean(np.sum((inst.sites - layout) ** 2, -1), axis=1))
-    return out
-
-
-def _spread(moved_by: dict[str, np.ndarray]) -> float:
-    """The RMS corner distance of the object's measured sites from the layout (mm): how far
-    one nobody measured may be; 0 when none was measured."""
-    moved = np.concatenate([v[v > UNMOVED_MM] for v in moved_by.values()] or [np.zeros(0)])
-    return float(np.sqrt(np.mean(moved**2))) if len(moved) else 0.0
 
 
 def _update(

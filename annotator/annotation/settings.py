@@ -94,8 +94,10 @@ class AnnotateSettings:
         refine_marker_px: A refined pose is kept only if its markers' RMS reprojection error
             grew by at most this (and is not ``high_residual``).
         measured_site_mm, measured_site_deg: 1-sigma of a site ``annotator sites`` measured
-            (each shift in its plane, the turn about its normal), in a refined pose's
-            uncertainty.
+            (each shift in its plane, the turn about its normal), at best, in a pose's
+            uncertainty (:mod:`annotator.annotation.site_trust`).
+        one_scene_site_mm: 1-sigma of each shift of a site measured from one scene; from
+            ``n`` scenes, this over ``n`` (at least ``measured_site_mm``).
         depth_correlation: In a refined pose's uncertainty, the measured points count as
             this many times fewer independent ones (stereo depth is matched over windows).
         depth_bias_mm: 1-sigma of an offset shared by all of a part's measured points along
@@ -122,6 +124,7 @@ class AnnotateSettings:
     refine_marker_px: float = 0.5
     measured_site_mm: float = NOISE.measured_site_mm
     measured_site_deg: float = NOISE.measured_site_deg
+    one_scene_site_mm: float = NOISE.one_scene_site_mm
     depth_correlation: float = NOISE.depth_correlation
     depth_bias_mm: float = NOISE.depth_bias_mm
     completeness: CompletenessSettings = field(default_factory=CompletenessSettings)

@@ -38,6 +38,9 @@ class Flag(StrEnum):
     DEPTH_DISAGREEMENT = "depth_disagreement"
     #: Estimated uncertainty above 1% of the part's diameter.
     HIGH_UNCERTAINTY = "high_uncertainty"
+    #: Its markers' sites were measured (``annotator sites``) from one scene each at most,
+    #: most likely this one: nothing independent places them.
+    UNCHECKED_SITES = "unchecked_sites"
     #: Another copy of the part is posed in the same place (a marker on the wrong copy).
     OVERLAP = "overlap"
     #: A sequence's frames disagree about the part: it moved while the rig moved (the pose

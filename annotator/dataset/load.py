@@ -525,7 +525,24 @@ def _parse_instances(p: _Parser, docs: list[Any], n_sites: int) -> list[Instance
             own = p.floats(inst["sites"], max(n_sites, 1) * 12, f"instances[{i}].sites")
             if own is not None:
                 own = own.reshape(-1, 4, 3)
-        instances.append(Instance(name=str(inst["name"]), marker_ids=tuple(ids), sites=own))
+        counts = inst.get("site_scenes")
+        if counts is not None and not (
+            isinstance(counts, list)
+            and len(counts) == n_sites
+            and all(isinstance(x, int) and x >= 0 for x in counts)
+        ):
+            p.problem(
+                f"instances[{i}].site_scenes must be {n_sites} non-negative integers, one per site"
+            )
+            counts = None
+        instances.append(
+            Instance(
+                name=str(inst["name"]),
+                marker_ids=tuple(ids),
+                sites=own,
+                site_scenes=None if counts is None else tuple(counts),
+            )
+        )
     if len({i.name for i in instances}) != len(instances):
         p.problem("duplicate instance names")
     return instances

@@ -89,11 +89,14 @@ class Instance:
     ``sites``: where this copy's markers really are, (S, 4, 3) in the model frame (mm), in
     the order and shape of the object's ``markers.sites``, when they were measured
     (``annotator sites``: markers glued by hand land beside the layout); None: the layout.
+    ``site_scenes``: per site, from how many scenes (a sequence's frames) ``annotator sites``
+    measured it (0: left on the layout); None when not recorded.
     """
 
     name: str
     marker_ids: tuple[int, ...]
     sites: np.ndarray | None = field(default=None, compare=False, hash=False)
+    site_scenes: tuple[int, ...] | None = None
 
 
 @dataclass(frozen=True)

@@ -68,6 +68,8 @@ def instance_to_yaml(instance: Instance) -> dict[str, Any]:
     }
     if instance.sites is not None:
         out["sites"] = sites_to_yaml(instance.sites)
+    if instance.site_scenes is not None:
+        out["site_scenes"] = [int(n) for n in instance.site_scenes]
     return out
 
 

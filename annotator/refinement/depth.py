@@ -43,6 +43,7 @@ from annotator.geometry.mesh import Mesh, surface_samples
 from annotator.geometry.robust import huber_cost, huber_weights
 from annotator.noise import NOISE, NoiseModel
 from annotator.pnp.multiview import Observation, reprojection_errors, residuals_jacobian
+from annotator.pnp.sites import site_jacobian
 from annotator.refinement.nearest import TrackedNearest
 from annotator.rendering.raycast import PlacedMesh, cast_alone, clip_region, hit_bbox
 
@@ -655,6 +656,7 @@ def pose_covariance(
     cameras: Sequence[Camera],
     observations: Sequence[Observation],
     site_sigmas: dict[int, tuple[float, float]] | None = None,
+    fitted_sites: dict[int, tuple[float, float]] | None = None,
     noise: NoiseModel = NOISE,
     settings: RefineSettings = RefineSettings(),
 ) -> np.ndarray:
@@ -665,7 +667,11 @@ def pose_covariance(
     depth along its rays (``noise.depth_bias_mm``), and the markers' site errors
     (``site_sigmas`` maps a marker id to the 1-sigma of its site's shifts in its plane, mm,
     each of two, and of its turn about its normal, rad; a marker's error is the same in every
-    camera that sees it). Infinite where the terms leave a motion free."""
+    camera that sees it). ``fitted_sites`` (same form) are sites measured from this very pose
+    (``annotator sites`` fitted them to the scene they were seen in): the pose and they are
+    off together, with residuals that show nothing, so their errors are unknowns the markers
+    must share with the pose (within those 1-sigma), not errors the pose merely follows: what
+    the markers then still say of the pose. Infinite where the terms leave a motion free."""
     obs = list(observations)
     H = np.zeros((6, 6))
     B = np.zeros((6, 0))
@@ -675,8 +681,15 @@ def pose_covariance(
         dof = max(r.size - 6, 1)
         sm = max(float(np.sqrt(r @ r / dof)), noise.corner_px)
         H += Jm.T @ Jm / sm**2
+        if fitted_sites:
+            # The sites' errors, in units of their 1-sigma, solved for beside the pose and
+            # eliminated (Schur complement): the information on the pose that is left.
+            Jf, scale = site_jacobian(cameras, obs, T, fitted_sites)
+            C = Jm.T @ (Jf * scale) / sm**2
+            G = (Jf * scale).T @ (Jf * scale) / sm**2 + np.eye(len(scale))
+            H -= C @ np.linalg.solve(G, C.T)
         if site_sigmas:
-            Js, scale = _site_jacobian(cameras, obs, T, site_sigmas)
+            Js, scale = site_jacobian(cameras, obs, T, site_sigmas)
             B = Jm.T @ (Js * scale) / sm**2
     if depth is not None:
         rd, Jd, i = depth.residuals(T, settings.end_gate_mm)
@@ -692,39 +705,3 @@ def pose_covariance(
         return np.full((6, 6), np.inf)
     Hinv = np.linalg.inv(H)
     return Hinv + Hinv @ B @ B.T @ Hinv
-
-
-def _site_jacobian(
-    cameras: Sequence[Camera],
-    obs: list[Observation],
-    T: np.ndarray,
-    site_sigmas: dict[int, tuple[float, float]],
-) -> tuple[np.ndarray, np.ndarray]:
-    """The corner residuals' derivatives (8 len(obs), 3 M) with respect to the M markers'
-    site errors (shift along the top edge, along the left edge, turn about the normal through
-    the site's centre), and each column's 1-sigma (3 M,)."""
-    ids = sorted({o.marker_id for o in obs})
-    x = np.stack([o.image_corners for o in obs])
-    r0, _ = residuals_jacobian(cameras, obs, T, x)
-    J = np.zeros((r0.size, 3 * len(ids)))
-    scale = np.zeros(3 * len(ids))
-    eps = 1e-3  # mm, rad: the projection is smooth at this scale
-    for m, mid in enumerate(ids):
-        shift, turn = site_sigmas.get(mid, (0.0, 0.0))
-        scale[3 * m : 3 * m + 3] = (shift, shift, turn)
-        X = next(o.model_corners for o in obs if o.marker_id == mid)
-        u = (X[1] - X[0]) / np.linalg.norm(X[1] - X[0])
-        v = (X[3] - X[0]) / np.linalg.norm(X[3] - X[0])
-        n = np.cross(v, u)
-        c = X.mean(axis=0)
-        moves = (np.broadcast_to(u, X.shape), np.broadcast_to(v, X.shape), np.cross(n, X - c))
-        for k, d in enumerate(moves):
-            moved = [
-                Observation(o.camera, o.marker_id, o.model_corners + eps * d, o.image_corners)
-                if o.marker_id == mid
-                else o
-                for o in obs
-            ]
-            r1, _ = residuals_jacobian(cameras, moved, T, x)
-            J[:, 3 * m + k] = (r1 - r0) / eps
-    return J, scale

@@ -356,5 +356,6 @@ def updated_object_yaml(path: Path, measured: list[InstanceSites]) -> tuple[str,
         m = by_name.get(str(entry.get("name"))) if isinstance(entry, dict) else None
         if m is not None:
             entry["sites"] = sites_to_yaml(m.sites)
+            entry["site_scenes"] = [int(n) for n in m.solution.seen]
     new = yaml.safe_dump(doc, sort_keys=False, width=120, default_flow_style=None)
     return old, new
