@@ -9,6 +9,14 @@ far from it left out), and the corners where adjacent lines meet, over a few rou
 step edge under any symmetric blur, the centroid of the gradient is the edge itself, hence no
 bias; a highlight beside the paper or a neighbour's edge is a point off the line, left out.
 
+A marker wrapped round a curved part (a shaft, a cylinder) has sides that bow in the image
+when seen at a slant: a line through a bowed side's points passes beside its ends, and every
+corner moves outwards or inwards alike (the part then seems nearer or farther). Where a side
+and its opposite side both bow the same way in the image, each significantly (a parabola's
+curvature term :data:`BOW_SIGMAS` standard errors from zero), the corners are where the
+parabolas' tangents at their ends meet; a side alone that seems to bow is noise and keeps its
+line.
+
 Corner order is OpenCV's: top-left, top-right, bottom-right, bottom-left of the printed marker.
 """
 
@@ -119,12 +127,76 @@ def _edge_fit(
     strong &= np.abs(pos) < 0.8 * reach[:, None]  # an edge at the window's end is cut off
     point, direction, used, rms = _fit_lines_robust(edge, strong)
     usable = (length >= 8) & (used.sum(axis=1) >= 4) & (rms < 0.5)
+    # Each side's tangent at its two ends: its line, or where the side bows (a marker
+    # wrapped round a curved part) the tangents of a parabola through its points.
+    start, start_dir, end, end_dir = _bowed_ends(
+        edge, used & (length >= BOW_MIN_PX)[:, None], point, direction, a, b
+    )
     # Corner k is where side k-1 (ending at it) meets side k (starting at it).
-    p = point.reshape(-1, 4, 2)
-    d = direction.reshape(-1, 4, 2)
-    corners = _intersect(np.roll(p, 1, axis=1), np.roll(d, 1, axis=1), p, d)
+    p, d = start.reshape(-1, 4, 2), start_dir.reshape(-1, 4, 2)
+    q, e = end.reshape(-1, 4, 2), end_dir.reshape(-1, 4, 2)
+    corners = _intersect(np.roll(q, 1, axis=1), np.roll(e, 1, axis=1), p, d)
     good = usable.reshape(-1, 4).all(axis=1) & np.isfinite(corners).all(axis=(1, 2))
     return corners, good
+
+
+#: Sides shorter than this (px) keep their line: on a small marker a bow is below the noise,
+#: and a parabola through a dozen points bends with it.
+BOW_MIN_PX = 16.0
+#: A side bows when its parabola's curvature term, and its opposite side's, are this many
+#: standard errors from zero.
+BOW_SIGMAS = 2.0
+
+
+def _bowed_ends(
+    pts: np.ndarray,
+    used: np.ndarray,
+    point: np.ndarray,
+    direction: np.ndarray,
+    a: np.ndarray,
+    b: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Per side (L): a point and unit direction of its tangent at its start (near ``a``) and
+    at its end (near ``b``); the sides come four by four, a quad's in order. A side whose
+    points (L, P, 2, those of ``used``) bow off its line (``point``, ``direction``) by more
+    than :data:`BOW_SIGMAS` standard errors, as its opposite side does, gets a parabola's
+    tangents; the others keep their line at both ends."""
+    normal = np.stack([-direction[:, 1], direction[:, 0]], axis=1)
+    rel = pts - point[:, None, :]
+    t = np.einsum("lpd,ld->lp", rel, direction)
+    off = np.einsum("lpd,ld->lp", rel, normal)
+    w = used.astype(np.float64)
+    # Weighted least squares of off = c0 + c1 t + c2 t^2, per side, in t scaled to [-1, 1].
+    half = np.maximum(np.abs(np.where(used, t, 0.0)).max(axis=1), 1e-9)
+    u = t / half[:, None]
+    X = np.stack([np.ones_like(u), u, u**2], axis=-1)  # (L, P, 3)
+    XtX = np.einsum("lpi,lp,lpj->lij", X, w, X) + 1e-9 * np.eye(3)
+    coef = np.linalg.solve(XtX, np.einsum("lpi,lp,lp->li", X, w, off)[..., None])[..., 0]
+    resid = off - np.einsum("lpi,li->lp", X, coef)
+    dof = np.maximum(w.sum(axis=1) - 3, 1)
+    sigma2 = (w * resid**2).sum(axis=1) / dof
+    se2 = sigma2 * np.linalg.inv(XtX)[:, 2, 2]
+    z = np.abs(coef[:, 2]) / np.sqrt(np.maximum(se2, 1e-18))
+    z = np.where(w.sum(axis=1) >= 6, z, 0.0).reshape(-1, 4)
+    # Opposite sides of a printed square wrapped round a part bow alike, the same way in the
+    # image (seen at a slant, the middle of the square rises off the plane of its corners):
+    # both must show it. A side alone that seems to bow is noise.
+    bow = (coef[:, 2, None] * normal).reshape(-1, 4, 2)  # the way it bows, in the image
+    alike = np.einsum("nkd,nkd->nk", bow, np.roll(bow, 2, axis=1)) > 0
+    bowed = ((np.minimum(z, np.roll(z, 2, axis=1)) > BOW_SIGMAS) & alike).ravel()
+    c = np.where(bowed[:, None], coef, 0.0)
+
+    def tangent(at: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        ua = np.einsum("ld,ld->l", at - point, direction) / half
+        where = point + (ua * half)[:, None] * direction
+        where += (c[:, 0] + c[:, 1] * ua + c[:, 2] * ua**2)[:, None] * normal
+        slope = (c[:, 1] + 2 * c[:, 2] * ua) / half
+        d = direction + slope[:, None] * normal
+        return where, d / np.linalg.norm(d, axis=1, keepdims=True)
+
+    start, start_dir = tangent(a)
+    end, end_dir = tangent(b)
+    return start, start_dir, end, end_dir
 
 
 def _fit_lines_robust(
