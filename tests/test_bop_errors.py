@@ -5,12 +5,15 @@ and the images shared between processes (:mod:`annotator.evaluation.forked`)."""
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
 import pytest
 import trimesh
 
 from annotator.evaluation import bop19
 from annotator.evaluation.bop19 import bop19_scores, mspd, mssd
+from annotator.evaluation.forked import in_processes
 from annotator.evaluation.largest_gap import clusters_of
 from annotator.evaluation.vsd_render import model_depth
 from annotator.formats.bop_images import BopEstimates, BopImage, BopObject, symmetry_transformations
@@ -181,3 +184,15 @@ def test_processes_give_the_same_numbers(monkeypatch: pytest.MonkeyPatch) -> Non
     assert two.recalls == one.recalls and two.per_object == one.per_object
     # the child's pairs came back: BOP 2024's scores next find them all
     assert sum(len(m) for m in bop19.pair_errors().values()) >= one.estimates
+
+
+def test_a_failed_child_share_is_computed_here() -> None:
+    parent = os.getpid()
+
+    def work(share, progress):
+        if os.getpid() != parent:
+            raise RuntimeError("a child that fails")
+        return [x * 2 for x in share]
+
+    assert in_processes(work, list(range(7)), 3) == [[0, 6, 12], [2, 8], [4, 10]]
+    assert in_processes(work, [], 2) == [[]]

@@ -30,8 +30,9 @@ R = TypeVar("R")
 
 def process_count(wanted: int | None = None) -> int:
     """Processes to share work between: ``wanted`` (default: every core this process may
-    run on), 1 where processes are not forked."""
-    if not sys.platform.startswith("linux"):
+    run on); 1 where processes are not forked, and in a daemonic process (a pool's worker),
+    which may not have children."""
+    if not sys.platform.startswith("linux") or multiprocessing.current_process().daemon:
         return 1
     return max(1, available_cpus() if wanted is None else int(wanted))
 
@@ -47,7 +48,7 @@ def in_processes(
     ``progress`` is called per item of this process's share, and per item of a child's once
     it is back."""
     n = min(max(1, processes), len(items)) if items else 1
-    if n == 1 or not sys.platform.startswith("linux"):
+    if n == 1 or process_count(n) == 1:
         return [work(items, progress)]
     shares = [items[k::n] for k in range(n)]
     ctx = multiprocessing.get_context("fork")
