@@ -344,9 +344,8 @@ def vsd(
             out[b - y0 : d - y0, a - x0 : c - x0] = depth
         return out
 
-    xs, ys = np.meshgrid(np.arange(x0, x1), np.arange(y0, y1))
-    pre_x = (xs - K[0, 2]) / np.float64(K[0, 0])
-    pre_y = (ys - K[1, 2]) / np.float64(K[1, 1])
+    full_x, full_y = _pixel_factors(K, depth_test.shape)
+    pre_x, pre_y = full_x[y0:y1, x0:x1], full_y[y0:y1, x0:x1]
 
     def distance(depth: np.ndarray) -> np.ndarray:
         return np.sqrt((pre_x * depth) ** 2 + (pre_y * depth) ** 2 + depth.astype(np.float64) ** 2)
@@ -368,6 +367,24 @@ def vsd(
     comp_count = union_count - int(inter.sum())
     dists = np.abs(dist_g[inter] - dist_e[inter]) / diameter
     return [(float(np.sum(dists >= tau)) + comp_count) / float(union_count) for tau in taus]
+
+
+def _pixel_factors(K: np.ndarray, shape: tuple[int, ...]) -> tuple[np.ndarray, np.ndarray]:
+    """(H, W) ``(x - c_x) / f_x`` and ``(y - c_y) / f_y`` of every pixel, once per camera and
+    image size (each pair's VSD slices its rectangle: the same numbers, without a grid and
+    two divisions per pair)."""
+    key = (K.tobytes(), tuple(shape))
+    got = _FACTORS.get(key)
+    if got is None:
+        xs, ys = np.meshgrid(np.arange(shape[1]), np.arange(shape[0]))
+        got = ((xs - K[0, 2]) / np.float64(K[0, 0]), (ys - K[1, 2]) / np.float64(K[1, 1]))
+        if len(_FACTORS) > 8:
+            _FACTORS.clear()
+        _FACTORS[key] = got
+    return got
+
+
+_FACTORS: dict[tuple[bytes, tuple[int, ...]], tuple[np.ndarray, np.ndarray]] = {}
 
 
 # -------------------------------------------------------------------------------- matching
