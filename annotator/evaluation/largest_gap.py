@@ -66,27 +66,27 @@ class Clusters:
         return self.points[np.arange(int(counts.sum())) + offsets]
 
 
-def clusters_of(points: np.ndarray) -> Clusters:
-    """The points' clusters (cells of a cubic grid sized for about :data:`CLUSTER_POINTS`
-    points each), computed once per process for the same array (one per mesh file,
+def clusters_of(points: np.ndarray, size: int = CLUSTER_POINTS) -> Clusters:
+    """The points' clusters (cells of a cubic grid sized for about ``size`` points each),
+    computed once per process for the same array (one per mesh file,
     :func:`annotator.geometry.mesh.load_mesh`)."""
-    got = _CLUSTERS.get(id(points))
+    got = _CLUSTERS.get((id(points), size))
     if got is not None and got[0] is points:
         return got[1]
-    clusters = _make_clusters(np.asarray(points, np.float64))
+    clusters = _make_clusters(np.asarray(points, np.float64), size)
     if len(_CLUSTERS) > 64:
         _CLUSTERS.clear()
-    _CLUSTERS[id(points)] = (points, clusters)
+    _CLUSTERS[(id(points), size)] = (points, clusters)
     return clusters
 
 
-_CLUSTERS: dict[int, tuple[np.ndarray, Clusters]] = {}
+_CLUSTERS: dict[tuple[int, int], tuple[np.ndarray, Clusters]] = {}
 
 
-def _make_clusters(points: np.ndarray) -> Clusters:
+def _make_clusters(points: np.ndarray, size: int) -> Clusters:
     lo, hi = points.min(axis=0), points.max(axis=0)
     extent = float(np.max(hi - lo)) or 1.0
-    wanted = max(1, len(points) // CLUSTER_POINTS)
+    wanted = max(1, len(points) // size)
     # A surface's occupied cells grow as the square of their count per side: two tries
     # find a cell size near the wanted number of clusters.
     side = extent / max(1.0, np.sqrt(wanted / 6.0))
