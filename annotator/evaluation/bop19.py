@@ -522,13 +522,16 @@ def bop19_scores(
     delta: float = VSD_DELTA_MM,
     progress: Callable[[], None] | None = None,
     processes: int = 1,
+    prepare: Callable[[], None] | None = None,
 ) -> Bop19Scores:
     """BOP's ARs of ``estimates`` ((scene_id, im_id) -> estimates) on ``images``.
 
     VSD is computed when every image has a depth image and ``render`` is given; otherwise
     it and AR are None. ``processes``: how many processes share the images
     (:func:`annotator.evaluation.forked.in_processes`) when there are at least
-    :data:`PARALLEL_MIN_ESTIMATES` estimates; the numbers do not depend on it.
+    :data:`PARALLEL_MIN_ESTIMATES` estimates; the numbers do not depend on it. Before they
+    do, ``prepare()`` is called and the objects' point clusters are made here, once for
+    every process (the renderer's own structures, say, which each would build again).
     """
     with_vsd = render is not None and all(im.depth is not None for im in images)
     metrics = [m for m in METRICS if m != "vsd" or with_vsd]
@@ -555,6 +558,10 @@ def bop19_scores(
     if processes > 1 and many:
         from annotator.evaluation.forked import in_processes
 
+        for obj in objects.values():
+            clusters_of(obj.points)
+        if prepare is not None:
+            prepare()
         tallies = in_processes(tally, images, processes, progress)
     else:
         tallies = [tally(images, progress)]

@@ -275,7 +275,7 @@ def _bop19(inputs: Inputs, _: Any) -> Bop19Scores:
 
     from annotator.evaluation.bop19 import bop19_scores
     from annotator.evaluation.forked import process_count
-    from annotator.evaluation.vsd_render import model_depth
+    from annotator.evaluation.vsd_render import model_depth, prepare
     from annotator.formats.bop_images import read_bop_split
 
     assert inputs.gt is not None and inputs.results is not None
@@ -296,6 +296,7 @@ def _bop19(inputs: Inputs, _: Any) -> Bop19Scores:
             delta=split.delta,
             progress=progress,
             processes=process_count(),
+            prepare=lambda: prepare(o.mesh for o in split.objects.values() if o.mesh),
         )
     scores.notes[:0] = split.notes
     return scores

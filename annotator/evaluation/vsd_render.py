@@ -17,6 +17,7 @@ millisecond for a mesh of LM's size) and reads every output of the cast; this on
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from typing import Any
 
 import numpy as np
@@ -61,6 +62,16 @@ def model_depth(
     t = got["t_hit"].numpy()
     depth = np.where(np.isfinite(t), t, np.float32(0.0)).astype(np.float32)
     return box, depth.reshape(grid.shape[:2])
+
+
+def prepare(meshes: Iterable[Mesh]) -> None:
+    """Builds what :func:`model_depth` needs of each mesh (its ray-casting scene, whose
+    search structure is made on the first cast, and its clusters) ahead, once for the
+    processes forked next."""
+    ray = o3d.core.Tensor(np.array([[0, 0, -1e6, 0, 0, 1]], np.float32))
+    for mesh in meshes:
+        _scene(mesh).cast_rays(ray, nthreads=get_threads())
+        clusters_of(mesh.vertices, _BOX_CLUSTER_POINTS)
 
 
 def _scene(mesh: Mesh) -> Any:
