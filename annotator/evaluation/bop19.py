@@ -34,6 +34,7 @@ written, not projected to the nearest rotation, as bop_toolkit does.
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -41,6 +42,12 @@ from typing import Any
 
 import numpy as np
 
+from annotator.evaluation.largest_gap import (
+    AffineGaps,
+    ProjectedGaps,
+    clusters_of,
+    largest_squared,
+)
 from annotator.formats.bop_images import VSD_DELTA_MM, BopEstimates, BopImage, BopObject
 from annotator.geometry.mesh import Mesh
 
@@ -107,24 +114,6 @@ class Bop19Scores:
 # ---------------------------------------------------------------------------------- errors
 
 
-def symmetric_points(obj: BopObject) -> np.ndarray:
-    """(S, N, 3): the model points moved by each symmetry, computed once per process for
-    the same points (one array per mesh file, :func:`annotator.geometry.mesh.load_mesh`) and
-    symmetries, as BOP 2019's and 2024's scores of one run read them."""
-    key = (id(obj.points), obj.sym_R.tobytes() + obj.sym_t.tobytes())
-    cached = _SYMMETRIC.get(key)
-    if cached is None or cached[0] is not obj.points:
-        pts = obj.sym_R @ obj.points.T  # (S, 3, N)
-        copies = np.ascontiguousarray(np.swapaxes(pts, 1, 2) + obj.sym_t[:, None, :])
-        if len(_SYMMETRIC) > 64:
-            _SYMMETRIC.clear()
-        cached = _SYMMETRIC[key] = (obj.points, copies)
-    return cached[1]
-
-
-_SYMMETRIC: dict[tuple[int, bytes], tuple[np.ndarray, np.ndarray]] = {}
-
-
 def mssd(
     R_e: np.ndarray,
     t_e: np.ndarray,
@@ -135,29 +124,19 @@ def mssd(
     cutoff: float = math.inf,
 ) -> float:
     """Maximum symmetry-aware surface distance in mm (not divided by the diameter); infinite
-    when it is certainly ``cutoff`` or more (an error no threshold of interest accepts).
+    when it is ``cutoff`` or more (an error no threshold of interest accepts).
 
-    The true pose is applied as written, to the symmetric copies of the points computed once
-    per object (:func:`symmetric_points`): a rotation that is not quite orthonormal, as BOP's
-    own files have, moves them as bop_toolkit moves them.
+    The true pose is combined with each symmetry as bop_toolkit combines them
+    (``R_g S``, ``R_g t_s + t_g``), as written: a rotation that is not quite orthonormal,
+    as BOP's own files have, moves the points as bop_toolkit moves them.
 
     >>> obj = BopObject(np.eye(3), 1.0, np.eye(3)[None], np.zeros((1, 3)))
     >>> mssd(np.eye(3), np.array([0, 0, 2.0]), np.eye(3), np.zeros(3), obj)
     2.0
     """
-    pts_e = obj.points @ R_e.T + t_e
-    sym = symmetric_points(obj)
-
-    def squared(rows: np.ndarray, cols: slice | np.ndarray) -> np.ndarray:
-        d = sym[:, cols][rows] @ R_g.T + (t_g - pts_e[cols])
-        return np.einsum("snk,snk->sn", d, d)
-
-    return math.sqrt(_min_max(squared, len(sym), len(pts_e), cutoff * cutoff))
-
-
-def _project(K: np.ndarray, pts_cam: np.ndarray) -> np.ndarray:
-    uvw = pts_cam @ K.T
-    return uvw[..., :2] / uvw[..., 2:3]
+    A, b = _symmetric_pose(obj, R_g, t_g)
+    gaps = AffineGaps(A - R_e, b - t_e)
+    return math.sqrt(_min_max(gaps, obj, cutoff * cutoff))
 
 
 def mspd(
@@ -171,15 +150,18 @@ def mspd(
     cutoff: float = math.inf,
 ) -> float:
     """Maximum symmetry-aware projection distance in pixels (not rescaled); infinite when it
-    is certainly ``cutoff`` or more."""
-    uv_e = _project(K, obj.points @ R_e.T + t_e)
-    sym = symmetric_points(obj)
+    is ``cutoff`` or more."""
+    A, b = _symmetric_pose(obj, R_g, t_g)
+    gaps = ProjectedGaps(K @ A, b @ K.T, K @ R_e, K @ t_e)
+    return math.sqrt(_min_max(gaps, obj, cutoff * cutoff))
 
-    def squared(rows: np.ndarray, cols: slice | np.ndarray) -> np.ndarray:
-        d = _project(K, sym[:, cols][rows] @ R_g.T + t_g) - uv_e[cols]
-        return np.einsum("snk,snk->sn", d, d)
 
-    return math.sqrt(_min_max(squared, len(sym), len(uv_e), cutoff * cutoff))
+def _symmetric_pose(
+    obj: BopObject, R_g: np.ndarray, t_g: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """(S, 3, 3), (S, 3): the true pose combined with each symmetry, as bop_toolkit's
+    ``R_gt.dot(sym['R'])`` and ``R_gt.dot(sym['t']) + t_gt``."""
+    return R_g @ obj.sym_R, obj.sym_t @ R_g.T + t_g
 
 
 #: Errors past every threshold by this factor are not computed exactly (they match nothing).
@@ -188,39 +170,34 @@ _MARGIN = 1.01
 _SAMPLE_POINTS = 64
 
 
+@functools.lru_cache(maxsize=256)
 def sample_points(N: int) -> np.ndarray:
-    """The points of :func:`_min_max`'s first pass, of ``N``."""
+    """The points of :func:`_min_max`'s first pass, of ``N`` (shared: not to be changed)."""
     return np.linspace(0, N - 1, _SAMPLE_POINTS).astype(int)
 
 
-def _min_max(
-    squared: Callable[[np.ndarray, slice | np.ndarray], np.ndarray],
-    S: int,
-    N: int,
-    cutoff: float = math.inf,
-    bound: np.ndarray | None = None,
-) -> float:
-    """min over symmetries s of max over points n of ``squared(s, n)``, exactly, without
-    computing every symmetry on every point: the largest over a sample of points
-    (:func:`sample_points`) is a lower bound for each symmetry (``bound``, if already
-    computed), and only those whose bound is below the best exact value found so far are
-    computed on all points. Infinite when the bound says the value is ``cutoff`` or more."""
-    everything = np.arange(S)
-    if S <= 4 or N <= 2 * _SAMPLE_POINTS:
-        return float(squared(everything, slice(None)).max(axis=1).min())
-    if bound is None:
-        bound = squared(everything, sample_points(N)).max(axis=1)
-    if float(bound.min()) >= cutoff:
-        return math.inf
-    best = np.inf
-    order = np.argsort(bound, kind="stable")
-    for start in range(0, S, 8):
-        rows = order[start : start + 8]
-        rows = rows[bound[rows] < best]
-        if not len(rows):
+def _min_max(gaps: AffineGaps | ProjectedGaps, obj: BopObject, cutoff: float) -> float:
+    """min over the symmetries (the rows of ``gaps``) of the largest squared gap over the
+    object's points, exactly; infinite when it is ``cutoff`` or more.
+
+    The largest over a sample of points (:func:`sample_points`) is a lower bound for each
+    symmetry; symmetries are taken in increasing bound, and one whose bound is not below the
+    best exact value so far cannot be the least. Each is computed over the points that can
+    hold its largest gap (:func:`largest_squared`)."""
+    N = len(obj.points)
+    everything = slice(None)
+    if N <= 2 * _SAMPLE_POINTS:
+        best = float(gaps.squared(everything, obj.points).max(axis=1).min())
+        return best if best < cutoff else math.inf
+    bound = gaps.squared(everything, obj.points[sample_points(N)]).max(axis=1)
+    clusters = clusters_of(obj.points)
+    best = math.inf
+    for s in np.argsort(bound, kind="stable"):
+        floor = float(bound[s])
+        if floor >= min(best, cutoff):
             break
-        best = min(best, float(squared(rows, slice(None)).max(axis=1).min()))
-    return best
+        best = min(best, largest_squared(gaps, int(s), clusters, found=floor, stop=best))
+    return best if best < cutoff else math.inf
 
 
 def error_tables(
@@ -230,7 +207,7 @@ def error_tables(
     the true poses ``gts`` of one object in one image, as :func:`mssd` and :func:`mspd`
     (MSSD infinite when the centres are a diameter or more apart). Errors past every
     threshold of BOP's scores (VSD's and MSSD's fractions, MSSD's millimetres, MSPD's
-    pixels) by :data:`_MARGIN` may be infinite: no threshold can tell them apart.
+    pixels) by :data:`_MARGIN` are infinite: no threshold can tell them apart.
 
     Each pair is computed once per process: BOP 2019's and 2024's scores of one result
     file pair mostly the same estimates with the same true poses, and the second takes the
@@ -253,11 +230,8 @@ def error_tables(
                 break
             mm[i, j], px[i, j] = got
     if todo:
-        scale = MSPD_REFERENCE_WIDTH_PX / image.width
-        mm_cut = _MARGIN * max(float(CORRECT_TH[-1]) * obj.diameter, float(MSSD_MM_TH[-1]))
-        px_cut = _MARGIN * float(MSPD_TH_PX[-1]) / scale
         rows = np.asarray(todo)
-        mm[rows], px[rows] = _error_tables(image, est, mine[rows], gts, obj, mm_cut, px_cut)
+        mm[rows], px[rows] = _error_tables(image, est, mine[rows], gts, obj)
         if len(memo) > 1_000_000:
             memo.clear()
         for i in todo:
@@ -266,10 +240,32 @@ def error_tables(
     return mm, px
 
 
+def pair_errors() -> dict[tuple[int, bytes, float], dict[bytes, tuple[float, float]]]:
+    """The pairs' errors computed so far in this process, per object (as
+    :func:`merge_pair_errors` takes them from another process)."""
+    return {key: memo for key, (_, memo) in _PAIRS.items()}
+
+
+def merge_pair_errors(
+    objects: dict[int, BopObject],
+    found: dict[tuple[int, bytes, float], dict[bytes, tuple[float, float]]],
+) -> None:
+    """Adds pairs' errors computed by another process (:func:`pair_errors` there, the
+    same objects read before it started) to this process's."""
+    for obj in objects.values():
+        got = found.get(_memo_key(obj))
+        if got:
+            _pair_memo(obj).update(got)
+
+
+def _memo_key(obj: BopObject) -> tuple[int, bytes, float]:
+    return (id(obj.points), obj.sym_R.tobytes() + obj.sym_t.tobytes(), obj.diameter)
+
+
 def _pair_memo(obj: BopObject) -> dict[bytes, tuple[float, float]]:
     """The pairs' errors computed so far for an object: by its points (one array per mesh
     file and process, :func:`annotator.geometry.mesh.load_mesh`), symmetries and diameter."""
-    key = (id(obj.points), obj.sym_R.tobytes() + obj.sym_t.tobytes(), obj.diameter)
+    key = _memo_key(obj)
     got = _PAIRS.get(key)
     if got is None or got[0] is not obj.points:
         if len(_PAIRS) > 256:
@@ -282,101 +278,27 @@ _PAIRS: dict[tuple[int, bytes, float], tuple[np.ndarray, dict[bytes, tuple[float
 
 
 def _error_tables(
-    image: BopImage,
-    est: BopEstimates,
-    mine: np.ndarray,
-    gts: np.ndarray,
-    obj: BopObject,
-    mm_cut: float,
-    px_cut: float,
+    image: BopImage, est: BopEstimates, mine: np.ndarray, gts: np.ndarray, obj: BopObject
 ) -> tuple[np.ndarray, np.ndarray]:
     E, G = len(mine), len(gts)
     mm = np.full((E, G), np.inf)
     px = np.full((E, G), np.inf)
-    sym = symmetric_points(obj)
-    pts_e = np.stack([obj.points @ est.R[e].T + est.t[e] for e in mine])
-    uv_e = _project(image.K, pts_e)
+    scale = MSPD_REFERENCE_WIDTH_PX / image.width
+    mm_cut = _MARGIN * max(float(CORRECT_TH[-1]) * obj.diameter, float(MSSD_MM_TH[-1]))
+    px_cut = _MARGIN * float(MSPD_TH_PX[-1]) / scale
+    K = image.K
     near = np.linalg.norm(est.t[mine][:, None] - image.t[gts][None], axis=2) < obj.diameter
     for j, g in enumerate(gts):
-        copies = _Copies(sym, image.R[g], image.t[g], image.K)
-        if near[:, j].any():
-            got = _min_max_many(copies.points, len(sym), pts_e[near[:, j]], mm_cut**2)
-            mm[near[:, j], j] = np.sqrt(got)
-        px[:, j] = np.sqrt(_min_max_many(copies.pixels, len(sym), uv_e, px_cut**2))
+        A, b = _symmetric_pose(obj, image.R[g], image.t[g])
+        M, m = K @ A, b @ K.T
+        for i, e in enumerate(mine):
+            R_e, t_e = est.R[e], est.t[e]
+            if near[i, j]:
+                got = _min_max(AffineGaps(A - R_e, b - t_e), obj, mm_cut * mm_cut)
+                mm[i, j] = math.sqrt(got)
+            got = _min_max(ProjectedGaps(M, m, K @ R_e, K @ t_e), obj, px_cut * px_cut)
+            px[i, j] = math.sqrt(got)
     return mm, px
-
-
-#: The rows and points of the symmetric copies asked for: (S', N', k).
-Copies = Callable[[np.ndarray | slice, np.ndarray | slice], np.ndarray]
-
-
-class _Copies:
-    """A true pose's symmetric copies of the model points, moved (mm) or projected (px),
-    computed where they are asked for: an object with a continuous symmetry has hundreds of
-    copies, of which the bounds of :func:`_min_max` look at a few points and exactly at a
-    few copies only. Small sets are computed whole once."""
-
-    def __init__(self, sym: np.ndarray, R: np.ndarray, t: np.ndarray, K: np.ndarray) -> None:
-        self.sym, self.R, self.t, self.K = sym, R, t, K
-        self._whole: dict[str, np.ndarray] = {}
-
-    def points(self, rows: np.ndarray | slice, cols: np.ndarray | slice) -> np.ndarray:
-        if len(self.sym) <= _WHOLE_COPIES:
-            if "mm" not in self._whole:
-                self._whole["mm"] = np.einsum("snk,jk->snj", self.sym, self.R) + self.t
-            return self._whole["mm"][rows][:, cols]
-        return np.einsum("snk,jk->snj", self.sym[rows][:, cols], self.R) + self.t
-
-    def pixels(self, rows: np.ndarray | slice, cols: np.ndarray | slice) -> np.ndarray:
-        if len(self.sym) <= _WHOLE_COPIES:
-            if "px" not in self._whole:
-                self._whole["px"] = _project(self.K, self.points(slice(None), slice(None)))
-            return self._whole["px"][rows][:, cols]
-        return _project(self.K, self.points(rows, cols))
-
-
-#: Symmetric copies up to this many are moved and projected whole (every point is needed).
-_WHOLE_COPIES = 4
-#: Points of the first, cheapest lower bound of :func:`_min_max_many`.
-_COARSE_POINTS = 6
-
-
-def _min_max_many(copies: Copies, S: int, ests: np.ndarray, cutoff: float) -> np.ndarray:
-    """For each estimate's points ``ests`` (E, N, k): min over the ``S`` symmetric copies
-    (``copies(rows, points)``) of the largest squared distance over the points, as
-    :func:`_min_max` computes it; infinite where a lower bound is ``cutoff`` or more. The
-    bounds of all estimates at once, then each one's exact value where it is needed."""
-    N = ests.shape[1]
-    every = slice(None)
-
-    def largest(points: np.ndarray | slice, which: np.ndarray | slice) -> np.ndarray:
-        d = copies(every, points)[None] - ests[which][:, None, points]
-        return np.einsum("esnk,esnk->esn", d, d).max(axis=2)  # (E, S)
-
-    if S <= 4 or N <= 128:
-        return largest(every, every).min(axis=1)
-    out = np.full(len(ests), np.inf)
-    coarse = largest(np.linspace(0, N - 1, _COARSE_POINTS).astype(int), every)
-    alive = np.flatnonzero(coarse.min(axis=1) < cutoff)
-    if not len(alive):
-        return out
-    bounds = largest(sample_points(N), alive)
-    for i, bound in zip(alive, bounds):
-        out[i] = _min_max(_distances(copies, ests[i]), S, N, cutoff, bound)
-    return out
-
-
-def _distances(
-    copies: Copies, est: np.ndarray
-) -> Callable[[np.ndarray, slice | np.ndarray], np.ndarray]:
-    """Squared distances between the symmetric copies and the estimate's points ``est``
-    (N, k), over the rows and points asked for."""
-
-    def squared(rows: np.ndarray, cols: slice | np.ndarray) -> np.ndarray:
-        d = copies(rows, cols) - est[cols]
-        return np.einsum("snk,snk->sn", d, d)
-
-    return squared
 
 
 def spheres_projections_overlap(radius: float, p1: np.ndarray, p2: np.ndarray) -> bool:
@@ -422,9 +344,8 @@ def vsd(
             out[b - y0 : d - y0, a - x0 : c - x0] = depth
         return out
 
-    xs, ys = np.meshgrid(np.arange(x0, x1), np.arange(y0, y1))
-    pre_x = (xs - K[0, 2]) / np.float64(K[0, 0])
-    pre_y = (ys - K[1, 2]) / np.float64(K[1, 1])
+    full_x, full_y = _pixel_factors(K, depth_test.shape)
+    pre_x, pre_y = full_x[y0:y1, x0:x1], full_y[y0:y1, x0:x1]
 
     def distance(depth: np.ndarray) -> np.ndarray:
         return np.sqrt((pre_x * depth) ** 2 + (pre_y * depth) ** 2 + depth.astype(np.float64) ** 2)
@@ -446,6 +367,24 @@ def vsd(
     comp_count = union_count - int(inter.sum())
     dists = np.abs(dist_g[inter] - dist_e[inter]) / diameter
     return [(float(np.sum(dists >= tau)) + comp_count) / float(union_count) for tau in taus]
+
+
+def _pixel_factors(K: np.ndarray, shape: tuple[int, ...]) -> tuple[np.ndarray, np.ndarray]:
+    """(H, W) ``(x - c_x) / f_x`` and ``(y - c_y) / f_y`` of every pixel, once per camera and
+    image size (each pair's VSD slices its rectangle: the same numbers, without a grid and
+    two divisions per pair)."""
+    key = (K.tobytes(), tuple(shape))
+    got = _FACTORS.get(key)
+    if got is None:
+        xs, ys = np.meshgrid(np.arange(shape[1]), np.arange(shape[0]))
+        got = ((xs - K[0, 2]) / np.float64(K[0, 0]), (ys - K[1, 2]) / np.float64(K[1, 1]))
+        if len(_FACTORS) > 8:
+            _FACTORS.clear()
+        _FACTORS[key] = got
+    return got
+
+
+_FACTORS: dict[tuple[bytes, tuple[int, ...]], tuple[np.ndarray, np.ndarray]] = {}
 
 
 # -------------------------------------------------------------------------------- matching
@@ -582,42 +521,95 @@ def bop19_scores(
     render: DepthRenderer | None = None,
     delta: float = VSD_DELTA_MM,
     progress: Callable[[], None] | None = None,
+    processes: int = 1,
+    prepare: Callable[[], None] | None = None,
 ) -> Bop19Scores:
     """BOP's ARs of ``estimates`` ((scene_id, im_id) -> estimates) on ``images``.
 
     VSD is computed when every image has a depth image and ``render`` is given; otherwise
-    it and AR are None.
+    it and AR are None. ``processes``: how many processes share the images
+    (:func:`annotator.evaluation.forked.in_processes`) when there are at least
+    :data:`PARALLEL_MIN_ESTIMATES` estimates; the numbers do not depend on it. Before they
+    do, ``prepare()`` is called and the objects' point clusters are made here, once for
+    every process (the renderer's own structures, say, which each would build again).
     """
     with_vsd = render is not None and all(im.depth is not None for im in images)
-    settings = {
-        "mssd": CORRECT_TH,
-        "mspd": MSPD_TH_PX,
-        "vsd": CORRECT_TH,
-    }
     metrics = [m for m in METRICS if m != "vsd" or with_vsd]
-    n_settings = {m: len(settings[m]) * (len(VSD_TAUS) if m == "vsd" else 1) for m in metrics}
-    tps = {m: {} for m in metrics}  # type: dict[str, dict[int, np.ndarray]]
-    tars: dict[int, int] = {}
-    scored = 0
-    for image in images:
-        depth = image.depth() if with_vsd and image.depth is not None else None
-        groups = _image_groups(
-            image,
-            estimates.get((image.scene_id, image.im_id)),
-            objects,
-            depth=depth,
-            render=render,
-            delta=delta,
-        )
+
+    def tally(share: Sequence[BopImage], progress: Callable[[], Any] | None) -> _Tally:
+        out = _Tally({m: {} for m in metrics})
+        for image in share:
+            depth = image.depth() if with_vsd and image.depth is not None else None
+            groups = _image_groups(
+                image,
+                estimates.get((image.scene_id, image.im_id)),
+                objects,
+                depth=depth,
+                render=render,
+                delta=delta,
+            )
+            out.add(groups)
+            if progress:
+                progress()
+        out.pairs = pair_errors()
+        return out
+
+    many = sum(len(e.scores) for e in estimates.values()) >= PARALLEL_MIN_ESTIMATES
+    if processes > 1 and many:
+        from annotator.evaluation.forked import in_processes
+
+        for obj in objects.values():
+            clusters_of(obj.points)
+        if prepare is not None:
+            prepare()
+        tallies = in_processes(tally, images, processes, progress)
+    else:
+        tallies = [tally(images, progress)]
+    total = _Tally({m: {} for m in metrics})
+    for got in tallies:
+        total.merge(got)
+        merge_pair_errors(objects, got.pairs)
+    return _summary(total.tps, total.tars, objects, metrics, total.scored, with_vsd)
+
+
+#: Estimates from which :func:`bop19_scores` shares the images between processes (below,
+#: forking costs more than it saves).
+PARALLEL_MIN_ESTIMATES = 400
+
+#: Per metric, its thresholds.
+_SETTINGS = {"mssd": CORRECT_TH, "mspd": MSPD_TH_PX, "vsd": CORRECT_TH}
+
+
+@dataclass
+class _Tally:
+    """Matched counts of some images: per metric and object, per setting; true poses to
+    find per object; estimates scored; and the pairs' errors computed on the way (for BOP
+    2024's scores next, in the process that merges this)."""
+
+    tps: dict[str, dict[int, np.ndarray]]
+    tars: dict[int, int] = field(default_factory=dict)
+    scored: int = 0
+    pairs: dict[Any, dict[bytes, tuple[float, float]]] = field(default_factory=dict)
+
+    def add(self, groups: list[_Group]) -> None:
         for grp in groups:
-            tars[grp.obj_id] = tars.get(grp.obj_id, 0) + int(grp.valid.sum())
-            scored += len(grp.errors["mssd"])
-            for m in metrics:
-                got = tps[m].setdefault(grp.obj_id, np.zeros(n_settings[m], np.int64))
-                got += _matches(grp.errors[m], grp.valid, settings[m], vsd=m == "vsd")
-        if progress:
-            progress()
-    return _summary(tps, tars, objects, metrics, scored, with_vsd)
+            self.tars[grp.obj_id] = self.tars.get(grp.obj_id, 0) + int(grp.valid.sum())
+            self.scored += len(grp.errors["mssd"])
+            for m, per_object in self.tps.items():
+                got = _matches(grp.errors[m], grp.valid, _SETTINGS[m], vsd=m == "vsd")
+                if grp.obj_id in per_object:
+                    per_object[grp.obj_id] = per_object[grp.obj_id] + got
+                else:
+                    per_object[grp.obj_id] = got.astype(np.int64)
+
+    def merge(self, other: _Tally) -> None:
+        for oid, n in other.tars.items():
+            self.tars[oid] = self.tars.get(oid, 0) + n
+        self.scored += other.scored
+        for m, per_object in other.tps.items():
+            mine = self.tps[m]
+            for oid, counts in per_object.items():
+                mine[oid] = mine[oid] + counts if oid in mine else counts.copy()
 
 
 def _matches(

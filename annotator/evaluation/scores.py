@@ -274,8 +274,9 @@ def _bop19(inputs: Inputs, _: Any) -> Bop19Scores:
     from tqdm import tqdm
 
     from annotator.evaluation.bop19 import bop19_scores
+    from annotator.evaluation.forked import process_count
+    from annotator.evaluation.vsd_render import model_depth, prepare
     from annotator.formats.bop_images import read_bop_split
-    from annotator.rendering.raycast import render_depth
 
     assert inputs.gt is not None and inputs.results is not None
     split = read_bop_split(inputs.gt_path, inputs.results, inputs.gt)
@@ -291,9 +292,11 @@ def _bop19(inputs: Inputs, _: Any) -> Bop19Scores:
             split.images,
             split.estimates,
             split.objects,
-            render=render_depth,
+            render=model_depth,
             delta=split.delta,
             progress=progress,
+            processes=process_count(),
+            prepare=lambda: prepare(o.mesh for o in split.objects.values() if o.mesh),
         )
     scores.notes[:0] = split.notes
     return scores
