@@ -43,7 +43,7 @@ from annotator.geometry.mesh import Mesh, surface_samples
 from annotator.geometry.robust import huber_cost, huber_weights
 from annotator.noise import NOISE, NoiseModel
 from annotator.pnp.multiview import Observation, reprojection_errors, residuals_jacobian
-from annotator.refinement.nearest import TrackedNearest
+from annotator.refinement.nearest import TrackedNearest, norms
 from annotator.rendering.raycast import PlacedMesh, cast_alone, clip_region, hit_bbox
 
 #: The model's surface samples are about this far apart (mm): well below the depth's own
@@ -146,7 +146,10 @@ def _model_cloud(mesh: Mesh) -> tuple[cKDTree, np.ndarray, np.ndarray]:
         if len(_CLOUDS) >= 16:
             _CLOUDS.clear()
         pts, normals = surface_samples(mesh, MODEL_SPACING_MM, density=1.0)
-        hit = _CLOUDS[mesh.digest] = (cKDTree(pts), pts, normals)
+        # Split at the middle of each cell, not the median of its points: the same nearest
+        # samples (the search is exact), found a tenth faster among samples this even.
+        tree = cKDTree(pts, balanced_tree=False)
+        hit = _CLOUDS[mesh.digest] = (tree, pts, normals)
     return hit
 
 
@@ -244,14 +247,14 @@ def _grid_normals(grid: np.ndarray, ys: np.ndarray, xs: np.ndarray) -> np.ndarra
     dx = grid[y, x + 1] - grid[y, x - 1]
     dy = grid[y + 1, x] - grid[y - 1, x]
     centre = grid[y, x]
-    n = np.cross(dx, dy)
-    norm = np.linalg.norm(n, axis=-1, keepdims=True)
+    n = cross(dx, dy)
+    norm = norms(n)[:, None]
     n = n / np.where(norm > 0, norm, np.nan)
     n *= -np.sign(np.einsum("ij,ij->i", n, centre))[..., None]
     # Across a depth edge the "surface" is the jump itself: a neighbour step far longer than
     # the pixel's footprint.
     footprint = np.abs(centre[:, 2]) / 500.0
-    jump = np.maximum(np.linalg.norm(dx, axis=-1), np.linalg.norm(dy, axis=-1)) > 8 * footprint
+    jump = np.maximum(norms(dx), norms(dy)) > 8 * footprint
     n[jump] = np.nan
     out[inner] = n
     return out
@@ -272,7 +275,7 @@ class DepthTerm:
         self.point_normals = measured[:, 3:]
         self.centre = camera_centre  # the depth camera's centre, reference frame
         rays = self.points - camera_centre
-        self.rays = rays / np.maximum(np.linalg.norm(rays, axis=1, keepdims=True), 1e-12)
+        self.rays = rays / np.maximum(norms(rays)[:, None], 1e-12)
         #: The measured points are taken this far (mm) along their rays from where measured.
         self.offset = 0.0
         # The last offset's moved points: an iteration asks for them several times.
