@@ -226,7 +226,7 @@ def test_tracked_nearest_samples_are_the_k_d_trees_own() -> None:
 def test_norms_are_numpys_own_bits() -> None:
     """The refinement's written-out norms of (N, 3) vectors: np.linalg.norm's, bit for bit
     (its sum of squares in its order), over magnitudes from microns to metres."""
-    from annotator.refinement.nearest import norms
+    from annotator.geometry.lie import norms
 
     rng = np.random.default_rng(7)
     v = rng.normal(size=(50_000, 3)) * rng.uniform(1e-3, 1e3, (50_000, 1))

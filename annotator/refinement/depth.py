@@ -38,12 +38,12 @@ from scipy.spatial import cKDTree
 from annotator.dataset.review import RepairOp, RepairStep
 from annotator.geometry.camera import Camera
 from annotator.geometry.least_squares import Damping, Stop, levenberg_marquardt
-from annotator.geometry.lie import cross, perturb
+from annotator.geometry.lie import cross, norms, perturb
 from annotator.geometry.mesh import Mesh, surface_samples
 from annotator.geometry.robust import huber_cost, huber_weights
 from annotator.noise import NOISE, NoiseModel
 from annotator.pnp.multiview import Observation, reprojection_errors, residuals_jacobian
-from annotator.refinement.nearest import TrackedNearest, norms
+from annotator.refinement.nearest import TrackedNearest
 from annotator.rendering.raycast import PlacedMesh, cast_alone, clip_region, hit_bbox
 
 #: The model's surface samples are about this far apart (mm): well below the depth's own
@@ -147,7 +147,7 @@ def _model_cloud(mesh: Mesh) -> tuple[cKDTree, np.ndarray, np.ndarray]:
             _CLOUDS.clear()
         pts, normals = surface_samples(mesh, MODEL_SPACING_MM, density=1.0)
         # Split at the middle of each cell, not the median of its points: the same nearest
-        # samples (the search is exact), found a tenth faster among samples this even.
+        # samples (the search is exact), found sooner among samples spread this evenly.
         tree = cKDTree(pts, balanced_tree=False)
         hit = _CLOUDS[mesh.digest] = (tree, pts, normals)
     return hit

@@ -17,16 +17,10 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
+from annotator.geometry.lie import norms
+
 #: Kept off the margin (mm): the distances' own rounding must not decide a tie.
 _SAFETY_MM = 1e-9
-
-
-def norms(v: np.ndarray) -> np.ndarray:
-    """``np.linalg.norm(v, axis=1)`` of (N, 3) vectors, the same bits (its sum of squares,
-    in its order), written out: the general reduction over a stride-3 axis takes several
-    times as long."""
-    x, y, z = v[:, 0], v[:, 1], v[:, 2]
-    return np.sqrt(x * x + y * y + z * z)
 
 
 class TrackedNearest:
