@@ -399,3 +399,25 @@ def test_the_moved_split_is_the_one_the_plain_count_finds() -> None:
             agree = [bool(a) for a in rng.uniform(size=n) < rng.uniform()]
         share = float(rng.uniform(0, 0.5))
         assert _moved_run(order, agree, share) == plain(order, agree, share)
+
+
+def test_depths_at_the_markers_are_numpys_medians() -> None:
+    """The depth at every marker of a frame, taken at once: each the median of the measured
+    pixels of the 5x5 round its centre, as ``np.median`` gives it (NaN under 5 measured),
+    at the image's borders too."""
+    from annotator.annotation.sequence.reading import _depths_at
+
+    rng = np.random.default_rng(11)
+    for _ in range(200):
+        depth = rng.uniform(300, 900, (48, 64)).astype(np.float32)
+        depth[rng.uniform(size=depth.shape) < rng.uniform(0, 0.9)] = np.nan
+        centres = np.column_stack([rng.integers(0, 64, 12), rng.integers(0, 48, 12)])
+        # Four corners round each centre (their mean the centre, to rounding).
+        spread = [rng.normal(0, 3, (4, 2)) for _ in centres]
+        corners = [c + s - s.mean(axis=0) for c, s in zip(centres, spread)]
+        want = []
+        for u, v in centres:
+            patch = depth[max(v - 2, 0) : v + 3, max(u - 2, 0) : u + 3]
+            good = patch[np.isfinite(patch)]
+            want.append(float(np.median(good)) if good.size >= 5 else np.nan)
+        np.testing.assert_array_equal(_depths_at(depth, corners), want)
