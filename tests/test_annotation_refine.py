@@ -191,3 +191,14 @@ def test_tracked_nearest_samples_are_the_k_d_trees_own() -> None:
         np.testing.assert_allclose(got[0], want[0], rtol=1e-12)
         T = perturb(T, np.r_[0.02, -0.01, 0.01, 0.5, 0.2, -0.3] * 0.3**k)
     assert tracked.searched < 0.6 * 8 * len(points)
+
+
+def test_norms_are_numpys_own_bits() -> None:
+    """The refinement's written-out norms of (N, 3) vectors: np.linalg.norm's, bit for bit
+    (its sum of squares in its order), over magnitudes from microns to metres."""
+    from annotator.geometry.lie import norms
+
+    rng = np.random.default_rng(7)
+    v = rng.normal(size=(50_000, 3)) * rng.uniform(1e-3, 1e3, (50_000, 1))
+    np.testing.assert_array_equal(norms(v), np.linalg.norm(v, axis=1))
+    np.testing.assert_array_equal(norms(v[::3]), np.linalg.norm(v[::3], axis=1))

@@ -127,3 +127,20 @@ def test_no_candidate_to_read_is_no_code_not_an_error() -> None:
     assert pack_bits(np.zeros((0, 4, 4), bool)).shape == (0,)
     assert pack_bits(np.zeros((0, 2, 6, 6), bool)).shape == (0, 2)
     assert pack_bits(np.eye(4, dtype=bool)[None]).tolist() == [0b1000010000100001]
+
+
+def test_the_edge_fit_reads_the_whole_image_blur_in_bands() -> None:
+    """The edge fit's image, blurred a band of rows at a time where it samples, gives the
+    samples a blur of the whole image gives, bit for bit (bands at the image's borders and
+    inside it, joined and apart)."""
+    import cv2
+
+    from annotator.detection.corners import BLUR_SIGMA_PX, EdgeImage, _bilinear
+
+    rng = np.random.default_rng(5)
+    gray = rng.integers(0, 256, (97, 133), dtype=np.uint8)
+    whole = cv2.GaussianBlur(gray.astype(np.float32), (0, 0), BLUR_SIGMA_PX)
+    edges = EdgeImage(gray)
+    for ys in ([0.0, 3.2], [40.5, 41.7], [95.9, 120.0], [10.0, 80.0], [-5.0, 2.0]):
+        pts = np.column_stack([rng.uniform(-3, 136, 200), rng.uniform(*ys, 200)])
+        np.testing.assert_array_equal(edges.sample(pts), _bilinear(whole, pts))

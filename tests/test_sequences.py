@@ -368,3 +368,56 @@ def test_sites_are_measured_from_one_sequence(tmp_path: Path, capsys) -> None:
     after = sequence_errors(root)
     assert np.median(after.error_pct) < 0.8 * np.median(before.error_pct)
     assert after.gross_unflagged == 0
+
+
+def test_the_moved_split_is_the_one_the_plain_count_finds() -> None:
+    """The split of a part's frames into agreeing and disagreeing (counted at every moment at
+    once) is the first best one a plain count over every moment and both ways finds."""
+    from annotator.annotation.sequence.adjustment import _moved_run
+
+    def plain(order: list[int], agree: list[bool], share: float) -> list[int] | None:
+        best: tuple[int, list[int]] | None = None
+        for k in range(1, len(order)):
+            for before_agrees in (True, False):
+                score = sum(a == before_agrees for a in agree[:k])
+                score += sum(a != before_agrees for a in agree[k:])
+                if best is None or score > best[0]:
+                    best = (score, order[k:] if before_agrees else order[:k])
+        if best is None or best[0] < 0.9 * len(order):
+            return None
+        side = best[1]
+        return None if len(side) < 2 or len(side) < share * len(order) else side
+
+    rng = np.random.default_rng(3)
+    for case in range(3000):
+        n = int(rng.integers(0, 30))
+        order = sorted(rng.choice(500, n, replace=False).tolist())
+        cut = int(rng.integers(0, n + 1))
+        if case % 2:  # a part that moved at ``cut``, a few frames misread
+            agree = [(i < cut) != bool(rng.uniform() < 0.05) for i in range(n)]
+        else:
+            agree = [bool(a) for a in rng.uniform(size=n) < rng.uniform()]
+        share = float(rng.uniform(0, 0.5))
+        assert _moved_run(order, agree, share) == plain(order, agree, share)
+
+
+def test_depths_at_the_markers_are_numpys_medians() -> None:
+    """The depth at every marker of a frame, taken at once: each the median of the measured
+    pixels of the 5x5 round its centre, as ``np.median`` gives it (NaN under 5 measured),
+    at the image's borders too."""
+    from annotator.annotation.sequence.reading import _depths_at
+
+    rng = np.random.default_rng(11)
+    for _ in range(200):
+        depth = rng.uniform(300, 900, (48, 64)).astype(np.float32)
+        depth[rng.uniform(size=depth.shape) < rng.uniform(0, 0.9)] = np.nan
+        centres = np.column_stack([rng.integers(0, 64, 12), rng.integers(0, 48, 12)])
+        # Four corners round each centre (their mean the centre, to rounding).
+        spread = [rng.normal(0, 3, (4, 2)) for _ in centres]
+        corners = [c + s - s.mean(axis=0) for c, s in zip(centres, spread)]
+        want = []
+        for u, v in centres:
+            patch = depth[max(v - 2, 0) : v + 3, max(u - 2, 0) : u + 3]
+            good = patch[np.isfinite(patch)]
+            want.append(float(np.median(good)) if good.size >= 5 else np.nan)
+        np.testing.assert_array_equal(_depths_at(depth, corners), want)

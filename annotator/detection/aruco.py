@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from annotator.detection.corners import refine_corners
+from annotator.detection.corners import EdgeImage, refine_corners
 from annotator.detection.deblur import estimate_blur, read_soft_bits
 from annotator.detection.identify import Codebook, identify, one_per_marker, pack_bits
 from annotator.io.images import to_gray8
@@ -133,7 +133,8 @@ class MarkerDetector:
             more = _candidates(*self._blurred_detector.detectMarkers(gray)[::2])
             candidates = _merge_candidates(candidates, more)
         ids, quads, identified = self._identify(gray, candidates)
-        markers = [Detection(int(i), q) for i, q in zip(ids, self.refine(gray, quads))]
+        edges = EdgeImage(gray)  # both fits below read the same blurred rows
+        markers = [Detection(int(i), q) for i, q in zip(ids, self.refine(gray, quads, edges))]
         rest = candidates[~identified]
         sides = np.linalg.norm(rest - np.roll(rest, 1, axis=1), axis=2).min(axis=1)
         rest = rest[sides >= SOFT_MIN_PX_PER_CELL * (n + 2)] if len(rest) else rest
@@ -151,7 +152,7 @@ class MarkerDetector:
         known = {int(m.id) for m in markers}
         markers += [
             Detection(int(i), q, soft=True)
-            for i, q in zip(s_ids, self.refine(gray, s_quads))
+            for i, q in zip(s_ids, self.refine(gray, s_quads, edges))
             if int(i) not in known
         ]
         return ImageReading(markers, rest[~ok], soft.bits[~ok], soft.margin[~ok], blur)
@@ -167,9 +168,12 @@ class MarkerDetector:
             min_std=self._min_std,
         )
 
-    def refine(self, gray: np.ndarray, quads: np.ndarray) -> np.ndarray:
-        """Sub-pixel corners of (N, 4, 2) quads (see :mod:`.corners`)."""
-        return refine_corners(gray, quads, cells=self._codebook.marker_size + 2)
+    def refine(
+        self, gray: np.ndarray, quads: np.ndarray, edges: EdgeImage | None = None
+    ) -> np.ndarray:
+        """Sub-pixel corners of (N, 4, 2) quads (see :mod:`.corners`; ``edges``: the image
+        as the edge fit reads it, kept from an earlier call on ``gray``)."""
+        return refine_corners(gray, quads, cells=self._codebook.marker_size + 2, edges=edges)
 
 
 def _merge_candidates(first: np.ndarray, more: np.ndarray) -> np.ndarray:

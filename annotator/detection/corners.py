@@ -34,21 +34,75 @@ SUBPIX_HALF_WINDOW = 2
 _SUBPIX_CRITERIA = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 30, 0.01)
 
 
-def refine_corners(gray: np.ndarray, quads: np.ndarray, *, cells: int) -> np.ndarray:
+def refine_corners(
+    gray: np.ndarray, quads: np.ndarray, *, cells: int, edges: EdgeImage | None = None
+) -> np.ndarray:
     """Sub-pixel corners of (N, 4, 2) quads of markers ``cells`` cells wide (border
     included) in an 8-bit image: a small-window corner fit, then the edge fit
-    (:func:`refine_quads`)."""
+    (:func:`refine_quads`; ``edges``: the image as it reads it, kept from an earlier call on
+    the same image)."""
     if len(quads) == 0:
         return quads
     # The small-window corner fit first, so that the edge fit starts near the sides.
     start: np.ndarray = quads.reshape(-1, 1, 2).astype(np.float32)
     window = (SUBPIX_HALF_WINDOW, SUBPIX_HALF_WINDOW)
     start = cv2.cornerSubPix(gray, start, window, (-1, -1), _SUBPIX_CRITERIA)
-    return refine_quads(gray, start.reshape(-1, 4, 2).astype(np.float64), cells=cells)
+    return refine_quads(gray, start.reshape(-1, 4, 2).astype(np.float64), cells=cells, edges=edges)
+
+
+#: The edge fit reads the image under this slight blur (px): the profiles across a side
+#: smoothed of single pixels' noise.
+BLUR_SIGMA_PX = 0.5
+#: Rows each way that blur reaches (OpenCV's kernel for a float image: 4 sigmas, 5 taps).
+_BLUR_ROWS = 2
+
+
+class EdgeImage:
+    """An 8-bit image as the edge fit reads it (as float, under :data:`BLUR_SIGMA_PX`),
+    made a band of rows at a time where the fit samples it, and kept: the markers' rows are
+    a share of the image, and a detector reads one image's markers in several fits. Each
+    band is blurred with the blur's reach of rows round it (the image's own border where it
+    reaches that) and the image's whole width, so its pixels are those a blur of the whole
+    image gives, bit for bit."""
+
+    def __init__(self, gray: np.ndarray) -> None:
+        self.gray = gray
+        self.image = np.zeros(gray.shape, np.float32)
+        self.done = np.zeros(gray.shape[0], bool)  # rows blurred
+
+    def sample(self, pts: np.ndarray) -> np.ndarray:
+        """Bilinear samples at (N, 2) points (x, y), clipped to the image."""
+        h = self.gray.shape[0]
+        # The rows _bilinear reads: each point's (as it clips it) and the one below.
+        top = np.floor(np.clip(pts[:, 1], 0, h - 1.001)).astype(int)
+        need = np.zeros(h + 1, bool)
+        need[top] = True
+        need[top + 1] = True
+        missing = need[:h] & ~self.done
+        if missing.any():
+            # Runs of missing rows (gaps of a few rows joined: one blur costs more than
+            # the few rows it spares), each blurred as one band.
+            rows = np.flatnonzero(missing)
+            breaks = np.flatnonzero(np.diff(rows) > 2 * _BLUR_ROWS + 1)
+            for a, b in zip(np.r_[0, breaks + 1], np.r_[breaks, len(rows) - 1]):
+                self._blur(int(rows[a]), int(rows[b]) + 1)
+        return _bilinear(self.image, pts)
+
+    def _blur(self, y0: int, y1: int) -> None:
+        h = self.gray.shape[0]
+        b0, b1 = max(y0 - _BLUR_ROWS, 0), min(y1 + _BLUR_ROWS, h)
+        band = cv2.GaussianBlur(self.gray[b0:b1].astype(np.float32), (0, 0), BLUR_SIGMA_PX)
+        self.image[y0:y1] = band[y0 - b0 : y1 - b0]
+        self.done[y0:y1] = True
 
 
 def refine_quads(
-    gray: np.ndarray, quads: np.ndarray, *, samples: int = 12, cells: int = 6
+    gray: np.ndarray,
+    quads: np.ndarray,
+    *,
+    samples: int = 12,
+    cells: int = 6,
+    edges: EdgeImage | None = None,
 ) -> np.ndarray:
     """Refine (N, 4, 2) quads by fitting lines to the gradient centroids across each side.
 
@@ -63,7 +117,7 @@ def refine_quads(
     """
     if len(quads) == 0:
         return quads
-    img = cv2.GaussianBlur(gray.astype(np.float32), (0, 0), 0.5)
+    img = edges if edges is not None else EdgeImage(gray)
     current = quads.copy()
     found = np.zeros(len(quads), bool)
     for _ in range(ROUNDS):
@@ -95,7 +149,7 @@ def _max_move(quads: np.ndarray) -> np.ndarray:
 
 
 def _edge_fit(
-    img: np.ndarray, quads: np.ndarray, *, samples: int, cells: int
+    img: EdgeImage, quads: np.ndarray, *, samples: int, cells: int
 ) -> tuple[np.ndarray, np.ndarray]:
     """One round of the edge fit: the (N, 4, 2) corners where the sides' lines meet, and
     which quads all four of whose sides were fitted."""
@@ -111,7 +165,7 @@ def _edge_fit(
     s = np.linspace(0.1, 0.9, samples)  # stay away from the corners
     base = a[:, None, :] + s[None, :, None] * side[:, None, :]  # (S, samples, 2)
     pts = base[:, :, None, :] + offs[:, None, :, None] * normal[:, None, None, :]
-    prof = _bilinear(img, pts.reshape(-1, 2)).reshape(len(a), samples, steps)
+    prof = img.sample(pts.reshape(-1, 2)).reshape(len(a), samples, steps)
     # The side's own direction of change across it, from most of its samples; a gradient
     # the other way (the inner bits' edges, the paper's own border) counts for nothing.
     sign = np.sign(np.median(prof[..., -3:].mean(-1) - prof[..., :3].mean(-1), axis=1))

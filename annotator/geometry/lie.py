@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["cross", "matrix_to_rotvec", "perturb", "rotvec_to_matrix", "skew"]
+__all__ = ["cross", "matrix_to_rotvec", "norms", "perturb", "rotvec_to_matrix", "skew"]
 
 
 def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -31,6 +31,18 @@ def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
     b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
     return np.stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0], axis=-1)
+
+
+def norms(v: np.ndarray) -> np.ndarray:
+    """``np.linalg.norm(v, axis=1)`` of (N, 3) vectors, with the same bits (its sum of
+    squares, in its order), written out: the refinement takes it on thousands of points at
+    every step, where the general reduction over a stride-3 axis costs several times more.
+
+    >>> norms(np.array([[3.0, 4.0, 12.0]]))
+    array([13.])
+    """
+    x, y, z = v[:, 0], v[:, 1], v[:, 2]
+    return np.sqrt(x * x + y * y + z * z)
 
 
 def skew(w: np.ndarray) -> np.ndarray:

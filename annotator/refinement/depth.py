@@ -38,7 +38,7 @@ from scipy.spatial import cKDTree
 from annotator.dataset.review import RepairOp, RepairStep
 from annotator.geometry.camera import Camera
 from annotator.geometry.least_squares import Damping, Stop, levenberg_marquardt
-from annotator.geometry.lie import cross, perturb
+from annotator.geometry.lie import cross, norms, perturb
 from annotator.geometry.mesh import Mesh, surface_samples
 from annotator.geometry.robust import huber_cost, huber_weights
 from annotator.noise import NOISE, NoiseModel
@@ -147,7 +147,10 @@ def _model_cloud(mesh: Mesh) -> tuple[cKDTree, np.ndarray, np.ndarray]:
         if len(_CLOUDS) >= 16:
             _CLOUDS.clear()
         pts, normals = surface_samples(mesh, MODEL_SPACING_MM, density=1.0)
-        hit = _CLOUDS[mesh.digest] = (cKDTree(pts), pts, normals)
+        # Split at the middle of each cell, not the median of its points: the same nearest
+        # samples (the search is exact), found sooner among samples spread this evenly.
+        tree = cKDTree(pts, balanced_tree=False)
+        hit = _CLOUDS[mesh.digest] = (tree, pts, normals)
     return hit
 
 
@@ -245,14 +248,14 @@ def _grid_normals(grid: np.ndarray, ys: np.ndarray, xs: np.ndarray) -> np.ndarra
     dx = grid[y, x + 1] - grid[y, x - 1]
     dy = grid[y + 1, x] - grid[y - 1, x]
     centre = grid[y, x]
-    n = np.cross(dx, dy)
-    norm = np.linalg.norm(n, axis=-1, keepdims=True)
+    n = cross(dx, dy)
+    norm = norms(n)[:, None]
     n = n / np.where(norm > 0, norm, np.nan)
     n *= -np.sign(np.einsum("ij,ij->i", n, centre))[..., None]
     # Across a depth edge the "surface" is the jump itself: a neighbour step far longer than
     # the pixel's footprint.
     footprint = np.abs(centre[:, 2]) / 500.0
-    jump = np.maximum(np.linalg.norm(dx, axis=-1), np.linalg.norm(dy, axis=-1)) > 8 * footprint
+    jump = np.maximum(norms(dx), norms(dy)) > 8 * footprint
     n[jump] = np.nan
     out[inner] = n
     return out
@@ -273,15 +276,23 @@ class DepthTerm:
         self.point_normals = measured[:, 3:]
         self.centre = camera_centre  # the depth camera's centre, reference frame
         rays = self.points - camera_centre
-        self.rays = rays / np.maximum(np.linalg.norm(rays, axis=1, keepdims=True), 1e-12)
+        self.rays = rays / np.maximum(norms(rays)[:, None], 1e-12)
         #: The measured points are taken this far (mm) along their rays from where measured.
         self.offset = 0.0
+        # The last offset's moved points: an iteration asks for them several times.
+        self._shifted: tuple[float, np.ndarray] = (0.0, self.points)
+        # The last matches' samples turned by their pose (see :meth:`matches`).
+        self._turned: tuple[bytes, np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None
 
     def shifted(self, offset: float | None = None) -> np.ndarray:
         """The measured points moved by ``offset`` (default :attr:`offset`) along their
         rays."""
         offset = self.offset if offset is None else offset
-        return self.points + offset * self.rays if offset else self.points
+        if not offset:
+            return self.points
+        if self._shifted[0] != offset:
+            self._shifted = (offset, self.points + offset * self.rays)
+        return self._shifted[1]
 
     def offset_derivative(self, J: np.ndarray, i: np.ndarray) -> np.ndarray:
         """The derivative of the residuals (Jacobian ``J`` at scene indices ``i``, as
@@ -314,13 +325,16 @@ class DepthTerm:
             return none
         j = nearest[i]
         n = self.normals[j] @ R.T
-        p = self.model[j] @ R.T + t
+        y = self.model[j] @ R.T
         # A surface the camera can see, turned as the measured one: the floor beside a
         # part's end must not pull the part along onto it.
-        ok = (np.einsum("ij,ij->i", n, p - self.centre) < 0) & (
+        ok = (np.einsum("ij,ij->i", n, y + t - self.centre) < 0) & (
             np.einsum("ij,ij->i", n, self.point_normals[i]) > _SAME_NORMAL
         )
-        return i[ok], j[ok]
+        i, j = i[ok], j[ok]
+        # The matches' samples turned, kept for their residuals at the same pose.
+        self._turned = (T.tobytes(), i, j, y[ok], n[ok])
+        return i, j
 
     def paired(
         self, T: np.ndarray, i: np.ndarray, j: np.ndarray, offset: float | None = None
@@ -329,11 +343,31 @@ class DepthTerm:
         against the model samples ``j``: each one's distance to the sample's tangent plane."""
         if len(i) == 0:
             return np.zeros(0), np.zeros((0, 6))
-        R, t = T[:3, :3], T[:3, 3]
-        y = self.model[j] @ R.T
-        n = self.normals[j] @ R.T
-        r = np.einsum("ij,ij->i", n, y + t - self.shifted(offset)[i])
+        y, n, r = self._plane_distances(T, i, j, offset)
         return r, np.concatenate([cross(y, n), n], axis=1)
+
+    def paired_residuals(
+        self, T: np.ndarray, i: np.ndarray, j: np.ndarray, offset: float | None = None
+    ) -> np.ndarray:
+        """:meth:`paired`'s residuals alone (a step is judged by its cost: no Jacobian)."""
+        if len(i) == 0:
+            return np.zeros(0)
+        return self._plane_distances(T, i, j, offset)[2]
+
+    def _plane_distances(
+        self, T: np.ndarray, i: np.ndarray, j: np.ndarray, offset: float | None
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The model samples ``j`` turned by ``T`` (about the reference origin), their
+        normals turned, and the measured points' ``i`` distances to their tangent planes."""
+        R, t = T[:3, :3], T[:3, 3]
+        kept = self._turned
+        if kept is not None and kept[1] is i and kept[2] is j and kept[0] == T.tobytes():
+            y, n = kept[3], kept[4]
+        else:
+            y = self.model[j] @ R.T
+            n = self.normals[j] @ R.T
+        r = np.einsum("ij,ij->i", n, y + t - self.shifted(offset)[i])
+        return y, n, r
 
 
 #: Directions of the normal equations this much weaker than the strongest (after scaling)
@@ -502,6 +536,7 @@ class _Problem:
         self.gate = settings.start_gate_mm
         self._memo: tuple[tuple[bytes, float, float], tuple[np.ndarray, np.ndarray]] | None
         self._memo = None
+        self._terms: tuple[tuple[bytes, float, int, int], Any, Any] | None = None
 
     def matched(self, state: _State) -> tuple[np.ndarray, np.ndarray]:
         """The depth's matches at a state; the last ones kept: a state's cost and its normal
@@ -515,28 +550,45 @@ class _Problem:
         return self._memo[1]
 
     def terms(self, state: _State, pairs: tuple[np.ndarray, np.ndarray]) -> Any:
-        """Each term's residuals and Jacobian at a state (the depth's of ``pairs``)."""
-        depth = None if self.term is None else self.term.paired(state.T, *pairs, state.offset)
-        markers = None if self.markers is None else self.markers.residuals(state.T)
-        return depth, markers
+        """Each term's residuals and Jacobian at a state (the depth's of ``pairs``); the
+        last ones kept: a state taken has its cost and then its normal equations made from
+        them."""
+        key = (state.T.tobytes(), state.offset, id(pairs[0]), id(pairs[1]))
+        if self._terms is None or self._terms[0] != key:
+            term, markers = self.term, self.markers
+            depth = None if term is None else term.paired(state.T, *pairs, state.offset)
+            seen = None if markers is None else markers.residuals(state.T)
+            self._terms = key, (depth, seen), pairs  # (pairs kept alive: their ids are key)
+        return self._terms[1]
 
-    def cost(self, state: _State, pairs: tuple[np.ndarray, np.ndarray]) -> float:
+    def cost(
+        self, state: _State, pairs: tuple[np.ndarray, np.ndarray], *, jacobians: bool = False
+    ) -> float:
+        """The state's cost with ``pairs``; ``jacobians``: its terms' Jacobians made (and
+        kept, for :meth:`linearise` at the same state) on the way."""
         s = self.s
-        depth, markers = self.terms(state, pairs)
+        if jacobians:
+            depth, markers = self.terms(state, pairs)
+            r_depth = None if depth is None else depth[0]
+            r_markers = None if markers is None else markers[0]
+        else:  # a trial's step: its residuals alone
+            term = self.term
+            r_depth = None if term is None else term.paired_residuals(state.T, *pairs, state.offset)
+            r_markers = None if self.markers is None else self.markers.residuals(state.T)[0]
         out = 0.0
-        if depth is not None:
+        if r_depth is not None:
             sd = s.depth_sigma_mm
-            out += huber_cost(depth[0], 1.5 * sd) / sd**2
-        if markers is not None:
+            out += huber_cost(r_depth, 1.5 * sd) / sd**2
+        if r_markers is not None:
             sm = s.marker_sigma_px
-            out += huber_cost(markers[0], 3.0 * sm) / sm**2
+            out += huber_cost(r_markers, 3.0 * sm) / sm**2
         if self.unknowns == 7:
             out += 0.5 * (state.offset / s.depth_offset_sigma_mm) ** 2
         return out
 
     def cost_at(self, state: _State) -> float:
-        """A state's cost with its own matches."""
-        return self.cost(state, self.matched(state))
+        """A state's cost with its own matches (the state is linearised next)."""
+        return self.cost(state, self.matched(state), jacobians=True)
 
     def linearise(self, state: _State) -> _Linear:
         s, n = self.s, self.unknowns

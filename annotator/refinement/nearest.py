@@ -17,6 +17,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
+from annotator.geometry.lie import norms
+
 #: Kept off the margin (mm): the distances' own rounding must not decide a tie.
 _SAFETY_MM = 1e-9
 
@@ -37,7 +39,7 @@ class TrackedNearest:
         """As ``tree.query(points, k=1, distance_upper_bound=gate)``: per point the distance
         to its nearest sample (inf where none lies within ``gate``) and that sample's index
         (``len(samples)`` where none)."""
-        moved = np.linalg.norm(points - self.at, axis=1)
+        moved = norms(points - self.at)
         none = moved + gate + _SAFETY_MM <= self.empty  # NaN (never searched): False
         redo = ~(moved < self.margin) & ~none  # NaN (never searched) is searched too
         dist = np.full(len(points), np.inf)
@@ -57,7 +59,7 @@ class TrackedNearest:
         kept = ~redo & ~none
         if kept.any():
             j = self.index[kept]
-            d = np.linalg.norm(points[kept] - self.samples[j], axis=1)
+            d = norms(points[kept] - self.samples[j])
             inside = d < gate
             dist[kept] = np.where(inside, d, np.inf)
             index[kept] = np.where(inside, j, len(self.samples))

@@ -271,18 +271,21 @@ def _moved_run(order: list[int], agree: list[bool], share: float) -> list[int] |
     (and ``share`` of them) on the disagreeing side; None otherwise. Blurred
     frames disagree here and there, a part that moved from a moment on."""
     n = len(order)
-    best: tuple[int, list[int]] | None = None
-    for k in range(1, n):
-        for before_agrees in (True, False):
-            score = sum(a == before_agrees for a in agree[:k]) + sum(
-                a != before_agrees for a in agree[k:]
-            )
-            side = order[k:] if before_agrees else order[:k]
-            if best is None or score > best[0]:
-                best = (score, side)
-    if best is None or best[0] < 0.9 * n:
+    if n < 2:
         return None
-    side = best[1]
+    # Per split k (1 .. n-1), the frames before it that agree and those after it that do
+    # not (the first way round), and the other way round: counted at once.
+    agreeing = np.cumsum(np.asarray(agree, int))
+    before = agreeing[:-1]  # agreeing among the first k
+    after = agreeing[-1] - before  # agreeing among the rest
+    k = np.arange(1, n)
+    scores = np.stack([before + (n - k - after), (k - before) + after], axis=1)
+    # The best split, the first of equals in the order (k, then agreeing before) tried.
+    flat = int(np.argmax(scores.ravel()))
+    split, before_agrees = int(k[flat // 2]), flat % 2 == 0
+    if scores.ravel()[flat] < 0.9 * n:
+        return None
+    side = order[split:] if before_agrees else order[:split]
     if len(side) < 2 or len(side) < share * n:
         return None
     return side

@@ -44,24 +44,30 @@ def place(ds: Dataset, seen: list[Seen], s: AnnotateSettings) -> Placed | None:
     frames: list[np.ndarray | None] = [None] * len(seen)
     frames[first] = np.eye(4)
     models = {k: e.rig_T_model for k, e in seen[first].edges(ds, s).items()}
+    # Per frame, its observations of what is placed, kept up to date as instances are
+    # placed (counting them again for every frame at every step took as long as placing).
+    sees: dict[tuple[str, str], list[int]] = {}
+    for f, here in enumerate(seen):
+        for k in here.raw:
+            sees.setdefault(k, []).append(f)
+    counts = np.zeros(len(seen), int)
+    _count_placed(counts, seen, sees, models)
     while True:
-        # Next: the frame that sees most of what is placed.
-        best, best_count = None, 0
-        for f, here in enumerate(seen):
-            if frames[f] is None:
-                count = sum(len(obs) for k, obs in here.raw.items() if k in models)
-                if count > best_count:
-                    best, best_count = f, count
-        if best is None:
+        # Next: the frame that sees most of what is placed (the first of equals).
+        open_counts = np.where([T is None for T in frames], counts, 0)
+        best = int(np.argmax(open_counts))
+        if open_counts[best] <= 0:
             break
         T = _place_frame(ds, seen[best], models, s)
         if T is None:  # nothing here agrees with what is placed: not placeable from it
             frames[best] = np.full((4, 4), np.nan)
             continue
         frames[best] = T
+        new = {}
         for k in seen[best].raw:
             if k not in models and (e := seen[best].edge(ds, k, s)) is not None:
-                models[k] = T @ e.rig_T_model
+                new[k] = models[k] = T @ e.rig_T_model
+        _count_placed(counts, seen, sees, new)
     reasons: list[str | None] = []
     for f, T in enumerate(frames):
         if T is None:
@@ -79,6 +85,19 @@ def place(ds: Dataset, seen: list[Seen], s: AnnotateSettings) -> Placed | None:
         else:
             models[key] = start
     return Placed(first, frames, reasons, models)
+
+
+def _count_placed(
+    counts: np.ndarray,
+    seen: list[Seen],
+    sees: dict[tuple[str, str], list[int]],
+    placed: dict[tuple[str, str], np.ndarray],
+) -> None:
+    """Add to each frame's count its observations of the newly ``placed`` instances
+    (``sees``: the frames that observe each instance)."""
+    for k in placed:
+        for f in sees.get(k, []):
+            counts[f] += len(seen[f].raw[k])
 
 
 def _place_frame(
