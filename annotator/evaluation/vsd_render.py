@@ -27,7 +27,7 @@ from annotator.geometry import Rect
 from annotator.geometry.camera import Camera
 from annotator.geometry.mesh import Mesh
 from annotator.geometry.open3d_lib import o3d
-from annotator.rendering.raycast import clip_region, get_threads, render_depth
+from annotator.rendering.raycast import clip_region, get_threads, mesh_scene, render_depth
 
 #: Pixels added around the rectangle, as ``render_depth``'s own.
 _MARGIN_PX = 1
@@ -81,11 +81,7 @@ def _scene(mesh: Mesh) -> Any:
     if scene is None:
         if len(_SCENES) >= 64:
             _SCENES.clear()
-        scene = o3d.t.geometry.RaycastingScene(nthreads=get_threads())
-        scene.add_triangles(
-            o3d.core.Tensor(mesh.vertices.astype(np.float32)),
-            o3d.core.Tensor(mesh.faces.astype(np.uint32)),
-        )
+        scene = mesh_scene(mesh)
         _SCENES[mesh.digest] = scene
     return scene
 

@@ -16,7 +16,7 @@ from annotator.errors import UserError
 from annotator.geometry.mesh import Mesh, surface_samples
 from annotator.geometry.open3d_lib import o3d
 from annotator.geometry.transforms import invert
-from annotator.rendering.raycast import get_threads
+from annotator.rendering.raycast import get_threads, mesh_scene
 
 #: Surface points drawn per body (every vertex is added to them).
 SAMPLES = 3000
@@ -123,11 +123,7 @@ def _scene(mesh: Mesh, *, hull: bool) -> Any:
     scene = _SCENES.get(key)
     if scene is None:
         geometry = hull_of(mesh) if hull else mesh
-        scene = o3d.t.geometry.RaycastingScene(nthreads=get_threads())
-        scene.add_triangles(
-            o3d.core.Tensor(geometry.vertices.astype(np.float32)),
-            o3d.core.Tensor(geometry.faces.astype(np.uint32)),
-        )
+        scene = mesh_scene(geometry)
         _SCENES[key] = scene
     return scene
 

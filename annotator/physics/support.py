@@ -13,7 +13,7 @@ import numpy as np
 from annotator.geometry.camera import Camera
 from annotator.geometry.mesh import Mesh
 from annotator.geometry.open3d_lib import o3d
-from annotator.rendering.raycast import get_threads
+from annotator.rendering.raycast import get_threads, mesh_scene
 
 #: Points within this distance (mm) of a candidate plane count for it.
 INLIER_MM = 2.0
@@ -163,10 +163,6 @@ def _scene_of(surface: Mesh) -> Any:
     if scene is None:
         if len(_SURFACES) >= 4:
             _SURFACES.clear()
-        scene = o3d.t.geometry.RaycastingScene(nthreads=get_threads())
-        scene.add_triangles(
-            o3d.core.Tensor(surface.vertices.astype(np.float32)),
-            o3d.core.Tensor(surface.faces.astype(np.uint32)),
-        )
+        scene = mesh_scene(surface)
         _SURFACES[surface.digest] = scene
     return scene

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -35,6 +36,18 @@ def set_threads(n: int) -> None:
 def get_threads() -> int:
     """The setting of :func:`set_threads`."""
     return _threads
+
+
+def mesh_scene(mesh: Mesh) -> Any:
+    """An open3d ray-casting scene of ``mesh`` alone, in its own frame, on this process's
+    casting threads (:func:`set_threads`); its search structure is built on the first
+    query. Callers that query one mesh often keep it (per ``mesh.digest``)."""
+    scene = o3d.t.geometry.RaycastingScene(nthreads=_threads)
+    scene.add_triangles(
+        o3d.core.Tensor(mesh.vertices.astype(np.float32)),
+        o3d.core.Tensor(mesh.faces.astype(np.uint32)),
+    )
+    return scene
 
 
 @dataclass(frozen=True)
