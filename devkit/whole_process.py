@@ -6,9 +6,13 @@ scenes.
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
+import tempfile
 import time
+from collections.abc import Iterator, Mapping
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -20,14 +24,33 @@ from annotator.evaluation.evaluate import per_instance_errors
 EXE = str(Path(sys.executable).with_name("annotator"))
 
 
-def run_annotator(*args: str) -> tuple[float, str]:
-    """Run ``annotator ARGS``: its wall time (s) and standard output; exit on a failure,
-    printing its standard error."""
+def run_annotator(*args: str, env: Mapping[str, str] | None = None) -> tuple[float, str]:
+    """Run ``annotator ARGS`` (with the environment ``env``, e.g. :func:`code_at`'s): its
+    wall time (s) and standard output; exit on a failure, printing its standard error."""
     t0 = time.perf_counter()
-    proc = subprocess.run([EXE, *args], capture_output=True, text=True)
+    proc = subprocess.run([EXE, *args], capture_output=True, text=True, env=env)
     if proc.returncode != 0:
         sys.exit(f"annotator {' '.join(args)} failed ({proc.returncode}):\n{proc.stderr}")
     return time.perf_counter() - t0, proc.stdout
+
+
+@contextmanager
+def code_at(rev: str) -> Iterator[dict[str, str]]:
+    """An environment in which ``annotator`` is the package as commit ``rev`` of this
+    repository had it (a detached git worktree, removed on leaving), the installed
+    dependencies unchanged: to run the code an issue was measured on side by side with
+    today's, on the same scenes."""
+    repo = Path(__file__).resolve().parent.parent
+    with tempfile.TemporaryDirectory(prefix="anchor-") as scratch:
+        tree, shim = Path(scratch) / "tree", Path(scratch) / "path"
+        git = ["git", "-C", str(repo), "worktree"]
+        subprocess.run([*git, "add", "--detach", str(tree), rev], check=True, capture_output=True)
+        try:
+            shim.mkdir()
+            (shim / "annotator").symlink_to(tree / "annotator")
+            yield {**os.environ, "PYTHONPATH": str(shim)}
+        finally:
+            subprocess.run([*git, "remove", "--force", str(tree)], capture_output=True)
 
 
 def relative_errors(root: Path) -> tuple[list[dict], np.ndarray, np.ndarray]:

@@ -107,7 +107,7 @@ def refine_quads(
     """Refine (N, 4, 2) quads by fitting lines to the gradient centroids across each side.
 
     The search across a side reaches at most half a marker cell (``cells`` per side, border
-    included) each way, so that it never reaches the edges of the inner bits, and counts only
+    included; cells as wide as the marker is across that side) each way, so that it never reaches the edges of the inner bits, and counts only
     the gradient of the side's own direction (dark ink inside, paper outside). A line is fitted
     to each side's edge points with the points far from it left out (a highlight beside the
     paper, a neighbour's edge), and the corners are where adjacent lines meet; this is done
@@ -159,7 +159,14 @@ def _edge_fit(
     length = np.linalg.norm(side, axis=1)
     tangent = side / np.maximum(length, 1e-9)[:, None]
     normal = np.column_stack([-tangent[:, 1], tangent[:, 0]])
-    reach = np.clip(0.5 * length / cells, 1.0, 2.5)
+    # Half a cell across the side, from the marker's extent along the side's normal (to the
+    # opposite side's midpoint): a slanted view shortens the cells across some sides and not
+    # along them, and a search as long as the side's own cells reached the inner bits, whose
+    # blurred edges pulled the corners outwards (markers seen at a slant looked too near).
+    mid = 0.5 * (a + b)
+    opposite = np.roll(mid.reshape(-1, 4, 2), -2, axis=1).reshape(-1, 2)
+    across = np.abs(np.einsum("sd,sd->s", opposite - mid, normal))
+    reach = np.clip(0.5 * across / cells, 1.0, 2.5)
     steps = 21
     offs = np.linspace(-1.0, 1.0, steps)[None, :] * reach[:, None]  # (S, steps)
     s = np.linspace(0.1, 0.9, samples)  # stay away from the corners
