@@ -106,13 +106,14 @@ def refine_quads(
 ) -> np.ndarray:
     """Refine (N, 4, 2) quads by fitting lines to the gradient centroids across each side.
 
-    The search across a side reaches at most half a marker cell (``cells`` per side, border
-    included; cells as wide as the marker is across that side) each way, so that it never reaches the edges of the inner bits, and counts only
-    the gradient of the side's own direction (dark ink inside, paper outside). A line is fitted
-    to each side's edge points with the points far from it left out (a highlight beside the
-    paper, a neighbour's edge), and the corners are where adjacent lines meet; this is done
-    :data:`ROUNDS` times, each round searching across the sides the last one found. All sides
-    of all quads are processed at once. A quad is left as it is if a side is too short, too
+    The search across a side reaches at most half a marker cell each way (``cells`` per side,
+    border included, of the marker's extent across that side; at least 0.7 px), so that it
+    never reaches the edges of the inner bits, and counts only the gradient of the side's own
+    direction (dark ink inside, paper outside). A line is fitted to each side's edge points
+    with the points far from it left out (a highlight beside the paper, a neighbour's edge),
+    and the corners are where adjacent lines meet; this is done :data:`ROUNDS` times, each
+    round searching across the sides the last one found. All sides of all quads are processed
+    at once. A quad is left as it is if a side is too short, too
     weak or not straight, or if a corner moved further than :func:`_max_move` allows.
     """
     if len(quads) == 0:
@@ -166,7 +167,7 @@ def _edge_fit(
     mid = 0.5 * (a + b)
     opposite = np.roll(mid.reshape(-1, 4, 2), -2, axis=1).reshape(-1, 2)
     across = np.abs(np.einsum("sd,sd->s", opposite - mid, normal))
-    reach = np.clip(0.5 * across / cells, 1.0, 2.5)
+    reach = np.clip(0.5 * across / cells, 0.7, 2.5)
     steps = 21
     offs = np.linspace(-1.0, 1.0, steps)[None, :] * reach[:, None]  # (S, steps)
     s = np.linspace(0.1, 0.9, samples)  # stay away from the corners
