@@ -643,10 +643,11 @@ def _minimise(
     iterations made, and whether it converged.
 
     The gate narrows from ``start_gate_mm`` to ``end_gate_mm`` with one step at each gate
-    (a pose far off first finds its surface, then only the points near it); at the end gate
-    the iteration goes on until a step moves the residuals by less than ``converged_moves``
-    (mm or px: a motion the data hardly sees, a faceted cylinder turning about its axis from
-    facet to facet, is none) or no step lowers the cost (a minimum)."""
+    (a pose far off first finds its surface, then only the points near it) until a step
+    moves the residuals by less than ``converged_moves``; at the end gate the iteration goes
+    on until a step moves them that little (mm or px: a motion the data hardly sees, a
+    faceted cylinder turning about its axis from facet to facet, is none) or no step lowers
+    the cost (a minimum)."""
     problem = _Problem(term, markers, settings)
     state = _State(np.array(T0, float), 0.0)
     narrowing = max(settings.gate_iterations - 1, 1)
@@ -661,12 +662,18 @@ def _minimise(
             problem.linearise,
             problem.trial,
             damping=_DAMPING,
-            small=lambda cost, new, moved: False,
+            small=lambda cost, new, moved: moved < settings.converged_moves,
             max_iterations=1,
         )
         state, spent = step.state, spent + 1
         if step.stop is Stop.SINGULAR:
             return state.T, state.offset, spent, False
+        if step.stop is Stop.SMALL_STEP and k > 0:
+            # The pose has stopped moving under a narrowed gate: it sits on its surface, and
+            # the gates between would each repeat that step of nothing (a pose on markers
+            # starts there). The end gate's iteration takes over. (The first, widest gate
+            # is not enough: a pose far off may sit still there between two surfaces.)
+            break
     if spent == settings.iterations:
         return state.T, state.offset, spent, False
     problem.gate = settings.end_gate_mm
