@@ -21,9 +21,10 @@ from annotator.dataset.records import InstanceAnnotation, SceneAnnotation
 from annotator.detection import MarkerDetector
 from annotator.io.images import to_gray8
 from annotator.noise import NOISE
+from annotator.occlusion import CastMemo, scene_visibility
 from annotator.pnp import rms_uncertainty
 from annotator.refinement import DepthTerm, RefineSettings, measured_points, refine_instance
-from annotator.refinement.depth import pose_covariance
+from annotator.refinement.depth import Known, pose_covariance
 from annotator.rendering.raycast import PlacedMesh
 from annotator.repair import instance_observations, used_observations
 from annotator.symmetry import PoseSpace
@@ -91,6 +92,26 @@ def _lone_inputs(sample):
     cam = ds.rig.depth_camera
     points = measured_points(cam, sc.read_depth(ds.rig), mesh, inst.T, others, RefineSettings())
     return ds, inst, used, DepthTerm(mesh, points, cam.rig_T_cam[:3, 3])
+
+
+def test_the_measured_points_are_the_same_from_visibilitys_casts(sample) -> None:
+    # Every part's points, with the casts scene_visibility kept (every other pixel) taken
+    # instead of cast again: the same points, to the bit.
+    ds = load_dataset(sample)
+    sc = ds.scene(SCENE)
+    depth = sc.read_depth(ds.rig)
+    ann = _annotated(str(sample), 2)
+    meshes = [ds.objects[i.object].mesh for i in ann.instances]
+    memo: CastMemo = {}
+    scene_visibility(ds.rig, meshes, [i.T for i in ann.instances], step=2, memo=memo)
+    cam = ds.rig.depth_camera
+    settings = RefineSettings(margin_px=-2)
+    placed = [PlacedMesh(m, i.T) for m, i in zip(meshes, ann.instances)]
+    for k, (mesh, inst) in enumerate(zip(meshes, ann.instances)):
+        others = placed[:k] + placed[k + 1 :]
+        alone = measured_points(cam, depth, mesh, inst.T, others, settings)
+        known = measured_points(cam, depth, mesh, inst.T, others, settings, Known(memo, 2))
+        assert len(alone) > 0 and np.array_equal(alone, known), inst.key
 
 
 def test_the_depth_bias_and_the_site_errors_widen_the_uncertainty(sample) -> None:

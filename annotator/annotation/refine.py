@@ -45,7 +45,7 @@ from annotator.refinement import (
     measured_points,
     refine_instance,
 )
-from annotator.refinement.depth import pose_covariance
+from annotator.refinement.depth import Known, KnownCasts, pose_covariance
 from annotator.rendering.raycast import PlacedMesh
 
 
@@ -55,15 +55,20 @@ def refine_few_marker_poses(
     observations: dict[tuple[str, str], list[Observation]],
     depth: np.ndarray | None,
     settings: AnnotateSettings,
+    casts: KnownCasts | None = None,
 ) -> int:
     """Refine, in place, the poses of ``instances`` on at most
     ``settings.refine_max_markers`` marker ids against ``depth`` (see the module docstring);
-    ``observations`` are each instance's markers as detected. How many poses changed."""
+    ``observations`` are each instance's markers as detected. ``casts``: the instances'
+    casts that their visibility made (at ``settings.visibility_step``, see
+    :func:`annotator.occlusion.scene_visibility`'s ``memo``): their rays are not cast again
+    for the measured points. How many poses changed."""
     cam = ds.rig.depth_camera
     if depth is None or cam is None or settings.refine_max_markers <= 0:
         return 0
     placed = [PlacedMesh(ds.objects[r.object].mesh, r.T) for r in instances]
     changed = 0
+    known = None if casts is None else Known(casts, settings.visibility_step)
     rs = RefineSettings(
         margin_px=-settings.refine_inner_px, depth_offset_sigma_mm=settings.depth_bias_mm
     )
@@ -77,7 +82,7 @@ def refine_few_marker_poses(
             continue
         model = ds.objects[r.object]
         others = placed[:k] + placed[k + 1 :]
-        points = measured_points(cam, depth, model.mesh, r.T, others, rs)
+        points = measured_points(cam, depth, model.mesh, r.T, others, rs, known)
         term = DepthTerm(model.mesh, points, cam.rig_T_cam[:3, 3])
         result = refine_instance(
             model.mesh,

@@ -108,7 +108,7 @@ def annotate_scene(
                 unconfirmed.setdefault(cam_name, []).extend(m.used)
         renders = {}
         add_visibility(ds, instances, depth, settings, renders, memo)
-    if refine_few_marker_poses(ds, instances, markers.per_instance, depth, settings):
+    if refine_few_marker_poses(ds, instances, markers.per_instance, depth, settings, memo):
         renders = {}
         add_visibility(ds, instances, depth, settings, renders, memo)
     record_physics(ds, scene_shots(ds, scene)[0], instances, depth)

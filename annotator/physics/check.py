@@ -158,7 +158,7 @@ def _gap(
     floor = max(0.0, float(heights.min()))
     if low.shape[1] == 0 or floor <= TOUCHING_MM:  # on the floor: nothing is nearer
         return floor, SUPPORT
-    best, rests_on = float(support.distance(low).min()), SUPPORT
+    best, rests_on = support.least_distance(low), SUPPORT
     for j, b in enumerate(bodies):
         if best <= TOUCHING_MM:
             break

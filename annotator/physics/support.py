@@ -138,20 +138,80 @@ class Support:
         the floor's plane (0 below it), or less where the measured surface away from the
         floor (a bin's wall, which holds a part leaning on it) is nearer, give or take
         :data:`WALL_SLACK_MM`."""
-        height = self.plane.height(points)
-        d = np.maximum(height, 0.0)
-        if self.surface is not None and points.shape[1]:
-            # Points raised rather than the surface lowered: its BVH stays the one built.
-            moved = points.T + self.surface_lowered_by * self.plane.n
-            query = o3d.core.Tensor(np.ascontiguousarray(moved, dtype=np.float32))
-            near = _scene_of(self.surface).compute_closest_points(query, nthreads=get_threads())
-            q = near["points"].numpy().astype(np.float64)
-            far = np.linalg.norm(q - moved, axis=1)
-            # Near the floor the measured surface is the floor, smeared where it meets a
-            # wall: the plane says it better.
-            far[self.plane.height(q.T) - self.surface_lowered_by < WALL_MM] = np.inf
-            d = np.minimum(d, np.maximum(far - WALL_SLACK_MM, 0.0))
-        return d
+        d = np.maximum(self.plane.height(points), 0.0)
+        if self.surface is None or not points.shape[1]:
+            return d
+        return self._with_surface(self._raised(points), d)[0]
+
+    def least_distance(self, points: np.ndarray) -> float:
+        """``distance(points).min()`` (``points`` (3, N), N > 0), with the measured surface
+        asked about fewer points: its closest-point queries are the cost of
+        :meth:`distance`, and most of a part's points cannot be the nearest.
+
+        A point's distance to the surface changes no faster than the point moves, so every
+        :data:`_PROBE_EVERY`-th point (a probe) is asked first; another point within ``r``
+        of a probe at ``D`` from the surface is at least ``D - r`` from it. A point whose
+        bound leaves the wall further than its height has its height for distance; one
+        whose bound is beyond the least distance found cannot be the least. Only the
+        others are asked: the same minimum as :meth:`distance`, to the bit."""
+        d = np.maximum(self.plane.height(points), 0.0)
+        if self.surface is None:
+            return float(d.min())
+        raised = self._raised(points)
+        probe = np.zeros(len(raised), bool)
+        probe[::_PROBE_EVERY] = True
+        found, reach = self._with_surface(raised[probe], d[probe])
+        least = float(found.min())
+        rest, rest_d = raised[~probe], d[~probe]
+        if not len(rest):
+            return least
+        bound = np.max(reach[None, :] - _distances(rest, raised[probe]), axis=1)
+        bound -= WALL_SLACK_MM + _ROUNDING_MM
+        ask = bound < np.minimum(rest_d, least)
+        # The others' distance is their height, or no less than ``least``: either way their
+        # height stands for it in the minimum.
+        if not ask.all():
+            least = min(least, float(rest_d[~ask].min()))
+        if ask.any():
+            least = min(least, float(self._with_surface(rest[ask], rest_d[ask])[0].min()))
+        return least
+
+    def _raised(self, points: np.ndarray) -> np.ndarray:
+        """(N, 3) ``points`` (3, N) raised by :attr:`surface_lowered_by`: the points are
+        moved rather than the surface lowered, so its BVH stays the one built."""
+        return points.T + self.surface_lowered_by * self.plane.n
+
+    def _with_surface(self, raised: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The distances ``d`` (the points' height above the floor's plane, 0 below it) of
+        the :meth:`_raised` points, lowered where the measured surface off the floor is
+        nearer (see :meth:`distance`), and each point's distance to the measured surface."""
+        assert self.surface is not None
+        query = o3d.core.Tensor(np.ascontiguousarray(raised, dtype=np.float32))
+        near = _scene_of(self.surface).compute_closest_points(query, nthreads=get_threads())
+        q = near["points"].numpy().astype(np.float64)
+        reach = np.linalg.norm(q - raised, axis=1)
+        # Near the floor the measured surface is the floor, smeared where it meets a wall:
+        # the plane says it better.
+        far = np.where(self.plane.height(q.T) - self.surface_lowered_by < WALL_MM, np.inf, reach)
+        return np.minimum(d, np.maximum(far - WALL_SLACK_MM, 0.0)), reach
+
+
+def _distances(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(N, M) distances between the points ``a`` (N, 3) and ``b`` (M, 3), from one product
+    of the two (the differences of every pair would cost several times more), about their
+    mean: the expansion's rounding stays far below :data:`_ROUNDING_MM`."""
+    centre = b.mean(axis=0)
+    a, b = a - centre, b - centre
+    squared = np.sum(a * a, axis=1)[:, None] + np.sum(b * b, axis=1)[None, :] - 2.0 * (a @ b.T)
+    return np.sqrt(np.maximum(squared, 0.0))
+
+
+#: :meth:`Support.least_distance` asks the measured surface about every this-many-th point
+#: first.
+_PROBE_EVERY = 8
+#: Its bounds are kept this far (mm) below what they say: the surface's closest points are
+#: found in float32.
+_ROUNDING_MM = 0.01
 
 
 # Ray-casting scenes of measured surfaces, by geometry (the empty bin's serves every scene).

@@ -27,7 +27,7 @@ shared by many points or corners (the depth's offset, the markers' sites) do to 
 from __future__ import annotations
 
 import time
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -36,6 +36,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from annotator.dataset.review import RepairOp, RepairStep
+from annotator.geometry import Rect
 from annotator.geometry.camera import Camera
 from annotator.geometry.least_squares import Damping, Stop, levenberg_marquardt
 from annotator.geometry.lie import cross, norms, perturb
@@ -45,7 +46,7 @@ from annotator.noise import NOISE, NoiseModel
 from annotator.pnp.multiview import Observation, reprojection_errors, residuals_jacobian
 from annotator.pnp.sites import site_jacobian
 from annotator.refinement.nearest import TrackedNearest
-from annotator.rendering.raycast import PlacedMesh, cast_alone, clip_region, hit_bbox
+from annotator.rendering.raycast import Hits, PlacedMesh, cast_alone, clip_region, hit_bbox
 
 #: The model's surface samples are about this far apart (mm): well below the depth's own
 #: spacing at the working distance.
@@ -149,9 +150,28 @@ def _model_cloud(mesh: Mesh) -> tuple[cKDTree, np.ndarray, np.ndarray]:
         pts, normals = surface_samples(mesh, MODEL_SPACING_MM, density=1.0)
         # Split at the middle of each cell, not the median of its points: the same nearest
         # samples (the search is exact), found sooner among samples spread this evenly.
-        tree = cKDTree(pts, balanced_tree=False)
+        # Leaves of 32: a point several mm off the surface (a pose still far off, a
+        # neighbour's surface) has many samples at about its distance, and visits fewer
+        # cells so; near the surface it makes no difference.
+        tree = cKDTree(pts, leafsize=32, balanced_tree=False)
         hit = _CLOUDS[mesh.digest] = (tree, pts, normals)
     return hit
+
+
+#: Casts made already, as :func:`annotator.occlusion.scene_visibility`'s ``memo`` keeps them:
+#: by (camera name, step, mesh digest, ``rig_T_model`` bytes), the placed mesh's rectangle on
+#: the camera's grid of every step-th pixel and its hits there (None: out of view).
+KnownCasts = Mapping[tuple[str, int, bytes, bytes], tuple[Rect | None, Hits | None]]
+
+
+@dataclass(frozen=True)
+class Known:
+    """Casts made already at every ``step``-th pixel (:data:`KnownCasts`): their rays are
+    every pixel's whose row and column are multiples of ``step`` (:meth:`Camera.pixel_rays`),
+    so a cast of every pixel takes those hits from them and casts the rest."""
+
+    casts: KnownCasts
+    step: int
 
 
 def measured_points(
@@ -161,10 +181,12 @@ def measured_points(
     rig_T_model: np.ndarray,
     others: Sequence[PlacedMesh],
     settings: RefineSettings = RefineSettings(),
+    known: Known | None = None,
 ) -> np.ndarray:
     """The measured points the instance is refined against and their surface normals,
     (N, 6) in the reference frame (mm): see the module docstring. ``others`` are the other
-    posed parts, placed in the reference frame."""
+    posed parts, placed in the reference frame; ``known``: casts of them (and of the part)
+    made already at these poses, whose rays are not cast again."""
     cam_T_model = camera.cam_T_rig @ rig_T_model
     # Two pixels around the rays that can hit the part: each of its pixels has its
     # neighbours (for the normals), and one beyond them is empty (as for the erosion).
@@ -178,13 +200,13 @@ def measured_points(
     )
     x0, y0, x1, y1 = region
     rays = camera.pixel_rays()[y0:y1, x0:x1]
-    own = cast_alone(mesh, cam_T_model, rays).depth
+    own = _cast_over(camera, PlacedMesh(mesh, rig_T_model), rays, region, None, known)
     mask = np.isfinite(own)
     if m > 0:
         kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * m + 1, 2 * m + 1))
         mask = cv2.dilate(mask.astype(np.uint8), kernel) > 0
     measured = depth[y0:y1, x0:x1]
-    other = _nearest_other(camera, others, rays, region, mask)
+    other = _nearest_other(camera, others, rays, region, mask, known)
     theirs = np.isfinite(other) & (
         (np.abs(measured - other) < settings.explained_mm) | (other < own)
     )
@@ -211,6 +233,7 @@ def _nearest_other(
     rays: np.ndarray,
     region: tuple[int, int, int, int],
     need: np.ndarray,
+    known: Known | None = None,
 ) -> np.ndarray:
     """The depth of the nearest of the ``others`` along each ray of ``rays`` (the grid of
     the camera's ``region``) where ``need`` holds (inf elsewhere, and where none is hit).
@@ -230,10 +253,48 @@ def _nearest_other(
         sub_need = need[window]
         if not sub_need.any():
             continue
-        d = cast_alone(pm.mesh, cam_T_other, rays[window][sub_need]).depth
+        d = _cast_over(camera, pm, rays[window], (bx0, by0, bx1, by1), sub_need, known)
         sub = other[window]
-        sub[sub_need] = np.minimum(sub[sub_need], d)
+        sub[sub_need] = np.minimum(sub[sub_need], d[sub_need])
     return other
+
+
+def _cast_over(
+    camera: Camera,
+    placed: PlacedMesh,
+    rays: np.ndarray,
+    region: Rect,
+    need: np.ndarray | None,
+    known: Known | None,
+) -> np.ndarray:
+    """The depth of ``placed`` (in the reference frame) alone along each ray of ``rays``
+    (the grid of the camera's ``region``) where ``need`` holds (everywhere: None); inf
+    elsewhere and on a miss. The rays of a ``known`` cast of it at this pose are not cast
+    again: its samples' hits are taken, and its rectangle holds every sample that can hit."""
+    cam_T_model = camera.cam_T_rig @ placed.cam_T_model
+    depth = np.full(rays.shape[:2], np.inf, np.float32)
+    todo = np.ones(rays.shape[:2], bool) if need is None else need.copy()
+    step = 0 if known is None else known.step
+    key = (camera.name, step, placed.mesh.digest, np.asarray(placed.cam_T_model, float).tobytes())
+    found = None if known is None or step < 2 else known.casts.get(key)
+    if found is not None:
+        x0, y0, x1, y1 = region
+        # The known samples in the region: grid rows (columns) r0 to r1, at pixel r * step.
+        r0, c0, r1, c1 = -(-y0 // step), -(-x0 // step), -(-y1 // step), -(-x1 // step)
+        on = (slice(r0 * step - y0, None, step), slice(c0 * step - x0, None, step))
+        seen = np.full((r1 - r0, c1 - c0), np.inf, np.float32)  # off its rectangle: a miss
+        box, hits = found
+        if box is not None and hits is not None:
+            bc0, br0, bc1, br1 = max(box[0], c0), max(box[1], r0), min(box[2], c1), min(box[3], r1)
+            if bc0 < bc1 and br0 < br1:
+                seen[br0 - r0 : br1 - r0, bc0 - c0 : bc1 - c0] = hits.depth[
+                    br0 - box[1] : br1 - box[1], bc0 - box[0] : bc1 - box[0]
+                ]
+        depth[on] = np.where(todo[on], seen, np.inf)
+        todo[on] = False
+    if todo.any():
+        depth[todo] = cast_alone(placed.mesh, cam_T_model, rays[todo]).depth
+    return depth
 
 
 def _grid_normals(grid: np.ndarray, ys: np.ndarray, xs: np.ndarray) -> np.ndarray:
@@ -283,6 +344,9 @@ class DepthTerm:
         self._shifted: tuple[float, np.ndarray] = (0.0, self.points)
         # The last matches' samples turned by their pose (see :meth:`matches`).
         self._turned: tuple[bytes, np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None
+        # The last matches made, by pose, gate and offset: a refinement's result is matched
+        # again for its residuals and then for its covariance.
+        self._matched: tuple[tuple[bytes, float, float], np.ndarray, np.ndarray] | None = None
 
     def shifted(self, offset: float | None = None) -> np.ndarray:
         """The measured points moved by ``offset`` (default :attr:`offset`) along their
@@ -313,6 +377,17 @@ class DepthTerm:
     ) -> tuple[np.ndarray, np.ndarray]:
         """The measured points (scene indices) matched within ``gate`` at pose ``T``, and
         their model samples."""
+        key = (T.tobytes(), gate, self.offset if offset is None else offset)
+        if self._matched is not None and self._matched[0] == key:
+            return self._matched[1], self._matched[2]
+        i, j = self._match(T, gate, offset)
+        self._matched = key, i, j
+        return i, j
+
+    def _match(
+        self, T: np.ndarray, gate: float, offset: float | None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`matches`, made."""
         none = np.zeros(0, int), np.zeros(0, int)
         if len(self.points) == 0:
             return none
@@ -643,10 +718,11 @@ def _minimise(
     iterations made, and whether it converged.
 
     The gate narrows from ``start_gate_mm`` to ``end_gate_mm`` with one step at each gate
-    (a pose far off first finds its surface, then only the points near it); at the end gate
-    the iteration goes on until a step moves the residuals by less than ``converged_moves``
-    (mm or px: a motion the data hardly sees, a faceted cylinder turning about its axis from
-    facet to facet, is none) or no step lowers the cost (a minimum)."""
+    (a pose far off first finds its surface, then only the points near it) until a step
+    moves the residuals by less than ``converged_moves``; at the end gate the iteration goes
+    on until a step moves them that little (mm or px: a motion the data hardly sees, a
+    faceted cylinder turning about its axis from facet to facet, is none) or no step lowers
+    the cost (a minimum)."""
     problem = _Problem(term, markers, settings)
     state = _State(np.array(T0, float), 0.0)
     narrowing = max(settings.gate_iterations - 1, 1)
@@ -661,12 +737,18 @@ def _minimise(
             problem.linearise,
             problem.trial,
             damping=_DAMPING,
-            small=lambda cost, new, moved: False,
+            small=lambda cost, new, moved: moved < settings.converged_moves,
             max_iterations=1,
         )
         state, spent = step.state, spent + 1
         if step.stop is Stop.SINGULAR:
             return state.T, state.offset, spent, False
+        if step.stop is Stop.SMALL_STEP and k > 0:
+            # The pose has stopped moving under a narrowed gate: it sits on its surface, and
+            # the gates between would each repeat that step of nothing (a pose on markers
+            # starts there). The end gate's iteration takes over. (The first, widest gate
+            # is not enough: a pose far off may sit still there between two surfaces.)
+            break
     if spent == settings.iterations:
         return state.T, state.offset, spent, False
     problem.gate = settings.end_gate_mm
