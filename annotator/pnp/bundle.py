@@ -24,6 +24,7 @@ what is left to solve is the size of the instances alone, whatever the number of
 from __future__ import annotations
 
 from collections.abc import Sequence
+from concurrent.futures import Executor, ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 
 import cv2
@@ -158,7 +159,7 @@ def bundle_adjust(
         scale = np.minimum(corner_sigma_px / np.maximum(obs_sigma_px, 1e-9), 1.0)
 
     def project(frames: np.ndarray, models: np.ndarray) -> _Projection:
-        return _project(cameras, obs, frames, models, has_depth, depth_weight, scale)
+        return _project(cameras, obs, frames, models, has_depth, depth_weight, scale, pool)
 
     # A trial step needs the residuals alone: the Jacobian is made from its projection only
     # for a step taken (half the steps of a long solve are refused).
@@ -177,16 +178,19 @@ def bundle_adjust(
         projected = project(f_new, m_new)
         return (f_new, m_new, projected), huber_cost(projected.r, huber_px), step
 
-    start = project(frames, models)
-    found = levenberg_marquardt(
-        (frames, models, start),
-        huber_cost(start.r, huber_px),
-        normal,
-        trial,
-        damping=_DAMPING,
-        small=_converged,
-        max_iterations=max_iterations,
-    )
+    # The threads live for this solve only: a process that forks workers later (a batch's
+    # next step) should have none.
+    with ThreadPoolExecutor(PROJECTION_THREADS) as pool:
+        start = project(frames, models)
+        found = levenberg_marquardt(
+            (frames, models, start),
+            huber_cost(start.r, huber_px),
+            normal,
+            trial,
+            damping=_DAMPING,
+            small=_converged,
+            max_iterations=max_iterations,
+        )
     (frames, models, projected), iterations = found.state, found.iterations
     return _result(
         frames,
@@ -290,9 +294,11 @@ def _project(
     has_depth: np.ndarray,
     depth_weight: float,
     scale: np.ndarray,
+    pool: Executor | None = None,
 ) -> _Projection:
     """The residuals at these poses, ``scale`` weighing each observation's corner rows (as
-    :func:`_weighed` does), and what their Jacobian is made of (:class:`_Projection`)."""
+    :func:`_weighed` does), and what their Jacobian is made of (:class:`_Projection`);
+    ``pool``: threads that share the projection (:func:`_project_points`)."""
     n = len(obs)
     Rm = models[obs.instance, :3, :3]
     tm = models[obs.instance, :3, 3]
@@ -312,7 +318,7 @@ def _project(
             continue
         M = cam.cam_T_rig
         pc = Q[sel] @ M[:3, :3].T + M[:3, 3]
-        pts, jac = cv2.projectPoints(pc.reshape(-1, 3), np.zeros(3), np.zeros(3), cam.K, cam.dist)
+        pts, jac = _project_points(pc.reshape(-1, 3), cam, pool)
         uv[sel] = pts.reshape(-1, 4, 2)
         G = jac[:, 3:6].reshape(-1, 4, 2, 3)  # d(pixel)/d(camera point)
         C = M[:3, :3] @ np.swapaxes(Rf[sel], 1, 2)  # d(camera point)/d(scene point)
@@ -327,6 +333,27 @@ def _project(
     if not np.all(scale == 1.0):
         r[: 8 * n] *= np.repeat(scale, 8)
     return _Projection(r, y, d, per_camera, Hz, sel, depth_weight)
+
+
+#: Threads of a solve's projections: OpenCV's projection lets go of the interpreter, and a
+#: sequence's solve runs alone in its process, with the batch's workers idle meanwhile.
+PROJECTION_THREADS = 2
+#: Fewer points than this are projected in one piece.
+_SPLIT_POINTS = 4096
+
+
+def _project_points(
+    points: np.ndarray, cam: Camera, pool: Executor | None
+) -> tuple[np.ndarray, np.ndarray]:
+    """``cv2.projectPoints`` of (N, 3) camera points: the pixels (N, 1, 2) and the Jacobian
+    (2N, ...) by point, in pieces on ``pool``'s threads (each point's own arithmetic: the
+    same numbers as in one piece)."""
+    zero = np.zeros(3)
+    if pool is None or len(points) < _SPLIT_POINTS:
+        return cv2.projectPoints(points, zero, zero, cam.K, cam.dist)
+    pieces = np.array_split(points, PROJECTION_THREADS)
+    done = list(pool.map(lambda p: cv2.projectPoints(p, zero, zero, cam.K, cam.dist), pieces))
+    return np.concatenate([d[0] for d in done]), np.concatenate([d[1] for d in done])
 
 
 def _jacobian(obs: BundleObservations, p: _Projection) -> _Linear:
