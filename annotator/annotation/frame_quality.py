@@ -64,13 +64,16 @@ def marker_picture(grid: bytes, cells: int) -> np.ndarray:
     return np.pad(big, m, constant_values=1.0)
 
 
+@lru_cache(maxsize=4096)
 def _line_kernel(length: float, angle_deg: float) -> np.ndarray:
     """A streak's kernel: a segment ``length`` px long at ``angle_deg``, sum 1 (a point
-    for 0), drawn with sub-pixel samples."""
+    for 0), drawn with sub-pixel samples. Cached (read-only): every marker tries the same
+    grid of streaks, and drawing a kernel costs more than applying it."""
     half = int(np.ceil(length / 2)) + 1
     k = np.zeros((2 * half + 1, 2 * half + 1), np.float32)
     if length < 0.5:
         k[half, half] = 1.0
+        k.flags.writeable = False
         return k
     a = np.radians(angle_deg)
     s = np.linspace(-length / 2, length / 2, int(np.ceil(length * 4)) + 1)
@@ -80,7 +83,9 @@ def _line_kernel(length: float, angle_deg: float) -> np.ndarray:
     for dx, dy, w in ((0, 0, (1 - fx) * (1 - fy)), (1, 0, fx * (1 - fy)), (0, 1, (1 - fx) * fy)):
         np.add.at(k, (y0 + dy, x0 + dx), w)
     np.add.at(k, (y0 + 1, x0 + 1), fx * fy)
-    return k / k.sum()
+    k /= k.sum()
+    k.flags.writeable = False
+    return k
 
 
 def marker_streak(
@@ -116,21 +121,26 @@ def marker_streak(
     inside = cv2.warpPerspective(np.ones_like(picture), shift @ H, box, flags=cv2.INTER_NEAREST)
     # The fit looks where the picture is known (the marker and its margin), not beyond:
     # what lies round a sticker is unknown, and a long streak brings it in.
-    mask = inside > 0.5
-    observed = gray[y0:y1, x0:x1].astype(np.float64)[mask]
+    # (As flat indices: taking them is quicker than a boolean mask, in the same order.)
+    known = np.flatnonzero(inside > 0.5)
+    observed = np.take(gray[y0:y1, x0:x1], known).astype(np.float64)
     centred = observed - observed.mean()  # gain and offset fitted in closed form
     lens = cv2.GaussianBlur(drawn, (0, 0), LENS_SIGMA_PX)
 
     def misfit(length: float, angle: float) -> float:
         model = cv2.filter2D(lens, -1, _line_kernel(length, angle), borderType=cv2.BORDER_REPLICATE)
-        x = model[mask].astype(np.float64)
+        x = np.take(model, known).astype(np.float64)
         dx = x - x.mean()
         gain = float(dx @ centred) / max(float(dx @ dx), 1e-12)
         if gain <= 0:  # a picture that fits only inverted explains nothing
             return float("inf")
         return float(np.sum((centred - gain * dx) ** 2))
 
-    best = min((misfit(L, a), L, a) for L in COARSE_LENGTHS for a in COARSE_ANGLES)
+    # No streak has no direction: its misfit is worked out once for every angle.
+    still = misfit(0.0, 0.0)
+    best = min(
+        (misfit(L, a) if L > 0 else still, L, a) for L in COARSE_LENGTHS for a in COARSE_ANGLES
+    )
     _, L0, a0 = best
     if L0 > 0:  # finer between the coarse grid's neighbours
         k = COARSE_LENGTHS.index(L0)

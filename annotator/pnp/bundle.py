@@ -24,6 +24,7 @@ what is left to solve is the size of the instances alone, whatever the number of
 from __future__ import annotations
 
 from collections.abc import Sequence
+from concurrent.futures import Executor, ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 
 import cv2
@@ -157,14 +158,16 @@ def bundle_adjust(
     if obs_sigma_px is not None:
         scale = np.minimum(corner_sigma_px / np.maximum(obs_sigma_px, 1e-9), 1.0)
 
-    def linearise(frames: np.ndarray, models: np.ndarray) -> _Linear:
-        return _weighed(_linearise(cameras, obs, frames, models, has_depth, depth_weight), scale)
+    def project(frames: np.ndarray, models: np.ndarray) -> _Projection:
+        return _project(cameras, obs, frames, models, has_depth, depth_weight, scale, pool)
 
-    State = tuple[np.ndarray, np.ndarray, _Linear]  # frames, instances, linearised there
+    # A trial step needs the residuals alone: the Jacobian is made from its projection only
+    # for a step taken (half the steps of a long solve are refused).
+    State = tuple[np.ndarray, np.ndarray, _Projection]  # frames, instances, projected there
     Step = tuple[np.ndarray, np.ndarray]
 
     def normal(state: State) -> _Normal:
-        lin = state[2]
+        lin = _weighed(_jacobian(obs, state[2]), scale)
         return _normal(lin, obs, huber_weights(lin.r, huber_px), shape)
 
     def trial(state: State, normal: _Normal, damping: float) -> tuple[State, float, Step] | None:
@@ -172,24 +175,27 @@ def bundle_adjust(
         if step is None:
             return None
         f_new, m_new = _apply(state[0], state[1], *step)
-        lin_new = linearise(f_new, m_new)
-        return (f_new, m_new, lin_new), huber_cost(lin_new.r, huber_px), step
+        projected = project(f_new, m_new)
+        return (f_new, m_new, projected), huber_cost(projected.r, huber_px), step
 
-    lin0 = linearise(frames, models)
-    found = levenberg_marquardt(
-        (frames, models, lin0),
-        huber_cost(lin0.r, huber_px),
-        normal,
-        trial,
-        damping=_DAMPING,
-        small=_converged,
-        max_iterations=max_iterations,
-    )
-    (frames, models, lin), iterations = found.state, found.iterations
+    # The threads live for this solve only: a process that forks workers later (a batch's
+    # next step) should have none.
+    with ThreadPoolExecutor(PROJECTION_THREADS) as pool:
+        start = project(frames, models)
+        found = levenberg_marquardt(
+            (frames, models, start),
+            huber_cost(start.r, huber_px),
+            normal,
+            trial,
+            damping=_DAMPING,
+            small=_converged,
+            max_iterations=max_iterations,
+        )
+    (frames, models, projected), iterations = found.state, found.iterations
     return _result(
         frames,
         models,
-        lin,
+        projected,
         obs,
         shape,
         scale,
@@ -209,7 +215,7 @@ def _converged(cost: float, new: float, step: tuple[np.ndarray, np.ndarray]) -> 
 def _result(
     frames: np.ndarray,
     models: np.ndarray,
-    lin: _Linear,
+    projected: _Projection,
     obs: BundleObservations,
     shape: _Shape,
     scale: np.ndarray,
@@ -220,8 +226,8 @@ def _result(
     covariance: bool,
 ) -> BundleResult:
     """The solved poses with each observation's residual, the corner noise the inliers show
-    and (``covariance``) the poses' covariances, from the linearisation ``lin`` at them."""
-    corners = lin.r[: 8 * len(obs)].reshape(-1, 4, 2)
+    and (``covariance``) the poses' covariances, from their projection ``projected``."""
+    corners = projected.r[: 8 * len(obs)].reshape(-1, 4, 2)
     per_obs = np.sqrt(np.mean(np.sum(corners**2, axis=-1), axis=-1)) / scale
     # The corner noise as the inliers show it (median absolute deviation, robust to the
     # few observations the Huber weights hold back).
@@ -232,7 +238,8 @@ def _result(
         zero_f, zero_m = np.zeros((n_frames, 6, 6)), np.zeros((n_models, 6, 6))
         return BundleResult(frames, models, zero_f, zero_m, per_obs, sigma, iterations)
     inliers = np.repeat(per_obs * scale < 4 * max(sigma, huber_px / 3), 8).astype(float)
-    weights = np.concatenate([inliers, np.ones(lin.r.size - inliers.size)])
+    weights = np.concatenate([inliers, np.ones(projected.r.size - inliers.size)])
+    lin = _weighed(_jacobian(obs, projected), scale)
     cov_f, cov_m, cross = _covariance(_normal(lin, obs, weights, shape), sigma)
     return BundleResult(frames, models, cov_f, cov_m, per_obs, sigma, iterations, cross)
 
@@ -261,15 +268,37 @@ class _Linear:
     jf_depth: np.ndarray  # (m, 6)
 
 
-def _linearise(
+@dataclass(frozen=True)
+class _Projection:
+    """The residuals at some poses (as :class:`_Linear` holds them, each observation's
+    corner rows weighed), and what their Jacobian is made of (:func:`_jacobian`): the
+    corners turned into the scene frame (``y``) and about the frame's centre (``d``), per
+    camera its observations (``sel``), d(pixel)/d(camera point) ``G`` and d(camera
+    point)/d(scene point) ``C``, and d(depth)/d(scene point) ``Hz`` (its residuals are
+    multiplied by ``depth_weight``)."""
+
+    r: np.ndarray
+    y: np.ndarray  # (n, 4, 3)
+    d: np.ndarray  # (n, 4, 3)
+    per_camera: list[tuple[np.ndarray, np.ndarray, np.ndarray]]  # (sel, G, C)
+    Hz: np.ndarray  # (n, 4, 3)
+    depth: np.ndarray  # (m,) the observations with a depth residual
+    depth_weight: float
+
+
+def _project(
     cameras: Sequence[Camera],
     obs: BundleObservations,
     frames: np.ndarray,
     models: np.ndarray,
     has_depth: np.ndarray,
     depth_weight: float,
-) -> _Linear:
-    """Residuals and Jacobian blocks at these poses (:class:`_Linear`)."""
+    scale: np.ndarray,
+    pool: Executor | None = None,
+) -> _Projection:
+    """The residuals at these poses, ``scale`` weighing each observation's corner rows (as
+    :func:`_weighed` does), and what their Jacobian is made of (:class:`_Projection`);
+    ``pool``: threads that share the projection (:func:`_project_points`)."""
     n = len(obs)
     Rm = models[obs.instance, :3, :3]
     tm = models[obs.instance, :3, 3]
@@ -280,48 +309,80 @@ def _linearise(
     d = P - cf[:, None, :]
     Q = np.einsum("nji,nkj->nki", Rf, d)  # rig frame: R_f^T (P - c_f)
     uv = np.empty((n, 4, 2))
-    H = np.empty((n, 4, 2, 3))  # d(pixel)/d(scene point), through the frame's rotation
     z = np.empty((n, 4))
     Hz = np.empty((n, 4, 3))
+    per_camera = []
     for j, cam in enumerate(cameras):
         sel = np.flatnonzero(obs.camera == j)
         if sel.size == 0:
             continue
         M = cam.cam_T_rig
         pc = Q[sel] @ M[:3, :3].T + M[:3, 3]
-        pts, jac = cv2.projectPoints(pc.reshape(-1, 3), np.zeros(3), np.zeros(3), cam.K, cam.dist)
+        pts, jac = _project_points(pc.reshape(-1, 3), cam, pool)
         uv[sel] = pts.reshape(-1, 4, 2)
         G = jac[:, 3:6].reshape(-1, 4, 2, 3)  # d(pixel)/d(camera point)
         C = M[:3, :3] @ np.swapaxes(Rf[sel], 1, 2)  # d(camera point)/d(scene point)
-        H[sel] = np.einsum("nkab,nbc->nkac", G, C)
+        per_camera.append((sel, G, C))
         z[sel] = pc[..., 2]
         Hz[sel] = np.broadcast_to(C[:, None, 2, :], (sel.size, 4, 3))
-    r_px = (uv - obs.image_corners).reshape(-1)
+    r = (uv - obs.image_corners).reshape(-1)
+    sel = np.flatnonzero(has_depth)
+    if sel.size:
+        # The marker's centre: the mean of its corners, its depth the mean of theirs.
+        r = np.concatenate([r, depth_weight * (z[sel].mean(axis=1) - obs.depth_mm[sel])])
+    if not np.all(scale == 1.0):
+        r[: 8 * n] *= np.repeat(scale, 8)
+    return _Projection(r, y, d, per_camera, Hz, sel, depth_weight)
+
+
+#: Threads of a solve's projections: OpenCV's projection lets go of the interpreter, and a
+#: sequence's solve runs alone in its process, with the batch's workers idle meanwhile.
+PROJECTION_THREADS = 2
+#: Fewer points than this are projected in one piece.
+_SPLIT_POINTS = 4096
+
+
+def _project_points(
+    points: np.ndarray, cam: Camera, pool: Executor | None
+) -> tuple[np.ndarray, np.ndarray]:
+    """``cv2.projectPoints`` of (N, 3) camera points: the pixels (N, 1, 2) and the Jacobian
+    (2N, ...) by point, in pieces on ``pool``'s threads (each point's own arithmetic: the
+    same numbers as in one piece)."""
+    zero = np.zeros(3)
+    if pool is None or len(points) < _SPLIT_POINTS:
+        return cv2.projectPoints(points, zero, zero, cam.K, cam.dist)
+    pieces = np.array_split(points, PROJECTION_THREADS)
+    done = list(pool.map(lambda p: cv2.projectPoints(p, zero, zero, cam.K, cam.dist), pieces))
+    return np.concatenate([d[0] for d in done]), np.concatenate([d[1] for d in done])
+
+
+def _jacobian(obs: BundleObservations, p: _Projection) -> _Linear:
+    """Residuals and Jacobian blocks (:class:`_Linear`, not weighed) at a projection."""
+    n = len(obs)
+    H = np.empty((n, 4, 2, 3))  # d(pixel)/d(scene point), through the frame's rotation
+    for sel, G, C in p.per_camera:
+        H[sel] = np.einsum("nkab,nbc->nkac", G, C)
+    y, d = p.y, p.d
     # Instance (w, v): dP = w x y + v;  frame (w, v): dQ = R_f^T ([d]x w - v).
     jm = np.concatenate([np.cross(y[:, :, None, :], H), H], axis=-1).reshape(n, 8, 6)
     jf = np.concatenate([np.cross(H, d[:, :, None, :]), -H], axis=-1).reshape(n, 8, 6)
-    residuals = [r_px]
-    sel = np.flatnonzero(has_depth)
+    sel = p.depth
     jm_d = jf_d = np.zeros((0, 6))
     if sel.size:
-        # The marker's centre: the mean of its corners, its depth the mean of theirs.
-        residuals.append(depth_weight * (z[sel].mean(axis=1) - obs.depth_mm[sel]))
-        hz = depth_weight * Hz[sel].mean(axis=1)  # (m, 3)
+        hz = p.depth_weight * p.Hz[sel].mean(axis=1)  # (m, 3)
         yc, dc = y[sel].mean(axis=1), d[sel].mean(axis=1)
         jm_d = np.concatenate([np.cross(yc, hz), hz], axis=-1)
         jf_d = np.concatenate([np.cross(hz, dc), -hz], axis=-1)
-    return _Linear(np.concatenate(residuals), jm, jf, sel, jm_d, jf_d)
+    return _Linear(p.r, jm, jf, sel, jm_d, jf_d)
 
 
 def _weighed(lin: _Linear, scale: np.ndarray) -> _Linear:
-    """``lin`` with each observation's corner rows multiplied by ``scale`` (its weight's
-    square root); the depth rows as they are."""
+    """``lin`` (its residuals weighed already, :func:`_project`) with each observation's
+    corner rows of the Jacobian multiplied by ``scale`` (its weight's square root); the
+    depth rows as they are."""
     if np.all(scale == 1.0):
         return lin
-    n = scale.size
-    r = lin.r.copy()
-    r[: 8 * n] *= np.repeat(scale, 8)
-    return replace(lin, r=r, jm=lin.jm * scale[:, None, None], jf=lin.jf * scale[:, None, None])
+    return replace(lin, jm=lin.jm * scale[:, None, None], jf=lin.jf * scale[:, None, None])
 
 
 @dataclass(frozen=True)

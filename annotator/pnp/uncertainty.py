@@ -93,10 +93,15 @@ def site_covariance(R: np.ndarray, corners: np.ndarray, sigma: float | np.ndarra
     """
     pts = np.asarray(corners, dtype=float).reshape(-1, 3)
     weights = np.broadcast_to(1.0 / np.asarray(sigma, dtype=float) ** 2, (len(pts),))
+    y = pts @ np.asarray(R, dtype=float).T
+    # The sum by blocks, all corners at once: B_k^T B_k = [[|y|^2 I - y y^T, [y]x],
+    # [-[y]x, I]] with y = R x_k (a sequence's frame rests on hundreds of corners).
+    wy = weights @ y
     A = np.zeros((6, 6))
-    for x, wk in zip(pts, weights):
-        B = np.hstack([-skew(R @ x), np.eye(3)])
-        A += wk * (B.T @ B)
+    A[:3, :3] = float(weights @ np.einsum("ki,ki->k", y, y)) * np.eye(3) - (y.T * weights) @ y
+    A[:3, 3:] = skew(wy)
+    A[3:, :3] = -skew(wy)
+    A[3:, 3:] = float(weights.sum()) * np.eye(3)
     w, V = np.linalg.eigh(A)
     if w[0] <= 1e-9 * max(float(w[-1]), 1e-300):
         return np.full((6, 6), np.inf)

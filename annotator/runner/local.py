@@ -15,6 +15,9 @@ are forked from it, so that they start ready. (Forked workers must not call
 ``cv2.setNumThreads``: it waits forever for the parent's OpenCV threads, which a child does
 not have. The parent sets one thread before forking instead, and restores its setting after.)
 
+Forked workers also inherit the job itself: a scene's task sends only its id. A job may carry
+every scene's inputs (a sequence's solution, each frame's depth), and pickling it again for
+each of hundreds of scenes costs the parent more than the workers' work on some of them.
 """
 
 from __future__ import annotations
@@ -43,6 +46,16 @@ WORKER_DIED = (
     "its worker process died while working on it (killed by the system: out of memory?); "
     "try it again with fewer --workers"
 )
+
+
+#: The jobs of this process's running batches, by key: what forked workers inherit
+#: (:func:`_run_inherited`).
+_INHERITED: dict[int, Callable[[str], dict[str, Any]]] = {}
+
+
+def _run_inherited(key: int, scene_id: str) -> tuple[str, dict[str, Any] | None, str | None]:
+    """:func:`_run_one` of the job the worker inherited from its parent when forked."""
+    return _run_one(_INHERITED[key], scene_id)
 
 
 def _run_one(
@@ -90,6 +103,10 @@ def run_local(
     prepare = getattr(job, "prepare", None)
     if context is not None and prepare is not None:
         prepare()
+    # Before any worker is forked (the pools start theirs on the first task).
+    key = id(job)
+    if context is not None:
+        _INHERITED[key] = job
     # The first pool is made before the progress bar: a process with threads (tqdm's
     # monitor) should not fork.
     first = _Pool(context, workers)
@@ -109,6 +126,7 @@ def run_local(
                 )
     finally:
         bar.close()
+        _INHERITED.pop(key, None)
     return report
 
 
@@ -117,6 +135,8 @@ class _Pool:
 
     def __init__(self, context: multiprocessing.context.BaseContext | None, workers: int) -> None:
         ctx = context or multiprocessing.get_context()
+        #: Forked workers: they have the parent's jobs (:data:`_INHERITED`).
+        self.inherits = ctx.get_start_method() == "fork"
         self.started = ctx.SimpleQueue()
         # Forked workers inherit the thread settings; spawned ones set their own.
         self.pool = ProcessPoolExecutor(
@@ -140,7 +160,11 @@ class _Pool:
         started: set[str] = set()
         broken = False
         try:
-            futures = [self.pool.submit(_run_one, job, sid) for sid in scene_ids]
+            key = id(job)
+            if self.inherits and _INHERITED.get(key) is job:
+                futures = [self.pool.submit(_run_inherited, key, sid) for sid in scene_ids]
+            else:
+                futures = [self.pool.submit(_run_one, job, sid) for sid in scene_ids]
             for fut in as_completed(futures):
                 try:
                     result = fut.result()

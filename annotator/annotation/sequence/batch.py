@@ -1,7 +1,8 @@
 """``annotate`` over a moving rig's dataset: the steps of :mod:`annotator.annotation.sequence`
 as batches, so that every core (or a Ray cluster) works on one long sequence.
 
-1. every frame of every chosen scene is read (:class:`FrameReadJob`, one unit per frame);
+1. every frame of every chosen scene is read (:class:`FrameReadJob`, one unit per frame),
+   its depth map kept at the samples step 3 reads (decoded once);
 2. every scene is solved (:class:`SequenceSolveJob`, one unit per scene);
 3. every posed frame is seen (:class:`FrameSeeJob`, one unit per frame);
 4. each scene's annotation.json is written here, atomically: a scene any of whose frames
@@ -16,14 +17,17 @@ import functools
 from dataclasses import dataclass, field
 from typing import Any
 
+import numpy as np
+
 from annotator.annotation.sequence import (
     FrameReading,
     SequenceSolution,
     frame_visibility,
-    read_frame,
     sequence_annotation,
     solve_sequence,
 )
+from annotator.annotation.sequence.reading import read_frame, read_frame_sampled
+from annotator.annotation.sequence.visibility import visibility_step
 from annotator.annotation.settings import AnnotateSettings
 from annotator.dataset import Dataset, Scene, cached_dataset
 from annotator.dataset.flags import WarningKind
@@ -68,13 +72,38 @@ class _Step:
         return []
 
 
+#: The most the depth maps' samples kept from step 1 for step 3 may take (bytes); past it,
+#: step 3 decodes the depth files again rather than hold every frame's in memory.
+DEPTH_KEPT_BYTES = 1 << 30
+
+
 @dataclass(frozen=True)
 class FrameReadJob(_Step):
-    """Step 1: the markers of one frame (unit ``<scene>/<frame>``)."""
+    """Step 1: the markers of one frame (unit ``<scene>/<frame>``), and with ``depth_step``
+    its depth map at every ``depth_step``-th pixel of every ``depth_step``-th row, what step
+    3 reads (None: none, or not kept)."""
+
+    depth_step: int | None = None
 
     def __call__(self, scene_id: str) -> dict[str, Any]:
         ds = cached_dataset(self.root)
-        return {"reading": read_frame(ds, ds.frame(scene_id), _detector(ds.dictionary))}
+        detector = _detector(ds.dictionary)
+        frame = ds.frame(scene_id)
+        if self.depth_step is None:
+            return {"reading": read_frame(ds, frame, detector), "depth": None}
+        reading, depth = read_frame_sampled(ds, frame, detector, step=self.depth_step)
+        return {"reading": reading, "depth": depth}
+
+
+def _kept_depth_step(ds: Dataset, frames: int, settings: AnnotateSettings) -> int | None:
+    """The step at which step 1 keeps ``frames`` frames' depth maps for step 3, None when
+    there is no depth or they would take more than :data:`DEPTH_KEPT_BYTES`."""
+    if ds.rig.depth is None:
+        return None
+    step = visibility_step(settings)
+    cam = ds.rig.camera(ds.rig.depth.camera)
+    samples = -(-cam.height // step) * -(-cam.width // step)
+    return step if frames * samples * np.dtype(np.float32).itemsize <= DEPTH_KEPT_BYTES else None
 
 
 @dataclass(frozen=True)
@@ -98,6 +127,8 @@ class FrameSeeJob(_Step):
 
     solutions: dict[str, SequenceSolution] = field(default_factory=dict)
     settings: AnnotateSettings = AnnotateSettings()
+    #: Per unit, the depth map's samples step 1 kept (a unit missing: its file is read).
+    depths: dict[str, np.ndarray] = field(default_factory=dict)
 
     def __call__(self, scene_id: str) -> dict[str, Any]:
         ds = cached_dataset(self.root)
@@ -105,7 +136,14 @@ class FrameSeeJob(_Step):
         sol = self.solutions[scene]
         T = sol.frames[name].scene_T_rig
         assert T is not None  # only posed frames are units
-        seen = frame_visibility(ds, ds.frame(scene_id), sol.instances, T, settings=self.settings)
+        seen = frame_visibility(
+            ds,
+            ds.frame(scene_id),
+            sol.instances,
+            T,
+            settings=self.settings,
+            depth_samples=self.depths.get(scene_id),
+        )
         return {"seen": seen}
 
 
@@ -150,8 +188,11 @@ def annotate_sequences(
     batch = functools.partial(
         run_batch, workers=workers, quiet=quiet, ray_address=ray_address, ray_wait=ray_wait
     )
-    report = batch(FrameReadJob(str(ds.root)), run.units(), desc="read frames")
+    units = run.units()
+    read = FrameReadJob(str(ds.root), _kept_depth_step(ds, len(units), settings))
+    report = batch(read, units, desc="read frames")
     run.absorb(report)
+    depths = {unit: r.pop("depth") for unit, r in report.done.items()}
     readings = {
         s: [report.done[f"{s}/{f}"]["reading"] for f in names]
         for s, names in run.frames.items()
@@ -166,7 +207,9 @@ def annotate_sequences(
         for f in run.frames[s]
         if sol.frames[f].scene_T_rig is not None
     ]
-    seen_report = batch(FrameSeeJob(str(ds.root), solutions, settings), posed, desc="see frames")
+    kept = {u: depths[u] for u in posed if depths.get(u) is not None}
+    see = FrameSeeJob(str(ds.root), solutions, settings, kept)
+    seen_report = batch(see, posed, desc="see frames")
     run.absorb(seen_report)
     out = BatchReport(failed=dict(run.failed))
     for sid, sol in sorted(solutions.items()):

@@ -53,6 +53,15 @@ class FrameReading:
 def read_frame(ds: Dataset, frame: Frame, detector: MarkerDetector) -> FrameReading:
     """Read the markers of every camera of ``frame`` (UserError for a missing or mis-sized
     image, naming the file), and the motion streak of each camera's image."""
+    return read_frame_sampled(ds, frame, detector, step=1)[0]
+
+
+def read_frame_sampled(
+    ds: Dataset, frame: Frame, detector: MarkerDetector, *, step: int
+) -> tuple[FrameReading, np.ndarray | None]:
+    """:func:`read_frame`, and the frame's depth map (None: none) at every ``step``-th pixel
+    of every ``step``-th row: what :func:`~.visibility.frame_visibility` reads of it, kept
+    so that each depth file is decoded once (decoding costs as much as what it is read for)."""
     grays = [to_gray8(frame.read_image(cam)) for cam in ds.rig.cameras]
     readings = [detector.read(g) for g in grays]
     quality = image_quality(ds, readings, grays)
@@ -71,10 +80,12 @@ def read_frame(ds: Dataset, frame: Frame, detector: MarkerDetector) -> FrameRead
     ]
     depth = frame.read_depth(ds.rig)
     marker_depth = np.zeros(0)
+    samples = None
     if depth is not None and ds.rig.depth is not None:
         j = [c.name for c in ds.rig.cameras].index(ds.rig.depth.camera)
         marker_depth = _depths_at(depth, [d.corners for d in readings[j].markers])
-    return FrameReading(frame.name, kept, marker_depth, quality, streaks)
+        samples = depth if step == 1 else depth[::step, ::step].copy()
+    return FrameReading(frame.name, kept, marker_depth, quality, streaks), samples
 
 
 @functools.cache

@@ -12,9 +12,14 @@ from annotator.annotation.observations import sort_markers
 from annotator.annotation.sequence.adjustment import bundle
 from annotator.annotation.sequence.annotation import sequence_annotation
 from annotator.annotation.sequence.placing import place
-from annotator.annotation.sequence.reading import FrameReading, Seen, depth_lookup, read_frame
+from annotator.annotation.sequence.reading import (
+    FrameReading,
+    Seen,
+    depth_lookup,
+    read_frame_sampled,
+)
 from annotator.annotation.sequence.solution import SequenceSolution
-from annotator.annotation.sequence.visibility import frame_visibility
+from annotator.annotation.sequence.visibility import frame_visibility, visibility_step
 from annotator.annotation.settings import AnnotateSettings
 from annotator.dataset import Dataset, Scene
 from annotator.dataset.figures import (
@@ -97,11 +102,15 @@ def annotate_sequence(
         raise UserError(
             "a moving rig's scene holds its images in frames/<frame>/: none found", path=scene.path
         )
-    readings = [read_frame(ds, f, detector) for f in frames]
+    step = visibility_step(settings)
+    read = [read_frame_sampled(ds, f, detector, step=step) for f in frames]
+    readings = [r for r, _ in read]
     solution = solve_sequence(ds, readings, settings=settings)
     seen = {}
-    for f in frames:
+    for f, (_, depth) in zip(frames, read):
         T = solution.frames[f.name].scene_T_rig
         if T is not None:
-            seen[f.name] = frame_visibility(ds, f, solution.instances, T, settings=settings)
+            seen[f.name] = frame_visibility(
+                ds, f, solution.instances, T, settings=settings, depth_samples=depth
+            )
     return sequence_annotation(solution, readings, seen, settings=settings)

@@ -16,6 +16,11 @@ from annotator.dataset.records import (
 from annotator.occlusion import scene_visibility
 
 
+def visibility_step(settings: AnnotateSettings) -> int:
+    """Every how many pixels (along rows and columns) a frame's visibility is sampled."""
+    return max(settings.visibility_step, settings.sequence.visibility_step)
+
+
 def frame_visibility(
     ds: Dataset,
     frame: Frame,
@@ -23,20 +28,31 @@ def frame_visibility(
     scene_T_rig: np.ndarray,
     *,
     settings: AnnotateSettings = AnnotateSettings(),
+    depth_samples: np.ndarray | None = None,
 ) -> dict[str, dict]:
     """What ``frame`` sees of the posed instances (scene frame): per instance whose silhouette
-    falls in one of its cameras, ``{"occlusion": {camera: rate}, "depth_agreement": a}``."""
+    falls in one of its cameras, ``{"occlusion": {camera: rate}, "depth_agreement": a}``.
+    ``depth_samples``: the frame's depth map at the samples (:func:`visibility_step`), as
+    :func:`~.reading.read_frame_sampled` kept it; None: the depth file is read here."""
     if not instances:
         return {}
     local = poses_in_frame(instances, scene_T_rig)
-    depth = frame.read_depth(ds.rig)
+    step = visibility_step(settings)
+    if depth_samples is None:
+        depth = frame.read_depth(ds.rig)
+    else:
+        # Each sample over its step x step pixels: the visibility reads the samples alone.
+        assert ds.rig.depth is not None
+        cam = ds.rig.camera(ds.rig.depth.camera)
+        depth = np.repeat(np.repeat(depth_samples, step, axis=0), step, axis=1)
+        depth = depth[: cam.height, : cam.width]
     vis = scene_visibility(
         ds.rig,
         [ds.objects[r.object].mesh for r in local],
         [r.T for r in local],
         depth=depth,
         agreement_tolerance=settings.depth_tolerance_mm,
-        step=max(settings.visibility_step, settings.sequence.visibility_step),
+        step=step,
     )
     out: dict[str, dict] = {}
     depth_cam = None if ds.rig.depth is None else ds.rig.depth.camera
