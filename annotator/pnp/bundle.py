@@ -149,11 +149,8 @@ def bundle_adjust(
     models = np.array(scene_T_model, dtype=np.float64, copy=True)
     shape = _Shape(len(frames), len(models), fixed_frame)
     depth_weight = corner_sigma_px / depth_sigma_mm
-    has_depth = (
-        np.isfinite(obs.depth_mm) & (obs.camera == depth_camera)
-        if depth_camera is not None
-        else np.zeros(len(obs), dtype=bool)
-    )
+    camera = -1 if depth_camera is None else depth_camera  # -1: no camera of the rig
+    has_depth = np.isfinite(obs.depth_mm) & (obs.camera == camera)
     scale = np.ones(len(obs))
     if obs_sigma_px is not None:
         scale = np.minimum(corner_sigma_px / np.maximum(obs_sigma_px, 1e-9), 1.0)
@@ -178,8 +175,7 @@ def bundle_adjust(
         projected = project(f_new, m_new)
         return (f_new, m_new, projected), huber_cost(projected.r, huber_px), step
 
-    # The threads live for this solve only: a process that forks workers later (a batch's
-    # next step) should have none.
+    # Threads for this solve only: a process that forks workers later should have none.
     with ThreadPoolExecutor(PROJECTION_THREADS) as pool:
         start = project(frames, models)
         found = levenberg_marquardt(
