@@ -113,8 +113,8 @@ def refine_quads(
     with the points far from it left out (a highlight beside the paper, a neighbour's edge),
     and the corners are where adjacent lines meet; this is done :data:`ROUNDS` times, each
     round searching across the sides the last one found. All sides of all quads are processed
-    at once. A quad is left as it is if a side is too short, too
-    weak or not straight, or if a corner moved further than :func:`_max_move` allows.
+    at once. A quad is left as it is if a side is too short, too weak or not straight, or if
+    a corner moved further than :func:`_max_move` allows.
     """
     if len(quads) == 0:
         return quads
