@@ -44,7 +44,9 @@ def code_at(rev: str) -> Iterator[dict[str, str]]:
     with tempfile.TemporaryDirectory(prefix="anchor-") as scratch:
         tree, shim = Path(scratch) / "tree", Path(scratch) / "path"
         git = ["git", "-C", str(repo), "worktree"]
-        subprocess.run([*git, "add", "--detach", str(tree), rev], check=True, capture_output=True)
+        made = subprocess.run([*git, "add", "--detach", str(tree), rev], capture_output=True)
+        if made.returncode != 0:
+            sys.exit(f"{rev}: not a commit of {repo} ({made.stderr.decode().strip()})")
         try:
             shim.mkdir()
             (shim / "annotator").symlink_to(tree / "annotator")
