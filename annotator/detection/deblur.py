@@ -50,6 +50,15 @@ def _quantised(sigma_cells: float) -> float:
     return round(max(sigma_cells, 0.02) / 0.02) * 0.02
 
 
+@lru_cache(maxsize=512)
+def _projector(cells: int, sigma_cells: float) -> tuple[np.ndarray, np.ndarray]:
+    """The model's fit ``A P`` as ``U diag(d) U^T``: ``U`` (samples x unknown cells) the
+    orthonormal columns of A's thin SVD, ``d`` the ridge's shrinkage of each."""
+    _, A, _ = _model(cells, sigma_cells)
+    U, s, _ = np.linalg.svd(A, full_matrices=False)
+    return U, s**2 / (s**2 + RIDGE)
+
+
 def _samples(gray: np.ndarray, quads: np.ndarray, xs: np.ndarray, cells: int) -> np.ndarray:
     """Bilinear samples of each quad on the grid ``xs`` x ``xs`` (cell units): (N, S, S)."""
     g = xs / cells
@@ -81,22 +90,20 @@ def estimate_blur(
         return None
     q, size = quads[order], size[order]
     xs = _model(cells, 1.0)[0]
-    Y = _samples(gray, q, xs, cells)
-    # Every blur width's model of every square in one stack of small products (a Python
-    # loop over the 16 x 30 pairs cost more than the products); each square's cost summed
-    # in its order, as before.
-    models = [_model(cells, _quantised(sigma / s)) for sigma in BLUR_GRID for s in size]
-    A = np.stack([m[1] for m in models])
-    P = np.stack([m[2] for m in models])
-    Ys = np.tile(Y, (len(BLUR_GRID), 1, 1))
-    V = P @ Ys @ P.transpose(0, 2, 1)
-    err = np.mean((A @ V @ A.transpose(0, 2, 1) - Ys) ** 2, axis=(1, 2))
-    cost = []
-    for row in err.reshape(len(BLUR_GRID), len(q)).tolist():
-        total = 0.0
-        for value in row:
-            total += value
-        cost.append(total)
+    Y = _samples(gray, q, xs, cells).astype(np.float64)  # (K, S, S)
+    # Every blur width's fit of every square at once. With the fit A P = U diag(d) U^T and
+    # Z = U^T Y U, the squared residual |A P Y P^T A^T - Y|^2 is |Y|^2 + sum over the cells
+    # (i, j) of ((d_i d_j)^2 - 2 d_i d_j) Z_ij^2: two products with the thin U (samples x
+    # cells) instead of four with the full-size model per pair.
+    sigma_cells = np.maximum(BLUR_GRID[:, None] / size[None, :], 0.02)  # (G, K)
+    keys, which = np.unique(np.round(sigma_cells / 0.02) * 0.02, return_inverse=True)
+    fits = [_projector(cells, float(k)) for k in keys]
+    U = np.stack([f[0] for f in fits])[which.reshape(sigma_cells.shape)]  # (G, K, S, C)
+    d = np.stack([f[1] for f in fits])[which.reshape(sigma_cells.shape)]  # (G, K, C)
+    Z = U.transpose(0, 1, 3, 2) @ Y[None] @ U
+    dd = d[..., :, None] * d[..., None, :]
+    err = (Y**2).sum(axis=(1, 2)) + ((dd**2 - 2 * dd) * Z**2).sum(axis=(2, 3))
+    cost = err.sum(axis=1)  # every square has as many samples: sums rank as means do
     return float(BLUR_GRID[int(np.argmin(cost))])
 
 
