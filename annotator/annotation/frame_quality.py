@@ -36,6 +36,10 @@ COARSE_LENGTHS = (0.0, 2.0, 4.0, 7.0, 11.0, 16.0)
 COARSE_ANGLES = tuple(float(a) for a in range(0, 180, 30))
 #: A marker smaller than this (px, mean side) says little about a streak.
 MIN_SIDE_PX = 14.0
+#: Nor is a marker larger than this (px, mean side) measured: its picture's cost grows with
+#: its area and it tells no more than a smaller one; a "marker" filling the image is rather
+#: a large square of the scene read as a code (such a quad took seconds).
+MAX_SIDE_PX = 120.0
 #: Markers of a frame measured (spread over the image).
 MAX_MARKERS = 6
 
@@ -65,16 +69,18 @@ def marker_picture(grid: bytes, cells: int) -> np.ndarray:
 
 
 @lru_cache(maxsize=4096)
-def _line_kernel(length: float, angle_deg: float) -> np.ndarray:
+def _line_kernel(length: float, angle_deg: float) -> tuple[np.ndarray, tuple[int, int]]:
     """A streak's kernel: a segment ``length`` px long at ``angle_deg``, sum 1 (a point
-    for 0), drawn with sub-pixel samples. Cached (read-only): every marker tries the same
-    grid of streaks, and drawing a kernel costs more than applying it."""
+    for 0), drawn with sub-pixel samples, and its anchor (x, y: the segment's middle). Only
+    the rows and columns the segment crosses are kept: OpenCV filters by Fourier transform a
+    kernel of more than 130 taps, which costs several times a direct filter of the few
+    taps a line has. Cached (read-only): every marker tries the same grid of streaks, and
+    drawing a kernel costs more than applying it."""
     half = int(np.ceil(length / 2)) + 1
     k = np.zeros((2 * half + 1, 2 * half + 1), np.float32)
     if length < 0.5:
         k[half, half] = 1.0
-        k.flags.writeable = False
-        return k
+        return _trimmed(k, half)
     a = np.radians(angle_deg)
     s = np.linspace(-length / 2, length / 2, int(np.ceil(length * 4)) + 1)
     xs, ys = half + s * np.cos(a), half + s * np.sin(a)
@@ -84,8 +90,16 @@ def _line_kernel(length: float, angle_deg: float) -> np.ndarray:
         np.add.at(k, (y0 + dy, x0 + dx), w)
     np.add.at(k, (y0 + 1, x0 + 1), fx * fy)
     k /= k.sum()
-    k.flags.writeable = False
-    return k
+    return _trimmed(k, half)
+
+
+def _trimmed(k: np.ndarray, half: int) -> tuple[np.ndarray, tuple[int, int]]:
+    """Kernel ``k`` (anchor at ``(half, half)``) without its rows and columns of zeros, and
+    where the anchor is then (read-only)."""
+    rows, cols = np.flatnonzero(k.any(axis=1)), np.flatnonzero(k.any(axis=0))
+    out = np.ascontiguousarray(k[rows[0] : rows[-1] + 1, cols[0] : cols[-1] + 1])
+    out.flags.writeable = False
+    return out, (half - int(cols[0]), half - int(rows[0]))
 
 
 def marker_streak(
@@ -93,11 +107,11 @@ def marker_streak(
 ) -> tuple[float, float] | None:
     """The streak (length px, angle degrees) that best explains one marker's pixels, its
     ``corners`` (4, 2, OpenCV order) and ``grid`` its cells as printed ((n+2, n+2), border
-    included, 0 black); None for a marker too small or too near the border of the image to
-    tell."""
+    included, 0 black); None for a marker too small, too large (:data:`MAX_SIDE_PX`) or too
+    near the border of the image to tell."""
     corners = np.asarray(corners, np.float64)
     side = float(np.mean(np.linalg.norm(corners - np.roll(corners, 1, axis=0), axis=1)))
-    if side < MIN_SIDE_PX:
+    if not MIN_SIDE_PX <= side <= MAX_SIDE_PX:
         return None
     cells = grid.shape[0]
     picture = marker_picture(np.asarray(grid, np.uint8).tobytes(), cells)
@@ -127,28 +141,41 @@ def marker_streak(
     centred = observed - observed.mean()  # gain and offset fitted in closed form
     lens = cv2.GaussianBlur(drawn, (0, 0), LENS_SIGMA_PX)
 
-    def misfit(length: float, angle: float) -> float:
-        model = cv2.filter2D(lens, -1, _line_kernel(length, angle), borderType=cv2.BORDER_REPLICATE)
-        x = np.take(model, known).astype(np.float64)
-        dx = x - x.mean()
-        gain = float(dx @ centred) / max(float(dx @ dx), 1e-12)
-        if gain <= 0:  # a picture that fits only inverted explains nothing
-            return float("inf")
-        return float(np.sum((centred - gain * dx) ** 2))
+    def misfits(trials: list[tuple[float, float]]) -> list[float]:
+        # Each streak's picture by OpenCV; the fits of all of them as one array.
+        models = np.stack(
+            [
+                np.take(
+                    cv2.filter2D(lens, -1, k, anchor=at, borderType=cv2.BORDER_REPLICATE),
+                    known,
+                )
+                for k, at in (_line_kernel(L, a) for L, a in trials)
+            ]
+        ).astype(np.float64)
+        dx = models - models.mean(axis=1, keepdims=True)
+        gain = (dx @ centred) / np.maximum(np.einsum("tk,tk->t", dx, dx), 1e-12)
+        cost = ((centred - gain[:, None] * dx) ** 2).sum(axis=1)
+        # A picture that fits only inverted explains nothing.
+        return np.where(gain > 0, cost, np.inf).tolist()
 
     # No streak has no direction: its misfit is worked out once for every angle.
-    still = misfit(0.0, 0.0)
+    coarse = [(L, a) for L in COARSE_LENGTHS for a in COARSE_ANGLES if L > 0]
+    costs = dict(zip(coarse, misfits(coarse)))
+    still = misfits([(0.0, 0.0)])[0]
     best = min(
-        (misfit(L, a) if L > 0 else still, L, a) for L in COARSE_LENGTHS for a in COARSE_ANGLES
+        (costs[L, a] if L > 0 else still, L, a) for L in COARSE_LENGTHS for a in COARSE_ANGLES
     )
     _, L0, a0 = best
     if L0 > 0:  # finer between the coarse grid's neighbours
         k = COARSE_LENGTHS.index(L0)
         lo = COARSE_LENGTHS[k - 1]
         hi = COARSE_LENGTHS[k + 1] if k + 1 < len(COARSE_LENGTHS) else 1.25 * L0
-        for L in np.linspace(lo + (L0 - lo) / 3, hi - (hi - L0) / 3, 5):
-            for a in (a0 - 15, a0 - 7.5, a0, a0 + 7.5, a0 + 15):
-                best = min(best, (misfit(float(L), a), float(L), a))
+        fine = [
+            (float(L), a)
+            for L in np.linspace(lo + (L0 - lo) / 3, hi - (hi - L0) / 3, 5)
+            for a in (a0 - 15, a0 - 7.5, a0, a0 + 7.5, a0 + 15)
+        ]
+        best = min(best, *((m, L, a) for m, (L, a) in zip(misfits(fine), fine)))
     _, L, a = best
     return float(L), float(a % 180.0)
 
@@ -165,7 +192,7 @@ def frame_streak(
     sides = [
         float(np.mean(np.linalg.norm(c - np.roll(c, 1, axis=0), axis=1))) for _, c, _ in markers
     ]
-    order = [k for k in np.argsort(sides)[::-1] if sides[k] >= MIN_SIDE_PX]
+    order = [k for k in np.argsort(sides)[::-1] if MIN_SIDE_PX <= sides[k] <= MAX_SIDE_PX]
     centres = np.array([c.mean(axis=0) for _, c, _ in markers]).reshape(-1, 2)
     chosen: list[int] = []
     while order and len(chosen) < MAX_MARKERS:
