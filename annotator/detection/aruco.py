@@ -127,7 +127,9 @@ class MarkerDetector:
         found, _, rejected = self._detector.detectMarkers(gray)
         candidates = _candidates(found, rejected)
         n = self._codebook.marker_size
-        blur = estimate_blur(gray, candidates, n + 2) if len(candidates) else None
+        # The blur model samples the image as float, twice: converted once.
+        grayf = gray.astype(np.float32)
+        blur = estimate_blur(grayf, candidates, n + 2) if len(candidates) else None
         if blur is not None and blur > SECOND_PASS_BLUR_PX:
             # Blurred corners are round: a looser polygon fit finds squares the first missed.
             more = _candidates(*self._blurred_detector.detectMarkers(gray)[::2])
@@ -138,7 +140,7 @@ class MarkerDetector:
         rest = candidates[~identified]
         sides = np.linalg.norm(rest - np.roll(rest, 1, axis=1), axis=2).min(axis=1)
         rest = rest[sides >= SOFT_MIN_PX_PER_CELL * (n + 2)] if len(rest) else rest
-        soft = read_soft_bits(gray, rest, n, blur if blur is not None else 1.0)
+        soft = read_soft_bits(grayf, rest, n, blur if blur is not None else 1.0)
         # An exact code with a clean border is a soft identification; the others stay unread.
         codes = pack_bits(soft.bits)
         soft_ids, rot = self._codebook.lookup_exact(codes)

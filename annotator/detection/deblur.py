@@ -60,12 +60,13 @@ def _projector(cells: int, sigma_cells: float) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _samples(gray: np.ndarray, quads: np.ndarray, xs: np.ndarray, cells: int) -> np.ndarray:
-    """Bilinear samples of each quad on the grid ``xs`` x ``xs`` (cell units): (N, S, S)."""
+    """Bilinear samples of each quad on the grid ``xs`` x ``xs`` (cell units): (N, S, S),
+    from an 8-bit image or the same as float32 (not converted again)."""
     g = xs / cells
     uv = np.stack(np.meshgrid(g, g), axis=-1).reshape(-1, 2)  # (u: column, v: row)
     pts = apply_homographies(unit_square_homographies(quads), uv).astype(np.float32)
     vals = cv2.remap(
-        gray.astype(np.float32),
+        np.asarray(gray, np.float32),
         pts[..., 0],
         pts[..., 1],
         cv2.INTER_LINEAR,
@@ -82,7 +83,8 @@ def estimate_blur(
     gray: np.ndarray, quads: np.ndarray, cells: int, *, count: int = 30
 ) -> float | None:
     """The Gaussian blur (px) that best explains the ``count`` largest candidate squares
-    (None without candidates of at least 2 px per cell)."""
+    of an 8-bit image ``gray`` (or the same as float32) (None without candidates of at least
+    2 px per cell)."""
     size = _cell_px(quads, cells)
     order = np.argsort(-size)[:count]
     order = order[size[order] >= 2.0]
@@ -125,7 +127,8 @@ class SoftBits:
 def read_soft_bits(
     gray: np.ndarray, quads: np.ndarray, marker_size: int, sigma_px: float
 ) -> SoftBits:
-    """Read (N, 4, 2) quads of markers with ``marker_size`` inner bits per side."""
+    """Read (N, 4, 2) quads of markers with ``marker_size`` inner bits per side in an 8-bit
+    image ``gray`` (or the same as float32)."""
     cells = marker_size + 2
     n = len(quads)
     bits = np.zeros((n, marker_size, marker_size), bool)
