@@ -123,12 +123,9 @@ def identify(
     pts = apply_homographies(unit_square_homographies(quads), grid)
     h, w = gray.shape
     xy = np.rint(pts.reshape(-1, 2)).astype(int)
-    values = (
-        gray[np.clip(xy[:, 1], 0, h - 1), np.clip(xy[:, 0], 0, w - 1)]
-        .astype(np.float32)
-        .reshape(len(quads), -1)
-    )
-    white = values > _otsu_thresholds(values)[:, None]
+    raw = gray[np.clip(xy[:, 1], 0, h - 1), np.clip(xy[:, 0], 0, w - 1)].reshape(len(quads), -1)
+    values = raw.astype(np.float32)
+    white = values > _otsu_thresholds(raw)[:, None]
     low = values.std(axis=1) < min_std  # no contrast: OpenCV calls every cell by the mean
     white[low] = (values[low].mean(axis=1) > 127)[:, None]
     frac = white.reshape(-1, cells, PIXELS_PER_CELL, cells, PIXELS_PER_CELL).mean(axis=(2, 4))
@@ -169,8 +166,10 @@ def one_per_marker(
 
 
 def _otsu_thresholds(values: np.ndarray) -> np.ndarray:
-    """Otsu's threshold of each row: the split maximising the between-class variance."""
-    v = np.sort(values, axis=1)
+    """Otsu's threshold of each row: the split maximising the between-class variance
+    (float32). The rows are sorted as stored: numpy sorts 8-bit values stably by radix, several
+    times quicker than their float copies, in the same order."""
+    v = np.sort(values, axis=1, kind="stable").astype(np.float32)
     m = v.shape[1]
     c = np.cumsum(v, axis=1)
     k = np.arange(1, m)
