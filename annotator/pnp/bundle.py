@@ -23,9 +23,10 @@ what is left to solve is the size of the instances alone, whatever the number of
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from concurrent.futures import Executor, ThreadPoolExecutor
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
+from typing import TypeVar
 
 import cv2
 import numpy as np
@@ -37,6 +38,9 @@ from annotator.geometry.robust import huber_cost, huber_weights, robust_sigma
 from annotator.noise import NOISE
 
 __all__ = ["BundleObservations", "BundleResult", "bundle_adjust"]
+
+_I = TypeVar("_I")
+_T = TypeVar("_T")
 
 #: Eigenvalues of the normal matrix scaled to a unit diagonal below this are directions the
 #: observations do not fix.
@@ -164,8 +168,8 @@ def bundle_adjust(
     Step = tuple[np.ndarray, np.ndarray]
 
     def normal(state: State) -> _Normal:
-        lin = _weighed(_jacobian(obs, state[2]), scale)
-        return _normal(lin, obs, huber_weights(lin.r, huber_px), shape)
+        lin = _jacobian(obs, state[2], scale, pool)
+        return _normal(lin, groups, huber_weights(lin.r, huber_px), shape, pool)
 
     def trial(state: State, normal: _Normal, damping: float) -> tuple[State, float, Step] | None:
         step = _solve(normal, damping)
@@ -176,7 +180,8 @@ def bundle_adjust(
         return (f_new, m_new, projected), huber_cost(projected.r, huber_px), step
 
     # Threads for this solve only: a process that forks workers later should have none.
-    with ThreadPoolExecutor(PROJECTION_THREADS) as pool:
+    with ThreadPoolExecutor(SOLVE_THREADS) as pool:
+        groups = _Groups.of(obs, shape, has_depth)
         start = project(frames, models)
         found = levenberg_marquardt(
             (frames, models, start),
@@ -187,19 +192,17 @@ def bundle_adjust(
             small=_converged,
             max_iterations=max_iterations,
         )
-    (frames, models, projected), iterations = found.state, found.iterations
-    return _result(
-        frames,
-        models,
-        projected,
-        obs,
-        shape,
-        scale,
-        iterations,
-        corner_sigma_px=corner_sigma_px,
-        huber_px=huber_px,
-        covariance=covariance,
-    )
+        return _result(
+            found.state,
+            groups,
+            shape,
+            scale,
+            found.iterations,
+            corner_sigma_px=corner_sigma_px,
+            huber_px=huber_px,
+            covariance=covariance,
+            pool=pool,
+        )
 
 
 def _converged(cost: float, new: float, step: tuple[np.ndarray, np.ndarray]) -> bool:
@@ -209,10 +212,8 @@ def _converged(cost: float, new: float, step: tuple[np.ndarray, np.ndarray]) -> 
 
 
 def _result(
-    frames: np.ndarray,
-    models: np.ndarray,
-    projected: _Projection,
-    obs: BundleObservations,
+    state: tuple[np.ndarray, np.ndarray, _Projection],
+    groups: _Groups,
     shape: _Shape,
     scale: np.ndarray,
     iterations: int,
@@ -220,9 +221,13 @@ def _result(
     corner_sigma_px: float,
     huber_px: float,
     covariance: bool,
+    pool: Executor | None = None,
 ) -> BundleResult:
-    """The solved poses with each observation's residual, the corner noise the inliers show
-    and (``covariance``) the poses' covariances, from their projection ``projected``."""
+    """The solved poses ``state`` (frames, instances, their projection) with each
+    observation's residual, the corner noise the inliers show and (``covariance``) the
+    poses' covariances."""
+    frames, models, projected = state
+    obs = groups.obs
     corners = projected.r[: 8 * len(obs)].reshape(-1, 4, 2)
     per_obs = np.sqrt(np.mean(np.sum(corners**2, axis=-1), axis=-1)) / scale
     # The corner noise as the inliers show it (median absolute deviation, robust to the
@@ -235,8 +240,8 @@ def _result(
         return BundleResult(frames, models, zero_f, zero_m, per_obs, sigma, iterations)
     inliers = np.repeat(per_obs * scale < 4 * max(sigma, huber_px / 3), 8).astype(float)
     weights = np.concatenate([inliers, np.ones(projected.r.size - inliers.size)])
-    lin = _weighed(_jacobian(obs, projected), scale)
-    cov_f, cov_m, cross = _covariance(_normal(lin, obs, weights, shape), sigma)
+    lin = _jacobian(obs, projected, scale, pool)
+    cov_f, cov_m, cross = _covariance(_normal(lin, groups, weights, shape, pool), sigma)
     return BundleResult(frames, models, cov_f, cov_m, per_obs, sigma, iterations, cross)
 
 
@@ -264,22 +269,51 @@ class _Linear:
     jf_depth: np.ndarray  # (m, 6)
 
 
+#: One piece of a projection: its observations (rows of the whole), and per camera those
+#: of its observations (indices into the piece), d(pixel)/d(camera point) ``G`` and d(camera
+#: point)/d(scene point) ``C``.
+_Piece = tuple[slice, list[tuple[np.ndarray, np.ndarray, np.ndarray]]]
+
+
 @dataclass(frozen=True)
 class _Projection:
     """The residuals at some poses (as :class:`_Linear` holds them, each observation's
     corner rows weighed), and what their Jacobian is made of (:func:`_jacobian`): the
     corners turned into the scene frame (``y``) and about the frame's centre (``d``), per
-    camera its observations (``sel``), d(pixel)/d(camera point) ``G`` and d(camera
-    point)/d(scene point) ``C``, and d(depth)/d(scene point) ``Hz`` (its residuals are
-    multiplied by ``depth_weight``)."""
+    piece of the observations its cameras' derivatives (:data:`_Piece`), and d(depth)/d(scene
+    point) ``Hz`` (its residuals are multiplied by ``depth_weight``)."""
 
     r: np.ndarray
     y: np.ndarray  # (n, 4, 3)
     d: np.ndarray  # (n, 4, 3)
-    per_camera: list[tuple[np.ndarray, np.ndarray, np.ndarray]]  # (sel, G, C)
+    pieces: list[_Piece]
     Hz: np.ndarray  # (n, 4, 3)
     depth: np.ndarray  # (m,) the observations with a depth residual
     depth_weight: float
+
+
+#: Threads of a solve: numpy's loops over many observations and OpenCV's projection let go
+#: of the interpreter, and a sequence's solve runs alone in its process, with the batch's
+#: workers idle meanwhile.
+SOLVE_THREADS = 2
+#: Fewer observations than this are worked on in one piece.
+_SPLIT_OBSERVATIONS = 1024
+
+
+def _rows(n: int, pool: Executor | None) -> list[slice]:
+    """The observations ``0 .. n`` in one piece per thread of ``pool`` (one piece: no pool,
+    or too few). Every number made per observation is the same whatever the pieces."""
+    if pool is None or n < _SPLIT_OBSERVATIONS:
+        return [slice(0, n)]
+    bounds = np.linspace(0, n, SOLVE_THREADS + 1).astype(int)
+    return [slice(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:])]
+
+
+def _each(pool: Executor | None, work: Callable[[_I], _T], items: Sequence[_I]) -> list[_T]:
+    """``work`` on every item, on ``pool``'s threads when there are several."""
+    if pool is None or len(items) == 1:
+        return [work(p) for p in items]
+    return list(pool.map(work, items))
 
 
 def _project(
@@ -293,34 +327,42 @@ def _project(
     pool: Executor | None = None,
 ) -> _Projection:
     """The residuals at these poses, ``scale`` weighing each observation's corner rows (as
-    :func:`_weighed` does), and what their Jacobian is made of (:class:`_Projection`);
-    ``pool``: threads that share the projection (:func:`_project_points`)."""
+    :func:`_jacobian` does), and what their Jacobian is made of (:class:`_Projection`);
+    ``pool``: threads that share the observations (:func:`_rows`)."""
     n = len(obs)
-    Rm = models[obs.instance, :3, :3]
-    tm = models[obs.instance, :3, 3]
-    y = np.einsum("nij,nkj->nki", Rm, obs.model_corners)  # R_i X, (n, 4, 3)
-    P = y + tm[:, None, :]  # scene frame
-    Rf = frames[obs.frame, :3, :3]
-    cf = frames[obs.frame, :3, 3]
-    d = P - cf[:, None, :]
-    Q = np.einsum("nji,nkj->nki", Rf, d)  # rig frame: R_f^T (P - c_f)
+    y, d, Hz = np.empty((n, 4, 3)), np.empty((n, 4, 3)), np.empty((n, 4, 3))
     uv = np.empty((n, 4, 2))
     z = np.empty((n, 4))
-    Hz = np.empty((n, 4, 3))
-    per_camera = []
-    for j, cam in enumerate(cameras):
-        sel = np.flatnonzero(obs.camera == j)
-        if sel.size == 0:
-            continue
-        M = cam.cam_T_rig
-        pc = Q[sel] @ M[:3, :3].T + M[:3, 3]
-        pts, jac = _project_points(pc.reshape(-1, 3), cam, pool)
-        uv[sel] = pts.reshape(-1, 4, 2)
-        G = jac[:, 3:6].reshape(-1, 4, 2, 3)  # d(pixel)/d(camera point)
-        C = M[:3, :3] @ np.swapaxes(Rf[sel], 1, 2)  # d(camera point)/d(scene point)
-        per_camera.append((sel, G, C))
-        z[sel] = pc[..., 2]
-        Hz[sel] = np.broadcast_to(C[:, None, 2, :], (sel.size, 4, 3))
+    zero = np.zeros(3)
+
+    def piece(rows: slice) -> _Piece:
+        Rm = models[obs.instance[rows], :3, :3]
+        tm = models[obs.instance[rows], :3, 3]
+        y[rows] = np.einsum("nij,nkj->nki", Rm, obs.model_corners[rows])  # R_i X, (n, 4, 3)
+        P = y[rows] + tm[:, None, :]  # scene frame
+        Rf = frames[obs.frame[rows], :3, :3]
+        cf = frames[obs.frame[rows], :3, 3]
+        d[rows] = P - cf[:, None, :]
+        Q = np.einsum("nji,nkj->nki", Rf, d[rows])  # rig frame: R_f^T (P - c_f)
+        uv_p, z_p, Hz_p = uv[rows], z[rows], Hz[rows]
+        per_camera = []
+        camera = obs.camera[rows]
+        for j, cam in enumerate(cameras):
+            sel = np.flatnonzero(camera == j)
+            if sel.size == 0:
+                continue
+            M = cam.cam_T_rig
+            pc = Q[sel] @ M[:3, :3].T + M[:3, 3]
+            pts, jac = cv2.projectPoints(pc.reshape(-1, 3), zero, zero, cam.K, cam.dist)
+            uv_p[sel] = pts.reshape(-1, 4, 2)
+            G = jac[:, 3:6].reshape(-1, 4, 2, 3)  # d(pixel)/d(camera point)
+            C = M[:3, :3] @ np.swapaxes(Rf[sel], 1, 2)  # d(camera point)/d(scene point)
+            per_camera.append((sel, G, C))
+            z_p[sel] = pc[..., 2]
+            Hz_p[sel] = np.broadcast_to(C[:, None, 2, :], (sel.size, 4, 3))
+        return rows, per_camera
+
+    pieces = _each(pool, piece, _rows(n, pool))
     r = (uv - obs.image_corners).reshape(-1)
     sel = np.flatnonzero(has_depth)
     if sel.size:
@@ -328,57 +370,42 @@ def _project(
         r = np.concatenate([r, depth_weight * (z[sel].mean(axis=1) - obs.depth_mm[sel])])
     if not np.all(scale == 1.0):
         r[: 8 * n] *= np.repeat(scale, 8)
-    return _Projection(r, y, d, per_camera, Hz, sel, depth_weight)
+    return _Projection(r, y, d, pieces, Hz, sel, depth_weight)
 
 
-#: Threads of a solve's projections: OpenCV's projection lets go of the interpreter, and a
-#: sequence's solve runs alone in its process, with the batch's workers idle meanwhile.
-PROJECTION_THREADS = 2
-#: Fewer points than this are projected in one piece.
-_SPLIT_POINTS = 4096
-
-
-def _project_points(
-    points: np.ndarray, cam: Camera, pool: Executor | None
-) -> tuple[np.ndarray, np.ndarray]:
-    """``cv2.projectPoints`` of (N, 3) camera points: the pixels (N, 1, 2) and the Jacobian
-    (2N, ...) by point, in pieces on ``pool``'s threads (each point's own arithmetic: the
-    same numbers as in one piece)."""
-    zero = np.zeros(3)
-    if pool is None or len(points) < _SPLIT_POINTS:
-        return cv2.projectPoints(points, zero, zero, cam.K, cam.dist)
-    pieces = np.array_split(points, PROJECTION_THREADS)
-    done = list(pool.map(lambda p: cv2.projectPoints(p, zero, zero, cam.K, cam.dist), pieces))
-    return np.concatenate([d[0] for d in done]), np.concatenate([d[1] for d in done])
-
-
-def _jacobian(obs: BundleObservations, p: _Projection) -> _Linear:
-    """Residuals and Jacobian blocks (:class:`_Linear`, not weighed) at a projection."""
+def _jacobian(
+    obs: BundleObservations, p: _Projection, scale: np.ndarray, pool: Executor | None = None
+) -> _Linear:
+    """Residuals and Jacobian blocks (:class:`_Linear`) at a projection, each observation's
+    corner rows of the Jacobian multiplied by ``scale`` (its weight's square root, as its
+    residuals are, :func:`_project`); the depth rows as they are. By the projection's
+    pieces, on ``pool``'s threads."""
     n = len(obs)
-    H = np.empty((n, 4, 2, 3))  # d(pixel)/d(scene point), through the frame's rotation
-    for sel, G, C in p.per_camera:
-        H[sel] = np.einsum("nkab,nbc->nkac", G, C)
-    y, d = p.y, p.d
-    # Instance (w, v): dP = w x y + v;  frame (w, v): dQ = R_f^T ([d]x w - v).
-    jm = np.concatenate([np.cross(y[:, :, None, :], H), H], axis=-1).reshape(n, 8, 6)
-    jf = np.concatenate([np.cross(H, d[:, :, None, :]), -H], axis=-1).reshape(n, 8, 6)
+    jm, jf = np.empty((n, 8, 6)), np.empty((n, 8, 6))
+    weighed = not np.all(scale == 1.0)
+
+    def piece(at: int) -> None:
+        rows, per_camera = p.pieces[at]
+        y, d = p.y[rows], p.d[rows]
+        H = np.empty((len(y), 4, 2, 3))  # d(pixel)/d(scene point), through the frame's rotation
+        for sel, G, C in per_camera:
+            H[sel] = np.einsum("nkab,nbc->nkac", G, C)
+        # Instance (w, v): dP = w x y + v;  frame (w, v): dQ = R_f^T ([d]x w - v).
+        m = np.concatenate([np.cross(y[:, :, None, :], H), H], axis=-1).reshape(-1, 8, 6)
+        f = np.concatenate([np.cross(H, d[:, :, None, :]), -H], axis=-1).reshape(-1, 8, 6)
+        if weighed:
+            m, f = m * scale[rows, None, None], f * scale[rows, None, None]
+        jm[rows], jf[rows] = m, f
+
+    _each(pool, piece, range(len(p.pieces)))
     sel = p.depth
     jm_d = jf_d = np.zeros((0, 6))
     if sel.size:
         hz = p.depth_weight * p.Hz[sel].mean(axis=1)  # (m, 3)
-        yc, dc = y[sel].mean(axis=1), d[sel].mean(axis=1)
+        yc, dc = p.y[sel].mean(axis=1), p.d[sel].mean(axis=1)
         jm_d = np.concatenate([np.cross(yc, hz), hz], axis=-1)
         jf_d = np.concatenate([np.cross(hz, dc), -hz], axis=-1)
     return _Linear(p.r, jm, jf, sel, jm_d, jf_d)
-
-
-def _weighed(lin: _Linear, scale: np.ndarray) -> _Linear:
-    """``lin`` (its residuals weighed already, :func:`_project`) with each observation's
-    corner rows of the Jacobian multiplied by ``scale`` (its weight's square root); the
-    depth rows as they are."""
-    if np.all(scale == 1.0):
-        return lin
-    return replace(lin, jm=lin.jm * scale[:, None, None], jf=lin.jf * scale[:, None, None])
 
 
 @dataclass(frozen=True)
@@ -393,45 +420,102 @@ class _Normal:
     fixed: int
 
 
-def _normal(lin: _Linear, obs: BundleObservations, w: np.ndarray, shape: _Shape) -> _Normal:
-    """``J^T W J`` and ``J^T W r`` by blocks, ``w`` the weight of every residual."""
-    n = len(obs)
+@dataclass(frozen=True)
+class _Sum:
+    """Sums by an index (:meth:`of`): ``out[k] = sum of values[index == k]``, for
+    ``k < size``, by sorted sums (many times faster than ``np.add.at``); the sort made once
+    for every solve's iteration."""
+
+    order: np.ndarray
+    starts: np.ndarray
+    keys: np.ndarray
+    size: int
+
+    @classmethod
+    def of(cls, index: np.ndarray, size: int) -> _Sum:
+        order = np.argsort(index, kind="stable")
+        sorted_index = index[order]
+        starts = np.flatnonzero(np.r_[True, sorted_index[1:] != sorted_index[:-1]])
+        if len(index) == 0:
+            starts = starts[:0]
+        return cls(order, starts, sorted_index[starts], size)
+
+    def __call__(self, values: np.ndarray) -> np.ndarray:
+        out = np.zeros((self.size, *values.shape[1:]))
+        if len(self.order) == 0:
+            return out
+        out[self.keys] = np.add.reduceat(values[self.order], self.starts, axis=0)
+        return out
+
+
+@dataclass(frozen=True)
+class _Groups:
+    """The observations, and their sums by instance, frame and frame-instance pair (of all
+    of them, and of those with a depth residual)."""
+
+    obs: BundleObservations
+    instance: _Sum
+    frame: _Sum
+    pair: _Sum
+    depth_instance: _Sum
+    depth_frame: _Sum
+    depth_pair: _Sum
+
+    @classmethod
+    def of(cls, obs: BundleObservations, shape: _Shape, has_depth: np.ndarray) -> _Groups:
+        pair = obs.frame * shape.models + obs.instance
+        k = np.flatnonzero(has_depth)
+        n_pairs = shape.frames * shape.models
+        return cls(
+            obs,
+            _Sum.of(obs.instance, shape.models),
+            _Sum.of(obs.frame, shape.frames),
+            _Sum.of(pair, n_pairs),
+            _Sum.of(obs.instance[k], shape.models),
+            _Sum.of(obs.frame[k], shape.frames),
+            _Sum.of(pair[k], n_pairs),
+        )
+
+
+def _normal(
+    lin: _Linear, groups: _Groups, w: np.ndarray, shape: _Shape, pool: Executor | None = None
+) -> _Normal:
+    """``J^T W J`` and ``J^T W r`` by blocks, ``w`` the weight of every residual; each
+    observation's products by pieces and the sums side by side, on ``pool``'s threads."""
+    n = len(groups.obs)
     wc, rc = w[: 8 * n].reshape(n, 8), lin.r[: 8 * n].reshape(n, 8)
-    wm = np.swapaxes(lin.jm * wc[..., None], 1, 2)  # (n, 6, 8)
-    wf = np.swapaxes(lin.jf * wc[..., None], 1, 2)
-    pair = obs.frame * shape.models + obs.instance
-    amm = _sum_by(obs.instance, wm @ lin.jm, shape.models)
-    aff = _sum_by(obs.frame, wf @ lin.jf, shape.frames)
-    afm = _sum_by(pair, wf @ lin.jm, shape.frames * shape.models)
-    gm = _sum_by(obs.instance, (wm @ rc[..., None])[..., 0], shape.models)
-    gf = _sum_by(obs.frame, (wf @ rc[..., None])[..., 0], shape.frames)
+    mm, ff, fm = np.empty((n, 6, 6)), np.empty((n, 6, 6)), np.empty((n, 6, 6))
+    rm, rf = np.empty((n, 6)), np.empty((n, 6))
+
+    def products(rows: slice) -> None:
+        jm, jf = lin.jm[rows], lin.jf[rows]
+        wm = np.swapaxes(jm * wc[rows, :, None], 1, 2)  # (n, 6, 8)
+        wf = np.swapaxes(jf * wc[rows, :, None], 1, 2)
+        mm[rows], ff[rows], fm[rows] = wm @ jm, wf @ jf, wf @ jm
+        rm[rows], rf[rows] = (wm @ rc[rows, :, None])[..., 0], (wf @ rc[rows, :, None])[..., 0]
+
+    _each(pool, products, _rows(n, pool))
+    sums = [
+        (groups.instance, mm),
+        (groups.frame, ff),
+        (groups.pair, fm),
+        (groups.instance, rm),
+        (groups.frame, rf),
+    ]
+    amm, aff, afm, gm, gf = _each(pool, lambda s: s[0](s[1]), sums)
     if lin.depth.size:
-        k = lin.depth
         wd, rd = w[8 * n :], lin.r[8 * n :]
         jm, jf = lin.jm_depth, lin.jf_depth
         wjm, wjf = jm * wd[:, None], jf * wd[:, None]
-        amm += _sum_by(obs.instance[k], wjm[:, :, None] * jm[:, None, :], shape.models)
-        aff += _sum_by(obs.frame[k], wjf[:, :, None] * jf[:, None, :], shape.frames)
-        afm += _sum_by(pair[k], wjf[:, :, None] * jm[:, None, :], shape.frames * shape.models)
-        gm += _sum_by(obs.instance[k], wjm * rd[:, None], shape.models)
-        gf += _sum_by(obs.frame[k], wjf * rd[:, None], shape.frames)
+        amm += groups.depth_instance(wjm[:, :, None] * jm[:, None, :])
+        aff += groups.depth_frame(wjf[:, :, None] * jf[:, None, :])
+        afm += groups.depth_pair(wjf[:, :, None] * jm[:, None, :])
+        gm += groups.depth_instance(wjm * rd[:, None])
+        gf += groups.depth_frame(wjf * rd[:, None])
     afm = afm.reshape(shape.frames, shape.models, 6, 6)
     f = shape.fixed
     aff[f], afm[f], gf[f] = 0.0, 0.0, 0.0
     return _Normal(amm, aff, afm, gm, gf, f)
-
-
-def _sum_by(index: np.ndarray, values: np.ndarray, size: int) -> np.ndarray:
-    """``out[k] = sum of values[index == k]``, for ``k < size`` (sorted sums: many times
-    faster than ``np.add.at``)."""
-    out = np.zeros((size, *values.shape[1:]))
-    if len(index) == 0:
-        return out
-    order = np.argsort(index, kind="stable")
-    sorted_index = index[order]
-    starts = np.flatnonzero(np.r_[True, sorted_index[1:] != sorted_index[:-1]])
-    out[sorted_index[starts]] = np.add.reduceat(values[order], starts, axis=0)
-    return out
 
 
 def _frame_inverses(aff: np.ndarray, fixed: int) -> tuple[np.ndarray, np.ndarray]:
