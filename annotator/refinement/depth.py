@@ -46,7 +46,14 @@ from annotator.noise import NOISE, NoiseModel
 from annotator.pnp.multiview import Observation, reprojection_errors, residuals_jacobian
 from annotator.pnp.sites import site_jacobian
 from annotator.refinement.nearest import TrackedNearest
-from annotator.rendering.raycast import Hits, PlacedMesh, cast_alone, clip_region, hit_bbox
+from annotator.rendering.raycast import (
+    Hits,
+    PlacedMesh,
+    cast_alone,
+    clip_region,
+    hit_bbox,
+    reachable,
+)
 
 #: The model's surface samples are about this far apart (mm): well below the depth's own
 #: spacing at the working distance.
@@ -271,7 +278,9 @@ def _cast_over(
     """The depth of ``placed`` (in the reference frame) alone along each ray of ``rays``
     (the grid of the camera's ``region``) where ``need`` holds (everywhere: None); inf
     elsewhere and on a miss. The rays of a ``known`` cast of it at this pose are not cast
-    again: its samples' hits are taken, and its rectangle holds every sample that can hit."""
+    again: its samples' hits are taken, and its rectangle holds every sample that can hit;
+    nor are the rays that cannot reach it (:func:`reachable`: a part's rectangle at every
+    pixel holds many)."""
     cam_T_model = camera.cam_T_rig @ placed.cam_T_model
     depth = np.full(rays.shape[:2], np.inf, np.float32)
     todo = np.ones(rays.shape[:2], bool) if need is None else need.copy()
@@ -293,7 +302,8 @@ def _cast_over(
                 ]
         depth[on] = np.where(todo[on], seen, np.inf)
         todo[on] = False
-    at = np.flatnonzero(todo)
+    can = reachable(camera, placed.mesh, cam_T_model, region)
+    at = np.flatnonzero(todo if can is None else todo & can)
     if len(at):
         # By flat index: a boolean mask gathers from a (rows, columns, 3) grid several
         # times slower (the copy of the window is cheap beside either).
