@@ -45,10 +45,12 @@ class TrackedNearest:
         dist = np.full(len(points), np.inf)
         index = np.full(len(points), len(self.samples), np.intp)
         if redo.any():
-            q = points[redo]
+            # Rows by index, not by mask: several times faster for (N, 3) arrays.
+            rows = np.flatnonzero(redo)
+            q = np.take(points, rows, axis=0)
             d, j = self.tree.query(q, k=2, distance_upper_bound=gate)
             self.searched += len(q)
-            self.at[redo] = q
+            self.at[rows] = q
             self.index[redo] = j[:, 0]
             # Another sample is at least d2 away, or at least the gate: none was within it.
             gap = np.minimum(d[:, 1], gate) - d[:, 0]
@@ -59,7 +61,8 @@ class TrackedNearest:
         kept = ~redo & ~none
         if kept.any():
             j = self.index[kept]
-            d = norms(points[kept] - self.samples[j])
+            moved_to = np.take(points, np.flatnonzero(kept), axis=0)
+            d = norms(moved_to - np.take(self.samples, j, axis=0))
             inside = d < gate
             dist[kept] = np.where(inside, d, np.inf)
             index[kept] = np.where(inside, j, len(self.samples))

@@ -428,6 +428,44 @@ def hit_bbox(
     return clip_region((x0 - margin, y0 - margin, x1 + margin, y1 + margin), width, height)
 
 
+def reachable(
+    camera: Camera, mesh: Mesh, cam_T_model: np.ndarray, box: Rect, *, step: int = 1
+) -> np.ndarray | None:
+    """Of the rays of ``box`` (a rectangle ``(x0, y0, x1, y1)`` of the camera's grid of every
+    ``step``-th pixel, sample indices, as :func:`hit_bbox` gives it), those that can hit the
+    placed mesh: a boolean mask of the box's shape; None when any may (a vertex behind the
+    camera).
+
+    As in :func:`hit_bbox`, a ray that hits has undistorted image coordinates within the
+    range of the mesh's projected vertices, and so along every direction of the image: each
+    row of rays keeps those whose x lies within the bounds that a few directions' ranges
+    set across the row's range of y. The rays left out (beside a turned or slanted part, the
+    corners of its rectangle) would each cost a cast to miss.
+    """
+    cam = mesh.vertices @ cam_T_model[:3, :3].T + cam_T_model[:3, 3]
+    if np.any(cam[:, 2] <= 0):
+        return None
+    along = (cam[:, :2] / cam[:, 2:]) @ _DIRECTIONS.T  # (V, K)
+    low, high = along.min(axis=0) - _HIT_SLACK, along.max(axis=0) + _HIT_SLACK
+    x0, y0, x1, y1 = box
+    row_lo, row_hi = _ray_ranges(camera, step)[:2]
+    # A ray at (x, y) of a row with y in [lo, hi]: c x + s y within [low, high] for every
+    # direction (c, s), c > 0, bounds x whatever its y.
+    c, s = _DIRECTIONS[:, 0], _DIRECTIONS[:, 1]
+    sy_lo, sy_hi = s * row_lo[y0:y1, None], s * row_hi[y0:y1, None]  # (R, K)
+    left = ((low - np.maximum(sy_lo, sy_hi)) / c).max(axis=1) - _HIT_SLACK
+    right = ((high - np.minimum(sy_lo, sy_hi)) / c).min(axis=1) + _HIT_SLACK
+    x = camera.pixel_rays(step)[y0:y1, x0:x1, 0]
+    return (x >= left[:, None]) & (x <= right[:, None])
+
+
+#: :func:`reachable`'s directions (c, s) of the image plane, c > 0 (x's own among them; y's
+#: range is :func:`hit_bbox`'s rows).
+_DIRECTIONS = np.array(
+    [[np.cos(a), np.sin(a)] for a in np.radians([-67.5, -45.0, -22.5, 0.0, 22.5, 45.0, 67.5])]
+)
+
+
 def _vertices_bbox(
     camera: Camera, mesh: Mesh, cam_T_model: np.ndarray, *, margin: int = 1
 ) -> tuple[int, int, int, int] | None:
