@@ -33,7 +33,7 @@ from concurrent.futures.process import BrokenProcessPool
 from typing import Any
 
 from annotator.errors import UserError
-from annotator.runner import threads
+from annotator.runner import heap, threads
 from annotator.runner.report import BatchReport, describe_failure, progress_bar, record
 from annotator.runner.threads import one_thread_meanwhile
 
@@ -89,6 +89,7 @@ def run_local(
     worker, and the one whose worker dies again is reported failed (:data:`WORKER_DIED`);
     the others go on as before."""
     report = BatchReport()
+    heap.keep_freed_memory()  # here, and in the workers forked from here
     if workers <= 1 or len(scene_ids) <= 1:
         bar = progress_bar(len(scene_ids), desc, quiet)
         try:
@@ -217,6 +218,7 @@ def _worker_start(parent: int, one_thread: bool, started: Any) -> None:
     threading.Thread(target=_exit_with_parent, args=(parent,), daemon=True).start()
     if one_thread:
         threads.one_thread()
+        heap.keep_freed_memory()
 
 
 def _exit_with_parent(parent: int) -> None:

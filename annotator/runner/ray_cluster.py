@@ -55,6 +55,7 @@ from annotator.runner.files import (
     relative,
     write_outputs,
 )
+from annotator.runner.heap import keep_freed_memory
 from annotator.runner.job import RAY_WAIT_S
 from annotator.runner.report import BatchReport, describe_failure, progress_bar
 from annotator.runner.threads import one_thread
@@ -440,6 +441,7 @@ def _replica(digest: str, box: list[Any]) -> tuple[Path, frozenset[str]]:
 
         if not _REPLICAS:
             one_thread()  # as in a local worker: same speed per core, same numbers
+            keep_freed_memory()
         files = ray.get(box[0])
         root = _base() / digest[:16]
         shutil.rmtree(root, ignore_errors=True)
