@@ -144,3 +144,39 @@ def test_the_edge_fit_reads_the_whole_image_blur_in_bands() -> None:
     for ys in ([0.0, 3.2], [40.5, 41.7], [95.9, 120.0], [10.0, 80.0], [-5.0, 2.0]):
         pts = np.column_stack([rng.uniform(-3, 136, 200), rng.uniform(*ys, 200)])
         np.testing.assert_array_equal(edges.sample(pts), _bilinear(whole, pts))
+
+
+def test_the_blur_estimate_is_the_full_models_best_width() -> None:
+    """The blur estimate's fits through the model's thin SVD choose the width that the full
+    model (A P Y P^T A^T against Y, per square and width) fits best."""
+    from annotator.detection import deblur
+
+    d = cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_4X4_1000)
+    image = np.full((200, 260), 255, np.uint8)
+    quads = []
+    for k, (x, y) in enumerate([(20, 20), (100, 30), (180, 40), (40, 110), (130, 120)]):
+        side = 48 + 6 * k
+        image[y : y + side, x : x + side] = cv2.aruco.generateImageMarker(d, k, side)
+        quads.append(
+            [
+                [x - 0.5, y - 0.5],
+                [x + side - 0.5, y - 0.5],
+                [x + side - 0.5, y + side - 0.5],
+                [x - 0.5, y + side - 0.5],
+            ]
+        )
+    quads_a = np.array(quads, float)
+    for sigma in (0.8, 1.7, 2.6):
+        gray = cv2.GaussianBlur(image, (0, 0), sigma)
+        size = deblur._cell_px(quads_a, 6)
+        Y = deblur._samples(gray, quads_a, deblur._model(6, 1.0)[0], 6).astype(np.float64)
+        cost = []
+        for width in deblur.BLUR_GRID:
+            total = 0.0
+            for s, y in zip(size, Y):
+                _, A, P = deblur._model(6, deblur._quantised(width / s))
+                total += float(np.mean((A @ (P @ y @ P.T) @ A.T - y) ** 2))
+            cost.append(total)
+        best = float(deblur.BLUR_GRID[int(np.argmin(cost))])
+        assert deblur.estimate_blur(gray, quads_a, 6) == best
+        assert abs(best - sigma) <= 0.5

@@ -36,3 +36,13 @@ def test_a_worker_killed_under_a_scene_fails_that_scene_alone(tmp_path: Path, vi
     assert report.failed == {victim: WORKER_DIED}
     assert sorted(report.done) == [sid for sid in ids if sid != victim]
     assert all(report.done[sid] == {"scene": sid} for sid in report.done)
+
+
+def test_a_batch_keeps_freed_memory_in_the_heap() -> None:
+    """On glibc (Linux), a batch's processes fix the allocator's thresholds, so that a
+    frame's image-sized temporaries are not mapped afresh each time."""
+    import sys
+
+    from annotator.runner.heap import keep_freed_memory
+
+    assert keep_freed_memory() is sys.platform.startswith("linux")

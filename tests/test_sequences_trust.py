@@ -316,3 +316,37 @@ def test_a_frame_on_few_corners_is_not_trusted_as_the_sharp_ones(hand_held) -> N
                 assert (frame.uncertainty_mm or 0) > 2.0 or (frame.uncertainty_deg or 0) > 0.5
                 weak.append((sid, name))
     assert ("000001", "000007") in weak
+
+
+def test_a_trimmed_streak_kernel_filters_as_the_whole_one() -> None:
+    """A streak's kernel keeps only the rows and columns its segment crosses, with its
+    anchor moved to match: the picture it gives is the whole kernel's."""
+    from annotator.annotation.frame_quality import _line_kernel
+
+    image = np.random.default_rng(1).random((60, 70)).astype(np.float32)
+    for length, deg in [(0.0, 0.0), (4.0, 0.0), (7.0, 90.0), (11.0, 30.0), (16.0, 135.0)]:
+        k, (ax, ay) = _line_kernel(length, deg)
+        half = int(np.ceil(length / 2)) + 1
+        whole = np.zeros((2 * half + 1, 2 * half + 1), np.float32)
+        whole[half - ay : half - ay + k.shape[0], half - ax : half - ax + k.shape[1]] = k
+        assert k.shape[0] < whole.shape[0] or k.shape[1] < whole.shape[1] or length == 0
+        # The anchor is the segment's middle: the kernel's centroid (bilinear weights keep
+        # each sample's position).
+        rows, cols = np.indices(k.shape)
+        assert np.allclose([(k * cols).sum(), (k * rows).sum()], [ax, ay], atol=1e-4)
+        got = cv2.filter2D(image, -1, k, anchor=(ax, ay), borderType=cv2.BORDER_REPLICATE)
+        want = cv2.filter2D(image, -1, whole, borderType=cv2.BORDER_REPLICATE)
+        np.testing.assert_allclose(got, want, atol=1e-5)
+
+
+def test_a_marker_larger_than_any_streak_needs_is_not_measured() -> None:
+    """A "marker" filling the image (a square of the bin read as a code) is not measured:
+    its picture would cost seconds; the frame's streak is the real marker's."""
+    gray, corners = _rendered_marker(None)
+    big = np.full((400, 420), 210, np.uint8)
+    big[80:320, 80:336] = cv2.resize(gray, (256, 240))
+    huge = np.array([[84.0, 84.0], [330.0, 84.0], [330.0, 314.0], [84.0, 314.0]])
+    corners = corners * 2 + 80
+    assert marker_streak(big, huge, GRID) is None
+    found = frame_streak(big, [(5, huge, GRID), (7, corners, GRID)])
+    assert found is not None and list(found.per_marker) == [7]
