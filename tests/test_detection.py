@@ -174,7 +174,7 @@ def test_the_blur_estimate_is_the_full_models_best_width() -> None:
         for width in deblur.BLUR_GRID:
             total = 0.0
             for s, y in zip(size, Y):
-                _, A, P = deblur._model(6, deblur._quantised(width / s))
+                _, A, P = deblur._model(6, float(deblur._quantised(np.asarray(width / s))))
                 total += float(np.mean((A @ (P @ y @ P.T) @ A.T - y) ** 2))
             cost.append(total)
         best = float(deblur.BLUR_GRID[int(np.argmin(cost))])

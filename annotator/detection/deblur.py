@@ -46,8 +46,9 @@ def _model(cells: int, sigma_cells: float) -> tuple[np.ndarray, np.ndarray, np.n
     return xs, A, P
 
 
-def _quantised(sigma_cells: float) -> float:
-    return round(max(sigma_cells, 0.02) / 0.02) * 0.02
+def _quantised(sigma_cells: np.ndarray) -> np.ndarray:
+    """Blur widths (cells) on a grid of 0.02: the models' cache keys."""
+    return np.round(np.maximum(sigma_cells, 0.02) / 0.02) * 0.02
 
 
 @lru_cache(maxsize=512)
@@ -97,8 +98,8 @@ def estimate_blur(
     # Z = U^T Y U, the squared residual |A P Y P^T A^T - Y|^2 is |Y|^2 + sum over the cells
     # (i, j) of ((d_i d_j)^2 - 2 d_i d_j) Z_ij^2: two products with the thin U (samples x
     # cells) instead of four with the full-size model per pair.
-    sigma_cells = np.maximum(BLUR_GRID[:, None] / size[None, :], 0.02)  # (G, K)
-    keys, which = np.unique(np.round(sigma_cells / 0.02) * 0.02, return_inverse=True)
+    sigma_cells = _quantised(BLUR_GRID[:, None] / size[None, :])  # (G, K)
+    keys, which = np.unique(sigma_cells, return_inverse=True)
     fits = [_projector(cells, float(k)) for k in keys]
     U = np.stack([f[0] for f in fits])[which.reshape(sigma_cells.shape)]  # (G, K, S, C)
     d = np.stack([f[1] for f in fits])[which.reshape(sigma_cells.shape)]  # (G, K, C)
@@ -136,13 +137,13 @@ def read_soft_bits(
     border_errors = np.zeros(n, int)
     if n == 0:
         return SoftBits(bits, margin, border_errors)
-    size = _cell_px(quads, cells)
+    widths = _quantised(sigma_px / _cell_px(quads, cells))
     xs = _model(cells, 1.0)[0]
     Y = _samples(gray, quads, xs, cells)
     ring = np.ones((cells, cells), bool)
     ring[1:-1, 1:-1] = False
     for k in range(n):
-        _, _, P = _model(cells, _quantised(sigma_px / size[k]))
+        _, _, P = _model(cells, float(widths[k]))
         V = (P @ Y[k] @ P.T)[RING : RING + cells, RING : RING + cells]
         values = V.ravel()
         thr = 0.5 * (values.min() + values.max())
