@@ -51,6 +51,16 @@ class PoseEstimate:
     sigma_px: float
 
 
+@dataclass(frozen=True)
+class _CameraCorners:
+    """The observations of one camera: their indices in the list and their model corners
+    (4n, 3), stacked."""
+
+    camera: Camera
+    index: np.ndarray
+    X: np.ndarray
+
+
 def _by_camera(obs: Sequence[Observation]) -> dict[int, list[int]]:
     groups: dict[int, list[int]] = {}
     for k, o in enumerate(obs):
@@ -58,19 +68,28 @@ def _by_camera(obs: Sequence[Observation]) -> dict[int, list[int]]:
     return groups
 
 
+def _grouped(cameras: Sequence[Camera], obs: Sequence[Observation]) -> list[_CameraCorners]:
+    """The observations by camera, in order of first appearance: made once for a
+    refinement's many projections."""
+    return [
+        _CameraCorners(
+            cameras[j], np.array(idx), np.concatenate([obs[k].model_corners for k in idx])
+        )
+        for j, idx in _by_camera(obs).items()
+    ]
+
+
 def _per_camera(
-    cameras: Sequence[Camera], obs: Sequence[Observation], T: np.ndarray
-) -> Iterator[tuple[Camera, list[int], np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
-    """For each camera with observations: the camera, their indices, their model corners X
-    (4n, 3), ``cam_T_model`` M, the projected corners (4n, 2) and OpenCV's Jacobian of the
-    projection (8n, 15: rvec, tvec, focal lengths, principal point, distortion)."""
-    for j, idx in _by_camera(obs).items():
-        cam = cameras[j]
-        M = cam.cam_T_rig @ T
-        X = np.concatenate([obs[k].model_corners for k in idx])
+    groups: Sequence[_CameraCorners], T: np.ndarray
+) -> Iterator[tuple[_CameraCorners, np.ndarray, np.ndarray, np.ndarray]]:
+    """For each camera with observations: its group, ``cam_T_model`` M, the projected corners
+    (4n, 2) and OpenCV's Jacobian of the projection (8n, 15: rvec, tvec, focal lengths,
+    principal point, distortion)."""
+    for g in groups:
+        M = g.camera.cam_T_rig @ T
         rvec, _ = cv2.Rodrigues(M[:3, :3])
-        uv, jac = cv2.projectPoints(X, rvec, M[:3, 3], cam.K, cam.dist)
-        yield cam, idx, X, M, uv.reshape(-1, 2), jac
+        uv, jac = cv2.projectPoints(g.X, rvec, M[:3, 3], g.camera.K, g.camera.dist)
+        yield g, M, uv.reshape(-1, 2), jac
 
 
 def _project(
@@ -80,9 +99,9 @@ def _project(
     their depths (len(obs), 4) in their camera (mm)."""
     uv = np.empty((len(obs), 4, 2))
     z = np.empty((len(obs), 4))
-    for _, idx, X, M, p, _ in _per_camera(cameras, obs, T):
-        uv[idx] = p.reshape(len(idx), 4, 2)
-        z[idx] = (X @ M[2, :3] + M[2, 3]).reshape(len(idx), 4)
+    for g, M, p, _ in _per_camera(_grouped(cameras, obs), T):
+        uv[g.index] = p.reshape(len(g.index), 4, 2)
+        z[g.index] = (g.X @ M[2, :3] + M[2, 3]).reshape(len(g.index), 4)
     return uv, z
 
 
@@ -190,7 +209,8 @@ def refine_pose(
     """
     x = np.stack([o.image_corners for o in obs])
     T0 = np.array(T0, dtype=float)
-    r0, J0 = residuals_jacobian(cameras, obs, T0, x)
+    groups = _grouped(cameras, obs)
+    r0, J0 = _residuals_jacobian(groups, T0, x)
 
     def normal(state: _Linear) -> tuple[np.ndarray, np.ndarray]:
         _, r, J = state
@@ -202,7 +222,7 @@ def refine_pose(
         JtJ, g = lin
         step = np.linalg.solve(JtJ + damping * np.diag(np.diag(JtJ) + 1e-12), -g)
         T_new = perturb(state[0], step)
-        r_new, J_new = residuals_jacobian(cameras, obs, T_new, x)
+        r_new, J_new = _residuals_jacobian(groups, T_new, x)
         return (T_new, r_new, J_new), r_new @ r_new, step
 
     found = levenberg_marquardt(
@@ -238,12 +258,20 @@ def residuals_jacobian(
     ``dc/dw = -Rc [R X]x`` and ``dc/dv = Rc``. OpenCV's derivative of the pixel with respect
     to its ``tvec`` is the derivative with respect to ``c``.
     """
-    r = np.empty((len(obs), 4, 2))
-    J = np.empty((len(obs), 4, 2, 6))
-    for cam, idx, X, _, uv, jac in _per_camera(cameras, obs, T):
-        r[idx] = uv.reshape(len(idx), 4, 2) - x[idx]
-        G = jac[:, 3:6].reshape(-1, 2, 3) @ cam.cam_T_rig[:3, :3]  # d(pixel)/dy, (N, 2, 3)
-        y = X @ T[:3, :3].T  # R X, about the rig origin
+    return _residuals_jacobian(_grouped(cameras, obs), T, x)
+
+
+def _residuals_jacobian(
+    groups: Sequence[_CameraCorners], T: np.ndarray, x: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`residuals_jacobian` of observations grouped by camera."""
+    r = np.empty((len(x), 4, 2))
+    J = np.empty((len(x), 4, 2, 6))
+    for g, _, uv, jac in _per_camera(groups, T):
+        n = len(g.index)
+        r[g.index] = uv.reshape(n, 4, 2) - x[g.index]
+        G = jac[:, 3:6].reshape(-1, 2, 3) @ g.camera.cam_T_rig[:3, :3]  # d(pixel)/dy, (N, 2, 3)
+        y = g.X @ T[:3, :3].T  # R X, about the rig origin
         Jw = cross(y[:, None, :], G)  # g^T (-[y]x) = (y x g)^T
-        J[idx] = np.concatenate([Jw, G], axis=-1).reshape(len(idx), 4, 2, 6)
+        J[g.index] = np.concatenate([Jw, G], axis=-1).reshape(n, 4, 2, 6)
     return r.ravel(), J.reshape(-1, 6)
