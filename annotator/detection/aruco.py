@@ -135,8 +135,6 @@ class MarkerDetector:
             more = _candidates(*self._blurred_detector.detectMarkers(gray)[::2])
             candidates = _merge_candidates(candidates, more)
         ids, quads, identified = self._identify(gray, candidates)
-        edges = EdgeImage(gray)  # both fits below read the same blurred rows
-        markers = [Detection(int(i), q) for i, q in zip(ids, self.refine(gray, quads, edges))]
         rest = candidates[~identified]
         sides = np.linalg.norm(rest - np.roll(rest, 1, axis=1), axis=2).min(axis=1)
         rest = rest[sides >= SOFT_MIN_PX_PER_CELL * (n + 2)] if len(rest) else rest
@@ -151,10 +149,13 @@ class MarkerDetector:
             turned[ok].reshape(-1, 4, 2),
             np.linalg.norm(turned[ok] - np.roll(turned[ok], 1, axis=1), axis=2).sum(axis=1),
         )
+        # Both readings' corners in one fit (each quad's own, whoever shares the call).
+        corners = self.refine(gray, np.concatenate([quads.reshape(-1, 4, 2), s_quads]))
+        markers = [Detection(int(i), q) for i, q in zip(ids, corners[: len(ids)])]
         known = {int(m.id) for m in markers}
         markers += [
             Detection(int(i), q, soft=True)
-            for i, q in zip(s_ids, self.refine(gray, s_quads, edges))
+            for i, q in zip(s_ids, corners[len(ids) :])
             if int(i) not in known
         ]
         return ImageReading(markers, rest[~ok], soft.bits[~ok], soft.margin[~ok], blur)
