@@ -7,6 +7,7 @@ import functools
 from collections.abc import Sequence
 from dataclasses import replace
 
+import cv2
 import numpy as np
 from scipy import ndimage
 
@@ -65,8 +66,15 @@ def unexplained_depth(
         skip_border_bands=ds.background_depth is None,
         owned=np.isin(front, list(disagreeing)),
     )
-    full = np.repeat(np.repeat(kept, step, axis=0), step, axis=1)[: cam.height, : cam.width]
-    full_mask = (full * 255).astype(np.uint8)
+    # Each sample's pixel block: a nearest-neighbour enlargement (exact, and several times
+    # faster than repeating rows and columns).
+    rows, cols = kept.shape
+    full_mask = cv2.resize(
+        kept.view(np.uint8) * np.uint8(255),
+        (cols * step, rows * step),
+        interpolation=cv2.INTER_NEAREST_EXACT,
+    )[: cam.height, : cam.width]
+    full = full_mask > 0
     if not regions:
         return None, full_mask
     regions = _with_unread(regions, unread, full)
