@@ -74,12 +74,11 @@ def _found_in(
     cam_T = cam.cam_T_rig @ T
     C_all = X_all @ cam_T[:3, :3].T + cam_T[:3, 3]  # (S, 4, 3), all sites at once
     centres = reading.unread.mean(axis=1)
+    sites = [s for s in np.flatnonzero(_facing(C_all)) if instance.marker_ids[s] not in read]
+    projected = cam.project(C_all[sites])  # one projection for all (each point is its own)
     out = []
-    for site in np.flatnonzero(_facing(C_all)):
+    for site, uv in zip(sites, projected):
         mid = instance.marker_ids[site]
-        if mid in read:
-            continue
-        uv = cam.project(C_all[site])
         match = _matching_square(ds.dictionary, mid, uv, reading, centres, within_px)
         if match is not None:
             out.append((mid, X_all[site], match))
