@@ -236,7 +236,7 @@ def _visibility(
     x0, y0, x1, y1 = cast.box
     m_all, rend = cast.alone
     m_vis = cast.front[y0:y1, x0:x1] == cast.index
-    px_all, px_vis = area * int(m_all.sum()), area * int(m_vis.sum())
+    px_all, px_vis = area * int(np.count_nonzero(m_all)), area * int(np.count_nonzero(m_vis))
     vis = CameraVisibility(
         cast.camera,
         px_all,
@@ -251,15 +251,16 @@ def _visibility(
     if measured is not None:
         meas = measured[y0:y1, x0:x1]
         hide, agree = tolerances
-        m_dep = m_vis & ~(np.isfinite(meas) & (meas < rend - hide))
-        vis.px_visib_depth = area * int(m_dep.sum())
+        measured_here = np.isfinite(meas)
+        m_dep = m_vis & ~(measured_here & (meas < rend - hide))
+        vis.px_visib_depth = area * int(np.count_nonzero(m_dep))
         vis.occlusion_depth = 1.0 - vis.px_visib_depth / px_all if px_all else 1.0
-        seen = m_vis & np.isfinite(meas)
-        vis.depth_pixels = area * int(seen.sum())
+        seen = m_vis & measured_here
+        vis.depth_pixels = area * int(np.count_nonzero(seen))
         if vis.depth_pixels:
-            diff = np.abs(meas[seen] - rend[seen])
-            tol = np.maximum(agree, 0.01 * rend[seen])
-            vis.depth_agreement = float(np.mean(diff < tol))
+            r = rend[seen]
+            diff = np.abs(meas[seen] - r)
+            vis.depth_agreement = int(np.count_nonzero(diff < np.maximum(agree, 0.01 * r))) / len(r)
             vis.depth_median_abs_mm = float(np.median(diff))
     if empty is not None:
         vis.mask_all, vis.mask_visib = empty, empty.copy()
