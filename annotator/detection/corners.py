@@ -72,9 +72,12 @@ class EdgeImage:
 
     def sample(self, pts: np.ndarray) -> np.ndarray:
         """Bilinear samples at (N, 2) points (x, y), clipped to the image."""
-        h = self.gray.shape[0]
-        # The rows _bilinear reads: each point's (as it clips it) and the one below.
-        top = np.floor(np.clip(pts[:, 1], 0, h - 1.001)).astype(int)
+        h, w = self.gray.shape
+        x = np.clip(pts[:, 0], 0, w - 1.001)
+        y = np.clip(pts[:, 1], 0, h - 1.001)
+        x0, y0 = np.floor(x), np.floor(y)
+        top = y0.astype(np.intp)
+        # The rows the samples read: each point's and the one below.
         need = np.zeros(h + 1, bool)
         need[top] = True
         need[top + 1] = True
@@ -86,7 +89,17 @@ class EdgeImage:
             breaks = np.flatnonzero(np.diff(rows) > 2 * _BLUR_ROWS + 1)
             for a, b in zip(np.r_[0, breaks + 1], np.r_[breaks, len(rows) - 1]):
                 self._blur(int(rows[a]), int(rows[b]) + 1)
-        return _bilinear(self.image, pts)
+        # The four neighbours by flat index (indexing by row and column costs twice as much).
+        at = top * w + x0.astype(np.intp)
+        flat = self.image.reshape(-1)
+        fx, fy = x - x0, y - y0
+        gx, gy = 1 - fx, 1 - fy
+        return (
+            flat.take(at) * gx * gy
+            + flat.take(at + 1) * fx * gy
+            + flat.take(at + w) * gx * fy
+            + flat.take(at + w + 1) * fx * fy
+        )
 
     def _blur(self, y0: int, y1: int) -> None:
         h = self.gray.shape[0]
@@ -287,20 +300,6 @@ def _distances(pts: np.ndarray, point: np.ndarray, direction: np.ndarray) -> np.
     ``direction`` (L, 2)."""
     normal = np.stack([-direction[:, 1], direction[:, 0]], axis=1)
     return np.abs(np.einsum("lpd,ld->lp", pts - point[:, None, :], normal))
-
-
-def _bilinear(img: np.ndarray, pts: np.ndarray) -> np.ndarray:
-    h, w = img.shape
-    x = np.clip(pts[:, 0], 0, w - 1.001)
-    y = np.clip(pts[:, 1], 0, h - 1.001)
-    x0, y0 = np.floor(x).astype(int), np.floor(y).astype(int)
-    fx, fy = x - x0, y - y0
-    return (
-        img[y0, x0] * (1 - fx) * (1 - fy)
-        + img[y0, x0 + 1] * fx * (1 - fy)
-        + img[y0 + 1, x0] * (1 - fx) * fy
-        + img[y0 + 1, x0 + 1] * fx * fy
-    )
 
 
 def _fit_lines(pts: np.ndarray, weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
