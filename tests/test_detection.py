@@ -131,11 +131,25 @@ def test_no_candidate_to_read_is_no_code_not_an_error() -> None:
 
 def test_the_edge_fit_reads_the_whole_image_blur_in_bands() -> None:
     """The edge fit's image, blurred a band of rows at a time where it samples, gives the
-    samples a blur of the whole image gives, bit for bit (bands at the image's borders and
-    inside it, joined and apart)."""
+    samples that bilinear interpolation of a blur of the whole image gives, bit for bit
+    (bands at the image's borders and inside it, joined and apart; points off the image
+    clipped to it)."""
     import cv2
 
-    from annotator.detection.corners import BLUR_SIGMA_PX, EdgeImage, _bilinear
+    from annotator.detection.corners import BLUR_SIGMA_PX, EdgeImage
+
+    def bilinear(img: np.ndarray, pts: np.ndarray) -> np.ndarray:
+        h, w = img.shape
+        x = np.clip(pts[:, 0], 0, w - 1.001)
+        y = np.clip(pts[:, 1], 0, h - 1.001)
+        x0, y0 = np.floor(x).astype(int), np.floor(y).astype(int)
+        fx, fy = x - x0, y - y0
+        return (
+            img[y0, x0] * (1 - fx) * (1 - fy)
+            + img[y0, x0 + 1] * fx * (1 - fy)
+            + img[y0 + 1, x0] * (1 - fx) * fy
+            + img[y0 + 1, x0 + 1] * fx * fy
+        )
 
     rng = np.random.default_rng(5)
     gray = rng.integers(0, 256, (97, 133), dtype=np.uint8)
@@ -143,7 +157,7 @@ def test_the_edge_fit_reads_the_whole_image_blur_in_bands() -> None:
     edges = EdgeImage(gray)
     for ys in ([0.0, 3.2], [40.5, 41.7], [95.9, 120.0], [10.0, 80.0], [-5.0, 2.0]):
         pts = np.column_stack([rng.uniform(-3, 136, 200), rng.uniform(*ys, 200)])
-        np.testing.assert_array_equal(edges.sample(pts), _bilinear(whole, pts))
+        np.testing.assert_array_equal(edges.sample(pts), bilinear(whole, pts))
 
 
 def test_the_blur_estimate_is_the_full_models_best_width() -> None:
