@@ -17,7 +17,7 @@ import numpy as np
 
 from annotator.dataset.figures import SUPPORT, PhysicsCheck
 from annotator.dataset.flags import Flag
-from annotator.physics.contact import Body, boxes_overlap, hull_distance, penetration
+from annotator.physics.contact import Body, boxes_overlap, least_hull_distance, penetration
 from annotator.physics.support import Support
 
 #: About how many of a body's lower points its gap is measured from.
@@ -170,9 +170,9 @@ def _gap(
         near = np.all((low >= lo[:, None] - best) & (low <= hi[:, None] + best), axis=0)
         if not near.any():
             continue
-        d = hull_distance(low[:, near], b)
-        if len(d) and float(d.min()) < best:
-            best, rests_on = float(d.min()), b.key
+        d = least_hull_distance(low[:, near], b, best)
+        if d < best:
+            best, rests_on = d, b.key
     return best, rests_on
 
 
