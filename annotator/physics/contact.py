@@ -130,10 +130,13 @@ def hull_of(mesh: Mesh) -> Mesh:
 
 def hull_planes(mesh: Mesh) -> np.ndarray:
     """(F, 4) the planes of :func:`hull_of`'s faces, ``n . x + d`` with ``n`` the outward
-    unit normal: negative inside the hull (model frame)."""
+    unit normal: negative inside the hull (model frame). Each plane once: a face of the
+    hull is several triangles."""
     hit = _HULL_PLANES.get(mesh.digest)
     if hit is None:
-        hit = _HULL_PLANES[mesh.digest] = ConvexHull(mesh.vertices).equations
+        planes = ConvexHull(mesh.vertices).equations
+        first = np.unique(np.round(planes, 9), axis=0, return_index=True)[1]
+        hit = _HULL_PLANES[mesh.digest] = np.ascontiguousarray(planes[np.sort(first)])
         hit.setflags(write=False)
     return hit
 
@@ -145,7 +148,7 @@ def outside_hull(mesh: Mesh, local: np.ndarray) -> np.ndarray:
     planes = hull_planes(mesh)
     if not len(local):
         return np.zeros(0)
-    return np.max(local @ planes[:, :3].T + planes[:, 3], axis=1)
+    return np.max(planes[:, :3] @ local.T + planes[:, 3:], axis=0)
 
 
 def _scene(mesh: Mesh, *, hull: bool) -> Any:
@@ -172,8 +175,11 @@ def signed_distance(mesh: Mesh, points: np.ndarray) -> np.ndarray:
 def depth_inside(a: Body, b: Body) -> float:
     """How deep (mm, >= 0) ``a``'s surface reaches inside ``b``'s solid."""
     local = b.to_model(a.points[:, _near(a, b)])
-    # Beyond a plane of the hull is outside the solid: only the others are cast.
-    local = local[outside_hull(b.mesh, local) < PLANE_SLACK_MM]
+    # Outside the mesh's own bounds (b's bounds in its model frame, tighter than those in
+    # the camera's) is outside the solid: those points' signed distances, all positive,
+    # could not be the deepest.
+    lo, hi = b.mesh.bounds
+    local = local[np.all((local >= lo - PLANE_SLACK_MM) & (local <= hi + PLANE_SLACK_MM), axis=1)]
     if len(local):  # outside the hull is outside the solid: only the others are asked
         hull = _scene(b.mesh, hull=True)
         query = o3d.core.Tensor(np.ascontiguousarray(local, dtype=np.float32))
