@@ -234,7 +234,7 @@ def _distances(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 #: :meth:`Support.least_distance` asks the measured surface about every this-many-th point
 #: first.
-_PROBE_EVERY = 8
+_PROBE_EVERY = 16
 #: :func:`_unsettled` tries this many probes (those furthest from the surface) first.
 _FAR_PROBES = 8
 #: Its bounds are kept this far (mm) below what they say: the surface's closest points are
