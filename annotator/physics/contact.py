@@ -4,6 +4,7 @@ hull (see :mod:`annotator.physics` for the conventions)."""
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
@@ -241,6 +242,19 @@ def _near(a: Body, b: Body, margin: float = 0.0) -> np.ndarray:
     lo, hi = b.box
     pts = a.points
     return np.all((pts >= lo[:, None] - margin) & (pts <= hi[:, None] + margin), axis=0)
+
+
+def overlapping_boxes(bodies: Sequence[Body]) -> list[tuple[int, int]]:
+    """The pairs ``(i, j)``, ``i < j`` in order, of ``bodies`` whose bounds overlap (those
+    :func:`boxes_overlap` tells apart), all at once: a pile has hundreds of pairs."""
+    if not bodies:
+        return []
+    lo = np.array([b.box[0] for b in bodies])
+    hi = np.array([b.box[1] for b in bodies])
+    meets = np.all(lo[:, None, :] <= hi[None, :, :], axis=2)
+    meets &= meets.T
+    i, j = np.nonzero(np.triu(meets, 1))
+    return list(zip(i.tolist(), j.tolist()))
 
 
 def boxes_overlap(a: Body, b: Body, margin: float = 0.0) -> bool:
