@@ -33,6 +33,7 @@ FIRST_ASKED = 8
 _SCENES: dict[tuple[bytes, bool], object] = {}
 _HULLS: dict[bytes, Mesh] = {}
 _HULL_PLANES: dict[bytes, np.ndarray] = {}
+_HULL_CORNERS: dict[bytes, np.ndarray] = {}
 # Surface samples of meshes (and with their vertices), by geometry: drawn once per process.
 _DRAWN: dict[bytes, tuple[np.ndarray, np.ndarray]] = {}
 _MODEL_POINTS: dict[bytes, np.ndarray] = {}
@@ -71,6 +72,11 @@ class Body:
     def centroid(self) -> np.ndarray:
         """The surface centroid in the camera frame."""
         return self.T[:3, :3] @ self.mesh.moments.centroid + self.T[:3, 3]
+
+    @cached_property
+    def corners(self) -> np.ndarray:
+        """(3, K) the corners of the body's convex hull in the camera frame."""
+        return self.T[:3, :3] @ hull_corners(self.mesh).T + self.T[:3, 3:4]
 
     @cached_property
     def model_T_cam(self) -> np.ndarray:
@@ -140,6 +146,27 @@ def hull_planes(mesh: Mesh) -> np.ndarray:
         hit = _HULL_PLANES[mesh.digest] = np.ascontiguousarray(planes[np.sort(first)])
         hit.setflags(write=False)
     return hit
+
+
+def hull_corners(mesh: Mesh) -> np.ndarray:
+    """(K, 3) the vertices of ``mesh`` on its convex hull (model frame)."""
+    hit = _HULL_CORNERS.get(mesh.digest)
+    if hit is None:
+        hit = _HULL_CORNERS[mesh.digest] = mesh.vertices[np.unique(hull_of(mesh).faces)]
+        hit.setflags(write=False)
+    return hit
+
+
+def hulls_apart(a: Body, b: Body) -> bool:
+    """Whether a plane of one body's hull leaves the other's hull wholly beyond it (by
+    more than :data:`PLANE_SLACK_MM`): then neither reaches into the other, and no point
+    need be cast. Most pairs whose bounds overlap are parts lying side by side."""
+    for near, far in ((a, b), (b, a)):
+        planes = hull_planes(far.mesh)
+        corners = far.to_model(near.corners)
+        if np.any(np.min(planes[:, :3] @ corners.T + planes[:, 3:], axis=1) > PLANE_SLACK_MM):
+            return True
+    return False
 
 
 def outside_hull(mesh: Mesh, local: np.ndarray) -> np.ndarray:
@@ -214,6 +241,8 @@ def _deepest(mesh: Mesh, local: np.ndarray) -> float:
 def penetration(a: Body, b: Body) -> float:
     """How deep (mm, >= 0) the two solids overlap: the deepest surface point of either
     inside the other."""
+    if hulls_apart(a, b):  # each is outside the other's hull, and so outside its solid
+        return 0.0
     return max(depth_inside(a, b), depth_inside(b, a))
 
 
