@@ -156,8 +156,9 @@ def _gap(
     below it, a wall it leans on) or another body's hull (in any direction: a part wedged
     between others rests on their sides); the nearest of them."""
     a = bodies[i]
-    low = np.flatnonzero(heights < float(support.plane.height(a.centroid[:, None])[0]))
-    low = a.points[:, low[:: max(1, len(low) // GAP_POINTS)]]  # a gap is no needle: fewer will do
+    lower = np.flatnonzero(heights < float(support.plane.height(a.centroid[:, None])[0]))
+    # A gap is no needle: fewer points will do (picked before they are gathered).
+    low = a.points[:, lower[:: max(1, len(lower) // GAP_POINTS)]]
     floor = max(0.0, float(heights.min()))
     if low.shape[1] == 0 or floor <= TOUCHING_MM:  # on the floor: nothing is nearer
         return floor, SUPPORT
