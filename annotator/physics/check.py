@@ -17,7 +17,13 @@ import numpy as np
 
 from annotator.dataset.figures import SUPPORT, PhysicsCheck
 from annotator.dataset.flags import Flag
-from annotator.physics.contact import Body, boxes_overlap, hull_distance, penetration
+from annotator.physics.contact import (
+    Body,
+    boxes_overlap,
+    least_hull_distance,
+    overlapping_boxes,
+    penetration,
+)
 from annotator.physics.support import Support
 
 #: About how many of a body's lower points its gap is measured from.
@@ -77,19 +83,16 @@ def check_bodies(
     u = {b.key: float((uncertainty or {}).get(b.key) or 0.0) for b in bodies}
     out = [InstancePhysics(b.key) for b in bodies]
     # Overlaps between parts: only pairs whose bounds meet can overlap.
-    for i, a in enumerate(bodies):
-        for j in range(i + 1, len(bodies)):
-            b = bodies[j]
-            if not boxes_overlap(a, b):
-                continue
-            depth = penetration(a, b)
-            for k, other in ((i, b.key), (j, a.key)):
-                if depth > out[k].check.penetration_mm:
-                    out[k].check.penetration_mm, out[k].check.penetrates = depth, other
-            limit = _limit(settings.penetration_floor_mm, settings, u[a.key], u[b.key])
-            if depth > limit:
-                _flag(out[i], Flag.PENETRATES, b.key)
-                _flag(out[j], Flag.PENETRATES, a.key)
+    for i, j in overlapping_boxes(bodies):
+        a, b = bodies[i], bodies[j]
+        depth = penetration(a, b)
+        for k, other in ((i, b.key), (j, a.key)):
+            if depth > out[k].check.penetration_mm:
+                out[k].check.penetration_mm, out[k].check.penetrates = depth, other
+        limit = _limit(settings.penetration_floor_mm, settings, u[a.key], u[b.key])
+        if depth > limit:
+            _flag(out[i], Flag.PENETRATES, b.key)
+            _flag(out[j], Flag.PENETRATES, a.key)
     if support is not None:
         for i, rec in enumerate(out):
             _on_support(rec, i, bodies, support, u, settings)
@@ -153,8 +156,9 @@ def _gap(
     below it, a wall it leans on) or another body's hull (in any direction: a part wedged
     between others rests on their sides); the nearest of them."""
     a = bodies[i]
-    low = a.points[:, heights < float(support.plane.height(a.centroid[:, None])[0])]
-    low = low[:, :: max(1, low.shape[1] // GAP_POINTS)]  # a gap is no needle: fewer will do
+    lower = np.flatnonzero(heights < float(support.plane.height(a.centroid[:, None])[0]))
+    # A gap is no needle: fewer points will do (picked before they are gathered).
+    low = a.points[:, lower[:: max(1, len(lower) // GAP_POINTS)]]
     floor = max(0.0, float(heights.min()))
     if low.shape[1] == 0 or floor <= TOUCHING_MM:  # on the floor: nothing is nearer
         return floor, SUPPORT
@@ -170,9 +174,9 @@ def _gap(
         near = np.all((low >= lo[:, None] - best) & (low <= hi[:, None] + best), axis=0)
         if not near.any():
             continue
-        d = hull_distance(low[:, near], b)
-        if len(d) and float(d.min()) < best:
-            best, rests_on = float(d.min()), b.key
+        d = least_hull_distance(low[:, near], b, best)
+        if d < best:
+            best, rests_on = d, b.key
     return best, rests_on
 
 

@@ -165,9 +165,7 @@ class Support:
         rest, rest_d = raised[~probe], d[~probe]
         if not len(rest):
             return least
-        bound = np.max(reach[None, :] - _distances(rest, raised[probe]), axis=1)
-        bound -= WALL_SLACK_MM + _ROUNDING_MM
-        ask = bound < np.minimum(rest_d, least)
+        ask = _unsettled(rest, np.minimum(rest_d, least), raised[probe], reach)
         # The others' distance is their height, or no less than ``least``: either way their
         # height stands for it in the minimum.
         if not ask.all():
@@ -196,6 +194,34 @@ class Support:
         return np.minimum(d, np.maximum(far - WALL_SLACK_MM, 0.0)), reach
 
 
+def _unsettled(
+    points: np.ndarray, limit: np.ndarray, probes: np.ndarray, reach: np.ndarray
+) -> np.ndarray:
+    """(N,) which of ``points`` (N, 3) no probe (M, 3; at ``reach`` (M,) from the surface)
+    bounds off the surface by ``limit`` (N,) or more, :data:`WALL_SLACK_MM` and
+    :data:`_ROUNDING_MM` kept: :meth:`Support.least_distance`'s points to ask about.
+
+    The probes furthest from the surface settle most points: they are tried first, alone,
+    and the others only for the points they leave (every probe for every point made most
+    of the cost of :meth:`Support.least_distance`'s bounds). A point is settled by one
+    probe or by none, whichever probes are tried first: the same points are asked."""
+    limit = limit + WALL_SLACK_MM + _ROUNDING_MM
+    far = np.argsort(reach)[::-1][:_FAR_PROBES]
+    left = np.flatnonzero(_bound(points, probes[far], reach[far]) < limit)
+    if len(left):
+        left = left[_bound(points[left], probes, reach) < limit[left]]
+    ask = np.zeros(len(points), bool)
+    ask[left] = True
+    return ask
+
+
+def _bound(points: np.ndarray, probes: np.ndarray, reach: np.ndarray) -> np.ndarray:
+    """(N,) the least distance to the surface that the ``probes`` (M, 3, at ``reach``
+    (M,) from it) leave each of ``points`` (N, 3): the surface is no nearer to a point
+    than to a probe, less the way between them."""
+    return np.max(reach[None, :] - _distances(points, probes), axis=1)
+
+
 def _distances(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """(N, M) distances between the points ``a`` (N, 3) and ``b`` (M, 3), from one product
     of the two (the differences of every pair would cost several times more), about their
@@ -208,7 +234,9 @@ def _distances(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 #: :meth:`Support.least_distance` asks the measured surface about every this-many-th point
 #: first.
-_PROBE_EVERY = 8
+_PROBE_EVERY = 16
+#: :func:`_unsettled` tries this many probes (those furthest from the surface) first.
+_FAR_PROBES = 8
 #: Its bounds are kept this far (mm) below what they say: the surface's closest points are
 #: found in float32.
 _ROUNDING_MM = 0.01
