@@ -43,6 +43,7 @@ def test_a_batch_keeps_freed_memory_in_the_heap() -> None:
     frame's image-sized temporaries are not mapped afresh each time."""
     import sys
 
-    from annotator.runner.heap import keep_freed_memory
+    from annotator.runner.heap import keep_freed_memory, release_free_memory
 
     assert keep_freed_memory() is sys.platform.startswith("linux")
+    assert release_free_memory() is sys.platform.startswith("linux")

@@ -104,6 +104,8 @@ def run_local(
     prepare = getattr(job, "prepare", None)
     if context is not None and prepare is not None:
         prepare()
+    if context is not None:
+        heap.release_free_memory()  # the workers' first pages fresh, not copied from ours
     # Before any worker is forked (the pools start theirs on the first task).
     key = id(job)
     if context is not None:
