@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from annotator.detection.corners import EdgeImage, refine_corners
+from annotator.detection.corners import refine_corners
 from annotator.detection.deblur import estimate_blur, read_soft_bits
 from annotator.detection.identify import Codebook, identify, one_per_marker, pack_bits
 from annotator.io.images import to_gray8
@@ -171,12 +171,9 @@ class MarkerDetector:
             min_std=self._min_std,
         )
 
-    def refine(
-        self, gray: np.ndarray, quads: np.ndarray, edges: EdgeImage | None = None
-    ) -> np.ndarray:
-        """Sub-pixel corners of (N, 4, 2) quads (see :mod:`.corners`; ``edges``: the image
-        as the edge fit reads it, kept from an earlier call on ``gray``)."""
-        return refine_corners(gray, quads, cells=self._codebook.marker_size + 2, edges=edges)
+    def refine(self, gray: np.ndarray, quads: np.ndarray) -> np.ndarray:
+        """Sub-pixel corners of (N, 4, 2) quads (see :mod:`.corners`)."""
+        return refine_corners(gray, quads, cells=self._codebook.marker_size + 2)
 
 
 def _merge_candidates(first: np.ndarray, more: np.ndarray) -> np.ndarray:

@@ -34,20 +34,17 @@ SUBPIX_HALF_WINDOW = 2
 _SUBPIX_CRITERIA = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 30, 0.01)
 
 
-def refine_corners(
-    gray: np.ndarray, quads: np.ndarray, *, cells: int, edges: EdgeImage | None = None
-) -> np.ndarray:
+def refine_corners(gray: np.ndarray, quads: np.ndarray, *, cells: int) -> np.ndarray:
     """Sub-pixel corners of (N, 4, 2) quads of markers ``cells`` cells wide (border
     included) in an 8-bit image: a small-window corner fit, then the edge fit
-    (:func:`refine_quads`; ``edges``: the image as it reads it, kept from an earlier call on
-    the same image)."""
+    (:func:`refine_quads`)."""
     if len(quads) == 0:
         return quads
     # The small-window corner fit first, so that the edge fit starts near the sides.
     start: np.ndarray = quads.reshape(-1, 1, 2).astype(np.float32)
     window = (SUBPIX_HALF_WINDOW, SUBPIX_HALF_WINDOW)
     start = cv2.cornerSubPix(gray, start, window, (-1, -1), _SUBPIX_CRITERIA)
-    return refine_quads(gray, start.reshape(-1, 4, 2).astype(np.float64), cells=cells, edges=edges)
+    return refine_quads(gray, start.reshape(-1, 4, 2).astype(np.float64), cells=cells)
 
 
 #: The edge fit reads the image under this slight blur (px): the profiles across a side
@@ -60,7 +57,7 @@ _BLUR_ROWS = 2
 class EdgeImage:
     """An 8-bit image as the edge fit reads it (as float, under :data:`BLUR_SIGMA_PX`),
     made a band of rows at a time where the fit samples it, and kept: the markers' rows are
-    a share of the image, and a detector reads one image's markers in several fits. Each
+    a share of the image, and the fit reads them in each of its rounds. Each
     band is blurred with the blur's reach of rows round it (the image's own border where it
     reaches that) and the image's whole width, so its pixels are those a blur of the whole
     image gives, bit for bit."""
@@ -115,7 +112,6 @@ def refine_quads(
     *,
     samples: int = 12,
     cells: int = 6,
-    edges: EdgeImage | None = None,
 ) -> np.ndarray:
     """Refine (N, 4, 2) quads by fitting lines to the gradient centroids across each side.
 
@@ -131,7 +127,7 @@ def refine_quads(
     """
     if len(quads) == 0:
         return quads
-    img = edges if edges is not None else EdgeImage(gray)
+    img = EdgeImage(gray)
     current = quads.copy()
     found = np.zeros(len(quads), bool)
     for _ in range(ROUNDS):
