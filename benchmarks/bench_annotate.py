@@ -218,8 +218,9 @@ def speed(root: Path, ids: list[str]) -> None:
             f" before: {BASELINE_S} s; ratio {per * workers / BASELINE_S:.2f}, target <= 1.25)"
             + (f"; speed-up x{single / per:.2f}" if workers == 2 else "")
         )
-        # With two workers the batch's last scene runs alone: of 8 scenes, that idle tail
-        # weighs on the wall time per worker (a user's hundreds of scenes hardly see it).
+        # With two workers each forked worker's first scene faults its pages in, and the
+        # batch's last scene runs alone: over 8 scenes both weigh on the wall time per
+        # worker (a user's hundreds of scenes hardly see them).
         print(
             f"  issue 55, --workers {workers}: {per * workers:.3f} s per scene per worker (CPU"
             f" {cpu:.3f} s), target {TARGET_S} s: {'met' if per * workers <= TARGET_S else 'NOT met'}"

@@ -74,10 +74,9 @@ def unexplained_depth(
         (cols * step, rows * step),
         interpolation=cv2.INTER_NEAREST_EXACT,
     )[: cam.height, : cam.width]
-    full = full_mask > 0
     if not regions:
         return None, full_mask
-    regions = _with_unread(regions, unread, full)
+    regions = _with_unread(regions, unread, full_mask > 0)
     n_unread = sum(len(r.unread_markers) for r in regions)
     message = (
         f"{len(regions)} region(s) of measured depth in front of {source} that no pose explains "
