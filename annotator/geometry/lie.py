@@ -79,11 +79,17 @@ def rotvec_to_matrix(rotvec: np.ndarray) -> np.ndarray:
     Rodrigues' formula (series near zero)."""
     r = np.asarray(rotvec, dtype=float)
     theta = np.linalg.norm(r, axis=-1)[..., None, None]
-    small = theta < 1e-4
     t2 = theta**2
-    with np.errstate(invalid="ignore", divide="ignore"):
-        a = np.where(small, 1.0 - t2 / 6.0, np.sin(theta) / theta)
-        b = np.where(small, 0.5 - t2 / 24.0, (1.0 - np.cos(theta)) / t2)
+    if r.ndim == 1:  # one vector (every solver's step): only the branch it takes
+        if theta[0, 0] < 1e-4:
+            a, b = 1.0 - t2 / 6.0, 0.5 - t2 / 24.0
+        else:
+            a, b = np.sin(theta) / theta, (1.0 - np.cos(theta)) / t2
+    else:
+        small = theta < 1e-4
+        with np.errstate(invalid="ignore", divide="ignore"):
+            a = np.where(small, 1.0 - t2 / 6.0, np.sin(theta) / theta)
+            b = np.where(small, 0.5 - t2 / 24.0, (1.0 - np.cos(theta)) / t2)
     K = skew(r)
     return np.eye(3) + a * K + b * (K @ K)
 

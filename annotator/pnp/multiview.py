@@ -115,9 +115,10 @@ def reprojection_errors(
     if not obs:
         return np.zeros(0)
     uv, z = _project(cameras, obs, T)
-    err = np.sqrt(
-        np.mean(np.sum((uv - np.stack([o.image_corners for o in obs])) ** 2, axis=-1), axis=-1)
-    )
+    # The mean of the four corners' squares as np.mean takes it (its sum, then / 4), without
+    # its wrapper: solvers ask for these errors hundreds of times a scene.
+    squares = np.sum((uv - np.stack([o.image_corners for o in obs])) ** 2, axis=-1)
+    err = np.sqrt(np.add.reduce(squares, axis=-1) / 4)
     err[(z <= 0).any(axis=1)] = np.inf
     return err
 
@@ -187,8 +188,23 @@ def lone_marker_poses(cam: Camera, o: Observation) -> list[np.ndarray]:
 
 
 #: A pose, its corner residuals and their Jacobian.
-_Linear = tuple[np.ndarray, np.ndarray, np.ndarray]
 _DAMPING = Damping(start=1e-3, floor=1e-9, ceiling=1e8)
+
+
+class _Projected:
+    """A pose's stacked corner residuals, and its Jacobian made when first asked for: a
+    trial step that the iteration refuses needs its residuals alone."""
+
+    def __init__(self, groups: Sequence[_CameraCorners], T: np.ndarray, x: np.ndarray) -> None:
+        self.T = T
+        self.r, self._jacobians = _residuals(groups, T, x)
+        self._J: np.ndarray | None = None
+
+    @property
+    def J(self) -> np.ndarray:
+        if self._J is None:
+            self._J = _jacobian(self._jacobians, self.T, len(self.r) // 8)
+        return self._J
 
 
 def refine_pose(
@@ -208,26 +224,24 @@ def refine_pose(
     the corner noise (the pose absorbs part of it).
     """
     x = np.stack([o.image_corners for o in obs])
-    T0 = np.array(T0, dtype=float)
     groups = _grouped(cameras, obs)
-    r0, J0 = _residuals_jacobian(groups, T0, x)
+    start = _Projected(groups, np.array(T0, dtype=float), x)
 
-    def normal(state: _Linear) -> tuple[np.ndarray, np.ndarray]:
-        _, r, J = state
-        return J.T @ J, J.T @ r
+    def normal(state: _Projected) -> tuple[np.ndarray, np.ndarray]:
+        J = state.J
+        return J.T @ J, J.T @ state.r
 
     def trial(
-        state: _Linear, lin: tuple[np.ndarray, np.ndarray], damping: float
-    ) -> tuple[_Linear, float, np.ndarray]:
+        state: _Projected, lin: tuple[np.ndarray, np.ndarray], damping: float
+    ) -> tuple[_Projected, float, np.ndarray]:
         JtJ, g = lin
         step = np.linalg.solve(JtJ + damping * np.diag(np.diag(JtJ) + 1e-12), -g)
-        T_new = perturb(state[0], step)
-        r_new, J_new = _residuals_jacobian(groups, T_new, x)
-        return (T_new, r_new, J_new), r_new @ r_new, step
+        new = _Projected(groups, perturb(state.T, step), x)
+        return new, new.r @ new.r, step
 
     found = levenberg_marquardt(
-        (T0, r0, J0),
-        r0 @ r0,
+        start,
+        start.r @ start.r,
         normal,
         trial,
         damping=_DAMPING,
@@ -236,7 +250,7 @@ def refine_pose(
         ),
         max_iterations=max_iterations,
     )
-    (T, r, J), cost = found.state, found.cost
+    T, r, J, cost = found.state.T, found.state.r, found.state.J, found.cost
     dof = max(r.size - 6, 1)
     sigma = max(float(np.sqrt(cost / dof)), sigma_floor)
     try:
@@ -258,20 +272,40 @@ def residuals_jacobian(
     ``dc/dw = -Rc [R X]x`` and ``dc/dv = Rc``. OpenCV's derivative of the pixel with respect
     to its ``tvec`` is the derivative with respect to ``c``.
     """
-    return _residuals_jacobian(_grouped(cameras, obs), T, x)
+    projected = _Projected(_grouped(cameras, obs), T, x)
+    return projected.r, projected.J
 
 
-def _residuals_jacobian(
+def corner_residuals(
+    cameras: Sequence[Camera], obs: Sequence[Observation], T: np.ndarray, x: np.ndarray
+) -> np.ndarray:
+    """:func:`residuals_jacobian`'s residuals alone (the same numbers)."""
+    return _residuals(_grouped(cameras, obs), T, x)[0]
+
+
+def _residuals(
     groups: Sequence[_CameraCorners], T: np.ndarray, x: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`residuals_jacobian` of observations grouped by camera."""
+) -> tuple[np.ndarray, list[tuple[_CameraCorners, np.ndarray]]]:
+    """The stacked residuals of observations grouped by camera, and per camera OpenCV's
+    Jacobian of its projection (for :func:`_jacobian`)."""
     r = np.empty((len(x), 4, 2))
-    J = np.empty((len(x), 4, 2, 6))
+    jacobians = []
     for g, _, uv, jac in _per_camera(groups, T):
+        r[g.index] = uv.reshape(len(g.index), 4, 2) - x[g.index]
+        jacobians.append((g, jac))
+    return r.ravel(), jacobians
+
+
+def _jacobian(
+    jacobians: Sequence[tuple[_CameraCorners, np.ndarray]], T: np.ndarray, count: int
+) -> np.ndarray:
+    """The residuals' Jacobian (8 count, 6) at T from the projections' (see
+    :func:`residuals_jacobian`)."""
+    J = np.empty((count, 4, 2, 6))
+    for g, jac in jacobians:
         n = len(g.index)
-        r[g.index] = uv.reshape(n, 4, 2) - x[g.index]
         G = jac[:, 3:6].reshape(-1, 2, 3) @ g.camera.cam_T_rig[:3, :3]  # d(pixel)/dy, (N, 2, 3)
         y = g.X @ T[:3, :3].T  # R X, about the rig origin
         Jw = cross(y[:, None, :], G)  # g^T (-[y]x) = (y x g)^T
         J[g.index] = np.concatenate([Jw, G], axis=-1).reshape(n, 4, 2, 6)
-    return r.ravel(), J.reshape(-1, 6)
+    return J.reshape(-1, 6)

@@ -15,7 +15,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from annotator.geometry.camera import Camera
-from annotator.pnp.multiview import Observation, residuals_jacobian
+from annotator.pnp.multiview import Observation, corner_residuals
 
 #: Site sigmas per marker id: (each shift in its plane, mm; turn about its normal, rad).
 SiteSigmas = dict[int, tuple[float, float]]
@@ -30,7 +30,7 @@ def site_jacobian(
     obs = list(obs)
     ids = sorted({o.marker_id for o in obs})
     x = np.stack([o.image_corners for o in obs])
-    r0, _ = residuals_jacobian(cameras, obs, T, x)
+    r0 = corner_residuals(cameras, obs, T, x)
     J = np.zeros((r0.size, 3 * len(ids)))
     scale = np.zeros(3 * len(ids))
     eps = 1e-3  # mm, rad: the projection is smooth at this scale
@@ -50,6 +50,6 @@ def site_jacobian(
                 else o
                 for o in obs
             ]
-            r1, _ = residuals_jacobian(cameras, moved, T, x)
+            r1 = corner_residuals(cameras, moved, T, x)
             J[:, 3 * m + k] = (r1 - r0) / eps
     return J, scale

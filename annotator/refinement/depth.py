@@ -43,7 +43,12 @@ from annotator.geometry.lie import cross, norms, perturb
 from annotator.geometry.mesh import Mesh, surface_samples
 from annotator.geometry.robust import huber_cost, huber_weights
 from annotator.noise import NOISE, NoiseModel
-from annotator.pnp.multiview import Observation, reprojection_errors, residuals_jacobian
+from annotator.pnp.multiview import (
+    Observation,
+    corner_residuals,
+    reprojection_errors,
+    residuals_jacobian,
+)
 from annotator.pnp.sites import site_jacobian
 from annotator.refinement.nearest import TrackedNearest
 from annotator.rendering.raycast import (
@@ -584,6 +589,10 @@ class _MarkerTerm:
     def residuals(self, T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         return residuals_jacobian(self.cameras, self.observations, T, self.corners)
 
+    def residuals_alone(self, T: np.ndarray) -> np.ndarray:
+        """:meth:`residuals` without the Jacobian (a trial step's cost)."""
+        return corner_residuals(self.cameras, self.observations, T, self.corners)
+
 
 #: The damping starts (and stays, while steps lower the cost) far below the scaled system's
 #: unit diagonal: the steps are Gauss-Newton's; a step that raises the cost is damped.
@@ -669,7 +678,7 @@ class _Problem:
         else:  # a trial's step: its residuals alone
             term = self.term
             r_depth = None if term is None else term.paired_residuals(state.T, *pairs, state.offset)
-            r_markers = None if self.markers is None else self.markers.residuals(state.T)[0]
+            r_markers = None if self.markers is None else self.markers.residuals_alone(state.T)
         out = 0.0
         if r_depth is not None:
             sd = s.depth_sigma_mm

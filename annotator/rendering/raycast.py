@@ -137,6 +137,8 @@ class RayScene:
         self._lut = np.full(max(self._geometry_to_index, default=0) + 2, NO_HIT, dtype=np.int32)
         for gid, k in self._geometry_to_index.items():
             self._lut[gid] = k
+        # open3d numbers a new scene's meshes in order from 0: then an id is its index.
+        self._ids_in_order = all(gid == k for gid, k in self._geometry_to_index.items())
 
     def cast(self, directions: np.ndarray, origin: np.ndarray | None = None) -> Hits:
         """Cast rays from ``origin`` (default: the camera centre) along ``directions`` (..., 3)."""
@@ -160,9 +162,12 @@ class RayScene:
         # as long converting them as casting).
         gid = res["geometry_ids"].numpy()
         miss = gid == o3d.t.geometry.RaycastingScene.INVALID_ID
-        # A miss's ids are INVALID_ID (2**32 - 1): -1 once read as int32, as a miss's
-        # triangle is; the LUT's last entry is NO_HIT, which a miss's index picks.
-        instance = self._lut[np.minimum(gid, len(self._lut) - 1)]
+        # A miss's ids are INVALID_ID (2**32 - 1): -1 (NO_HIT) once read as int32, as a
+        # miss's triangle is; the LUT's last entry is NO_HIT, which a miss's index picks.
+        if self._ids_in_order:
+            instance = gid.view(np.int32)
+        else:
+            instance = self._lut[np.minimum(gid, len(self._lut) - 1)]
         tri = res["primitive_ids"].numpy().view(np.int32)
         depth = res["t_hit"].numpy()
         depth[miss] = np.inf
