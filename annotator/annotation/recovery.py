@@ -17,6 +17,7 @@ from annotator.dataset import Dataset
 from annotator.detection import MarkerDetector
 from annotator.detection.aruco import ImageReading
 from annotator.geometry.camera import Camera
+from annotator.geometry.lie import cross
 from annotator.markers.texture import marker_bits
 from annotator.pnp import Observation
 
@@ -73,13 +74,21 @@ def _found_in(
     X_all = model.site_corners(inst)[: len(instance.marker_ids)]
     cam_T = cam.cam_T_rig @ T
     C_all = X_all @ cam_T[:3, :3].T + cam_T[:3, 3]  # (S, 4, 3), all sites at once
-    centres = reading.unread.mean(axis=1)
     sites = [s for s in np.flatnonzero(_facing(C_all)) if instance.marker_ids[s] not in read]
+    if not sites:
+        return []
     projected = cam.project(C_all[sites])  # one projection for all (each point is its own)
+    # Each projected marker's mean side, and the unread squares whose centres lie within
+    # 35% of it of its centre: for every site at once.
+    sides = np.linalg.norm(projected - np.roll(projected, 1, axis=1), axis=2).mean(axis=1)
+    centres = reading.unread.mean(axis=1)
+    apart = np.linalg.norm(centres[None] - projected.mean(axis=1)[:, None], axis=2)
+    near = apart < 0.35 * sides[:, None]
     out = []
-    for site, uv in zip(sites, projected):
+    for site, uv, side, candidates in zip(sites, projected, sides, near):
         mid = instance.marker_ids[site]
-        match = _matching_square(ds.dictionary, mid, uv, reading, centres, within_px)
+        squares = np.flatnonzero(candidates)
+        match = _matching_square(ds.dictionary, mid, uv, float(side), squares, reading, within_px)
         if match is not None:
             out.append((mid, X_all[site], match))
     return out
@@ -88,7 +97,7 @@ def _found_in(
 def _facing(C_all: np.ndarray) -> np.ndarray:
     """Which sites (corners in the camera frame, (S, 4, 3)) are in front of the camera and
     seen within 75 degrees of face-on."""
-    normal = np.cross(C_all[:, 3] - C_all[:, 0], C_all[:, 1] - C_all[:, 0])
+    normal = cross(C_all[:, 3] - C_all[:, 0], C_all[:, 1] - C_all[:, 0])
     centre = C_all.mean(axis=1)
     cos = -(normal * centre).sum(1)
     limit = RECOVER_COS * np.linalg.norm(normal, axis=1) * np.linalg.norm(centre, axis=1)
@@ -99,14 +108,14 @@ def _matching_square(
     dictionary: str,
     mid: int,
     uv: np.ndarray,
+    side: float,
+    near: np.ndarray,
     reading: ImageReading,
-    centres: np.ndarray,
     within_px: float,
 ) -> np.ndarray | None:
-    """The unread square (its corners in the marker's order) near the projected corners
-    ``uv`` whose bits are marker ``mid``'s, or None."""
-    side = float(np.linalg.norm(uv - np.roll(uv, 1, axis=0), axis=1).mean())
-    near = np.flatnonzero(np.linalg.norm(centres - uv.mean(axis=0), axis=1) < 0.35 * side)
+    """Of the unread squares ``near`` (indices), the one (its corners in the marker's order)
+    on the projected corners ``uv`` (whose mean side is ``side``) whose bits are marker
+    ``mid``'s, or None."""
     for k in near:
         quads = [np.roll(reading.unread[k], m, axis=0) for m in range(4)]
         m = int(np.argmin([np.abs(q - uv).max() for q in quads]))
