@@ -157,7 +157,7 @@ def test_the_edge_fit_reads_the_whole_image_blur_in_bands() -> None:
     edges = EdgeImage(gray)
     for ys in ([0.0, 3.2], [40.5, 41.7], [95.9, 120.0], [10.0, 80.0], [-5.0, 2.0]):
         pts = np.column_stack([rng.uniform(-3, 136, 200), rng.uniform(*ys, 200)])
-        np.testing.assert_array_equal(edges.sample(pts), bilinear(whole, pts))
+        np.testing.assert_array_equal(edges.sample(pts[:, 0], pts[:, 1]), bilinear(whole, pts))
 
 
 def test_the_blur_estimate_is_the_full_models_best_width() -> None:

@@ -67,17 +67,17 @@ class EdgeImage:
         self.image = np.zeros(gray.shape, np.float32)
         self.done = np.zeros(gray.shape[0], bool)  # rows blurred
 
-    def sample(self, pts: np.ndarray) -> np.ndarray:
-        """Bilinear samples at (N, 2) points (x, y), clipped to the image."""
+    def sample(self, px: np.ndarray, py: np.ndarray) -> np.ndarray:
+        """Bilinear samples at points ``(px, py)`` (arrays of one shape), clipped to the image."""
         h, w = self.gray.shape
-        x = np.clip(pts[:, 0], 0, w - 1.001)
-        y = np.clip(pts[:, 1], 0, h - 1.001)
+        x = np.clip(px, 0, w - 1.001)
+        y = np.clip(py, 0, h - 1.001)
         x0, y0 = np.floor(x), np.floor(y)
         top = y0.astype(np.intp)
         # The rows the samples read: each point's and the one below.
         need = np.zeros(h + 1, bool)
         need[top] = True
-        need[top + 1] = True
+        need[1:] |= need[:-1]
         missing = need[:h] & ~self.done
         if missing.any():
             # Runs of missing rows (gaps of a few rows joined: one blur costs more than
@@ -181,11 +181,14 @@ def _edge_fit(
     offs = np.linspace(-1.0, 1.0, steps)[None, :] * reach[:, None]  # (S, steps)
     s = np.linspace(0.1, 0.9, samples)  # stay away from the corners
     base = a[:, None, :] + s[None, :, None] * side[:, None, :]  # (S, samples, 2)
-    pts = base[:, :, None, :] + offs[:, None, :, None] * normal[:, None, None, :]
-    prof = img.sample(pts.reshape(-1, 2)).reshape(len(a), samples, steps)
+    # The points across the sides (S, samples, steps), x and y apart: the sampler reads each
+    # as one contiguous array.
+    px = base[:, :, None, 0] + offs[:, None, :] * normal[:, None, None, 0]
+    py = base[:, :, None, 1] + offs[:, None, :] * normal[:, None, None, 1]
+    prof = img.sample(px, py)
     # The side's own direction of change across it, from most of its samples; a gradient
     # the other way (the inner bits' edges, the paper's own border) counts for nothing.
-    sign = np.sign(np.median(prof[..., -3:].mean(-1) - prof[..., :3].mean(-1), axis=1))
+    sign = np.sign(_row_medians(prof[..., -3:].mean(-1) - prof[..., :3].mean(-1)))
     grad = np.clip(np.diff(prof, axis=2) * sign[:, None, None], 0.0, None)
     mid = 0.5 * (offs[:, 1:] + offs[:, :-1])  # (S, steps-1)
     # The centroid of the gradient across the window, not a parabola through its peak: the
@@ -194,7 +197,7 @@ def _edge_fit(
     g1 = grad.sum(axis=2)
     pos = (grad * mid[:, None, :]).sum(axis=2) / np.maximum(g1, 1e-12)
     edge = base + pos[..., None] * normal[:, None, :]  # (S, samples, 2)
-    strong = g1 > 0.25 * np.median(g1, axis=1, keepdims=True)
+    strong = g1 > 0.25 * _row_medians(g1)[:, None]
     strong &= np.abs(pos) < 0.8 * reach[:, None]  # an edge at the window's end is cut off
     point, direction, used, rms = _fit_lines_robust(edge, strong)
     usable = (length >= 8) & (used.sum(axis=1) >= 4) & (rms < 0.5)
@@ -281,14 +284,26 @@ def _fit_lines_robust(
     point, direction = _fit_lines(pts, used.astype(np.float64))
     dist = _distances(pts, point, direction)
     for _ in range(rounds):
-        mad = np.median(np.where(used, dist, np.nan), axis=1)  # NaN where none is used
-        tol = np.maximum(TRIM_PX, 3.0 * MAD_TO_SIGMA * np.nan_to_num(mad))
+        # As np.median of the distances with NaN for the points left out was: NaN (then 0)
+        # on any side with a point left out, so the MAD counts only where all are used.
+        mad = np.where(used.all(axis=1), _row_medians(dist), 0.0)
+        tol = np.maximum(TRIM_PX, 3.0 * MAD_TO_SIGMA * mad)
         used = keep & (dist < tol[:, None])
         point, direction = _fit_lines(pts, used.astype(np.float64))
         dist = _distances(pts, point, direction)
     n = np.maximum(used.sum(axis=1), 1)
     rms = np.sqrt(np.where(used, dist**2, 0.0).sum(axis=1) / n)
     return point, direction, used, rms
+
+
+def _row_medians(x: np.ndarray) -> np.ndarray:
+    """np.median along the rows of a finite (L, P) array, bit for bit (the mean of the two
+    middle values when P is even), without its generic machinery."""
+    m = x.shape[1]
+    v = np.sort(x, axis=1)
+    if m % 2:
+        return v[:, m // 2]
+    return (v[:, m // 2 - 1] + v[:, m // 2]) / 2
 
 
 def _distances(pts: np.ndarray, point: np.ndarray, direction: np.ndarray) -> np.ndarray:
