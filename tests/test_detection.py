@@ -194,3 +194,24 @@ def test_the_blur_estimate_is_the_full_models_best_width() -> None:
         best = float(deblur.BLUR_GRID[int(np.argmin(cost))])
         assert deblur.estimate_blur(gray, quads_a, 6) == best
         assert abs(best - sigma) <= 0.5
+
+
+def test_merging_candidates_compares_only_nearby_squares() -> None:
+    """The second search's squares are merged as comparing every pair would: those within
+    2 px of a first square, corner by corner in some rotation, are left out."""
+    from annotator.detection.aruco import _merge_candidates
+
+    rng = np.random.default_rng(3)
+    first = rng.uniform(0, 200, (60, 1, 2)) + rng.uniform(5, 30) * np.array(
+        [[0, 0], [1, 0], [1, 1], [0, 1]], float
+    )
+    near = np.roll(first[:40], rng.integers(0, 4), axis=1) + rng.uniform(-1.5, 1.5, (40, 4, 2))
+    more = np.concatenate([near, rng.uniform(0, 230, (30, 4, 2))])
+    same = np.zeros(len(more), bool)
+    for r in range(4):
+        d = np.linalg.norm(more[:, None] - np.roll(first, r, axis=1)[None], axis=3).max(axis=2)
+        same |= (d < 2.0).any(axis=1)
+    assert 0 < same.sum() < len(more)
+    np.testing.assert_array_equal(
+        _merge_candidates(first, more), np.concatenate([first, more[~same]])
+    )
