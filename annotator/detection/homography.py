@@ -21,8 +21,9 @@ def unit_square_homographies(quads: np.ndarray) -> np.ndarray:
     return np.concatenate([h, np.ones((len(quads), 1))], axis=1).reshape(-1, 3, 3)
 
 
-def apply_homographies(H: np.ndarray, pts: np.ndarray) -> np.ndarray:
-    """(N, 3, 3) homographies applied to (P, 2) points: (N, P, 2)."""
+def apply_homographies(H: np.ndarray, pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(N, 3, 3) homographies applied to (P, 2) points: x and y, each (N, P) (apart: the
+    callers read them so, and an interleaved array would be copied to be read)."""
     u, v = pts[:, 0], pts[:, 1]
     x, y, w = (H[:, i, 0:1] * u + H[:, i, 1:2] * v + H[:, i, 2:3] for i in range(3))
-    return np.stack([x / w, y / w], axis=-1)
+    return x / w, y / w

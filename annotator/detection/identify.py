@@ -120,10 +120,10 @@ def identify(
     side = cells * PIXELS_PER_CELL
     g = np.arange(side) / (side - 1)
     grid = np.stack(np.meshgrid(g, g), axis=-1).reshape(-1, 2)  # (u, v): column, row
-    pts = apply_homographies(unit_square_homographies(quads), grid)
+    x, y = apply_homographies(unit_square_homographies(quads), grid)
     h, w = gray.shape
-    xy = np.rint(pts.reshape(-1, 2)).astype(int)
-    raw = gray[np.clip(xy[:, 1], 0, h - 1), np.clip(xy[:, 0], 0, w - 1)].reshape(len(quads), -1)
+    rows, cols = np.rint(y).astype(int), np.rint(x).astype(int)
+    raw = gray[np.clip(rows, 0, h - 1), np.clip(cols, 0, w - 1)]  # (N, side * side)
     values = raw.astype(np.float32)
     white = values > _otsu_thresholds(raw)[:, None]
     low = values.std(axis=1) < min_std  # no contrast: OpenCV calls every cell by the mean
