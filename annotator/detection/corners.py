@@ -103,8 +103,12 @@ class EdgeImage:
     def _blur(self, y0: int, y1: int) -> None:
         h = self.gray.shape[0]
         b0, b1 = max(y0 - _BLUR_ROWS, 0), min(y1 + _BLUR_ROWS, h)
-        band = cv2.GaussianBlur(self.gray[b0:b1].astype(np.float32), (0, 0), BLUR_SIGMA_PX)
-        self.image[y0:y1] = band[y0 - b0 : y1 - b0]
+        # The band blurred in place, not copied in: its rows of reach beyond [y0, y1) come out
+        # wrong (the band's border), so those the image had are put back.
+        above, below = self.image[b0:y0].copy(), self.image[y1:b1].copy()
+        src = self.gray[b0:b1].astype(np.float32)
+        cv2.GaussianBlur(src, (0, 0), BLUR_SIGMA_PX, dst=self.image[b0:b1])
+        self.image[b0:y0], self.image[y1:b1] = above, below
         self.done[y0:y1] = True
 
 
