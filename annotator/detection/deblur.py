@@ -23,7 +23,7 @@ from functools import lru_cache
 import cv2
 import numpy as np
 
-from annotator.detection.homography import apply_homographies, unit_square_homographies
+from annotator.detection.homography import apply_homographies_on_grid, unit_square_homographies
 
 RING = 2
 SAMPLES_PER_CELL = 4
@@ -63,9 +63,7 @@ def _projector(cells: int, sigma_cells: float) -> tuple[np.ndarray, np.ndarray]:
 def _samples(gray: np.ndarray, quads: np.ndarray, xs: np.ndarray, cells: int) -> np.ndarray:
     """Bilinear samples of each quad on the grid ``xs`` x ``xs`` (cell units): (N, S, S),
     from an 8-bit image or the same as float32 (not converted again)."""
-    g = xs / cells
-    uv = np.stack(np.meshgrid(g, g), axis=-1).reshape(-1, 2)  # (u: column, v: row)
-    x, y = apply_homographies(unit_square_homographies(quads), uv)
+    x, y = apply_homographies_on_grid(unit_square_homographies(quads), xs / cells)
     vals = cv2.remap(
         np.asarray(gray, np.float32),
         x.astype(np.float32),

@@ -21,9 +21,14 @@ def unit_square_homographies(quads: np.ndarray) -> np.ndarray:
     return np.concatenate([h, np.ones((len(quads), 1))], axis=1).reshape(-1, 3, 3)
 
 
-def apply_homographies(H: np.ndarray, pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(N, 3, 3) homographies applied to (P, 2) points: x and y, each (N, P) (apart: the
-    callers read them so, and an interleaved array would be copied to be read)."""
-    u, v = pts[:, 0], pts[:, 1]
-    x, y, w = (H[:, i, 0:1] * u + H[:, i, 1:2] * v + H[:, i, 2:3] for i in range(3))
-    return x / w, y / w
+def apply_homographies_on_grid(H: np.ndarray, g: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(N, 3, 3) homographies applied to the points (u, v) of the grid ``g`` x ``g`` (G values),
+    row by row (v the row, u the column): x and y, each (N, G * G)."""
+    u, v = g[None, None, :], g[None, :, None]
+    # Each product of a homography's entry with u (or v) made once per grid column (or row)
+    # and broadcast over the grid: the sums are those of every point's own products.
+    x, y, w = (
+        H[:, i, 0, None, None] * u + H[:, i, 1, None, None] * v + H[:, i, 2, None, None]
+        for i in range(3)
+    )
+    return (x / w).reshape(len(H), -1), (y / w).reshape(len(H), -1)

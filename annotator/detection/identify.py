@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from annotator.detection.homography import apply_homographies, unit_square_homographies
+from annotator.detection.homography import apply_homographies_on_grid, unit_square_homographies
 
 #: Samples per cell side when reading a candidate's bits (OpenCV's perspectiveRemovePixelPerCell).
 PIXELS_PER_CELL = 4
@@ -120,8 +120,7 @@ def identify(
     cells = n + 2
     side = cells * PIXELS_PER_CELL
     g = np.arange(side) / (side - 1)
-    grid = np.stack(np.meshgrid(g, g), axis=-1).reshape(-1, 2)  # (u, v): column, row
-    x, y = apply_homographies(unit_square_homographies(quads), grid)
+    x, y = apply_homographies_on_grid(unit_square_homographies(quads), g)
     h, w = gray.shape
     rows, cols = np.rint(y).astype(int), np.rint(x).astype(int)
     raw = gray[np.clip(rows, 0, h - 1), np.clip(cols, 0, w - 1)]  # (N, side * side)
