@@ -215,3 +215,24 @@ def test_merging_candidates_compares_only_nearby_squares() -> None:
     np.testing.assert_array_equal(
         _merge_candidates(first, more), np.concatenate([first, more[~same]])
     )
+
+
+def test_otsu_thresholds_from_integer_sums_are_the_float_ones() -> None:
+    """Otsu's thresholds from integer running sums are those from float32 ones, bit for bit
+    (rows of any contrast, constant ones included)."""
+    from annotator.detection.identify import _otsu_thresholds
+
+    rng = np.random.default_rng(11)
+    rows = rng.integers(0, 256, (200, 576)).astype(np.uint8)
+    rows[:50] = np.clip(rows[:50] // 16 + rng.integers(0, 240, (50, 1)), 0, 255)
+    rows[50:60] = rng.integers(0, 256, (10, 1))
+    v = np.sort(rows, axis=1).astype(np.float32)
+    c = np.cumsum(v, axis=1)
+    k = np.arange(1, v.shape[1])
+    w0 = k / v.shape[1]
+    mu0, mu1 = c[:, :-1] / k, (c[:, -1:] - c[:, :-1]) / (v.shape[1] - k)
+    i = np.argmax(w0 * (1 - w0) * (mu0 - mu1) ** 2, axis=1)
+    expected = 0.5 * (v[np.arange(len(v)), i] + v[np.arange(len(v)), i + 1])
+    got = _otsu_thresholds(rows)
+    assert got.dtype == expected.dtype
+    np.testing.assert_array_equal(got, expected)
