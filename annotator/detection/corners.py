@@ -160,7 +160,7 @@ TRIM_PX = 0.6
 def _max_move(quads: np.ndarray) -> np.ndarray:
     """How far (px) the edge fit may move a quad's corners: 2 px, or a quarter of its
     shortest side."""
-    sides = np.linalg.norm(np.roll(quads, -1, axis=1) - quads, axis=2).min(axis=1)
+    sides = np.linalg.norm(_turn(quads, -1) - quads, axis=2).min(axis=1)
     return np.maximum(2.0, 0.25 * sides)
 
 
@@ -170,7 +170,7 @@ def _edge_fit(
     """One round of the edge fit: the (N, 4, 2) corners where the sides' lines meet, and
     which quads all four of whose sides were fitted."""
     a = quads.reshape(-1, 2)  # (N*4, 2): side k runs from corner k to corner k+1
-    b = np.roll(quads, -1, axis=1).reshape(-1, 2)
+    b = _turn(quads, -1).reshape(-1, 2)
     side = b - a
     length = np.linalg.norm(side, axis=1)
     tangent = side / np.maximum(length, 1e-9)[:, None]
@@ -180,7 +180,7 @@ def _edge_fit(
     # along them, and a search as long as the side's own cells reached the inner bits, whose
     # blurred edges pulled the corners outwards (markers seen at a slant looked too near).
     mid = 0.5 * (a + b)
-    opposite = np.roll(mid.reshape(-1, 4, 2), -2, axis=1).reshape(-1, 2)
+    opposite = _turn(mid.reshape(-1, 4, 2), -2).reshape(-1, 2)
     across = np.abs(np.einsum("sd,sd->s", opposite - mid, normal))
     reach = np.clip(0.5 * across / cells, 0.7, 2.5)
     steps = 21
@@ -215,7 +215,7 @@ def _edge_fit(
     # Corner k is where side k-1 (ending at it) meets side k (starting at it).
     p, d = start.reshape(-1, 4, 2), start_dir.reshape(-1, 4, 2)
     q, e = end.reshape(-1, 4, 2), end_dir.reshape(-1, 4, 2)
-    corners = _intersect(np.roll(q, 1, axis=1), np.roll(e, 1, axis=1), p, d)
+    corners = _intersect(_turn(q, 1), _turn(e, 1), p, d)
     good = usable.reshape(-1, 4).all(axis=1) & np.isfinite(corners).all(axis=(1, 2))
     return corners, good
 
@@ -262,8 +262,8 @@ def _bowed_ends(
     # image (seen at a slant, the middle of the square rises off the plane of its corners):
     # both must show it. A side alone that seems to bow is noise.
     bow = (coef[:, 2, None] * normal).reshape(-1, 4, 2)  # the way it bows, in the image
-    alike = np.einsum("nkd,nkd->nk", bow, np.roll(bow, 2, axis=1)) > 0
-    bowed = ((np.minimum(z, np.roll(z, 2, axis=1)) > BOW_SIGMAS) & alike).ravel()
+    alike = np.einsum("nkd,nkd->nk", bow, _turn(bow, 2)) > 0
+    bowed = ((np.minimum(z, _turn(z, 2)) > BOW_SIGMAS) & alike).ravel()
     c = np.where(bowed[:, None], coef, 0.0)
 
     def tangent(at: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -300,6 +300,15 @@ def _fit_lines_robust(
     n = np.maximum(used.sum(axis=1), 1)
     rms = np.sqrt(np.where(used, dist**2, 0.0).sum(axis=1) / n)
     return point, direction, used, rms
+
+
+_FOUR = np.arange(4)
+
+
+def _turn(x: np.ndarray, k: int) -> np.ndarray:
+    """np.roll(x, k, axis=1) of (N, 4, ...) arrays, a quad's corners or sides (element i from
+    element i - k), by take: np.roll's overhead is most of its cost on arrays this small."""
+    return x.take((_FOUR - k) % 4, axis=1)
 
 
 def _row_medians(x: np.ndarray) -> np.ndarray:
