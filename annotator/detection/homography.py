@@ -10,14 +10,14 @@ def unit_square_homographies(quads: np.ndarray) -> np.ndarray:
     """(N, 3, 3) homographies taking the unit square's corners (0,0), (1,0), (1,1), (0,1)
     to each quad's corners."""
     src = np.array([[0, 0], [1, 0], [1, 1], [0, 1]], float)
-    A = np.zeros((len(quads), 8, 8))
+    # Two rows per corner (its x, then its y), all corners' at once.
+    A = np.zeros((len(quads), 4, 2, 8))
+    A[:, :, 0, 0:2] = A[:, :, 1, 3:5] = src
+    A[:, :, 0, 2] = A[:, :, 1, 5] = 1
+    A[:, :, 0, 6:8] = -(quads[:, :, 0, None] * src)
+    A[:, :, 1, 6:8] = -(quads[:, :, 1, None] * src)
     b = quads.reshape(-1, 8)
-    for i, (x, y) in enumerate(src):
-        A[:, 2 * i, 0:3] = [x, y, 1]
-        A[:, 2 * i + 1, 3:6] = [x, y, 1]
-        A[:, 2 * i, 6:8] = -np.outer(quads[:, i, 0], [x, y])
-        A[:, 2 * i + 1, 6:8] = -np.outer(quads[:, i, 1], [x, y])
-    h = np.linalg.solve(A, b[..., None])[..., 0]
+    h = np.linalg.solve(A.reshape(-1, 8, 8), b[..., None])[..., 0]
     return np.concatenate([h, np.ones((len(quads), 1))], axis=1).reshape(-1, 3, 3)
 
 
