@@ -194,8 +194,13 @@ def _edge_fit(
     prof = img.sample(px, py)
     # The side's own direction of change across it, from most of its samples; a gradient
     # the other way (the inner bits' edges, the paper's own border) counts for nothing.
-    sign = np.sign(_row_medians(prof[..., -3:].mean(-1) - prof[..., :3].mean(-1)))
-    grad = np.clip(np.diff(prof, axis=2) * sign[:, None, None], 0.0, None)
+    # (The three samples at each end summed in order, as np.mean sums them.)
+    inside = (prof[..., 0] + prof[..., 1] + prof[..., 2]) / 3
+    outside = (prof[..., -3] + prof[..., -2] + prof[..., -1]) / 3
+    sign = np.sign(_row_medians(outside - inside))
+    grad = prof[..., 1:] - prof[..., :-1]
+    grad *= sign[:, None, None]
+    np.maximum(grad, 0.0, out=grad)
     mid = 0.5 * (offs[:, 1:] + offs[:, :-1])  # (S, steps-1)
     # The centroid of the gradient across the window, not a parabola through its peak: the
     # profile is bilinear between pixels, so its gradient is flat across each pixel and a
