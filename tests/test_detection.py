@@ -157,7 +157,7 @@ def test_the_edge_fit_reads_the_whole_image_blur_in_bands() -> None:
     edges = EdgeImage(gray)
     for ys in ([0.0, 3.2], [40.5, 41.7], [95.9, 120.0], [10.0, 80.0], [-5.0, 2.0]):
         pts = np.column_stack([rng.uniform(-3, 136, 200), rng.uniform(*ys, 200)])
-        np.testing.assert_array_equal(edges.sample(pts), bilinear(whole, pts))
+        np.testing.assert_array_equal(edges.sample(pts[:, 0], pts[:, 1]), bilinear(whole, pts))
 
 
 def test_the_blur_estimate_is_the_full_models_best_width() -> None:
@@ -194,3 +194,45 @@ def test_the_blur_estimate_is_the_full_models_best_width() -> None:
         best = float(deblur.BLUR_GRID[int(np.argmin(cost))])
         assert deblur.estimate_blur(gray, quads_a, 6) == best
         assert abs(best - sigma) <= 0.5
+
+
+def test_merging_candidates_compares_only_nearby_squares() -> None:
+    """The second search's squares are merged as comparing every pair would: those within
+    2 px of a first square, corner by corner in some rotation, are left out."""
+    from annotator.detection.aruco import _merge_candidates
+
+    rng = np.random.default_rng(3)
+    first = rng.uniform(0, 200, (60, 1, 2)) + rng.uniform(5, 30) * np.array(
+        [[0, 0], [1, 0], [1, 1], [0, 1]], float
+    )
+    near = np.roll(first[:40], rng.integers(0, 4), axis=1) + rng.uniform(-1.5, 1.5, (40, 4, 2))
+    more = np.concatenate([near, rng.uniform(0, 230, (30, 4, 2))])
+    same = np.zeros(len(more), bool)
+    for r in range(4):
+        d = np.linalg.norm(more[:, None] - np.roll(first, r, axis=1)[None], axis=3).max(axis=2)
+        same |= (d < 2.0).any(axis=1)
+    assert 0 < same.sum() < len(more)
+    np.testing.assert_array_equal(
+        _merge_candidates(first, more), np.concatenate([first, more[~same]])
+    )
+
+
+def test_otsu_thresholds_from_integer_sums_are_the_float_ones() -> None:
+    """Otsu's thresholds from integer running sums are those from float32 ones, bit for bit
+    (rows of any contrast, constant ones included)."""
+    from annotator.detection.identify import _otsu_thresholds
+
+    rng = np.random.default_rng(11)
+    rows = rng.integers(0, 256, (200, 576)).astype(np.uint8)
+    rows[:50] = np.clip(rows[:50] // 16 + rng.integers(0, 240, (50, 1)), 0, 255)
+    rows[50:60] = rng.integers(0, 256, (10, 1))
+    v = np.sort(rows, axis=1).astype(np.float32)
+    c = np.cumsum(v, axis=1)
+    k = np.arange(1, v.shape[1])
+    w0 = k / v.shape[1]
+    mu0, mu1 = c[:, :-1] / k, (c[:, -1:] - c[:, :-1]) / (v.shape[1] - k)
+    i = np.argmax(w0 * (1 - w0) * (mu0 - mu1) ** 2, axis=1)
+    expected = 0.5 * (v[np.arange(len(v)), i] + v[np.arange(len(v)), i + 1])
+    got = _otsu_thresholds(rows)
+    assert got.dtype == expected.dtype
+    np.testing.assert_array_equal(got, expected)

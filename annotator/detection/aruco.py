@@ -181,15 +181,21 @@ def _merge_candidates(first: np.ndarray, more: np.ndarray) -> np.ndarray:
     (every corner within 2 px, in some rotation)."""
     if len(first) == 0 or len(more) == 0:
         return first if len(more) == 0 else more
+    # Squares whose every corner is within 2 px have centres within 2 px too: only the pairs
+    # whose centres are within 3 px (a margin for rounding) are compared corner by corner.
+    gap = np.abs(more.mean(axis=1)[:, None] - first.mean(axis=1)[None]).max(axis=2)  # (M, N)
+    m, k = np.nonzero(gap < 3.0)
     same = np.zeros(len(more), bool)
     for r in range(4):
-        turned = np.roll(first, r, axis=1)
-        d = np.linalg.norm(more[:, None] - turned[None], axis=3).max(axis=2)  # (M, N)
-        same |= (d < 2.0).any(axis=1)
+        d = np.linalg.norm(more[m] - np.roll(first, r, axis=1)[k], axis=2).max(axis=1)
+        same[m[d < 2.0]] = True
     return np.concatenate([first, more[~same]])
 
 
 def _candidates(found, rejected) -> np.ndarray:
     """OpenCV's candidate squares as one (N, 4, 2) float array."""
-    quads = [np.asarray(q, np.float64).reshape(4, 2) for q in (*found, *rejected)]
-    return np.stack(quads) if quads else np.zeros((0, 4, 2))
+    quads = (*found, *rejected)
+    if not quads:
+        return np.zeros((0, 4, 2))
+    # Joined as OpenCV gives them (float32), then converted at once.
+    return np.concatenate(quads, axis=None).reshape(-1, 4, 2).astype(np.float64)

@@ -64,20 +64,20 @@ class EdgeImage:
 
     def __init__(self, gray: np.ndarray) -> None:
         self.gray = gray
-        self.image = np.zeros(gray.shape, np.float32)
+        self.image = np.empty(gray.shape, np.float32)  # read only where blurred
         self.done = np.zeros(gray.shape[0], bool)  # rows blurred
 
-    def sample(self, pts: np.ndarray) -> np.ndarray:
-        """Bilinear samples at (N, 2) points (x, y), clipped to the image."""
+    def sample(self, px: np.ndarray, py: np.ndarray) -> np.ndarray:
+        """Bilinear samples at points ``(px, py)`` (arrays of one shape), clipped to the image."""
         h, w = self.gray.shape
-        x = np.clip(pts[:, 0], 0, w - 1.001)
-        y = np.clip(pts[:, 1], 0, h - 1.001)
+        x = np.clip(px, 0, w - 1.001)
+        y = np.clip(py, 0, h - 1.001)
         x0, y0 = np.floor(x), np.floor(y)
         top = y0.astype(np.intp)
         # The rows the samples read: each point's and the one below.
         need = np.zeros(h + 1, bool)
         need[top] = True
-        need[top + 1] = True
+        need[1:] |= need[:-1]
         missing = need[:h] & ~self.done
         if missing.any():
             # Runs of missing rows (gaps of a few rows joined: one blur costs more than
@@ -91,18 +91,24 @@ class EdgeImage:
         flat = self.image.reshape(-1)
         fx, fy = x - x0, y - y0
         gx, gy = 1 - fx, 1 - fy
+        # The neighbours right and below through views shifted by their offsets: the same
+        # pixels without an index array for each.
         return (
             flat.take(at) * gx * gy
-            + flat.take(at + 1) * fx * gy
-            + flat.take(at + w) * gx * fy
-            + flat.take(at + w + 1) * fx * fy
+            + flat[1:].take(at) * fx * gy
+            + flat[w:].take(at) * gx * fy
+            + flat[w + 1 :].take(at) * fx * fy
         )
 
     def _blur(self, y0: int, y1: int) -> None:
         h = self.gray.shape[0]
         b0, b1 = max(y0 - _BLUR_ROWS, 0), min(y1 + _BLUR_ROWS, h)
-        band = cv2.GaussianBlur(self.gray[b0:b1].astype(np.float32), (0, 0), BLUR_SIGMA_PX)
-        self.image[y0:y1] = band[y0 - b0 : y1 - b0]
+        # The band blurred in place, not copied in: its rows of reach beyond [y0, y1) come out
+        # wrong (the band's border), so those the image had are put back.
+        above, below = self.image[b0:y0].copy(), self.image[y1:b1].copy()
+        src = self.gray[b0:b1].astype(np.float32)
+        cv2.GaussianBlur(src, (0, 0), BLUR_SIGMA_PX, dst=self.image[b0:b1])
+        self.image[b0:y0], self.image[y1:b1] = above, below
         self.done[y0:y1] = True
 
 
@@ -154,7 +160,7 @@ TRIM_PX = 0.6
 def _max_move(quads: np.ndarray) -> np.ndarray:
     """How far (px) the edge fit may move a quad's corners: 2 px, or a quarter of its
     shortest side."""
-    sides = np.linalg.norm(np.roll(quads, -1, axis=1) - quads, axis=2).min(axis=1)
+    sides = np.linalg.norm(_turn(quads, -1) - quads, axis=2).min(axis=1)
     return np.maximum(2.0, 0.25 * sides)
 
 
@@ -164,7 +170,7 @@ def _edge_fit(
     """One round of the edge fit: the (N, 4, 2) corners where the sides' lines meet, and
     which quads all four of whose sides were fitted."""
     a = quads.reshape(-1, 2)  # (N*4, 2): side k runs from corner k to corner k+1
-    b = np.roll(quads, -1, axis=1).reshape(-1, 2)
+    b = _turn(quads, -1).reshape(-1, 2)
     side = b - a
     length = np.linalg.norm(side, axis=1)
     tangent = side / np.maximum(length, 1e-9)[:, None]
@@ -174,19 +180,27 @@ def _edge_fit(
     # along them, and a search as long as the side's own cells reached the inner bits, whose
     # blurred edges pulled the corners outwards (markers seen at a slant looked too near).
     mid = 0.5 * (a + b)
-    opposite = np.roll(mid.reshape(-1, 4, 2), -2, axis=1).reshape(-1, 2)
+    opposite = _turn(mid.reshape(-1, 4, 2), -2).reshape(-1, 2)
     across = np.abs(np.einsum("sd,sd->s", opposite - mid, normal))
     reach = np.clip(0.5 * across / cells, 0.7, 2.5)
     steps = 21
     offs = np.linspace(-1.0, 1.0, steps)[None, :] * reach[:, None]  # (S, steps)
     s = np.linspace(0.1, 0.9, samples)  # stay away from the corners
     base = a[:, None, :] + s[None, :, None] * side[:, None, :]  # (S, samples, 2)
-    pts = base[:, :, None, :] + offs[:, None, :, None] * normal[:, None, None, :]
-    prof = img.sample(pts.reshape(-1, 2)).reshape(len(a), samples, steps)
+    # The points across the sides (S, samples, steps), x and y apart: the sampler reads each
+    # as one contiguous array.
+    px = base[:, :, None, 0] + offs[:, None, :] * normal[:, None, None, 0]
+    py = base[:, :, None, 1] + offs[:, None, :] * normal[:, None, None, 1]
+    prof = img.sample(px, py)
     # The side's own direction of change across it, from most of its samples; a gradient
     # the other way (the inner bits' edges, the paper's own border) counts for nothing.
-    sign = np.sign(np.median(prof[..., -3:].mean(-1) - prof[..., :3].mean(-1), axis=1))
-    grad = np.clip(np.diff(prof, axis=2) * sign[:, None, None], 0.0, None)
+    # (The three samples at each end summed in order, as np.mean sums them.)
+    inside = (prof[..., 0] + prof[..., 1] + prof[..., 2]) / 3
+    outside = (prof[..., -3] + prof[..., -2] + prof[..., -1]) / 3
+    sign = np.sign(_row_medians(outside - inside))
+    grad = prof[..., 1:] - prof[..., :-1]
+    grad *= sign[:, None, None]
+    np.maximum(grad, 0.0, out=grad)
     mid = 0.5 * (offs[:, 1:] + offs[:, :-1])  # (S, steps-1)
     # The centroid of the gradient across the window, not a parabola through its peak: the
     # profile is bilinear between pixels, so its gradient is flat across each pixel and a
@@ -194,7 +208,7 @@ def _edge_fit(
     g1 = grad.sum(axis=2)
     pos = (grad * mid[:, None, :]).sum(axis=2) / np.maximum(g1, 1e-12)
     edge = base + pos[..., None] * normal[:, None, :]  # (S, samples, 2)
-    strong = g1 > 0.25 * np.median(g1, axis=1, keepdims=True)
+    strong = g1 > 0.25 * _row_medians(g1)[:, None]
     strong &= np.abs(pos) < 0.8 * reach[:, None]  # an edge at the window's end is cut off
     point, direction, used, rms = _fit_lines_robust(edge, strong)
     usable = (length >= 8) & (used.sum(axis=1) >= 4) & (rms < 0.5)
@@ -206,7 +220,7 @@ def _edge_fit(
     # Corner k is where side k-1 (ending at it) meets side k (starting at it).
     p, d = start.reshape(-1, 4, 2), start_dir.reshape(-1, 4, 2)
     q, e = end.reshape(-1, 4, 2), end_dir.reshape(-1, 4, 2)
-    corners = _intersect(np.roll(q, 1, axis=1), np.roll(e, 1, axis=1), p, d)
+    corners = _intersect(_turn(q, 1), _turn(e, 1), p, d)
     good = usable.reshape(-1, 4).all(axis=1) & np.isfinite(corners).all(axis=(1, 2))
     return corners, good
 
@@ -253,8 +267,8 @@ def _bowed_ends(
     # image (seen at a slant, the middle of the square rises off the plane of its corners):
     # both must show it. A side alone that seems to bow is noise.
     bow = (coef[:, 2, None] * normal).reshape(-1, 4, 2)  # the way it bows, in the image
-    alike = np.einsum("nkd,nkd->nk", bow, np.roll(bow, 2, axis=1)) > 0
-    bowed = ((np.minimum(z, np.roll(z, 2, axis=1)) > BOW_SIGMAS) & alike).ravel()
+    alike = np.einsum("nkd,nkd->nk", bow, _turn(bow, 2)) > 0
+    bowed = ((np.minimum(z, _turn(z, 2)) > BOW_SIGMAS) & alike).ravel()
     c = np.where(bowed[:, None], coef, 0.0)
 
     def tangent(at: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -281,14 +295,35 @@ def _fit_lines_robust(
     point, direction = _fit_lines(pts, used.astype(np.float64))
     dist = _distances(pts, point, direction)
     for _ in range(rounds):
-        mad = np.median(np.where(used, dist, np.nan), axis=1)  # NaN where none is used
-        tol = np.maximum(TRIM_PX, 3.0 * MAD_TO_SIGMA * np.nan_to_num(mad))
+        # As np.median of the distances with NaN for the points left out was: NaN (then 0)
+        # on any side with a point left out, so the MAD counts only where all are used.
+        mad = np.where(used.all(axis=1), _row_medians(dist), 0.0)
+        tol = np.maximum(TRIM_PX, 3.0 * MAD_TO_SIGMA * mad)
         used = keep & (dist < tol[:, None])
         point, direction = _fit_lines(pts, used.astype(np.float64))
         dist = _distances(pts, point, direction)
     n = np.maximum(used.sum(axis=1), 1)
     rms = np.sqrt(np.where(used, dist**2, 0.0).sum(axis=1) / n)
     return point, direction, used, rms
+
+
+_FOUR = np.arange(4)
+
+
+def _turn(x: np.ndarray, k: int) -> np.ndarray:
+    """np.roll(x, k, axis=1) of (N, 4, ...) arrays, a quad's corners or sides (element i from
+    element i - k), by take: np.roll's overhead is most of its cost on arrays this small."""
+    return x.take((_FOUR - k) % 4, axis=1)
+
+
+def _row_medians(x: np.ndarray) -> np.ndarray:
+    """np.median along the rows of a finite (L, P) array, bit for bit (the mean of the two
+    middle values when P is even), without its generic machinery."""
+    m = x.shape[1]
+    v = np.sort(x, axis=1)
+    if m % 2:
+        return v[:, m // 2]
+    return (v[:, m // 2 - 1] + v[:, m // 2]) / 2
 
 
 def _distances(pts: np.ndarray, point: np.ndarray, direction: np.ndarray) -> np.ndarray:

@@ -10,19 +10,25 @@ def unit_square_homographies(quads: np.ndarray) -> np.ndarray:
     """(N, 3, 3) homographies taking the unit square's corners (0,0), (1,0), (1,1), (0,1)
     to each quad's corners."""
     src = np.array([[0, 0], [1, 0], [1, 1], [0, 1]], float)
-    A = np.zeros((len(quads), 8, 8))
+    # Two rows per corner (its x, then its y), all corners' at once.
+    A = np.zeros((len(quads), 4, 2, 8))
+    A[:, :, 0, 0:2] = A[:, :, 1, 3:5] = src
+    A[:, :, 0, 2] = A[:, :, 1, 5] = 1
+    A[:, :, 0, 6:8] = -(quads[:, :, 0, None] * src)
+    A[:, :, 1, 6:8] = -(quads[:, :, 1, None] * src)
     b = quads.reshape(-1, 8)
-    for i, (x, y) in enumerate(src):
-        A[:, 2 * i, 0:3] = [x, y, 1]
-        A[:, 2 * i + 1, 3:6] = [x, y, 1]
-        A[:, 2 * i, 6:8] = -np.outer(quads[:, i, 0], [x, y])
-        A[:, 2 * i + 1, 6:8] = -np.outer(quads[:, i, 1], [x, y])
-    h = np.linalg.solve(A, b[..., None])[..., 0]
+    h = np.linalg.solve(A.reshape(-1, 8, 8), b[..., None])[..., 0]
     return np.concatenate([h, np.ones((len(quads), 1))], axis=1).reshape(-1, 3, 3)
 
 
-def apply_homographies(H: np.ndarray, pts: np.ndarray) -> np.ndarray:
-    """(N, 3, 3) homographies applied to (P, 2) points: (N, P, 2)."""
-    u, v = pts[:, 0], pts[:, 1]
-    x, y, w = (H[:, i, 0:1] * u + H[:, i, 1:2] * v + H[:, i, 2:3] for i in range(3))
-    return np.stack([x / w, y / w], axis=-1)
+def apply_homographies_on_grid(H: np.ndarray, g: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(N, 3, 3) homographies applied to the points (u, v) of the grid ``g`` x ``g`` (G values),
+    row by row (v the row, u the column): x and y, each (N, G * G)."""
+    u, v = g[None, None, :], g[None, :, None]
+    # Each product of a homography's entry with u (or v) made once per grid column (or row)
+    # and broadcast over the grid: the sums are those of every point's own products.
+    x, y, w = (
+        H[:, i, 0, None, None] * u + H[:, i, 1, None, None] * v + H[:, i, 2, None, None]
+        for i in range(3)
+    )
+    return (x / w).reshape(len(H), -1), (y / w).reshape(len(H), -1)

@@ -12,12 +12,13 @@ nearest code within OpenCV's number of correctable bits.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import cv2
 import numpy as np
 
-from annotator.detection.homography import apply_homographies, unit_square_homographies
+from annotator.detection.homography import apply_homographies_on_grid, unit_square_homographies
 
 #: Samples per cell side when reading a candidate's bits (OpenCV's perspectiveRemovePixelPerCell).
 PIXELS_PER_CELL = 4
@@ -119,17 +120,15 @@ def identify(
     cells = n + 2
     side = cells * PIXELS_PER_CELL
     g = np.arange(side) / (side - 1)
-    grid = np.stack(np.meshgrid(g, g), axis=-1).reshape(-1, 2)  # (u, v): column, row
-    pts = apply_homographies(unit_square_homographies(quads), grid)
+    x, y = apply_homographies_on_grid(unit_square_homographies(quads), g)
     h, w = gray.shape
-    xy = np.rint(pts.reshape(-1, 2)).astype(int)
-    raw = gray[np.clip(xy[:, 1], 0, h - 1), np.clip(xy[:, 0], 0, w - 1)].reshape(len(quads), -1)
+    rows, cols = np.rint(y).astype(int), np.rint(x).astype(int)
+    raw = gray[np.clip(rows, 0, h - 1), np.clip(cols, 0, w - 1)]  # (N, side * side)
     values = raw.astype(np.float32)
     white = values > _otsu_thresholds(raw)[:, None]
     low = values.std(axis=1) < min_std  # no contrast: OpenCV calls every cell by the mean
     white[low] = (values[low].mean(axis=1) > 127)[:, None]
-    frac = white.reshape(-1, cells, PIXELS_PER_CELL, cells, PIXELS_PER_CELL).mean(axis=(2, 4))
-    bits = frac > 0.5
+    bits = _cell_majority(white, cells)
     border = bits.copy()
     border[:, 1:-1, 1:-1] = False
     ok = border.sum(axis=(1, 2)) <= border_tolerance
@@ -147,6 +146,21 @@ def identify(
     return ids_kept, quads_kept, ok
 
 
+def _cell_majority(white: np.ndarray, cells: int) -> np.ndarray:
+    """(N, cells, cells) bits from (N, side * side) samples read row by row: True where more
+    than half of a cell's samples are white."""
+    p = PIXELS_PER_CELL
+    w = white.view(np.uint8).reshape(-1, cells, p, cells, p)
+    # The samples counted by adding slices: a reduction over such short axes costs far more.
+    rows = w[:, :, 0].copy()  # (N, cells, cells, p): each cell's columns, summed down it
+    for i in range(1, p):
+        rows += w[:, :, i]
+    count = rows[..., 0].copy()
+    for j in range(1, p):
+        count += rows[..., j]
+    return count > p * p / 2
+
+
 def one_per_marker(
     ids: np.ndarray, quads: np.ndarray, perimeter: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -158,20 +172,27 @@ def one_per_marker(
     kept_where: dict[int, list[int]] = {}  # id -> indices kept so far
     for k in np.argsort(-perimeter, kind="stable"):
         same = kept_where.setdefault(int(ids[k]), [])
-        if all(np.linalg.norm(centre[j] - centre[k]) >= perimeter[j] / 8 for j in same):
+        if all(_length(centre[j] - centre[k]) >= perimeter[j] / 8 for j in same):
             same.append(int(k))
             keep.append(int(k))
     keep.sort()
     return ids[keep], quads[keep]
 
 
+def _length(v: np.ndarray) -> float:
+    """np.linalg.norm of a vector, its own arithmetic (the root of the vector's dot product
+    with itself) without its overhead per call."""
+    return math.sqrt(v.dot(v))
+
+
 def _otsu_thresholds(values: np.ndarray) -> np.ndarray:
-    """Otsu's threshold of each row: the split maximising the between-class variance
-    (float32). The rows are sorted as stored: numpy sorts 8-bit values stably by radix, several
-    times quicker than their float copies, in the same order."""
-    v = np.sort(values, axis=1, kind="stable").astype(np.float32)
+    """Otsu's threshold of each row of 8-bit values: the split maximising the between-class
+    variance (float32). The rows are sorted as stored: numpy sorts 8-bit values stably by
+    radix, several times quicker than their float copies, in the same order. Their running
+    sums are integers, exact (as float32 sums of them are, below 2**24) and quicker."""
+    v = np.sort(values, axis=1, kind="stable")
     m = v.shape[1]
-    c = np.cumsum(v, axis=1)
+    c = np.cumsum(v, axis=1, dtype=np.int32)
     k = np.arange(1, m)
     mu0 = c[:, :-1] / k
     mu1 = (c[:, -1:] - c[:, :-1]) / (m - k)
@@ -179,4 +200,4 @@ def _otsu_thresholds(values: np.ndarray) -> np.ndarray:
     between = w0 * (1 - w0) * (mu0 - mu1) ** 2
     i = np.argmax(between, axis=1)
     rows = np.arange(len(v))
-    return 0.5 * (v[rows, i] + v[rows, i + 1])
+    return 0.5 * (v[rows, i].astype(np.float32) + v[rows, i + 1])
