@@ -13,8 +13,8 @@ Targets: posed >= 95% sharp and >= 90% blurred of the parts at least half visibl
 0 gross errors (> 5% of D) without a flag; every scene with an unposed visible part warned;
 at most 1 complete scene in 8 warned; annotate time per scene no more than 25% above the
 0.41 s of before (0.51 s); issue 55: 0.3 s per scene per worker, the physics check included.
-Speed is printed as wall and CPU time (user + sys, worker processes included) with the load
-average beside it: the machine is shared.
+Speed is printed as wall and CPU time (user + sys, worker processes included), the median of
+three warm batches, with the load average beside it: the machine is shared.
 """
 
 from __future__ import annotations
@@ -51,6 +51,7 @@ from annotator.synthesis.generate import SynthSettings, plan_dataset, write_data
 
 BASELINE_S = 0.41  # annotate, warm, one worker, per scene, before blur reading and completeness
 TARGET_S = 0.3  # issue 55: per scene per worker, with the physics check
+BATCHES = 3  # warm batches of the scenes per worker count (the median is reported)
 CONFIG = SynthSettings(parts=("bracket", "brick", "cylinder"), instances=(12, 20), seed=11)
 
 
@@ -206,39 +207,33 @@ def speed(root: Path, ids: list[str]) -> None:
     job(ids[0])
     single = 0.0
     for workers in (1, 2):
-        t0, c0 = time.perf_counter(), _cpu_s()
-        report = run_batch(job, ids, workers=workers, quiet=True)
-        per = (time.perf_counter() - t0) / len(ids)
-        cpu = (_cpu_s() - c0) / len(ids)
-        assert not report.failed, report.failed
+        # Several batches: the machine is shared, and a neighbour's burst can slow one by a
+        # third; the median batch judges the target. Each batch forks its own workers, whose
+        # first scene faults their pages in, and ends with its last scene alone: over 8
+        # scenes both weigh on the time per worker (a user's hundreds of scenes hardly see
+        # them).
+        walls, cpus = [], []
+        for _ in range(BATCHES):
+            t0, c0 = time.perf_counter(), _cpu_s()
+            report = run_batch(job, ids, workers=workers, quiet=True)
+            walls.append((time.perf_counter() - t0) / len(ids))
+            cpus.append((_cpu_s() - c0) / len(ids))
+            assert not report.failed, report.failed
+        per, cpu = float(np.median(walls)), float(np.median(cpus))
         single = single or per
         print(
             f"speed, warm, --workers {workers}: {per:.3f} s per scene = {per * workers:.3f} s per"
-            f" scene per worker, CPU {cpu:.3f} s per scene (load {os.getloadavg()[0]:.1f};"
-            f" before: {BASELINE_S} s; ratio {per * workers / BASELINE_S:.2f}, target <= 1.25)"
+            f" scene per worker, CPU {cpu:.3f} s per scene (median of {BATCHES} batches; load"
+            f" {os.getloadavg()[0]:.1f}; before: {BASELINE_S} s; ratio"
+            f" {per * workers / BASELINE_S:.2f}, target <= 1.25)"
             + (f"; speed-up x{single / per:.2f}" if workers == 2 else "")
         )
-        # With two workers each forked worker's first scene faults its pages in, and the
-        # batch's last scene runs alone: over 8 scenes both weigh on the wall time per
-        # worker (a user's hundreds of scenes hardly see them).
+        batches = ", ".join(f"{w * workers:.3f}" for w in walls)
         print(
             f"  issue 55, --workers {workers}: {per * workers:.3f} s per scene per worker (CPU"
-            f" {cpu:.3f} s), target {TARGET_S} s: {'met' if per * workers <= TARGET_S else 'NOT met'}"
+            f" {cpu:.3f} s; batches {batches}), target {TARGET_S} s:"
+            f" {'met' if per * workers <= TARGET_S else 'NOT met'}"
             f"{' (CPU time within it)' if per * workers > TARGET_S >= cpu else ''}"
-        )
-    # A batch's own costs (forking the workers, their first pages, the last scene alone)
-    # shared by more scenes: the dataset's scenes four times over, as a user's longer batch.
-    longer = ids * 4
-    for workers in (1, 2):
-        t0, c0 = time.perf_counter(), _cpu_s()
-        report = run_batch(job, longer, workers=workers, quiet=True)
-        per = (time.perf_counter() - t0) / len(longer) * workers
-        cpu = (_cpu_s() - c0) / len(longer)
-        assert not report.failed, report.failed
-        print(
-            f"  issue 55, --workers {workers}, {len(longer)} scenes (these {len(ids)}, four times):"
-            f" {per:.3f} s per scene per worker (CPU {cpu:.3f} s), target {TARGET_S} s:"
-            f" {'met' if per <= TARGET_S else 'NOT met'} (load {os.getloadavg()[0]:.1f})"
         )
     for workers in (1, 2):
         t0, c0 = time.perf_counter(), _cpu_s()
