@@ -107,7 +107,10 @@ class EdgeImage:
         # wrong (the band's border), so those the image had are put back.
         above, below = self.image[b0:y0].copy(), self.image[y1:b1].copy()
         src = self.gray[b0:b1].astype(np.float32)
-        cv2.GaussianBlur(src, (0, 0), BLUR_SIGMA_PX, dst=self.image[b0:b1])
+        band = self.image[b0:b1]
+        out = cv2.GaussianBlur(src, (0, 0), BLUR_SIGMA_PX, dst=band)
+        if not np.shares_memory(out, band):  # a binding that made its own array after all
+            band[...] = out
         self.image[b0:y0], self.image[y1:b1] = above, below
         self.done[y0:y1] = True
 
